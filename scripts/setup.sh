@@ -1,0 +1,14 @@
+#!/usr/bin/env bash
+# Create .venv and install StableMo with its test extras.
+# TORCH_SPEC picks the torch build: the default is the CPU wheel pinned for machines without a
+# GPU; GPU users set e.g. TORCH_SPEC="torch" (or a CUDA index) before running this.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PYTHON=${PYTHON:-python3}
+TORCH_SPEC=${TORCH_SPEC:-torch==2.13.0}
+if [ ! -x .venv/bin/python ]; then
+  "$PYTHON" -m venv .venv
+fi
+.venv/bin/python -m pip install -q --upgrade pip >/dev/null
+.venv/bin/python -m pip install -q "$TORCH_SPEC"
+.venv/bin/python -m pip install -q -e ".[dev]"
