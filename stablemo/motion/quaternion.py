@@ -1,0 +1,130 @@
+"""Quaternions (w, x, y, z), Hamilton product, v' = q v q*; numpy and torch twins.
+
+numpy versions serve the (offline, float64) feature extraction; torch versions serve the
+differentiable recovery and anyone who needs rotations on tensors. Shapes broadcast: q (..., 4),
+v (..., 3).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+# --------------------------------------------------------------------------- numpy
+
+
+def qmul_np(q: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Hamilton product q ⊗ r."""
+    w1, x1, y1, z1 = np.moveaxis(q, -1, 0)
+    w2, x2, y2, z2 = np.moveaxis(r, -1, 0)
+    return np.stack(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ],
+        axis=-1,
+    )
+
+
+def qinv_np(q: np.ndarray) -> np.ndarray:
+    """Conjugate (= inverse for unit quaternions)."""
+    return q * np.array([1.0, -1.0, -1.0, -1.0], dtype=q.dtype)
+
+
+def qrot_np(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate v by unit quaternion q: q v q*."""
+    w = q[..., :1]
+    u = q[..., 1:]
+    uv = np.cross(u, v)
+    return v + 2.0 * (w * uv + np.cross(u, uv))
+
+
+def qbetween_np(a: np.ndarray, b: np.ndarray, eps: float = 1e-9) -> np.ndarray:
+    """Shortest-arc unit quaternion taking direction a to direction b.
+
+    normalise(|a||b| + a·b, a×b). For (nearly) opposite directions that formula vanishes; we then
+    return a half turn about an axis perpendicular to a, a valid answer where the formula has none.
+    """
+    a, b = np.broadcast_arrays(a, b)
+    w = np.sqrt((a**2).sum(-1) * (b**2).sum(-1)) + (a * b).sum(-1)
+    q = np.concatenate([w[..., None], np.cross(a, b)], axis=-1)
+    norm = np.linalg.norm(q, axis=-1, keepdims=True)
+    scale = np.sqrt((a**2).sum(-1) * (b**2).sum(-1))[..., None]
+    bad = (norm <= eps * np.maximum(scale, 1e-30)) | (norm == 0)
+    if np.any(bad):
+        q = q.copy()
+        bad1 = bad[..., 0]
+        aa = a[bad1]
+        # pick the coordinate axis least aligned with a, build a perpendicular axis from it
+        helper = np.zeros_like(aa)
+        helper[np.arange(len(aa)), np.argmin(np.abs(aa), axis=-1)] = 1.0
+        axis = np.cross(aa, helper)
+        axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+        q[bad1] = np.concatenate([np.zeros_like(axis[:, :1]), axis], axis=-1)
+        norm = np.where(bad, 1.0, norm)
+    return q / norm
+
+
+def quat_to_matrix_np(q: np.ndarray) -> np.ndarray:
+    """Unit quaternion (..., 4) -> rotation matrix (..., 3, 3)."""
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=-2,
+    )
+
+
+def quat_to_rot6d_np(q: np.ndarray) -> np.ndarray:
+    """Continuous 6D rotation: first matrix column, then the second (..., 6)."""
+    m = quat_to_matrix_np(q)
+    return np.concatenate([m[..., :, 0], m[..., :, 1]], axis=-1)
+
+
+# --------------------------------------------------------------------------- torch
+
+
+def qmul(q: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    w1, x1, y1, z1 = q.unbind(-1)
+    w2, x2, y2, z2 = r.unbind(-1)
+    return torch.stack(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ],
+        dim=-1,
+    )
+
+
+def qinv(q: torch.Tensor) -> torch.Tensor:
+    return q * q.new_tensor([1.0, -1.0, -1.0, -1.0])
+
+
+def qrot(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """Rotate v (..., 3) by unit quaternion q (..., 4); broadcasts."""
+    w = q[..., :1]
+    u = q[..., 1:]
+    u, v = torch.broadcast_tensors(u, v)
+    uv = torch.linalg.cross(u, v, dim=-1)
+    return v + 2.0 * (w * uv + torch.linalg.cross(u, uv, dim=-1))
+
+
+def rot6d_to_matrix(d6: torch.Tensor) -> torch.Tensor:
+    """6D (first two columns, col 0 then col 1) -> rotation matrix (..., 3, 3), Gram-Schmidt:
+    x = a1/|a1|, z = normalise(x × a2), y = z × x; the result has columns x, y, z."""
+    a1, a2 = d6[..., :3], d6[..., 3:]
+    x = torch.nn.functional.normalize(a1, dim=-1)
+    z = torch.nn.functional.normalize(torch.linalg.cross(x, a2, dim=-1), dim=-1)
+    y = torch.linalg.cross(z, x, dim=-1)
+    return torch.stack([x, y, z], dim=-1)
+
+
+def matrix_to_rot6d(m: torch.Tensor) -> torch.Tensor:
+    return torch.cat([m[..., :, 0], m[..., :, 1]], dim=-1)
