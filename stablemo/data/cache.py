@@ -1,0 +1,272 @@
+"""Read a split once, keep it as one memory-mapped float32 file.
+
+Opening 30k small .npy files takes seconds to minutes on a cold disk, so the first read of a split
+validates every clip and writes two files into a cache folder:
+
+    <split>.<dataset>.<token>.f32    all clips' features concatenated, raw float32 (frames, D)
+    <split>.<dataset>.json           ids, lengths, captions, skipped files, and a fingerprint
+
+The fingerprint hashes the split file and (size, mtime) of every feature and caption file, so any
+change invalidates the cache. The JSON index is written last and atomically: it is the commit
+point, and it names the data file it belongs to (a random token), so a reader never pairs an index
+with a half-written or foreign data file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import secrets
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from stablemo.data.layout import (
+    Caption,
+    DatasetSpec,
+    check_root,
+    feature_path,
+    read_captions,
+    read_split,
+    split_path,
+    text_path,
+)
+from stablemo.errors import StableMoError
+from stablemo.io import atomic_path, load_npy
+
+CACHE_VERSION = 1
+CACHE_DIRNAME = ".stablemo_cache"
+
+
+@dataclass
+class SplitData:
+    """Every readable clip of one split: raw (unnormalised) features and captions."""
+
+    root: Path
+    split: str
+    ids: list[str]
+    lengths: np.ndarray  # (N,) int64 frames per clip
+    offsets: np.ndarray  # (N,) int64 first row of each clip in `features`
+    features: np.ndarray  # (total_frames, D) float32, usually a read-only memmap
+    captions: list[list[Caption]]
+    problems: list[str] = field(default_factory=list)  # one message per skipped clip
+    from_cache: bool = False
+
+    def motion(self, index: int) -> np.ndarray:
+        """Features of clip `index`: (T, D) view into the concatenated array."""
+        start = int(self.offsets[index])
+        return self.features[start : start + int(self.lengths[index])]
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+def validate_features(array: np.ndarray, path: Path, spec: DatasetSpec) -> np.ndarray:
+    """(T, D) finite float features or a StableMoError naming `path`."""
+    if array.ndim != 2 or array.shape[1] != spec.feature_dim:
+        raise StableMoError(
+            f"{path}: expected features of shape (T, {spec.feature_dim}) for {spec.name}, found {tuple(array.shape)}"
+        )
+    if array.shape[0] == 0:
+        raise StableMoError(f"{path}: clip has no frames")
+    array = np.asarray(array, dtype=np.float32)
+    finite = np.isfinite(array)
+    if not finite.all():
+        frame = int(np.argmin(finite.all(axis=1)))
+        raise StableMoError(f"{path}: {int((~finite).sum())} NaN/Inf value(s), first in frame {frame}")
+    return array
+
+
+def read_clip(root: Path, clip_id: str, spec: DatasetSpec, split: str) -> tuple[np.ndarray, list[Caption]]:
+    """Validated features (T, D) float32 and captions of one clip."""
+    fpath = feature_path(root, clip_id)
+    if not fpath.is_file():
+        raise StableMoError(f"{fpath}: listed in {split}.txt but the feature file does not exist")
+    tpath = text_path(root, clip_id)
+    if not tpath.is_file():
+        raise StableMoError(f"{tpath}: listed in {split}.txt but the caption file does not exist")
+    features = validate_features(load_npy(fpath), fpath, spec)
+    return features, read_captions(tpath)
+
+
+def default_cache_dir(root: Path) -> Path:
+    """`<root>/.stablemo_cache` when the dataset folder is writable, else a per-user cache folder."""
+    if os.access(root, os.W_OK):
+        return root / CACHE_DIRNAME
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    key = hashlib.sha1(str(root.resolve()).encode()).hexdigest()[:16]
+    return base / "stablemo" / "datasets" / key
+
+
+def fingerprint(root: Path, split: str, ids: list[str], spec: DatasetSpec) -> str:
+    """Hash of the split file and the (size, mtime) of every clip's files; missing files count too."""
+    h = hashlib.sha1(f"v{CACHE_VERSION} {spec.name} {spec.feature_dim}\n".encode())
+    paths = [split_path(root, split)]
+    for clip_id in ids:
+        paths += [feature_path(root, clip_id), text_path(root, clip_id)]
+    for path in paths:
+        try:
+            st = os.stat(path)
+            h.update(f"{path.name} {st.st_size} {st.st_mtime_ns}\n".encode())
+        except OSError:
+            h.update(f"{path.name} missing\n".encode())
+    return h.hexdigest()
+
+
+def _caption_rows(captions: list[Caption]) -> list[list]:
+    return [[c.text, " ".join(c.tokens), c.start, c.end] for c in captions]
+
+
+def _caption_objs(rows: list[list]) -> list[Caption]:
+    return [Caption(text, tuple(tokens.split()), float(start), float(end)) for text, tokens, start, end in rows]
+
+
+def _index_path(cache_dir: Path, split: str, spec: DatasetSpec) -> Path:
+    return cache_dir / f"{split}.{spec.name}.json"
+
+
+def _try_load_cache(cache_dir: Path, root: Path, split: str, spec: DatasetSpec, fp: str) -> SplitData | None:
+    index_path = _index_path(cache_dir, split, spec)
+    try:
+        index = json.loads(index_path.read_text())
+        if index.get("version") != CACHE_VERSION or index.get("fingerprint") != fp:
+            return None
+        data_path = cache_dir / index["data_file"]
+        total = int(index["total_frames"])
+        if data_path.stat().st_size != total * spec.feature_dim * 4:
+            return None
+        lengths = np.asarray(index["lengths"], dtype=np.int64)
+        features = _open_features(data_path, total, spec.feature_dim)
+    except (OSError, ValueError, KeyError, TypeError):
+        return None  # absent, stale or damaged cache: rebuild
+    return SplitData(
+        root=root,
+        split=split,
+        ids=list(index["ids"]),
+        lengths=lengths,
+        offsets=_offsets(lengths),
+        features=features,
+        captions=[_caption_objs(rows) for rows in index["captions"]],
+        problems=list(index["problems"]),
+        from_cache=True,
+    )
+
+
+def _open_features(path: Path, total: int, dim: int) -> np.ndarray:
+    if total == 0:
+        return np.zeros((0, dim), np.float32)
+    return np.memmap(path, dtype=np.float32, mode="r", shape=(total, dim))
+
+
+def _offsets(lengths: np.ndarray) -> np.ndarray:
+    return np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64) if len(lengths) else lengths.copy()
+
+
+class _ClipReader:
+    """Reads and validates the clips of a split, collecting problems when skipping is allowed."""
+
+    def __init__(self, root: Path, split: str, spec: DatasetSpec, skip_bad: bool, progress: bool):
+        self.root, self.split, self.spec = root, split, spec
+        self.skip_bad, self.progress = skip_bad, progress
+        self.ids: list[str] = []
+        self.lengths: list[int] = []
+        self.captions: list[list[Caption]] = []
+        self.problems: list[str] = []
+
+    def __call__(self, ids: list[str], write) -> None:
+        from tqdm import tqdm
+
+        for clip_id in tqdm(ids, desc=f"reading {self.split}", unit="clip", disable=None if self.progress else True, leave=False):
+            try:
+                features, captions = read_clip(self.root, clip_id, self.spec, self.split)
+            except StableMoError as err:
+                if not self.skip_bad:
+                    raise
+                self.problems.append(str(err))
+                continue
+            write(features)
+            self.ids.append(clip_id)
+            self.lengths.append(len(features))
+            self.captions.append(captions)
+
+
+def _build(root: Path, split: str, ids: list[str], spec: DatasetSpec, skip_bad: bool,
+           cache_dir: Path | None, fp: str, progress: bool) -> SplitData:
+    reader = _ClipReader(root, split, spec, skip_bad, progress)
+    features: np.ndarray
+    if cache_dir is not None:
+        try:
+            cache_dir.mkdir(parents=True, exist_ok=True)
+            data_name = f"{split}.{spec.name}.{secrets.token_hex(6)}.f32"
+            with atomic_path(cache_dir / data_name) as tmp, open(tmp, "wb") as f:
+                reader(ids, lambda a: f.write(a.tobytes()))
+                os.chmod(tmp, 0o644)  # a shared dataset folder: other users may read the cache
+            total = int(sum(reader.lengths))
+            features = _open_features(cache_dir / data_name, total, spec.feature_dim)
+            index = {
+                "version": CACHE_VERSION,
+                "fingerprint": fp,
+                "dataset": spec.name,
+                "feature_dim": spec.feature_dim,
+                "data_file": data_name,
+                "total_frames": total,
+                "ids": reader.ids,
+                "lengths": reader.lengths,
+                "captions": [_caption_rows(c) for c in reader.captions],
+                "problems": reader.problems,
+            }
+            index_path = _index_path(cache_dir, split, spec)
+            with atomic_path(index_path) as tmp:
+                tmp.write_text(json.dumps(index))
+                os.chmod(tmp, 0o644)
+            _remove_stale(cache_dir, split, spec, keep=data_name)
+        except OSError as err:
+            warnings.warn(f"{cache_dir}: cannot write the dataset cache ({err}); reading without it", stacklevel=3)
+            return _build(root, split, ids, spec, skip_bad, None, fp, progress)
+    else:
+        chunks: list[np.ndarray] = []
+        reader(ids, chunks.append)
+        features = np.concatenate(chunks) if chunks else np.zeros((0, spec.feature_dim), np.float32)
+    lengths = np.asarray(reader.lengths, dtype=np.int64)
+    return SplitData(root, split, reader.ids, lengths, _offsets(lengths), features, reader.captions, reader.problems)
+
+
+def _remove_stale(cache_dir: Path, split: str, spec: DatasetSpec, keep: str) -> None:
+    # Readers that still map an old file keep it alive (POSIX unlink semantics).
+    for path in cache_dir.glob(f"{split}.{spec.name}.*.f32"):
+        if path.name != keep:
+            path.unlink(missing_ok=True)
+
+
+def load_split(
+    root: str | Path,
+    split: str,
+    spec: DatasetSpec,
+    *,
+    skip_bad: bool = False,
+    cache: bool = True,
+    cache_dir: str | Path | None = None,
+    progress: bool = True,
+) -> SplitData:
+    """All clips of `split`; bad clips raise StableMoError, or with skip_bad are skipped with one warning."""
+    root = check_root(root)
+    ids = read_split(root, split)
+    data = None
+    fp = ""
+    cdir = None
+    if cache:
+        cdir = Path(cache_dir) if cache_dir is not None else default_cache_dir(root)
+        fp = fingerprint(root, split, ids, spec)
+        data = _try_load_cache(cdir, root, split, spec, fp)
+    if data is None:
+        data = _build(root, split, ids, spec, skip_bad, cdir, fp, progress)
+    if data.problems:
+        if not skip_bad:
+            raise StableMoError(data.problems[0])
+        shown = "\n  ".join(data.problems[:5]) + ("\n  ..." if len(data.problems) > 5 else "")
+        warnings.warn(f"{split_path(root, split)}: skipped {len(data.problems)} bad clip(s) of {len(ids)}:\n  {shown}",
+                      stacklevel=2)
+    return data

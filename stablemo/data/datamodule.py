@@ -1,0 +1,185 @@
+"""LightningDataModule over a HumanML3D-layout folder (HumanML3D or KIT-ML)."""
+
+from __future__ import annotations
+
+import random
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+
+from stablemo.data.cache import load_split
+from stablemo.data.collate import Collate
+from stablemo.data.dataset import CROPS, MotionDataset
+from stablemo.data.layout import check_root, get_spec
+from stablemo.data.sampler import EpochSampler
+from stablemo.data.stats import load_model_stats
+from stablemo.errors import StableMoError
+
+
+def seed_worker(worker_id: int) -> None:
+    """Seed numpy/random in a worker from torch's per-worker seed (itself derived from the loader's generator)."""
+    seed = torch.initial_seed() % 2**32
+    np.random.seed(seed)
+    random.seed(seed)
+
+
+class MotionDataModule(L.LightningDataModule):
+    """Batches: motion (B, T, D) normalised and zero-padded to a multiple of pad_multiple, mask (B, T) bool,
+    length (B,) int64, text list[str] (one caption per item), tokens list[list[str]], id list[str].
+
+    Args:
+        data_dir: dataset folder in the HumanML3D layout.
+        dataset: "humanml3d" or "kit" (feature width, minimum length, fps, skeleton).
+        batch_size, num_workers: DataLoader settings.
+        pad_multiple: padded length is a multiple of this (the denoiser's length_multiple).
+        max_length: training crop length (items longer than this are randomly cropped).
+        feat_bias: std of the root (0:4) and contact dims is divided by this.
+        seed: drives shuffling, caption choice, crops and worker seeds; the order of an epoch depends
+            only on (seed, epoch).
+        skip_bad: skip unreadable clips with a counted warning instead of raising.
+        train_split, val_split, test_split: split file names (without .txt).
+        eval_crop: crop rule of val/test items: "eval" (the evaluator's unit-length rule), "train" or "none".
+        cache, cache_dir: memory-mapped split cache (default: <data_dir>/.stablemo_cache or ~/.cache/stablemo).
+        drop_last: drop the last incomplete training batch.
+    """
+
+    def __init__(
+        self,
+        data_dir: str,
+        dataset: str = "humanml3d",
+        batch_size: int = 64,
+        num_workers: int = 0,
+        pad_multiple: int = 16,
+        max_length: int = 196,
+        feat_bias: float = 5.0,
+        seed: int = 0,
+        skip_bad: bool = False,
+        train_split: str = "train",
+        val_split: str = "val",
+        test_split: str = "test",
+        eval_crop: str = "eval",
+        cache: bool = True,
+        cache_dir: str | None = None,
+        drop_last: bool = False,
+    ):
+        super().__init__()
+        self.spec = get_spec(dataset)
+        for name, value in (("batch_size", batch_size), ("pad_multiple", pad_multiple), ("max_length", max_length)):
+            if value < 1:
+                raise StableMoError(f"{name}={value}: must be >= 1")
+        if num_workers < 0:
+            raise StableMoError(f"num_workers={num_workers}: must be >= 0")
+        if seed < 0:
+            raise StableMoError(f"seed={seed}: must be >= 0")
+        if eval_crop not in CROPS:
+            raise StableMoError(f"eval_crop={eval_crop!r}: choose from {', '.join(CROPS)}")
+        self.save_hyperparameters()
+        self.data_dir = data_dir
+        self.batch_size, self.num_workers = batch_size, num_workers
+        self.pad_multiple, self.max_length, self.feat_bias = pad_multiple, max_length, feat_bias
+        self.seed, self.skip_bad = seed, skip_bad
+        self.splits = {"train": train_split, "val": val_split, "test": test_split}
+        self.eval_crop, self.cache, self.cache_dir, self.drop_last = eval_crop, cache, cache_dir, drop_last
+        self.datasets: dict[str, MotionDataset] = {}
+        self._stats: tuple[np.ndarray, np.ndarray] | None = None
+        self._skeleton = None
+
+    # -- statistics and dataset facts (available before setup) --------------------------------
+    @property
+    def feature_dim(self) -> int:
+        return self.spec.feature_dim
+
+    @property
+    def min_length(self) -> int:
+        return self.spec.min_length
+
+    @property
+    def fps(self) -> float:
+        return self.spec.fps
+
+    def _load_stats(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._stats is None:
+            self._stats = load_model_stats(check_root(self.data_dir), self.spec, self.feat_bias)
+        return self._stats
+
+    @property
+    def mean(self) -> np.ndarray:
+        """(D,) float32 model mean."""
+        return self._load_stats()[0]
+
+    @property
+    def std(self) -> np.ndarray:
+        """(D,) float32 model std (feat_bias applied)."""
+        return self._load_stats()[1]
+
+    @property
+    def skeleton(self):
+        if self._skeleton is None:
+            from stablemo.motion import get_skeleton
+
+            self._skeleton = get_skeleton(self.spec.skeleton)
+        return self._skeleton
+
+    # -- Lightning hooks -------------------------------------------------------------------------
+    def prepare_data(self) -> None:
+        """Build the split caches once (rank 0) so the other ranks only map them."""
+        check_root(self.data_dir)
+        if self.cache:
+            for split in dict.fromkeys(self.splits.values()):
+                if (check_root(self.data_dir) / f"{split}.txt").is_file():
+                    load_split(self.data_dir, split, self.spec, skip_bad=self.skip_bad, cache=True,
+                               cache_dir=self.cache_dir)
+
+    def _dataset(self, role: str) -> MotionDataset:
+        if role not in self.datasets:
+            mean, std = self._load_stats()
+            data = load_split(self.data_dir, self.splits[role], self.spec, skip_bad=self.skip_bad,
+                              cache=self.cache, cache_dir=self.cache_dir)
+            ds = MotionDataset(data, self.spec, mean, std, max_length=self.max_length,
+                               crop="train" if role == "train" else self.eval_crop, seed=self.seed)
+            if len(ds) == 0:
+                raise StableMoError(
+                    f"{check_root(self.data_dir) / (self.splits[role] + '.txt')}: no usable items "
+                    f"({len(data)} clip(s) read; clips need {self.spec.min_length} <= frames < "
+                    f"{self.spec.max_clip_length} and a caption)"
+                )
+            self.datasets[role] = ds
+        return self.datasets[role]
+
+    def setup(self, stage: str | None = None) -> None:
+        roles = {"fit": ("train", "val"), "validate": ("val",), "test": ("test",), "predict": ("test",)}
+        root = check_root(self.data_dir)
+        for role in roles.get(stage or "", ("train", "val", "test")):
+            # Training without a val split is allowed; val_dataloader() then names the missing file.
+            if stage == "fit" and role == "val" and not (root / f"{self.splits[role]}.txt").is_file():
+                continue
+            self._dataset(role)
+
+    def _loader(self, role: str, shuffle: bool) -> DataLoader:
+        ds = self._dataset(role)
+        sampler = EpochSampler(len(ds), seed=self.seed, shuffle=shuffle, per_epoch=shuffle)
+        return DataLoader(
+            ds,
+            batch_size=self.batch_size,
+            sampler=sampler,
+            collate_fn=Collate(self.pad_multiple),
+            num_workers=self.num_workers,
+            worker_init_fn=seed_worker,
+            generator=torch.Generator().manual_seed(self.seed),
+            persistent_workers=self.num_workers > 0,
+            drop_last=self.drop_last and shuffle,
+        )
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader("train", shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader("val", shuffle=False)
+
+    def test_dataloader(self) -> DataLoader:
+        return self._loader("test", shuffle=False)
+
+    def predict_dataloader(self) -> DataLoader:
+        return self._loader("test", shuffle=False)

@@ -1,0 +1,89 @@
+"""Feature statistics: the dataset's Mean/Std, the feat_bias convention, z-normalisation."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from stablemo.data.layout import DatasetSpec, check_root
+from stablemo.errors import StableMoError
+from stablemo.io import load_npy
+
+
+def feature_groups(feature_dim: int) -> list[slice]:
+    """The seven feature groups (root rot vel, root lin vel, root y, ric, rot6d, local vel, contacts)."""
+    if (feature_dim + 1) % 12:
+        raise StableMoError(f"feature_dim={feature_dim}: not of the form 12*J - 1")
+    j = (feature_dim + 1) // 12
+    edges = [0, 1, 3, 4, 4 + (j - 1) * 3, 4 + (j - 1) * 9, 4 + (j - 1) * 9 + j * 3, feature_dim]
+    return [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def apply_feat_bias(std: np.ndarray, feat_bias: float) -> np.ndarray:
+    """Model std: root dims 0:4 and the 4 contact dims divided by feat_bias (MotionDiffuse/StableMoFusion)."""
+    if not feat_bias > 0:
+        raise StableMoError(f"feat_bias={feat_bias}: must be > 0")
+    std = np.array(std, dtype=np.float32, copy=True)
+    std[0:4] /= feat_bias
+    std[-4:] /= feat_bias
+    return std
+
+
+def _check_stat(array: np.ndarray, path: Path, dim: int, positive: bool) -> np.ndarray:
+    if array.shape != (dim,):
+        raise StableMoError(f"{path}: expected shape ({dim},), found {tuple(array.shape)}")
+    array = array.astype(np.float32)
+    if not np.isfinite(array).all():
+        raise StableMoError(f"{path}: contains NaN/Inf values")
+    if positive and not (array > 0).all():
+        raise StableMoError(f"{path}: std must be > 0 everywhere (dim {int(np.argmin(array > 0))} is {array.min()})")
+    return array
+
+
+def load_dataset_stats(root: str | Path, spec: DatasetSpec) -> tuple[np.ndarray, np.ndarray]:
+    """The dataset's own Mean.npy / Std.npy, validated, as float32 (D,)."""
+    root = check_root(root)
+    mean = _check_stat(load_npy(root / "Mean.npy"), root / "Mean.npy", spec.feature_dim, positive=False)
+    std = _check_stat(load_npy(root / "Std.npy"), root / "Std.npy", spec.feature_dim, positive=True)
+    return mean, std
+
+
+def load_model_stats(root: str | Path, spec: DatasetSpec, feat_bias: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
+    """(mean, std) used to normalise model inputs: dataset stats with feat_bias applied to std."""
+    mean, std = load_dataset_stats(root, spec)
+    return mean, apply_feat_bias(std, feat_bias)
+
+
+def compute_stats(motions: Iterable[np.ndarray], feature_dim: int) -> tuple[np.ndarray, np.ndarray]:
+    """Mean/Std over all frames of all clips; std replaced by its group average (HumanML3D's recipe)."""
+    count = 0
+    total = np.zeros(feature_dim, np.float64)
+    total_sq = np.zeros(feature_dim, np.float64)
+    for m in motions:
+        m = np.asarray(m, np.float64).reshape(-1, feature_dim)
+        count += len(m)
+        total += m.sum(0)
+        total_sq += (m * m).sum(0)
+    if count == 0:
+        raise StableMoError("compute_stats: no frames")
+    mean = total / count
+    std = np.sqrt(np.maximum(total_sq / count - mean * mean, 0.0))
+    for group in feature_groups(feature_dim):
+        std[group] = std[group].mean()
+    return mean.astype(np.float32), std.astype(np.float32)
+
+
+def normalize(features: np.ndarray, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
+    return ((features - mean) / std).astype(np.float32, copy=False)
+
+
+def denormalize(features, mean, std):
+    """Inverse of normalize; works on numpy arrays and torch tensors (..., D) on any device."""
+    if not isinstance(features, np.ndarray):
+        import torch
+
+        std = torch.as_tensor(std, dtype=features.dtype, device=features.device)
+        mean = torch.as_tensor(mean, dtype=features.dtype, device=features.device)
+    return features * std + mean

@@ -1,0 +1,387 @@
+"""Dataset layer: layout parsing, cache, items, crops, batches, DataModule, bad input, `data check`."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from stablemo.data import MotionDataModule, MotionDataset, get_spec
+from stablemo.data.cache import load_split
+from stablemo.data.collate import Collate, pad_motions
+from stablemo.data.dataset import crop_window
+from stablemo.data.layout import parse_caption_line, read_captions
+from stablemo.data.stats import apply_feat_bias, compute_stats, denormalize, feature_groups
+from stablemo.errors import StableMoError
+
+WHOLE = "a person walks forward#a/DET person/NOUN walk/VERB forward/ADV#0.0#0.0"
+WHOLE2 = "someone strolls ahead#someone/PRON stroll/VERB ahead/ADV#nan#nan"
+
+
+def write_dataset(root: Path, dataset: str = "humanml3d", clips: dict | None = None, seed: int = 0,
+                  splits: dict | None = None) -> Path:
+    """A small dataset in the HumanML3D layout. clips: id -> (frames, caption lines)."""
+    spec = get_spec(dataset)
+    rng = np.random.default_rng(seed)
+    if clips is None:
+        clips = {f"{i:06d}" if dataset == "humanml3d" else f"{i:05d}": (int(n), [WHOLE, WHOLE2])
+                 for i, n in enumerate(rng.integers(spec.min_length, 199, size=12))}
+    (root / "new_joint_vecs").mkdir(parents=True, exist_ok=True)
+    (root / "texts").mkdir(exist_ok=True)
+    for clip_id, (frames, lines) in clips.items():
+        feats = rng.normal(2.0, 3.0, size=(frames, spec.feature_dim)).astype(np.float32)
+        np.save(root / "new_joint_vecs" / f"{clip_id}.npy", feats)
+        (root / "texts" / f"{clip_id}.txt").write_text("\n".join(lines) + "\n")
+    np.save(root / "Mean.npy", np.full(spec.feature_dim, 2.0, np.float32))
+    np.save(root / "Std.npy", np.linspace(1.0, 3.0, spec.feature_dim).astype(np.float32))
+    ids = list(clips)
+    if splits is None:
+        splits = {"train": ids[: max(1, len(ids) * 2 // 3)], "val": ids[len(ids) * 2 // 3 :] or ids, "test": ids}
+    for name, members in splits.items():
+        (root / f"{name}.txt").write_text("".join(f"{i}\n" for i in members))
+    return root
+
+
+def raw(root: Path, clip_id: str) -> np.ndarray:
+    return np.load(root / "new_joint_vecs" / f"{clip_id}.npy")
+
+
+# --- layout and captions ---------------------------------------------------------------------------
+
+def test_caption_line_parsing():
+    cap = parse_caption_line("a man jumps.#a/DET man/NOUN jump/VERB#1.5#4.0", "x:1")
+    assert cap.text == "a man jumps." and cap.tokens == ("a/DET", "man/NOUN", "jump/VERB")
+    assert not cap.whole_clip and cap.frames() == (30, 80)
+    assert parse_caption_line("walks#walk/VERB#nan#nan", "x:1").whole_clip
+    assert parse_caption_line("walks#walk/VERB#0.0#0.0", "x:1").whole_clip
+    for bad, msg in [("only#two", "malformed"), ("#tok/X#0#0", "empty caption"), ("a#b#zero#1", "not a number"),
+                     ("a#b#-1#2", ">= 0")]:
+        with pytest.raises(StableMoError, match=msg) as err:
+            parse_caption_line(bad, "file.txt:3")
+        assert "file.txt:3" in str(err.value)
+
+
+@pytest.mark.parametrize("dataset,dim", [("humanml3d", 263), ("kit", 251)])
+def test_both_layouts_load_with_their_width(tmp_path, dataset, dim):
+    root = write_dataset(tmp_path, dataset)
+    ds = MotionDataset.from_folder(root, "train", dataset, progress=False)
+    item = ds[0]
+    assert item["motion"].shape[1] == dim and item["motion"].dtype == torch.float32
+    assert item["text"] in ("a person walks forward", "someone strolls ahead")
+    assert len(ds) == len((root / "train.txt").read_text().split())
+
+
+def test_length_filter_and_sub_captions(tmp_path):
+    clips = {
+        "000001": (39, [WHOLE]),  # too short for HumanML3D (min 40): dropped with its sub-captions
+        "000002": (200, [WHOLE]),  # T >= 200: dropped
+        "000003": (150, [WHOLE, "turns left#turn/VERB left/ADV#1.0#4.0",  # frames [20, 80): kept
+                         "waves#wave/VERB#0.5#2.0",  # 30 frames < 40: dropped
+                         "runs#run/VERB#5.0#20.0"]),  # [100, 400) clipped to [100, 150): 50 frames kept
+        "000004": (120, ["kicks#kick/VERB#1.0#3.5"]),  # only a sub-caption: no whole-clip item
+        "000005": (40, [WHOLE]),  # exactly min: kept
+    }
+    root = write_dataset(tmp_path, clips=clips, splits={"train": list(clips)})
+    ds = MotionDataset.from_folder(root, "train", crop="none", progress=False)
+    assert ds.items.ids == ["000003", "000003#20-80", "000003#100-150", "000004#20-70", "000005"]
+    by_id = {ds.items.ids[i]: ds[i] for i in range(len(ds))}
+    assert by_id["000003#20-80"]["text"] == "turns left"
+    assert by_id["000003#20-80"]["tokens"] == ["turn/VERB", "left/ADV"]
+    std = apply_feat_bias(np.linspace(1.0, 3.0, 263).astype(np.float32), 5.0)
+    expected = (raw(root, "000003")[20:80] - 2.0) / std
+    np.testing.assert_allclose(by_id["000003#20-80"]["motion"].numpy(), expected, rtol=1e-5, atol=1e-5)
+    assert by_id["000003#100-150"]["length"] == 50
+
+
+def test_kit_uses_its_min_length_and_20fps_captions(tmp_path):
+    clips = {"00001": (24, [WHOLE]), "00002": (23, [WHOLE]), "00003": (100, [WHOLE, "sits#sit/VERB#1.0#2.5"])}
+    root = write_dataset(tmp_path, "kit", clips=clips, splits={"train": list(clips)})
+    ds = MotionDataset.from_folder(root, "train", "kit", crop="none", progress=False)
+    assert ds.items.ids == ["00001", "00003", "00003#20-50"]
+
+
+# --- statistics ------------------------------------------------------------------------------------
+
+def test_feat_bias_and_normalisation(tmp_path):
+    root = write_dataset(tmp_path)
+    dm = MotionDataModule(str(root), batch_size=4, feat_bias=5.0)
+    base = np.linspace(1.0, 3.0, 263).astype(np.float32)
+    expected = base.copy()
+    expected[0:4] /= 5.0
+    expected[259:263] /= 5.0
+    np.testing.assert_allclose(dm.std, expected, rtol=1e-6)
+    np.testing.assert_allclose(dm.mean, 2.0)
+    assert dm.std.dtype == np.float32 and dm.std.shape == (263,)
+    ds = MotionDataset.from_folder(root, "test", crop="none", progress=False)
+    item = ds[0]
+    np.testing.assert_allclose(denormalize(item["motion"], dm.mean, dm.std).numpy(), raw(root, item["id"]),
+                               rtol=1e-5, atol=1e-4)
+
+
+def test_compute_stats_averages_std_within_groups():
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(500, 263)) * np.linspace(0.5, 2.0, 263)
+    mean, std = compute_stats([x[:200], x[200:]], 263)
+    np.testing.assert_allclose(mean, x.mean(0), atol=1e-5)
+    for group in feature_groups(263):
+        np.testing.assert_allclose(std[group], x.std(0)[group].mean(), rtol=1e-4)
+    assert [g.start for g in feature_groups(251)] == [0, 1, 3, 4, 64, 184, 247]
+
+
+# --- crops, padding, masks -------------------------------------------------------------------------
+
+def test_train_crop_only_when_longer():
+    rng = np.random.default_rng(0)
+    assert crop_window(150, "train", 196, 4, rng) == (0, 150)
+    offsets = {crop_window(199, "train", 196, 4, rng) for _ in range(200)}
+    assert {length for _, length in offsets} == {196} and {o for o, _ in offsets} == {0, 1, 2, 3}
+
+
+def test_eval_crop_rule():
+    rng = np.random.default_rng(0)
+    lengths = [crop_window(103, "eval", 196, 4, rng)[1] for _ in range(3000)]
+    assert set(lengths) == {100, 96}
+    share_full = lengths.count(100) / len(lengths)
+    assert abs(share_full - 2 / 3) < 0.03
+    assert crop_window(199, "eval", 196, 4, rng)[1] in (196, 192)
+
+
+def test_pad_multiple_and_mask():
+    motions = [torch.ones(5, 3), torch.ones(17, 3) * 2]
+    motion, mask, length = pad_motions(motions, pad_multiple=16)
+    assert motion.shape == (2, 32, 3) and mask.shape == (2, 32) and mask.dtype == torch.bool
+    assert length.tolist() == [5, 17] and mask.sum(1).tolist() == [5, 17]
+    assert torch.all(motion[0, 5:] == 0) and torch.all(motion[1, 17:] == 0) and torch.all(motion[1, :17] == 2)
+    assert pad_motions([torch.ones(16, 3)], 16)[0].shape[1] == 16
+    assert pad_motions([torch.ones(7, 3)], 1)[0].shape[1] == 7
+
+
+@pytest.mark.parametrize("dataset", ["humanml3d", "kit"])
+def test_datamodule_batches(tmp_path, dataset):
+    root = write_dataset(tmp_path, dataset)
+    dm = MotionDataModule(str(root), dataset=dataset, batch_size=3, pad_multiple=8, max_length=64)
+    dm.setup("fit")
+    batches = list(dm.train_dataloader())
+    assert sum(len(b["id"]) for b in batches) == len(dm.datasets["train"])
+    for b in batches:
+        B, T, D = b["motion"].shape
+        assert D == dm.feature_dim and T % 8 == 0 and T == -(-int(b["length"].max()) // 8) * 8
+        assert b["length"].max() <= 64  # every clip is longer than 64 frames in this data: all are cropped
+        assert torch.equal(b["mask"], torch.arange(T)[None] < b["length"][:, None])
+        assert torch.all(b["motion"][~b["mask"]] == 0)
+        assert len(b["text"]) == B and all(isinstance(t, str) and t for t in b["text"])
+    val = next(iter(dm.val_dataloader()))  # evaluation crop: multiples of unit_length 4, capped at max_length
+    assert all(n % 4 == 0 and n <= 64 for n in val["length"].tolist())
+
+
+# --- determinism -----------------------------------------------------------------------------------
+
+def _epoch(dm, epoch):
+    loader = dm.train_dataloader()
+    loader.sampler.set_epoch(epoch)
+    return [(b["id"], b["text"], b["motion"]) for b in loader]
+
+
+def _same(a, b):
+    return all(x[0] == y[0] and x[1] == y[1] and torch.equal(x[2], y[2]) for x, y in zip(a, b)) and len(a) == len(b)
+
+
+def test_order_captions_and_crops_depend_only_on_seed_and_epoch(tmp_path):
+    root = write_dataset(tmp_path)
+    make = lambda seed, workers=0: MotionDataModule(str(root), batch_size=4, max_length=48, seed=seed,  # noqa: E731
+                                                     num_workers=workers)
+    dm_a, dm_b = make(7), make(7)
+    dm_a.setup("fit"), dm_b.setup("fit")
+    first = _epoch(dm_a, 0)
+    assert _same(first, _epoch(dm_b, 0))  # a fresh run reproduces epoch 0
+    assert _same(_epoch(dm_a, 3), _epoch(dm_b, 3))  # and resuming at epoch 3 reproduces epoch 3
+    assert not _same(first, _epoch(dm_a, 1))  # epochs differ
+    dm_c = make(8)
+    dm_c.setup("fit")
+    assert not _same(first, _epoch(dm_c, 0))  # seeds differ
+    dm_w = make(7, workers=2)
+    dm_w.setup("fit")
+    assert _same(first, _epoch(dm_w, 0))  # worker processes do not change the data
+
+
+def test_val_batches_identical_every_epoch(tmp_path):
+    root = write_dataset(tmp_path)
+    dm = MotionDataModule(str(root), batch_size=4, seed=3)
+    dm.setup("fit")
+    loader = dm.val_dataloader()
+    a = [(b["id"], b["text"], b["motion"]) for b in loader]
+    loader.sampler.set_epoch(5)
+    assert _same(a, [(b["id"], b["text"], b["motion"]) for b in loader])
+
+
+# --- cache -----------------------------------------------------------------------------------------
+
+def test_cache_is_reused_and_invalidated(tmp_path):
+    root = write_dataset(tmp_path)
+    spec = get_spec("humanml3d")
+    first = load_split(root, "train", spec, progress=False)
+    assert not first.from_cache
+    cache_dir = root / ".stablemo_cache"
+    assert (cache_dir / "train.humanml3d.json").is_file()
+    second = load_split(root, "train", spec, progress=False)
+    assert second.from_cache and isinstance(second.features, np.memmap)
+    assert second.ids == first.ids and second.captions == first.captions
+    for i, clip_id in enumerate(second.ids):
+        np.testing.assert_array_equal(second.motion(i), raw(root, clip_id))
+    # Changing a feature file (size differs) invalidates the cache.
+    clip_id = second.ids[0]
+    np.save(root / "new_joint_vecs" / f"{clip_id}.npy", np.zeros((60, 263), np.float32))
+    third = load_split(root, "train", spec, progress=False)
+    assert not third.from_cache and third.lengths[0] == 60
+    assert len(list(cache_dir.glob("train.humanml3d.*.f32"))) == 1  # the stale data file is gone
+    # Editing a caption file (same size, new mtime) invalidates it too.
+    text = root / "texts" / f"{clip_id}.txt"
+    text.write_text(text.read_text().replace("walks", "talks"))
+    os.utime(text, ns=(time.time_ns() + 10**9, time.time_ns() + 10**9))
+    fourth = load_split(root, "train", spec, progress=False)
+    assert not fourth.from_cache and fourth.captions[0][0].text == "a person talks forward"
+
+
+def test_damaged_cache_is_rebuilt(tmp_path):
+    root = write_dataset(tmp_path)
+    spec = get_spec("humanml3d")
+    load_split(root, "train", spec, progress=False)
+    data_file = next((root / ".stablemo_cache").glob("train.humanml3d.*.f32"))
+    with open(data_file, "r+b") as f:
+        f.truncate(100)
+    again = load_split(root, "train", spec, progress=False)
+    assert not again.from_cache
+    np.testing.assert_array_equal(again.motion(0), raw(root, again.ids[0]))
+    (root / ".stablemo_cache" / "train.humanml3d.json").write_text("{not json")
+    assert not load_split(root, "train", spec, progress=False).from_cache
+
+
+def test_cache_dir_option_and_no_cache(tmp_path):
+    root = write_dataset(tmp_path / "data")
+    spec = get_spec("humanml3d")
+    load_split(root, "val", spec, cache_dir=tmp_path / "c", progress=False)
+    assert (tmp_path / "c" / "val.humanml3d.json").is_file() and not (root / ".stablemo_cache").exists()
+    assert load_split(root, "val", spec, cache_dir=tmp_path / "c", progress=False).from_cache
+    data = load_split(root, "val", spec, cache=False, progress=False)
+    assert not data.from_cache and not (root / ".stablemo_cache").exists()
+    np.testing.assert_array_equal(data.motion(1), raw(root, data.ids[1]))
+
+
+# --- bad input -------------------------------------------------------------------------------------
+
+def _break(root: Path, case: str) -> Path:
+    """Damage clip 000003 (listed in train) in one way; returns the path the error must name."""
+    feat = root / "new_joint_vecs" / "000003.npy"
+    text = root / "texts" / "000003.txt"
+    if case == "width":
+        np.save(feat, np.zeros((80, 251), np.float32))
+    elif case == "ndim":
+        np.save(feat, np.zeros((80, 22, 3), np.float32))
+    elif case == "nan":
+        a = np.zeros((80, 263), np.float32)
+        a[10, 5] = np.nan
+        np.save(feat, a)
+    elif case == "inf":
+        a = np.zeros((80, 263), np.float32)
+        a[3, 0] = np.inf
+        np.save(feat, a)
+    elif case == "truncated":
+        feat.write_bytes(feat.read_bytes()[:1000])
+    elif case == "not_npy":
+        feat.write_text("this is not numpy")
+    elif case == "pickle":
+        np.save(feat, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    elif case == "missing_features":
+        feat.unlink()
+    elif case == "missing_text":
+        text.unlink()
+        return text
+    elif case == "empty_text":
+        text.write_text("\n\n")
+        return text
+    elif case == "blank_line":
+        text.write_text(WHOLE + "\n\n" + WHOLE2 + "\n")
+        return text
+    elif case == "malformed":
+        text.write_text(WHOLE + "\nno hashes here\n")
+        return text
+    elif case == "bad_time":
+        text.write_text("walks#walk/VERB#soon#later\n")
+        return text
+    return feat
+
+
+BAD_CASES = ["width", "ndim", "nan", "inf", "truncated", "not_npy", "pickle", "missing_features", "missing_text",
+             "empty_text", "blank_line", "malformed", "bad_time"]
+
+
+@pytest.mark.parametrize("case", BAD_CASES)
+def test_bad_clip_raises_one_clear_error(tmp_path, case):
+    root = write_dataset(tmp_path, splits={"train": [f"{i:06d}" for i in range(12)]})
+    culprit = _break(root, case)
+    with pytest.raises(StableMoError) as err:
+        MotionDataset.from_folder(root, "train", progress=False)
+    assert str(culprit) in str(err.value)
+    assert "\n" not in str(err.value)
+    assert not list((root / ".stablemo_cache").glob("*.json"))  # nothing half-built is committed
+
+
+@pytest.mark.parametrize("case", BAD_CASES)
+def test_bad_clip_skipped_with_counted_warning(tmp_path, case):
+    root = write_dataset(tmp_path, splits={"train": [f"{i:06d}" for i in range(12)]})
+    culprit = _break(root, case)
+    for attempt in range(2):  # the second read comes from the cache and warns again
+        with pytest.warns(UserWarning, match="skipped 1 bad clip") as rec:
+            ds = MotionDataset.from_folder(root, "train", skip_bad=True, crop="none", progress=False)
+        assert str(culprit) in str(rec[0].message)
+        assert "000003" not in ds.data.ids and len(ds.data.ids) == 11
+        assert ds.data.from_cache == (attempt == 1)
+    # Without skip_bad the cached problem still raises.
+    with pytest.raises(StableMoError, match="000003"):
+        MotionDataset.from_folder(root, "train", progress=False)
+
+
+def test_missing_folder_split_and_stats(tmp_path):
+    with pytest.raises(StableMoError, match="dataset folder not found"):
+        MotionDataset.from_folder(tmp_path / "nope", "train")
+    root = write_dataset(tmp_path / "d")
+    with pytest.raises(StableMoError, match="extra.txt: split file not found"):
+        MotionDataset.from_folder(root, "extra")
+    (root / "Std.npy").unlink()
+    with pytest.raises(StableMoError, match="Std.npy: file not found"):
+        MotionDataModule(str(root)).std
+    np.save(root / "Std.npy", np.ones(251, np.float32))
+    with pytest.raises(StableMoError, match=r"Std.npy: expected shape \(263,\)"):
+        MotionDataModule(str(root)).std
+    std = np.ones(263, np.float32)
+    std[7] = 0
+    np.save(root / "Std.npy", std)
+    with pytest.raises(StableMoError, match="Std.npy: std must be > 0"):
+        MotionDataModule(str(root)).std
+    with pytest.raises(StableMoError, match="dataset='amass'"):
+        MotionDataModule(str(root), dataset="amass")
+    with pytest.raises(StableMoError, match="pad_multiple=0"):
+        MotionDataModule(str(root), pad_multiple=0)
+
+
+def test_split_listing_twice_or_empty(tmp_path):
+    root = write_dataset(tmp_path)
+    (root / "train.txt").write_text("000001\n000002\n000001\n")
+    with pytest.raises(StableMoError, match=r"train.txt:3: id '000001' listed twice"):
+        load_split(root, "train", get_spec("humanml3d"), progress=False)
+    (root / "train.txt").write_text("\n")
+    with pytest.raises(StableMoError, match="train.txt: split file lists no ids"):
+        load_split(root, "train", get_spec("humanml3d"), progress=False)
+
+
+def test_no_usable_items_is_an_error(tmp_path):
+    root = write_dataset(tmp_path, clips={"000001": (20, [WHOLE])}, splits={"train": ["000001"]})
+    dm = MotionDataModule(str(root))
+    with pytest.raises(StableMoError, match="train.txt: no usable items"):
+        dm.setup("fit")
