@@ -1,0 +1,217 @@
+"""Samplers: one plain function each, over one denoiser contract.
+
+    sampler(denoise, x_T, schedule, steps, generator=None, noise=None, callback=None,
+            prediction_type="sample", progress=False) -> x0
+
+- `denoise(x_t (B,T,D) float32, t (B,) long) -> (B,T,D)`: the (guided) network output, an x0
+  estimate for prediction_type "sample" or an eps estimate for "epsilon". The sampler converts it
+  to x0 with the noise level of the state it actually holds (the Karras sigma for the DPM-Solver
+  family), which is what makes eps-models agree with diffusers.
+- `noise(x) -> N(0, I)` tensor like x, drawn once per stochastic step after the x0 conversion;
+  default: `torch.randn` from `generator`. The pipeline passes per-sample generators this way.
+- `callback(step_index, t: int, x0_hat) -> x0_hat | None`: progress and x0 guidance.
+
+All state is float32 (float64 if x_T is); coefficients are float64 Python floats. Multistep history is local to each
+call, so every call starts fresh. Formulas: `shared/design/facts-sampler.md` §3–4; DPM-Solver++
+is Lu et al. 2022 (arXiv:2211.01095) Alg. 2 (2M) and its SDE variant §4 / eq. (18).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import torch
+from tqdm.auto import tqdm
+
+from stablemo.diffusion.guidance import to_x0
+from stablemo.diffusion.schedule import NoiseSchedule, check_prediction_type
+
+Denoise = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+NoiseFn = Callable[[torch.Tensor], torch.Tensor]
+Callback = Callable[[int, int, torch.Tensor], "torch.Tensor | None"]
+
+
+def default_noise(generator: torch.Generator | None) -> NoiseFn:
+    """Fresh float32 N(0, I) like x, drawn on the generator's device and moved to x's."""
+
+    def draw(x: torch.Tensor) -> torch.Tensor:
+        device = generator.device if generator is not None else x.device
+        z = torch.randn(x.shape, generator=generator, dtype=torch.float32, device=device)
+        return z.to(x.device, x.dtype)
+
+    return draw
+
+
+def _setup(x: torch.Tensor, generator, noise, prediction_type: str) -> tuple[torch.Tensor, NoiseFn]:
+    check_prediction_type(prediction_type)
+    # float32 state (float64 if given: tests use it as the exact reference), never half precision
+    x = x.to(torch.promote_types(x.dtype, torch.float32))
+    return x, noise if noise is not None else default_noise(generator)
+
+
+def _predict(denoise, x, t: int, alpha, sigma, prediction_type, callback, step) -> torch.Tensor:
+    t_batch = torch.full((x.shape[0],), t, dtype=torch.long, device=x.device)
+    x0 = to_x0(denoise(x, t_batch).to(x.dtype), x, alpha, sigma, prediction_type)
+    if callback is not None:
+        guided = callback(step, t, x0)
+        if guided is not None:
+            x0 = guided.to(x.dtype)
+    return x0
+
+
+def _vp(sigma: float) -> tuple[float, float]:
+    """VE noise level -> (alpha, sigma_vp) with x_vp = alpha x0 + sigma_vp eps."""
+    alpha = 1.0 / math.sqrt(sigma * sigma + 1.0)
+    return alpha, sigma * alpha
+
+
+def ddpm(
+    denoise: Denoise,
+    x: torch.Tensor,
+    schedule: NoiseSchedule,
+    steps: int,
+    generator: torch.Generator | None = None,
+    noise: NoiseFn | None = None,
+    callback: Callback | None = None,
+    prediction_type: str = "sample",
+    progress: bool = False,
+) -> torch.Tensor:
+    """Ancestral DDPM (Ho et al. 2020 eq. 6-7, fixed_small variance) on the 'leading' grid.
+
+    Between grid points t > t' it samples the exact posterior q(x_t' | x_t, x0_hat); with
+    steps = N it is the original 1000-step sampler. Noise is drawn for t > 0 only.
+    """
+    x, draw = _setup(x, generator, noise, prediction_type)
+    abar = schedule._abar64.tolist()
+    ratio = schedule.num_train_timesteps // steps
+    for i, t in enumerate(tqdm(schedule.leading_timesteps(steps), disable=not progress, desc="ddpm")):
+        a_t = abar[t]
+        a_prev = abar[t - ratio] if t - ratio >= 0 else 1.0
+        x0 = _predict(denoise, x, t, math.sqrt(a_t), math.sqrt(1 - a_t), prediction_type, callback, i)
+        beta = 1 - a_t / a_prev
+        c_x0 = math.sqrt(a_prev) * beta / (1 - a_t)
+        c_xt = math.sqrt(a_t / a_prev) * (1 - a_prev) / (1 - a_t)
+        x = c_x0 * x0 + c_xt * x
+        if t > 0:
+            var = max((1 - a_prev) / (1 - a_t) * beta, 1e-20)
+            x = x + math.sqrt(var) * draw(x)
+    return x
+
+
+def ddim(
+    denoise: Denoise,
+    x: torch.Tensor,
+    schedule: NoiseSchedule,
+    steps: int,
+    generator: torch.Generator | None = None,
+    noise: NoiseFn | None = None,
+    callback: Callback | None = None,
+    prediction_type: str = "sample",
+    progress: bool = False,
+    eta: float = 0.0,
+) -> torch.Tensor:
+    """DDIM (Song et al. 2021 eq. 12) on the 'leading' grid; eta = 0 is deterministic."""
+    x, draw = _setup(x, generator, noise, prediction_type)
+    abar = schedule._abar64.tolist()
+    ratio = schedule.num_train_timesteps // steps
+    for i, t in enumerate(tqdm(schedule.leading_timesteps(steps), disable=not progress, desc="ddim")):
+        a_t = abar[t]
+        a_prev = abar[t - ratio] if t - ratio >= 0 else 1.0
+        sa, ss = math.sqrt(a_t), math.sqrt(1 - a_t)
+        x0 = _predict(denoise, x, t, sa, ss, prediction_type, callback, i)
+        eps = (x - sa * x0) / ss
+        std = eta * math.sqrt((1 - a_prev) / (1 - a_t) * (1 - a_t / a_prev))
+        x = math.sqrt(a_prev) * x0 + math.sqrt(max(1 - a_prev - std * std, 0.0)) * eps
+        if eta > 0:
+            x = x + std * draw(x)
+    return x
+
+
+def dpm_coefficients(sigma_s: float, sigma_t: float, sde: bool) -> tuple[float, float, float]:
+    """First-order DPM-Solver++ step sigma_s -> sigma_t (VE levels) as x_t = c_x x_s + c_d x0 + c_z z.
+
+    ODE: x_t = (s_t/s_s) x_s + alpha_t (1 - e^{-h}) x0;  SDE: x_t = (s_t/s_s) e^{-h} x_s +
+    alpha_t (1 - e^{-2h}) x0 + s_t sqrt(1 - e^{-2h}) z, with h = lambda_t - lambda_s and
+    e^{-h} = sigma_t / sigma_s. The second-order (midpoint) term reuses c_d.
+    """
+    alpha_s, _ = _vp(sigma_s)
+    alpha_t, vp_t = _vp(sigma_t)
+    ratio = sigma_t / sigma_s  # e^{-h}
+    if sde:
+        return (alpha_t / alpha_s) * ratio * ratio, alpha_t * (1 - ratio * ratio), vp_t * math.sqrt(1 - ratio * ratio)
+    return (alpha_t / alpha_s) * ratio, alpha_t * (1 - ratio), 0.0
+
+
+def _dpmpp_2m(denoise, x, schedule, steps, draw, callback, prediction_type, progress, sde: bool) -> torch.Tensor:
+    """DPM-Solver++(2M), midpoint form, on Karras sigmas; `sde` selects the SDE variant.
+
+    Written with VE ratios (e^{-h} = sigma_t / sigma_s) so the final step to sigma = 0 stays
+    finite: there every coefficient but the x0 one vanishes and the result is exactly x0_hat.
+    Order: first at step 0 (no history) and at the last step, second otherwise.
+    """
+    timesteps, sigmas = schedule.karras_timesteps(steps)
+    sig = sigmas.tolist()
+    prev_x0 = None
+    desc = "dpmpp_2m_sde" if sde else "dpmpp_2m"
+    for i, t in enumerate(tqdm(timesteps, disable=not progress, desc=desc)):
+        s_s, s_t = sig[i], sig[i + 1]  # VE noise levels
+        alpha_s, vp_s = _vp(s_s)
+        x0 = _predict(denoise, x, t, alpha_s, vp_s, prediction_type, callback, i)
+        z = draw(x) if sde else None
+        c_x, c_d, c_z = dpm_coefficients(s_s, s_t, sde)
+        second_order = prev_x0 is not None and i < steps - 1
+        if second_order:
+            h = math.log(s_s / s_t)
+            h0 = math.log(sig[i - 1] / s_s)
+            d = x0 + (0.5 * h / h0) * (x0 - prev_x0)  # D0 + D1 / 2 with D1 = (x0 - x0_prev) / r0
+        else:
+            d = x0
+        x = c_x * x + c_d * d
+        if sde:
+            x = x + c_z * z
+        prev_x0 = x0
+    return x
+
+
+def dpmpp_2m(
+    denoise: Denoise,
+    x: torch.Tensor,
+    schedule: NoiseSchedule,
+    steps: int,
+    generator: torch.Generator | None = None,
+    noise: NoiseFn | None = None,
+    callback: Callback | None = None,
+    prediction_type: str = "sample",
+    progress: bool = False,
+) -> torch.Tensor:
+    """DPM-Solver++(2M) ODE with Karras sigmas (deterministic; `generator`/`noise` unused)."""
+    x, draw = _setup(x, generator, noise, prediction_type)
+    return _dpmpp_2m(denoise, x, schedule, steps, draw, callback, prediction_type, progress, sde=False)
+
+
+def dpmpp_2m_sde(
+    denoise: Denoise,
+    x: torch.Tensor,
+    schedule: NoiseSchedule,
+    steps: int,
+    generator: torch.Generator | None = None,
+    noise: NoiseFn | None = None,
+    callback: Callback | None = None,
+    prediction_type: str = "sample",
+    progress: bool = False,
+) -> torch.Tensor:
+    """SDE-DPM-Solver++(2M) with Karras sigmas: StableMoFusion's sampler (10 steps by default).
+
+    One noise draw per step (also the last, where it is multiplied by 0), after the x0 conversion.
+    """
+    x, draw = _setup(x, generator, noise, prediction_type)
+    return _dpmpp_2m(denoise, x, schedule, steps, draw, callback, prediction_type, progress, sde=True)
+
+
+SAMPLERS: dict[str, Callable[..., torch.Tensor]] = {
+    "ddpm": ddpm,
+    "ddim": ddim,
+    "dpmpp_2m": dpmpp_2m,
+    "dpmpp_2m_sde": dpmpp_2m_sde,
+}

@@ -1,0 +1,227 @@
+"""Samplers: equivalence with diffusers (test-only dependency), identities, and a distribution check."""
+
+import math
+
+import pytest
+import torch
+
+from stablemo.diffusion.samplers import SAMPLERS, ddim, ddpm, dpm_coefficients, dpmpp_2m, dpmpp_2m_sde
+from stablemo.diffusion.schedule import NoiseSchedule
+
+SCHEDULE = NoiseSchedule()
+DATA_VAR = 0.7  # toy data: x0 ~ N(0, DATA_VAR) per coordinate
+
+
+def toy_model(prediction_type: str):
+    """A smooth model: the exact Gaussian-data denoiser at integer t plus a small nonlinearity."""
+    abar = SCHEDULE.alphas_cumprod.double()
+
+    def model(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        a = abar[t].to(torch.float32).reshape(-1, *([1] * (x.dim() - 1)))
+        denom = a * DATA_VAR + 1 - a
+        if prediction_type == "sample":
+            return a.sqrt() * DATA_VAR * x / denom + 0.05 * torch.sin(x)
+        return (1 - a).sqrt() * x / denom + 0.05 * torch.sin(x)
+
+    return model
+
+
+def x_T(shape=(3, 16, 5), seed=1):
+    return torch.randn(shape, generator=torch.Generator().manual_seed(seed))
+
+
+def run_diffusers(scheduler, model, x, steps, seed=None):
+    scheduler.set_timesteps(steps)
+    gen = torch.Generator().manual_seed(seed) if seed is not None else None
+    for t in scheduler.timesteps:
+        out = model(x, torch.full((x.shape[0],), int(t), dtype=torch.long))
+        x = scheduler.step(out, t, x, generator=gen).prev_sample
+    return x
+
+
+def dpm_scheduler(algorithm_type, prediction_type):
+    diffusers = pytest.importorskip("diffusers")
+    return diffusers.DPMSolverMultistepScheduler(
+        num_train_timesteps=1000,
+        beta_schedule="linear",
+        prediction_type=prediction_type,
+        algorithm_type=algorithm_type,
+        use_karras_sigmas=True,
+    )
+
+
+def assert_close_1e5(actual, expected, tol=1e-5):
+    # 1e-5 relative to the scale of the result (values are O(1))
+    scale = max(1.0, expected.abs().max().item())
+    assert (actual - expected).abs().max().item() <= tol * scale
+
+
+@pytest.mark.parametrize("steps", [1, 2, 10, 25, 1000])
+@pytest.mark.parametrize("prediction_type", ["sample", "epsilon"])
+def test_dpmpp_2m_ode_matches_diffusers(prediction_type, steps):
+    model = toy_model(prediction_type)
+    ref = run_diffusers(dpm_scheduler("dpmsolver++", prediction_type), model, x_T(), steps)
+    ours = dpmpp_2m(model, x_T(), SCHEDULE, steps, prediction_type=prediction_type)
+    # 1000 eps-steps: diffusers' float32 step sizes h drift by ~3e-5 in total; ours is the more
+    # accurate one (test_float64_coefficients_beat_float32_tables), hence the looser bound there
+    assert_close_1e5(ours, ref, tol=5e-5 if (steps, prediction_type) == (1000, "epsilon") else 1e-5)
+
+
+def test_float64_coefficients_beat_float32_tables():
+    pytest.importorskip("diffusers")
+    abar = SCHEDULE.alphas_cumprod.double()
+
+    def model64(x, t):
+        a = abar[t].reshape(-1, 1, 1)
+        return (1 - a).sqrt() * x / (a * DATA_VAR + 1 - a) + 0.05 * torch.sin(x)
+
+    model = toy_model("epsilon")
+    ref = run_diffusers(dpm_scheduler("dpmsolver++", "epsilon"), model, x_T(), 1000).double()
+    ours = dpmpp_2m(model, x_T(), SCHEDULE, 1000, prediction_type="epsilon").double()
+    truth = dpmpp_2m(model64, x_T().double(), SCHEDULE, 1000, prediction_type="epsilon")
+    assert truth.dtype == torch.float64
+    assert (ours - truth).abs().max() < 1e-5
+    assert (ours - truth).abs().max() < 0.5 * (ref - truth).abs().max()
+
+
+@pytest.mark.parametrize("steps", [1, 2, 10, 25, 1000])
+@pytest.mark.parametrize("prediction_type", ["sample", "epsilon"])
+def test_dpmpp_2m_sde_matches_diffusers_with_matched_noise(prediction_type, steps):
+    model = toy_model(prediction_type)
+    ref = run_diffusers(dpm_scheduler("sde-dpmsolver++", prediction_type), model, x_T(), steps, seed=7)
+    ours = dpmpp_2m_sde(model, x_T(), SCHEDULE, steps, generator=torch.Generator().manual_seed(7), prediction_type=prediction_type)
+    assert_close_1e5(ours, ref)
+
+
+@pytest.mark.parametrize("steps", [1, 2, 10, 1000])
+@pytest.mark.parametrize("prediction_type", ["sample", "epsilon"])
+def test_ddim_matches_diffusers(prediction_type, steps):
+    diffusers = pytest.importorskip("diffusers")
+    ref_sched = diffusers.DDIMScheduler(
+        num_train_timesteps=1000, beta_schedule="linear", prediction_type=prediction_type, clip_sample=False
+    )
+    model = toy_model(prediction_type)
+    ref = run_diffusers(ref_sched, model, x_T(), steps)
+    assert_close_1e5(ddim(model, x_T(), SCHEDULE, steps, prediction_type=prediction_type), ref)
+
+
+def test_ddim_eta_one_matches_diffusers_with_matched_noise():
+    diffusers = pytest.importorskip("diffusers")
+    ref_sched = diffusers.DDIMScheduler(num_train_timesteps=1000, beta_schedule="linear", prediction_type="sample", clip_sample=False)
+    model = toy_model("sample")
+    ref_sched.set_timesteps(10)
+    x, gen = x_T(), torch.Generator().manual_seed(3)
+    for t in ref_sched.timesteps:
+        x = ref_sched.step(model(x, torch.full((3,), int(t))), t, x, eta=1.0, generator=gen).prev_sample
+    ours = ddim(model, x_T(), SCHEDULE, 10, generator=torch.Generator().manual_seed(3), eta=1.0)
+    assert_close_1e5(ours, x)
+
+
+@pytest.mark.parametrize("steps", [1, 2, 10, 1000])
+@pytest.mark.parametrize("prediction_type", ["sample", "epsilon"])
+def test_ddpm_matches_diffusers_with_matched_noise(prediction_type, steps):
+    diffusers = pytest.importorskip("diffusers")
+    ref_sched = diffusers.DDPMScheduler(
+        num_train_timesteps=1000, beta_schedule="linear", prediction_type=prediction_type, clip_sample=False
+    )
+    model = toy_model(prediction_type)
+    ref = run_diffusers(ref_sched, model, x_T(), steps, seed=11)
+    ours = ddpm(model, x_T(), SCHEDULE, steps, generator=torch.Generator().manual_seed(11), prediction_type=prediction_type)
+    assert_close_1e5(ours, ref)
+
+
+def test_runtime_does_not_import_diffusers():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, torch\n"
+        "from stablemo.diffusion.samplers import SAMPLERS\n"
+        "from stablemo.diffusion.schedule import NoiseSchedule\n"
+        "s = NoiseSchedule()\n"
+        "for f in SAMPLERS.values(): f(lambda x, t: 0.5 * x, torch.randn(1, 4, 2), s, 3)\n"
+        "assert 'diffusers' not in sys.modules\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+# ---- identities (facts §3-4) ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("t, t_prev", [(999, 800), (500, 300), (40, 0)])
+def test_first_order_sde_step_is_the_ddpm_posterior(t, t_prev):
+    abar = SCHEDULE.alphas_cumprod.double().tolist()
+    sig = lambda k: math.sqrt((1 - abar[k]) / abar[k])  # noqa: E731
+    # the VE state x_ve = x_vp / alpha; posterior coefficients in VP space
+    c_x, c_d, c_z = dpm_coefficients(sig(t), sig(t_prev), sde=True)
+    a_t, a_p = abar[t], abar[t_prev]
+    beta = 1 - a_t / a_p
+    assert c_d == pytest.approx(math.sqrt(a_p) * beta / (1 - a_t), rel=1e-9)
+    assert c_x == pytest.approx(math.sqrt(a_t / a_p) * (1 - a_p) / (1 - a_t), rel=1e-9)
+    assert c_z == pytest.approx(math.sqrt((1 - a_p) / (1 - a_t) * beta), rel=1e-9)
+
+
+def test_ddim_equals_first_order_ode_step():
+    abar = SCHEDULE.alphas_cumprod.double().tolist()
+    sig = lambda k: math.sqrt((1 - abar[k]) / abar[k])  # noqa: E731
+    c_x, c_d, _ = dpm_coefficients(sig(700), sig(400), sde=False)
+    # DDIM: x' = sqrt(a') x0 + sqrt(1 - a') (x - sqrt(a) x0) / sqrt(1 - a)
+    a, ap = abar[700], abar[400]
+    assert c_x == pytest.approx(math.sqrt(1 - ap) / math.sqrt(1 - a), rel=1e-9)
+    assert c_d == pytest.approx(math.sqrt(ap) - math.sqrt(1 - ap) * math.sqrt(a) / math.sqrt(1 - a), rel=1e-9)
+
+
+@pytest.mark.parametrize("name", sorted(SAMPLERS))
+def test_last_step_returns_the_x0_estimate_and_callback_sees_every_step(name):
+    seen = []
+    target = torch.full((2, 8, 3), 0.25)
+
+    def callback(i, t, x0):
+        seen.append((i, t))
+        return target if i == len(seen) - 1 else None
+
+    out = SAMPLERS[name](lambda x, t: 0.9 * x, x_T((2, 8, 3)), SCHEDULE, 4, generator=torch.Generator().manual_seed(0), callback=callback)
+    assert [i for i, _ in seen] == [0, 1, 2, 3]
+    assert seen[0][1] == 999 or name in ("ddpm", "ddim")
+    # the hook replaced every x0 estimate with `target`, and every sampler ends on its x0 estimate
+    torch.testing.assert_close(out, target, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", sorted(SAMPLERS))
+def test_same_seed_same_output_and_fresh_history(name):
+    model = toy_model("sample")
+    runs = [SAMPLERS[name](model, x_T(), SCHEDULE, 5, generator=torch.Generator().manual_seed(s)) for s in (4, 4, 5)]
+    torch.testing.assert_close(runs[0], runs[1], rtol=0, atol=0)
+    if name in ("ddpm", "dpmpp_2m_sde"):
+        assert not torch.allclose(runs[0], runs[2])
+
+
+@pytest.mark.parametrize("name", ["ddpm", "dpmpp_2m_sde"])
+def test_stochastic_samplers_reach_the_data_distribution(name):
+    # with the exact denoiser of Gaussian data the samples must have the data variance
+    abar = SCHEDULE.alphas_cumprod.double()
+
+    def exact(x, t):
+        a = abar[t].to(torch.float32)[:, None]
+        return a.sqrt() * DATA_VAR * x / (a * DATA_VAR + 1 - a)
+
+    # enough steps that discretisation error is below the 5000-sample tolerance (3 sd)
+    steps = 100 if name == "dpmpp_2m_sde" else 1000
+    out = SAMPLERS[name](exact, x_T((5000, 1), seed=2), SCHEDULE, steps, generator=torch.Generator().manual_seed(0))
+    assert out.mean().abs().item() < 0.05
+    assert out.var().item() == pytest.approx(DATA_VAR, rel=0.06)
+
+
+def test_noise_function_overrides_generator():
+    calls = []
+
+    def noise(x):
+        calls.append(x.shape)
+        return torch.zeros_like(x)
+
+    model = toy_model("sample")
+    out = dpmpp_2m_sde(model, x_T(), SCHEDULE, 6, noise=noise)
+    assert len(calls) == 6  # one draw per step, the last one included
+    # zero noise turns the SDE into a deterministic path different from the ODE
+    again = dpmpp_2m_sde(model, x_T(), SCHEDULE, 6, noise=lambda x: torch.zeros_like(x))
+    torch.testing.assert_close(out, again, rtol=0, atol=0)
