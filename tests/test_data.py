@@ -42,7 +42,9 @@ def write_dataset(root: Path, dataset: str = "humanml3d", clips: dict | None = N
     np.save(root / "Std.npy", np.linspace(1.0, 3.0, spec.feature_dim).astype(np.float32))
     ids = list(clips)
     if splits is None:
-        splits = {"train": ids[: max(1, len(ids) * 2 // 3)], "val": ids[len(ids) * 2 // 3 :] or ids, "test": ids}
+        n = len(ids)
+        splits = {"train": ids[: 2 * n // 3] or ids, "val": ids[2 * n // 3 : 5 * n // 6] or ids,
+                  "test": ids[5 * n // 6 :] or ids}
     for name, members in splits.items():
         (root / f"{name}.txt").write_text("".join(f"{i}\n" for i in members))
     return root
@@ -385,3 +387,55 @@ def test_no_usable_items_is_an_error(tmp_path):
     dm = MotionDataModule(str(root))
     with pytest.raises(StableMoError, match="train.txt: no usable items"):
         dm.setup("fit")
+
+
+# --- data check ------------------------------------------------------------------------------------
+
+def test_data_check_clean_dataset(tmp_path, capsys):
+    from stablemo.cli import main as cli
+
+    clips = {f"{i:06d}": (n, [WHOLE, WHOLE2, "turns#turn/VERB#0.5#3.0"]) for i, n in
+             enumerate([30, 45, 80, 120, 150, 199, 210, 60, 90])}
+    ids = list(clips)
+    root = write_dataset(tmp_path, clips=clips, splits={"train": ids[:5], "val": ids[5:7], "test": ids[7:]})
+    assert cli(["data", "check", str(root)]) == 0
+    out = capsys.readouterr().out
+    lines = {line.split()[0]: line.split()[1:] for line in out.splitlines() if line.startswith("  ") and line.split()}
+    # split: listed, readable, items, sub-caption items, too short, too long
+    # The window [10, 60) is clipped to [10, 45) = 35 frames in the 45-frame clip: too short for an item.
+    assert lines["train"] == ["5", "5", "7", "3", "1", "0"]
+    assert lines["val"] == ["2", "2", "2", "1", "0", "1"]
+    assert lines["test"] == ["2", "2", "4", "2", "0", "0"]
+    assert "problems: none" in out and "vocabulary 8 words" in out
+    assert "caption lines per motion: min 3, mean 3.0" in out
+    assert "20-39 | " in out and "(dropped: too short)" in out and ">=200 |" in out
+
+
+def test_data_check_reports_every_problem(tmp_path, capsys):
+    from stablemo.cli import main as cli
+
+    root = write_dataset(tmp_path, splits={"train": [f"{i:06d}" for i in range(8)],
+                                           "val": ["000008", "000009", "000099"], "test": ["000010", "000011"]})
+    _break(root, "nan")
+    (root / "texts" / "000005.txt").write_text("bad line\n")
+    np.save(root / "new_joint_vecs" / "000010.npy", np.zeros((50, 251), np.float32))
+    (root / "test.txt").write_text("000010\n000011\n000001\n")
+    assert cli(["data", "check", str(root)]) == 1
+    out = capsys.readouterr().out
+    assert "problems (5):" in out
+    assert "000003.npy: 1 NaN/Inf value(s), first in frame 10" in out
+    assert "000005.txt:1: malformed caption line" in out
+    assert "000099.npy: listed in val.txt but the feature file does not exist" in out
+    assert "000010.npy: expected features of shape (T, 263)" in out
+    assert "train.txt: 1 id(s) also in test.txt (e.g. 000001)" in out
+    assert cli(["data", "check", str(tmp_path / "absent")]) == 2
+
+
+def test_data_check_kit(tmp_path, capsys):
+    from stablemo.data.commands import main
+
+    root = write_dataset(tmp_path, "kit")
+    assert main(["check", str(root), "--dataset", "kit"]) == 0
+    assert "kit: 251-d features, 12.5 fps, clips used when 24 <= frames < 200" in capsys.readouterr().out
+    assert main(["check", str(root)]) == 1  # 251-d files are wrong for HumanML3D
+    assert "expected features of shape (T, 263) for humanml3d" in capsys.readouterr().out

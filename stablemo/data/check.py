@@ -1,0 +1,177 @@
+"""`stablemo data check DIR`: validate a HumanML3D-layout folder and summarise it.
+
+Every problem is collected (nothing stops at the first bad file); the summary gives counts per
+split, a text histogram of clip lengths, caption statistics and the list of problems.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from stablemo.data.cache import SplitData, load_split
+from stablemo.data.dataset import build_items
+from stablemo.data.layout import FEATURE_DIR, JOINT_DIR, SPLITS, DatasetSpec, check_root, get_spec
+from stablemo.data.stats import load_dataset_stats
+from stablemo.errors import StableMoError
+
+REQUIRED_SPLITS = ("train", "val", "test")
+DISJOINT = (("train", "val"), ("train", "test"), ("val", "test"))
+_WORD = re.compile(r"[a-z0-9']+")
+
+
+@dataclass
+class SplitSummary:
+    listed: int
+    readable: int
+    items: int  # training items: whole clips + sub-caption windows
+    sub_items: int
+    too_short: int
+    too_long: int
+
+
+@dataclass
+class CheckReport:
+    root: Path
+    spec: DatasetSpec
+    splits: dict[str, SplitSummary] = field(default_factory=dict)
+    lengths: list[int] = field(default_factory=list)  # frames of every readable clip (each once)
+    captions_per_motion: list[int] = field(default_factory=list)
+    words_per_caption: list[int] = field(default_factory=list)
+    sub_captions: int = 0
+    vocabulary: set[str] = field(default_factory=set)
+    problems: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+
+def check_dataset(root: str | Path, dataset: str = "humanml3d", *, cache: bool = True) -> CheckReport:
+    """Validate everything that the loader reads; only a missing folder raises."""
+    spec = get_spec(dataset)
+    root = check_root(root)
+    report = CheckReport(root, spec)
+    try:
+        load_dataset_stats(root, spec)
+    except StableMoError as err:
+        report.problems.append(str(err))
+
+    problems: dict[str, None] = {}  # ordered set: all.txt repeats the clips of the other splits
+    clips: dict[str, tuple[int, list]] = {}
+    split_ids: dict[str, set[str]] = {}
+    for split in SPLITS:
+        if not (root / f"{split}.txt").is_file():
+            if split in REQUIRED_SPLITS:
+                problems[f"{root / f'{split}.txt'}: split file not found"] = None
+            continue
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                data = load_split(root, split, spec, skip_bad=True, cache=cache)
+        except StableMoError as err:  # unreadable split file itself
+            problems[str(err)] = None
+            continue
+        problems.update(dict.fromkeys(data.problems))
+        report.splits[split] = _summarise(data, spec, len(data.ids) + len(data.problems))
+        split_ids[split] = set(data.ids)
+        for clip_id, n, caps in zip(data.ids, data.lengths.tolist(), data.captions):
+            clips.setdefault(clip_id, (n, caps))
+    for a, b in DISJOINT:
+        shared = split_ids.get(a, set()) & split_ids.get(b, set())
+        if shared:
+            problems[f"{root / f'{a}.txt'}: {len(shared)} id(s) also in {b}.txt (e.g. {min(shared)})"] = None
+    report.problems += list(problems)
+
+    for n, caps in clips.values():
+        report.lengths.append(n)
+        report.captions_per_motion.append(len(caps))
+        for cap in caps:
+            words = _WORD.findall(cap.text.lower())
+            report.words_per_caption.append(len(words))
+            report.vocabulary.update(words)
+            report.sub_captions += not cap.whole_clip
+    _add_notes(report, set(clips))
+    return report
+
+
+def _summarise(data: SplitData, spec: DatasetSpec, listed: int) -> SplitSummary:
+    items = build_items(data, spec)
+    sub = sum("#" in i for i in items.ids)
+    return SplitSummary(
+        listed=listed,
+        readable=len(data.ids),
+        items=len(items),
+        sub_items=sub,
+        too_short=int((data.lengths < spec.min_length).sum()),
+        too_long=int((data.lengths >= spec.max_clip_length).sum()),
+    )
+
+
+def _add_notes(report: CheckReport, readable: set[str]) -> None:
+    feature_dir = report.root / FEATURE_DIR
+    if feature_dir.is_dir():
+        on_disk = {p.stem for p in feature_dir.glob("*.npy")}
+        unlisted = on_disk - readable
+        if unlisted:
+            report.notes.append(f"{len(unlisted)} feature file(s) in {FEATURE_DIR}/ are in no split "
+                                f"(or unreadable), e.g. {min(unlisted)}")
+    else:
+        report.problems.append(f"{feature_dir}: feature folder not found")
+    if not (report.root / JOINT_DIR).is_dir():
+        report.notes.append(f"{JOINT_DIR}/ absent (not needed for training; used to view the reference joints)")
+
+
+def _stats_line(name: str, values: list[int]) -> str:
+    if not values:
+        return f"{name}: none"
+    a = np.asarray(values)
+    return f"{name}: min {a.min()}, mean {a.mean():.1f}, median {np.median(a):g}, max {a.max()}"
+
+
+def length_histogram(lengths: list[int], spec: DatasetSpec, bin_width: int = 20, width: int = 40) -> list[str]:
+    """Text histogram of clip lengths in frames; the last bin holds clips the loader drops as too long."""
+    edges = list(range(0, spec.max_clip_length + 1, bin_width))
+    counts = np.histogram(np.clip(lengths, 0, spec.max_clip_length), bins=edges + [10**9])[0] if lengths else []
+    peak = max(max(counts, default=0), 1)
+    lines = []
+    for lo, count in zip(edges, counts):
+        label = f">={lo}" if lo >= spec.max_clip_length else f"{lo}-{lo + bin_width - 1}"
+        flag = "  (dropped: too long)" if lo >= spec.max_clip_length else (
+            "  (partly below min length)" if lo < spec.min_length < lo + bin_width else
+            "  (dropped: too short)" if lo + bin_width <= spec.min_length else "")
+        bar = "#" * int(round(width * count / peak))
+        lines.append(f"  {label:>8} | {bar:<{width}} {count}{flag if count else ''}")
+    return lines
+
+
+def format_report(report: CheckReport, max_problems: int = 30) -> str:
+    spec = report.spec
+    out = [f"dataset: {report.root} ({spec.name}: {spec.feature_dim}-d features, {spec.fps:g} fps, "
+           f"clips used when {spec.min_length} <= frames < {spec.max_clip_length})", "", "splits:"]
+    out.append(f"  {'split':<10} {'listed':>7} {'readable':>9} {'items':>7} {'sub-capt.':>9} {'too short':>9} {'too long':>8}")
+    for name, s in report.splits.items():
+        out.append(f"  {name:<10} {s.listed:>7} {s.readable:>9} {s.items:>7} {s.sub_items:>9} {s.too_short:>9} {s.too_long:>8}")
+    out += ["", f"clip lengths (frames; {len(report.lengths)} readable clips):"]
+    out += length_histogram(report.lengths, spec)
+    n_caps = sum(report.captions_per_motion)
+    out += ["", f"captions: {n_caps} ({report.sub_captions} with from/to time stamps), "
+                f"vocabulary {len(report.vocabulary)} words",
+            "  " + _stats_line("caption lines per motion", report.captions_per_motion),
+            "  " + _stats_line("words per caption", report.words_per_caption)]
+    if report.notes:
+        out += ["", "notes:"] + [f"  - {n}" for n in report.notes]
+    out.append("")
+    if report.problems:
+        out.append(f"problems ({len(report.problems)}):")
+        out += [f"  - {p}" for p in report.problems[:max_problems]]
+        if len(report.problems) > max_problems:
+            out.append(f"  ... and {len(report.problems) - max_problems} more (--all-problems lists them)")
+    else:
+        out.append("problems: none")
+    return "\n".join(out)

@@ -1,0 +1,46 @@
+"""`stablemo data check DIR [--dataset humanml3d|kit]` and `stablemo data synth --out DIR [--num N] [--seed S]`."""
+
+from __future__ import annotations
+
+import argparse
+
+from stablemo.data.layout import DATASETS
+from stablemo.errors import StableMoError
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="stablemo data", description="dataset tools")
+    sub = parser.add_subparsers(dest="command", required=True)
+    check = sub.add_parser("check", help="validate a dataset folder (HumanML3D layout) and print a summary")
+    check.add_argument("dir", help="dataset folder")
+    check.add_argument("--dataset", default="humanml3d", choices=sorted(DATASETS),
+                       help="feature width, length limits and fps to check against (default: humanml3d)")
+    check.add_argument("--all-problems", action="store_true", help="list every problem (default: the first 30)")
+    check.add_argument("--no-cache", action="store_true", help="read every file without using or writing the cache")
+    synth = sub.add_parser("synth", help="write the procedural synthetic dataset in the HumanML3D layout")
+    synth.add_argument("--out", required=True, help="output folder")
+    synth.add_argument("--num", type=int, default=None, help="number of motions (default: the generator's)")
+    synth.add_argument("--seed", type=int, default=0, help="random seed (same seed, same dataset)")
+    return parser
+
+
+def main(argv: list[str]) -> int:
+    args = _parser().parse_args(argv)
+    if args.command == "check":
+        from stablemo.data.check import check_dataset, format_report
+
+        report = check_dataset(args.dir, args.dataset, cache=not args.no_cache)
+        print(format_report(report, max_problems=len(report.problems) if args.all_problems else 30))
+        return 0 if report.ok else 1
+    if args.num is not None and args.num < 1:
+        raise StableMoError(f"--num={args.num}: must be >= 1")
+    if args.seed < 0:
+        raise StableMoError(f"--seed={args.seed}: must be >= 0")
+    from stablemo.data.synth import write_dataset  # owned by the synthetic-dataset module
+
+    if args.num is None:
+        write_dataset(args.out, seed=args.seed)
+    else:
+        write_dataset(args.out, args.num, args.seed)
+    print(f"wrote synthetic dataset to {args.out}")
+    return 0
