@@ -291,3 +291,23 @@ def test_bad_shapes_raise_clear_errors():
         joints_to_features(bad, HUMANML3D)
     with pytest.raises(StableMoError, match="263"):
         features_to_joints(torch.zeros(10, 251), HUMANML3D)
+
+
+def test_degenerate_facing_frame_is_tolerated_and_torch_input_accepted():
+    # one frame whose hip and shoulder lines cancel exactly: the reference would produce NaN in the
+    # smoothed facing; that frame simply does not vote in the average
+    rng = np.random.default_rng(9)
+    joints = random_motion(rng, num_frames=40).astype(np.float64)
+    x = canonicalize_joints(joints, HUMANML3D)
+    # move the right shoulder so that (L_hip − R_hip) + (R_sh − L_sh) = 0 at frame 20
+    x[20, 17] = x[20, 16] - (x[20, 1] - x[20, 2])
+    from stablemo.motion.features import facing_rotations
+
+    r = facing_rotations(x, HUMANML3D)
+    assert np.all(np.isfinite(r)) and np.allclose(np.linalg.norm(r, axis=-1), 1.0)
+    feats = joints_to_features(torch.from_numpy(x), HUMANML3D)
+    assert np.all(np.isfinite(feats))
+    rec = features_to_joints(feats.astype(np.float64), HUMANML3D)
+    assert np.abs(rec - canonicalize_joints(x, HUMANML3D)[:-1]).max() < 1e-4
+    with pytest.raises(StableMoError, match="facing"):
+        joints_to_features(np.zeros((5, 22, 3)) + np.arange(22)[None, :, None] * [0, 1.0, 0], HUMANML3D)

@@ -60,6 +60,8 @@ def feature_slices(skeleton: Skeleton | str) -> dict[str, slice]:
 
 
 def _check_joints(joints: np.ndarray, skel: Skeleton) -> np.ndarray:
+    if torch.is_tensor(joints):
+        joints = joints.detach().cpu().numpy()
     arr = np.asarray(joints)
     if not np.issubdtype(arr.dtype, np.number):
         raise StableMoError(f"joints: expected a numeric array, got dtype {arr.dtype}")
@@ -76,12 +78,22 @@ def _check_joints(joints: np.ndarray, skel: Skeleton) -> np.ndarray:
 
 
 def _normalize(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+    # a zero vector stays zero (instead of NaN): in the facing average it then simply does not vote
+    norm = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.where(norm > 1e-12, norm, 1.0)
 
 
 def _across(x: np.ndarray, a: int, b: int, c: int, d: int) -> np.ndarray:
     """normalise((X_a − X_b) + (X_c − X_d)) over the joint axis of x (..., J, 3)."""
     return _normalize((x[..., a, :] - x[..., b, :]) + (x[..., c, :] - x[..., d, :]))
+
+
+def _check_facing(forward: np.ndarray, what: str) -> None:
+    norm = np.linalg.norm(forward, axis=-1)
+    if np.any(norm < 1e-6):
+        raise StableMoError(
+            f"joints: {what} undefined (hip and shoulder lines cancel or are vertical); not a body pose?"
+        )
 
 
 def uniform_skeleton(joints: np.ndarray, skeleton: Skeleton | str) -> np.ndarray:
@@ -130,8 +142,9 @@ def canonicalize_joints(joints: np.ndarray, skeleton: Skeleton | str) -> np.ndar
     x = x - root0
     r_hip, l_hip, r_sdr, l_sdr = skel.face_joints
     across = _across(x[..., 0, :, :], r_hip, l_hip, r_sdr, l_sdr)  # (..., 3)
-    forward = _normalize(np.cross(_Y, across))
-    q = qbetween_np(forward, _Z)[..., None, None, :]  # (..., 1, 1, 4)
+    forward = np.cross(_Y, across)
+    _check_facing(forward, "initial facing")
+    q = qbetween_np(_normalize(forward), _Z)[..., None, None, :]  # (..., 1, 1, 4)
     return qrot_np(np.broadcast_to(q, x.shape[:-1] + (4,)), x)
 
 
@@ -147,6 +160,7 @@ def facing_rotations(x: np.ndarray, skeleton: Skeleton | str, smooth: bool = Tru
     forward = np.cross(_Y, across)
     if smooth:
         forward = gaussian_filter1d(forward, FACING_SIGMA, axis=-2, mode="nearest")
+    _check_facing(forward, "facing")
     forward = _normalize(forward)
     r = qbetween_np(forward, _Z)
     r[..., 0, :] = (1.0, 0.0, 0.0, 0.0)
