@@ -110,8 +110,10 @@ HUMANML3D = Skeleton(
 )
 
 # KIT-ML (MMM). Sides follow the facts sheet's contact and facing conventions (chain 0-11-… is the
-# right leg, 0-16-… the left, 3-5-… the right arm, 3-8-… the left arm), even though the raw
-# offsets place the "right" limbs at +x: raw offsets only orient the 6D features.
+# right leg, 0-16-… the left, 3-5-… the right arm, 3-8-… the left arm: contacts store [19, 20]
+# first as the left pair). MMM's own marker names (root BP BT BLN BUN LS LE LW RS RE RW LH LK LA
+# LMrot LF RH RK RA RMrot RF) call those sides the other way round, and the raw offsets put
+# joints 5 and 11 at +x; raw offsets only orient the 6D features, so this changes no number.
 #
 # Target bone lengths (millimetres): the official pipeline measures them on KIT clip 03950 frame 0,
 # which is not available to us. We use the HumanML3D target skeleton above, ×1000, mapped
