@@ -1,0 +1,240 @@
+"""Pipeline: exact per-sample batching, seeds, parallel CFG, precision, hooks, text caching, bundles."""
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from stablemo.diffusion.guidance import CFGDenoiser
+from stablemo.diffusion.schedule import NoiseSchedule
+from stablemo.errors import StableMoError
+from stablemo.pipeline import Pipeline
+
+D = 263  # HumanML3D features, so joints can be recovered
+
+
+class FakeModel(nn.Module):
+    """A small padding-invariant text-conditioned network with the MotionDiffusionModel interface."""
+
+    length_multiple = 4
+
+    def __init__(self, hidden: int = 16, text_dim: int = 8):
+        super().__init__()
+        torch.manual_seed(0)
+        self.embed = nn.Embedding(128, text_dim)
+        self.inp = nn.Linear(D, hidden)
+        self.time = nn.Linear(1, hidden)
+        self.txt = nn.Linear(text_dim, hidden)
+        self.conv = nn.Conv1d(hidden, hidden, 3, padding=1)
+        self.out = nn.Linear(hidden, D)
+        self.encode_calls: list[list[str]] = []
+        self.forward_batches: list[int] = []
+        self.seen_dtype = None
+
+    def encode_text(self, texts):
+        self.encode_calls.append(list(texts))
+        L = max(1, max(len(s) for s in texts))
+        tokens = torch.zeros(len(texts), L, dtype=torch.long)
+        mask = torch.zeros(len(texts), L, dtype=torch.bool)
+        for i, s in enumerate(texts):
+            tokens[i, : len(s)] = torch.tensor([ord(c) % 128 for c in s], dtype=torch.long)
+            mask[i, : len(s)] = True
+        return self.embed(tokens) * mask[..., None], mask
+
+    def forward(self, x, t, text, text_mask, motion_mask):
+        self.forward_batches.append(x.shape[0])
+        m = motion_mask[..., None]
+        pooled = (text * text_mask[..., None]).sum(1) / text_mask.sum(1, keepdim=True).clamp(min=1)
+        h = self.inp(x)
+        self.seen_dtype = h.dtype
+        h = h + (self.time(t[:, None].float() / 1000) + self.txt(pooled))[:, None]
+        h = torch.where(m, torch.tanh(h), torch.zeros((), dtype=h.dtype))
+        h = self.conv(h.transpose(1, 2)).transpose(1, 2)
+        h = torch.where(m, h, torch.zeros((), dtype=h.dtype))
+        return torch.where(m, self.out(torch.tanh(h)), torch.zeros((), dtype=h.dtype))
+
+
+def make_pipeline(**kw):
+    rng = np.random.default_rng(0)
+    return Pipeline(FakeModel(), NoiseSchedule(), mean=rng.normal(size=D) * 0.1, std=rng.uniform(0.5, 1.5, size=D),
+                    min_length=4, max_length=64, device="cpu", **kw)
+
+
+PROMPTS = ["a person walks forward", "jumps", "someone waves with the left hand"]
+LENGTHS = [20, 13, 40]
+
+
+@pytest.mark.parametrize("sampler", ["dpmpp_2m_sde", "ddim"])
+def test_batched_equals_per_sample(sampler):
+    pipe = make_pipeline()
+    batch = pipe.generate(PROMPTS, LENGTHS, steps=4, sampler=sampler, seed=[5, 6, 7])
+    for i, (text, n, s) in enumerate(zip(PROMPTS, LENGTHS, [5, 6, 7])):
+        single = pipe.generate([text], [n], steps=4, sampler=sampler, seed=s)
+        torch.testing.assert_close(batch.features[i, :n], single.features[0, :n], rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(batch.joints[i, :n], single.joints[0, :n], rtol=1e-5, atol=1e-5)
+    # chunking the request does not change anything either
+    chunked = pipe.generate(PROMPTS, LENGTHS, steps=4, sampler=sampler, seed=[5, 6, 7], batch_size=2)
+    torch.testing.assert_close(chunked.features, batch.features, rtol=1e-5, atol=1e-5)
+
+
+def test_outputs_are_trimmed_denormalised_and_padded_with_zeros():
+    pipe = make_pipeline()
+    out = pipe.generate(PROMPTS, LENGTHS, steps=3, seed=1)
+    assert out.features.shape == (3, 40, D) and out.joints.shape == (3, 40, 22, 3) and out.mask.shape == (3, 40)
+    assert [f.shape for f in out.feature_list()] == [(20, D), (13, D), (40, D)]
+    assert [j.shape for j in out.joint_list()] == [(20, 22, 3), (13, 22, 3), (40, 22, 3)]
+    torch.testing.assert_close(out.features[0, :20], out.normalized[0, :20] * pipe.std + pipe.mean)
+    assert (out.features[1, 13:] == 0).all() and (out.joints[1, 13:] == 0).all()
+    assert out.seeds == [1, 2, 3] and out.info["sampler"] == "dpmpp_2m_sde"
+
+
+def test_seed_determinism():
+    pipe = make_pipeline()
+    a = pipe.generate(PROMPTS, LENGTHS, steps=3, seed=3)
+    b = pipe.generate(PROMPTS, LENGTHS, steps=3, seed=3)
+    c = pipe.generate(PROMPTS, LENGTHS, steps=3, seed=4)
+    assert torch.equal(a.features, b.features)
+    assert not torch.allclose(a.features[0], c.features[0])
+    # an int seed gives sample i the seed + i
+    d = pipe.generate(PROMPTS, LENGTHS, steps=3, seed=[3, 4, 5])
+    assert torch.equal(a.features, d.features)
+
+
+def test_parallel_cfg_equals_two_separate_passes():
+    pipe = make_pipeline()
+    pipe.model.forward_batches.clear()
+    fused = pipe.generate(PROMPTS, LENGTHS, steps=4, cfg=2.5, seed=0, parallel_cfg=True)
+    assert pipe.model.forward_batches == [6] * 4  # one forward of 2B per step
+    pipe.model.forward_batches.clear()
+    split = pipe.generate(PROMPTS, LENGTHS, steps=4, cfg=2.5, seed=0, parallel_cfg=False)
+    assert pipe.model.forward_batches == [3] * 8
+    torch.testing.assert_close(fused.features, split.features, rtol=1e-5, atol=1e-5)
+    # guidance changes the result; cfg = 1 runs the conditional half only
+    pipe.model.forward_batches.clear()
+    plain = pipe.generate(PROMPTS, LENGTHS, steps=4, cfg=1.0, seed=0)
+    assert pipe.model.forward_batches == [3] * 4
+    assert not torch.allclose(plain.features, fused.features)
+
+
+def test_cfg_denoiser_combines_halves():
+    model = FakeModel()
+    text, tmask = model.encode_text(["walk", "run fast"])
+    null, nmask = model.encode_text([""])
+    null, nmask = null.expand(2, -1, -1), nmask.expand(2, -1)
+    mask = torch.ones(2, 8, dtype=torch.bool)
+    x, t = torch.randn(2, 8, D), torch.tensor([10, 500])
+    guided = CFGDenoiser(model, text, tmask, null, nmask, mask, scale=3.0)(x, t)
+    cond = model(x, t, text, tmask, mask)
+    uncond = model(x, t, null, nmask, mask)
+    torch.testing.assert_close(guided, uncond + 3.0 * (cond - uncond), rtol=1e-5, atol=1e-6)
+
+
+def test_text_encoded_once_per_request_and_null_once_per_pipeline():
+    pipe = make_pipeline()
+    pipe.generate(PROMPTS, LENGTHS, steps=5, seed=0)
+    pipe.generate(["turns left"], [16], steps=5, seed=0)
+    assert pipe.model.encode_calls == [PROMPTS, [""], ["turns left"]]
+
+
+def test_bf16_runs_network_only_in_low_precision():
+    pipe = make_pipeline()
+    ref = pipe.generate(PROMPTS, LENGTHS, steps=3, seed=0)
+    low = pipe.generate(PROMPTS, LENGTHS, steps=3, seed=0, dtype="bf16")
+    assert pipe.model.seen_dtype == torch.bfloat16
+    assert low.normalized.dtype == torch.float32 and torch.isfinite(low.features).all()
+    assert low.info["dtype"] == "bfloat16"
+    assert not torch.equal(low.features, ref.features)
+    assert (low.normalized - ref.normalized).abs().max() < 0.1  # same sample, bf16 rounding only
+
+
+def test_x0_hook_runs_at_chosen_steps_and_edits_x0():
+    pipe = make_pipeline()
+    calls = []
+
+    def hook(step, t, x0, mask):
+        calls.append((step, t, tuple(x0.shape), tuple(mask.shape)))
+        assert torch.is_grad_enabled()
+        return torch.zeros_like(x0)
+
+    out = pipe.generate(PROMPTS, LENGTHS, steps=5, seed=0, x0_hook=hook, hook_steps=[-1])
+    assert [c[0] for c in calls] == [4] and calls[0][1] == 0
+    assert calls[0][2:] == ((3, 40, D), (3, 40))
+    # the last step returns the (edited) x0 estimate: zero in model space, the mean in feature space
+    assert out.normalized.abs().max() == 0
+    torch.testing.assert_close(out.features[0, :20], pipe.mean.expand(20, D))
+
+
+def test_bad_requests_raise_clear_errors():
+    pipe = make_pipeline()
+    with pytest.raises(StableMoError, match=r"texts\[1\]: empty prompt"):
+        pipe.generate(["walk", "  "], [16, 16])
+    with pytest.raises(StableMoError, match=r"lengths\[0\]: 100 frames is outside"):
+        pipe.generate(["walk"], [100])
+    with pytest.raises(StableMoError, match=r"lengths\[0\]: 2 frames"):
+        pipe.generate(["walk"], 2)
+    with pytest.raises(StableMoError, match="sampler: unknown"):
+        pipe.generate(["walk"], [16], sampler="euler")
+    with pytest.raises(StableMoError, match="seed: 1 seeds for 2"):
+        pipe.generate(["walk", "run"], [16, 16], seed=[1])
+    with pytest.raises(StableMoError, match="float16 is for CUDA"):
+        pipe.generate(["walk"], [16], dtype="fp16")
+
+
+# ---- bundles -----------------------------------------------------------------------------------
+
+
+def tiny_bundle_config():
+    return {
+        "model": {
+            "denoiser": {"name": "unet", "input_dim": D, "base_channels": 16, "channel_mults": [1, 2],
+                         "time_dim": 32, "num_groups": 4, "num_heads": 2, "dropout": 0.0},
+            "text": {"encoder": "minilm", "latent_dim": 32, "num_layers": 1, "num_heads": 2, "ff_dim": 64,
+                     "dropout": 0.0},
+        },
+        "schedule": {"num_train_timesteps": 1000, "beta_start": 1e-4, "beta_end": 0.02, "beta_schedule": "linear"},
+        "prediction_type": "sample",
+        "dataset": "humanml3d",
+        "skeleton": "humanml3d",
+        "fps": 20,
+        "mean": [0.0] * D,
+        "std": [1.0] * D,
+        "min_length": 8,
+        "max_length": 64,
+        "kind": "diffusion",
+    }
+
+
+@pytest.fixture(scope="module")
+def tiny_bundle(tmp_path_factory):
+    model_mod = pytest.importorskip("stablemo.model")
+    from stablemo.bundle import save_bundle
+
+    config = tiny_bundle_config()
+    torch.manual_seed(0)
+    model = model_mod.MotionDiffusionModel(**config["model"])
+    for p in model.parameters():  # the output conv is zero-initialised; give the net a real output
+        nn.init.normal_(p, std=0.05)
+    return save_bundle(tmp_path_factory.mktemp("b") / "tiny", config, model.state_dict())
+
+
+def test_from_bundle_generates_with_the_real_model(tiny_bundle):
+    pipe = Pipeline.from_bundle(tiny_bundle, device="cpu")
+    out = pipe.generate(["a person walks forward", "a person jumps"], [24, 11], steps=3, seed=[0, 1])
+    assert out.features.shape == (2, 24, D) and torch.isfinite(out.joints).all()
+    single = pipe.generate(["a person jumps"], [11], steps=3, seed=1)
+    torch.testing.assert_close(out.features[1, :11], single.features[0, :11], rtol=1e-5, atol=1e-5)
+
+
+def test_from_bundle_errors(tmp_path, tiny_bundle):
+    import json
+    import shutil
+
+    with pytest.raises(StableMoError, match="bundle folder not found"):
+        Pipeline.from_bundle(tmp_path / "nope")
+    student = tmp_path / "student"
+    shutil.copytree(tiny_bundle, student)
+    config = json.loads((student / "config.json").read_text())
+    config["kind"] = "hypothetical"
+    (student / "config.json").write_text(json.dumps(config))
+    with pytest.raises(StableMoError, match="bundle kind 'hypothetical' is not supported"):
+        Pipeline.from_bundle(student)
