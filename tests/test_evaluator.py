@@ -62,26 +62,35 @@ def test_info_nce_duplicate_captions_are_not_negatives():
     assert info_nce(e, e.roll(1, 0), scale, ["x"] * 4) == pytest.approx(0.0, abs=1e-6)
 
 
-def test_trains_to_good_retrieval_and_reloads(tmp_path):
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """A small evaluator trained for 40 steps on the tiny 4-class dataset (~10 s on one core)."""
     import lightning as L
 
     from stablemo.data import MotionDataModule
 
     torch.set_num_threads(1)
-    root = make_tiny_dataset(tmp_path / "data")
+    tmp = tmp_path_factory.mktemp("evaluator")
+    root = make_tiny_dataset(tmp / "data")
     L.seed_everything(0, verbose=False)
     dm = MotionDataModule(str(root), batch_size=32, pad_multiple=4, cache=False)
     model = EvaluatorModule(motion_hidden=48, motion_blocks=2, text_hidden=64, embed_dim=32, lr=3e-3)
     trainer = L.Trainer(max_steps=40, accelerator="cpu", logger=False, enable_checkpointing=False,
                         enable_progress_bar=False, enable_model_summary=False, num_sanity_val_steps=0,
-                        default_root_dir=str(tmp_path))
+                        default_root_dir=str(tmp))
     trainer.fit(model, datamodule=dm)
+    ckpt = tmp / "eval.ckpt"
+    trainer.save_checkpoint(ckpt)
+    return {"root": root, "dm": dm, "model": model.eval(), "trainer": trainer, "ckpt": ckpt, "tmp": tmp}
+
+
+def test_trains_to_good_retrieval_and_reloads(trained):
+    model, dm, root, tmp = trained["model"], trained["dm"], trained["root"], trained["tmp"]
     np.testing.assert_allclose(model.mean.numpy(), dm.mean)  # statistics adopted from the data
-    res = trainer.test(model, datamodule=dm, verbose=False)[0]
+    res = trained["trainer"].test(model, datamodule=dm, verbose=False)[0]
     # Each batch of 32 holds 8 motions per caption class, all equally true for the caption: the best
     # possible R@k is k/8 (chance k/32).
     assert res["test/r3"] >= 0.3, res
-    model.eval()
     with torch.no_grad():
         batch = next(iter(dm.test_dataloader()))
         motion = model.embed_normalised(batch["motion"], batch["mask"])
@@ -90,14 +99,70 @@ def test_trains_to_good_retrieval_and_reloads(tmp_path):
     truth = torch.tensor([CLASSES.index(t) for t in batch["text"]])
     assert (predicted == truth).float().mean() >= 0.9
 
-    ckpt = tmp_path / "eval.ckpt"
-    trainer.save_checkpoint(ckpt)
-    loaded = load_evaluator(ckpt)
-    out = export_evaluator(ckpt, tmp_path / "evaluator")
+    loaded = load_evaluator(trained["ckpt"])
+    out = export_evaluator(trained["ckpt"], tmp / "evaluator")
     from_dir = load_evaluator(out)
     feats = torch.from_numpy(np.load(root / "new_joint_vecs" / "000000.npy"))[None]
-    ref = model.eval().embed_motion(feats, torch.tensor([feats.shape[1]]))
-    torch.testing.assert_close(loaded.embed_motion(feats, torch.tensor([feats.shape[1]])), ref)
-    torch.testing.assert_close(from_dir.embed_text(["a person walks forward"]), model.embed_text(["a person walks forward"]))
+    with torch.no_grad():
+        ref = model.embed_motion(feats, torch.tensor([feats.shape[1]]))
+        torch.testing.assert_close(loaded.embed_motion(feats, torch.tensor([feats.shape[1]])), ref)
+        torch.testing.assert_close(from_dir.embed_text(["a person walks forward"]),
+                                   model.embed_text(["a person walks forward"]))
     with pytest.raises(StableMoError):
-        load_evaluator(tmp_path / "missing.ckpt")
+        load_evaluator(tmp / "missing.ckpt")
+
+
+def test_benchmark_protocol_with_constructed_generators(trained):
+    from stablemo.data import MotionDataset
+    from stablemo.eval.command import REAL_ROW, OurEvaluator, evaluate, format_table
+
+    data = MotionDataset.from_folder(trained["root"], "train", crop="eval", cache=False, progress=False)
+    evaluator = OurEvaluator(trained["ckpt"])
+    whole = MotionDataset.from_folder(trained["root"], "train", crop="none", cache=False, progress=False)
+    by_text = {}
+    for i in range(len(whole)):
+        it = whole[i]
+        by_text.setdefault(it["text"], []).append(it["motion"] * torch.from_numpy(data.std) + torch.from_numpy(data.mean))
+
+    def oracle(texts, lengths, seeds):  # a real motion of the right class, cropped to the length
+        out = torch.zeros(len(texts), max(lengths), data.spec.feature_dim)
+        for i, (t, n, s) in enumerate(zip(texts, lengths, seeds)):
+            pool = [m for m in by_text[t] if len(m) >= n]
+            out[i, :n] = pool[s % len(pool)][:n]
+        return out, None
+
+    def noise(texts, lengths, seeds):
+        g = torch.Generator().manual_seed(seeds[0])
+        return torch.randn(len(texts), max(lengths), data.spec.feature_dim, generator=g) * 3, None
+
+    res_oracle = evaluate(data, evaluator, oracle, replications=3, seed=0, progress=False, row_name="oracle",
+                          multimodality=True, mm_captions=4, mm_generations=10)
+    res_noise = evaluate(data, evaluator, noise, replications=3, seed=0, progress=False, row_name="noise")
+    real, good, bad = res_oracle["rows"][REAL_ROW], res_oracle["rows"]["oracle"], res_noise["rows"]["noise"]
+    assert real["fid"]["mean"] < 0.2 * bad["fid"]["mean"]
+    assert good["fid"]["mean"] < 0.2 * bad["fid"]["mean"]
+    assert good["r3"]["mean"] > 2 * bad["r3"]["mean"]
+    assert len(real["r1"]["values"]) == 3 and real["r1"]["conf95"] >= 0
+    assert good["multimodality"]["mean"] > 0
+    # Same seed, same numbers.
+    again = evaluate(data, evaluator, noise, replications=3, seed=0, progress=False, row_name="noise")
+    assert again["rows"]["noise"]["fid"]["values"] == bad["fid"]["values"]
+    table = format_table(res_oracle, aits=0.123)
+    assert "R@1" in table and "oracle" in table and "0.123" in table
+
+
+def test_evaluate_command_real_motion_only(trained, capsys):
+    import json
+
+    from stablemo.eval.command import main
+
+    out = trained["tmp"] / "results.json"
+    assert main(["--data", str(trained["root"]), "--evaluator", str(trained["ckpt"]), "--split", "train",
+                 "--replications", "2", "--out", str(out), "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    assert "Real motion" in printed and "FID" in printed
+    result = json.loads(out.read_text())
+    assert result["rows"]["Real motion"]["fid"]["mean"] < 0.1
+    assert result["settings"]["replications"] == 2
+    with pytest.raises(StableMoError):
+        main(["--data", str(trained["root"]), "--evaluator", str(trained["tmp"] / "nope.ckpt"), "--no-progress"])

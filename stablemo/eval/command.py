@@ -1,0 +1,365 @@
+"""`stablemo evaluate`: the field's text-to-motion benchmark with 95% intervals over replications.
+
+    stablemo evaluate --bundle DIR --data DIR --evaluator DIR|CKPT [--replications 20]
+        [--steps 10 --sampler dpmpp_2m_sde --cfg 2.5] [--footskate] [--multimodality]
+        [--split test --seed 0 --out results.json]
+
+Protocol (facts-humanml3d.md §6–8). Each replication r makes two passes over the split's items with
+the evaluation crop rule and one random caption per item (the data set's per-epoch randomness):
+pass 2r gives the reference statistics, pass 2r+1 the captions and lengths that are scored. The
+"Real motion" row scores pass 2r+1's real motions (so its FID measures crop/caption noise, ≈ 0);
+the model row generates one motion per scored caption at that length. Items are shuffled per pass
+before forming the R-precision batches of 32. Without --bundle only the real motions are scored
+(a check of the evaluator itself).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from stablemo.errors import StableMoError
+from stablemo.eval import metrics
+from stablemo.eval.physics import foot_skating_ratio
+
+REAL_ROW = "Real motion"
+COLUMNS = [  # (json key, table header, lower/higher/closer-is-better hint only for readers)
+    ("r1", "R@1"), ("r2", "R@2"), ("r3", "R@3"), ("fid", "FID"), ("mm_dist", "MM-Dist"),
+    ("diversity", "Diversity"), ("multimodality", "MModality"), ("skate_ratio", "Skate"),
+]
+
+# generate(texts, lengths, seeds) -> (features (B,T,D) raw, zero-padded; joints (B,T,J,3) or None)
+GenerateFn = Callable[[list[str], list[int], list[int]], tuple[torch.Tensor, "torch.Tensor | None"]]
+
+
+# ----------------------------------------------------------------------------- evaluators
+
+
+class OurEvaluator:
+    """Adapter over stablemo.eval.evaluator.EvaluatorModule (captions as strings)."""
+
+    def __init__(self, path: str | Path):
+        from stablemo.eval.evaluator import load_evaluator
+
+        self.model = load_evaluator(path)
+        self.name = f"stablemo evaluator ({Path(path).name})"
+        self.feature_dim = int(self.model.hparams.feature_dim)
+
+    @torch.no_grad()
+    def embed_text(self, texts: list[str], tokens: list[list[str]]) -> np.ndarray:
+        return self.model.embed_text(texts).double().cpu().numpy()
+
+    @torch.no_grad()
+    def embed_motion(self, features: torch.Tensor, lengths: torch.Tensor) -> np.ndarray:
+        return self.model.embed_motion(features, lengths).double().cpu().numpy()
+
+
+class GuoTextMotionEvaluator:
+    """Adapter over the published Guo et al. evaluator (word/POS tokens + GloVe)."""
+
+    def __init__(self, root: str | Path, dataset: str, glove: str | Path | None = None):
+        from stablemo.eval.guo import find_guo_assets, load_guo_evaluator
+        from stablemo.eval.word_vectorizer import WordVectorizer
+
+        assets = find_guo_assets(root, dataset, glove)
+        self.model = load_guo_evaluator(assets, dataset)
+        self.words = WordVectorizer(assets.glove_dir)
+        self.name = f"Guo et al. evaluator ({assets.checkpoint})"
+        self.feature_dim = self.model.feature_dim
+
+    @torch.no_grad()
+    def embed_text(self, texts: list[str], tokens: list[list[str]]) -> np.ndarray:
+        from stablemo.eval.word_vectorizer import tokens_from_caption
+
+        encoded = [self.words.encode_tokens(list(tok) or tokens_from_caption(txt)) for txt, tok in zip(texts, tokens)]
+        words = torch.from_numpy(np.stack([e[0] for e in encoded]))
+        pos = torch.from_numpy(np.stack([e[1] for e in encoded]))
+        lengths = torch.tensor([e[2] for e in encoded])
+        return self.model.encode_text(words, pos, lengths).double().numpy()
+
+    @torch.no_grad()
+    def embed_motion(self, features: torch.Tensor, lengths: torch.Tensor) -> np.ndarray:
+        return self.model.encode_motion(features.float(), lengths).double().numpy()
+
+
+def load_text_motion_evaluator(path: str | Path, dataset: str = "humanml3d", glove: str | Path | None = None):
+    """Our evaluator (.ckpt or exported folder) or the published one (archive folder or finest.tar)."""
+    path = Path(path)
+    if not path.exists():
+        raise StableMoError(f"--evaluator {path}: not found")
+    if path.is_dir() and (path / "config.json").is_file():
+        return OurEvaluator(path)
+    if path.is_file() and path.suffix == ".ckpt":
+        return OurEvaluator(path)
+    if path.is_file() and path.name.endswith(".tar"):
+        # …/<dataset>/text_mot_match/model/finest.tar -> the dataset folder of the archive
+        root = path.parents[2] if len(path.parents) > 2 and path.parent.name == "model" else path.parent
+        return GuoTextMotionEvaluator(root, dataset, glove)
+    if path.is_dir():
+        return GuoTextMotionEvaluator(path, dataset, glove)
+    raise StableMoError(f"--evaluator {path}: expected a .ckpt, an evaluator folder or the published archive")
+
+
+# ----------------------------------------------------------------------------- data passes
+
+
+@dataclass
+class Pass:
+    texts: list[str]
+    tokens: list[list[str]]
+    lengths: list[int]
+    features: list[torch.Tensor]  # raw (L_i, D)
+
+
+def read_pass(dataset, epoch: int, order: np.ndarray) -> Pass:
+    items = [dataset[(int(i), epoch)] for i in order]
+    mean, std = torch.from_numpy(dataset.mean), torch.from_numpy(dataset.std)
+    return Pass(
+        texts=[it["text"] for it in items],
+        tokens=[list(it["tokens"]) for it in items],
+        lengths=[int(it["length"]) for it in items],
+        features=[it["motion"] * std + mean for it in items],
+    )
+
+
+def _pad(features: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+    lengths = torch.tensor([len(f) for f in features])
+    out = torch.zeros(len(features), int(lengths.max()), features[0].shape[-1])
+    for i, f in enumerate(features):
+        out[i, : len(f)] = f
+    return out, lengths
+
+
+def embed_motions(evaluator, features: list[torch.Tensor], batch_size: int) -> np.ndarray:
+    out = []
+    for s in range(0, len(features), batch_size):
+        x, lengths = _pad(features[s : s + batch_size])
+        out.append(evaluator.embed_motion(x, lengths))
+    return np.concatenate(out)
+
+
+def embed_texts(evaluator, texts: list[str], tokens: list[list[str]], batch_size: int) -> np.ndarray:
+    return np.concatenate([evaluator.embed_text(texts[s : s + batch_size], tokens[s : s + batch_size])
+                           for s in range(0, len(texts), batch_size)])
+
+
+def _skate(joints: list[torch.Tensor]) -> float:
+    padded, lengths = _pad([j.reshape(len(j), -1) for j in joints])
+    padded = padded.reshape(len(joints), padded.shape[1], -1, 3)
+    return float(foot_skating_ratio(padded, lengths=lengths).mean())
+
+
+# ----------------------------------------------------------------------------- protocol
+
+
+def evaluate(
+    dataset,
+    evaluator,
+    generate: GenerateFn | None = None,
+    *,
+    replications: int = 20,
+    seed: int = 0,
+    batch_size: int = 32,
+    max_items: int | None = None,
+    footskate: bool = False,
+    skeleton: str = "humanml3d",
+    multimodality: bool = False,
+    mm_captions: int = metrics.MM_CAPTIONS,
+    mm_generations: int = metrics.MM_GENERATIONS,
+    row_name: str = "model",
+    progress: bool = True,
+) -> dict:
+    """Run the benchmark; returns {"rows": {row: {metric: Interval.to_dict()}}, "settings": {...}}."""
+    if replications < 1:
+        raise StableMoError(f"--replications: must be >= 1, got {replications}")
+    n_items = len(dataset) if max_items is None else min(len(dataset), int(max_items))
+    if n_items < metrics.R_PRECISION_BATCH:
+        raise StableMoError(f"data: {n_items} item(s); R-precision needs at least {metrics.R_PRECISION_BATCH}")
+    div_pairs = min(metrics.DIVERSITY_PAIRS, n_items - 1)
+    joints_of = None
+    if footskate:
+        from stablemo.motion import features_to_joints, get_skeleton
+
+        skel = get_skeleton(skeleton)
+        if skel.name != "humanml3d":
+            raise StableMoError("--footskate: the skating ratio is defined for the HumanML3D skeleton (metres, y up)")
+
+        def joints_of(feats: list[torch.Tensor]) -> list[torch.Tensor]:
+            return [features_to_joints(f[None].float(), skel)[0] for f in feats]
+
+    rows: dict[str, dict[str, list[float]]] = {REAL_ROW: {}}
+    if generate is not None:
+        rows[row_name] = {}
+
+    def add(row: str, key: str, value: float) -> None:
+        rows[row].setdefault(key, []).append(float(value))
+
+    for r in tqdm(range(replications), desc="replications", disable=not progress):
+        rng = np.random.default_rng([seed, r])
+        ref_order = rng.permutation(len(dataset))[:n_items]
+        order = rng.permutation(len(dataset))[:n_items]
+        ref = read_pass(dataset, 2 * r, ref_order)
+        cur = read_pass(dataset, 2 * r + 1, order)
+        ref_stats = metrics.embedding_statistics(embed_motions(evaluator, ref.features, batch_size))
+        text_emb = embed_texts(evaluator, cur.texts, cur.tokens, batch_size)
+
+        candidates = [(REAL_ROW, cur.features, None)]
+        if generate is not None:
+            gen_feats, gen_joints = [], []
+            for s in range(0, n_items, batch_size):
+                sl = slice(s, s + batch_size)
+                seeds = [int(x) for x in rng.integers(0, 2**31 - 1, size=len(cur.texts[sl]))]
+                feats, joints = generate(cur.texts[sl], cur.lengths[sl], seeds)
+                gen_feats += [feats[i, :n].float().cpu() for i, n in enumerate(cur.lengths[sl])]
+                if joints is not None:
+                    gen_joints += [joints[i, :n].float().cpu() for i, n in enumerate(cur.lengths[sl])]
+            candidates.append((row_name, gen_feats, gen_joints or None))
+
+        for row, feats, joints in candidates:
+            emb = embed_motions(evaluator, feats, batch_size)
+            match = metrics.r_precision(text_emb, emb)
+            for k in range(3):
+                add(row, f"r{k + 1}", match.r_precision[k])
+            add(row, "mm_dist", match.mm_dist)
+            add(row, "fid", metrics.frechet_distance(*metrics.embedding_statistics(emb), *ref_stats))
+            add(row, "diversity", metrics.diversity(emb, rng, div_pairs))
+            if joints_of is not None:
+                add(row, "skate_ratio", _skate(joints if joints is not None else joints_of(feats)))
+
+        if generate is not None and multimodality:
+            picks = rng.choice(n_items, min(mm_captions, n_items), replace=False)
+            mm_emb = []
+            for i in picks:
+                seeds = [int(x) for x in rng.integers(0, 2**31 - 1, size=mm_generations)]
+                feats, _ = generate([cur.texts[i]] * mm_generations, [cur.lengths[i]] * mm_generations, seeds)
+                mm_emb.append(embed_motions(evaluator, [f[: cur.lengths[i]].float().cpu() for f in feats], batch_size))
+            add(row_name, "multimodality", metrics.multimodality(np.stack(mm_emb), rng))
+
+    result_rows = {row: {k: metrics.replication_interval(v).to_dict() for k, v in cols.items()}
+                   for row, cols in rows.items()}
+    settings = {"replications": replications, "seed": seed, "items": n_items, "diversity_pairs": div_pairs,
+                "r_precision_batch": metrics.R_PRECISION_BATCH, "evaluator": getattr(evaluator, "name", "")}
+    if multimodality:
+        settings.update(mm_captions=mm_captions, mm_generations=mm_generations)
+    return {"rows": result_rows, "settings": settings}
+
+
+def format_table(result: dict, aits: float | None = None) -> str:
+    """The paper's table layout: one row per method, mean±interval per metric."""
+    present = [(k, h) for k, h in COLUMNS if any(k in row for row in result["rows"].values())]
+    header = ["Method"] + [h for _, h in present] + (["AITS (s)"] if aits is not None else [])
+    lines = []
+    for name, row in result["rows"].items():
+        cells = [name] + [f"{row[k]['mean']:.3f}±{row[k]['conf95']:.3f}" if k in row else "-" for k, _ in present]
+        if aits is not None:
+            cells.append(f"{aits:.3f}" if name != REAL_ROW else "-")
+        lines.append(cells)
+    widths = [max(len(str(c)) for c in col) for col in zip(header, *lines)]
+    fmt = lambda cells: "  ".join(str(c).ljust(w) for c, w in zip(cells, widths))  # noqa: E731
+    return "\n".join([fmt(header), fmt(["-" * w for w in widths])] + [fmt(c) for c in lines])
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="stablemo evaluate", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--bundle", help="inference bundle to evaluate (omit to score only the real motions)")
+    p.add_argument("--data", required=True, help="dataset folder (HumanML3D layout)")
+    p.add_argument("--evaluator", required=True,
+                   help="our evaluator (.ckpt or exported folder) or the published archive folder / finest.tar")
+    p.add_argument("--glove", help="folder with our_vab_data.npy and our_vab_words.pkl|txt (published evaluator)")
+    p.add_argument("--dataset", choices=["humanml3d", "kit"], help="default: the bundle's, else humanml3d")
+    p.add_argument("--split", default="test")
+    p.add_argument("--replications", type=int, default=20)
+    p.add_argument("--steps", type=int, default=10)
+    p.add_argument("--sampler", default=None, help="default: the bundle's default (dpmpp_2m_sde)")
+    p.add_argument("--cfg", type=float, default=2.5)
+    p.add_argument("--footskate", action="store_true", help="also report the foot-skating ratio")
+    p.add_argument("--multimodality", action="store_true", help="also report MultiModality (100 captions × 30)")
+    p.add_argument("--mm-captions", type=int, default=metrics.MM_CAPTIONS)
+    p.add_argument("--mm-generations", type=int, default=metrics.MM_GENERATIONS)
+    p.add_argument("--aits", type=int, default=10, help="sentences timed one by one for AITS (0: skip)")
+    p.add_argument("--batch-size", type=int, default=32, help="generation and embedding batch size")
+    p.add_argument("--max-items", type=int, default=None, help="score at most this many items per pass")
+    p.add_argument("--feat-bias", type=float, default=5.0, help="feat_bias of the data statistics")
+    p.add_argument("--device", default=None)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", help="write the results as JSON here")
+    p.add_argument("--no-progress", action="store_true")
+    return p
+
+
+def main(argv: list[str]) -> int:
+    args = _parser().parse_args(argv)
+    from stablemo.data import MotionDataset
+
+    torch.manual_seed(args.seed)
+    pipe = None
+    dataset_name = args.dataset or "humanml3d"
+    if args.bundle:
+        from stablemo.pipeline import Pipeline
+
+        pipe = Pipeline.from_bundle(args.bundle, device=args.device)
+        dataset_name = args.dataset or pipe.config.get("dataset", "humanml3d")
+    data = MotionDataset.from_folder(args.data, args.split, dataset_name, feat_bias=args.feat_bias, crop="eval",
+                                     seed=args.seed, progress=not args.no_progress)
+    evaluator = load_text_motion_evaluator(args.evaluator, dataset_name, args.glove)
+    if evaluator.feature_dim != data.spec.feature_dim:
+        raise StableMoError(f"--evaluator: expects {evaluator.feature_dim}-d features, the data has {data.spec.feature_dim}")
+
+    generate = None
+    row_name = "model"
+    if pipe is not None:
+        row_name = f"{Path(args.bundle).name} ({args.sampler or 'default'}, {args.steps} steps, cfg {args.cfg:g})"
+        lo, hi = pipe.min_length, pipe.max_length
+
+        def generate(texts, lengths, seeds):
+            # Evaluation crops can be shorter than the model's minimum: generate at the minimum and
+            # keep the first `length` frames (the scored length is always the requested one).
+            gen_lengths = [min(max(n, lo), hi) for n in lengths]
+            out = pipe.generate(texts, gen_lengths, steps=args.steps, cfg=args.cfg, sampler=args.sampler, seed=seeds)
+            return out.features, out.joints
+
+    result = evaluate(data, evaluator, generate, replications=args.replications, seed=args.seed,
+                      batch_size=args.batch_size, max_items=args.max_items, footskate=args.footskate,
+                      skeleton=data.spec.skeleton, multimodality=args.multimodality, mm_captions=args.mm_captions,
+                      mm_generations=args.mm_generations, row_name=row_name, progress=not args.no_progress)
+    aits = None
+    if pipe is not None and args.aits > 0:
+        rng = np.random.default_rng(args.seed)
+        picks = rng.choice(len(data), min(args.aits, len(data)), replace=False)
+        items = [data[int(i)] for i in picks]
+        sync = torch.cuda.synchronize if pipe.device.type == "cuda" else None
+        aits = metrics.average_inference_time(
+            lambda text, n: pipe.generate([text], [min(max(n, pipe.min_length), pipe.max_length)], steps=args.steps,
+                                          cfg=args.cfg, sampler=args.sampler, seed=args.seed),
+            [it["text"] for it in items], [it["length"] for it in items], synchronize=sync)
+    result["settings"].update(
+        bundle=args.bundle, data=args.data, split=args.split, dataset=dataset_name,
+        steps=args.steps if pipe else None, sampler=args.sampler if pipe else None, cfg=args.cfg if pipe else None,
+        device=str(pipe.device) if pipe else None, aits_sentences=args.aits if pipe else 0,
+    )
+    result["aits"] = aits
+    print(f"evaluator: {evaluator.name}; split {args.split}, {result['settings']['items']} items, "
+          f"{args.replications} replication(s), mean ± 95% interval")
+    print(format_table(result, aits))
+    if args.out:
+        from stablemo.io import write_text
+
+        write_text(args.out, json.dumps(result, indent=2) + "\n")
+        print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
