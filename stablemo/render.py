@@ -309,10 +309,26 @@ def _wrap(text: str, width: int) -> str:
 # --------------------------------------------------------------------------- CLI
 
 
-def load_motion(path: str | Path, skeleton: str | None = None) -> tuple[np.ndarray, Skeleton]:
-    """Read a .npy of features (T, D) or joints (T, J, 3); return joints (T, J, 3) and the skeleton."""
+def _is_batch(shape: tuple[int, ...]) -> bool:
+    skel = skeleton_for_shape(shape)
+    if skel is None:
+        return False
+    return (len(shape) == 3 and shape[-1] == skel.feature_dim) or (len(shape) == 4 and shape[-1] == 3)
+
+
+def load_motion(path: str | Path, skeleton: str | None = None, index: int | None = None) -> tuple[np.ndarray, Skeleton]:
+    """Read a .npy of features (T, D) or joints (T, J, 3) — or a batch (N, T, D) / (N, T, J, 3) with
+    `index` choosing the item; return joints (T, J, 3) and the skeleton."""
     path = Path(path)
     arr = load_npy(path)
+    if _is_batch(arr.shape):
+        if index is None:
+            raise StableMoError(f"{path}: holds a batch of {arr.shape[0]} motions {arr.shape}; choose one with --index")
+        if not -arr.shape[0] <= index < arr.shape[0]:
+            raise StableMoError(f"--index: {index} out of range for {arr.shape[0]} motions in {path}")
+        arr = np.asarray(arr[index])
+    elif index is not None:
+        raise StableMoError(f"--index: {path} holds a single motion {arr.shape}")
     if skeleton is not None:
         skel = get_skeleton(skeleton)
     else:
@@ -345,8 +361,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--skeleton", choices=["humanml3d", "kit"], default=None, help="default: from the array shape")
     parser.add_argument("--fps", type=float, default=None, help="playback rate (default: the skeleton's, 20 for HumanML3D)")
     parser.add_argument("--title", default=None)
+    parser.add_argument("--index", type=int, default=None, help="item to render when FILE holds a batch (N, T, D) or (N, T, J, 3)")
     args = parser.parse_args(argv)
-    joints, skel = load_motion(args.file, args.skeleton)
+    joints, skel = load_motion(args.file, args.skeleton, args.index)
     title = args.title if args.title is not None else Path(args.file).stem
     out = render_animation(joints, args.out, skel, fps=args.fps, title=title)
     print(f"wrote {out} ({len(joints)} frames, skeleton {skel.name})")

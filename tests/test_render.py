@@ -128,6 +128,13 @@ def test_cli_features_and_joints(tmp_path, capsys):
     np.save(tmp_path / "kit.npy", joints_to_features(kit, KIT))
     assert render.main([str(tmp_path / "kit.npy"), "--out", str(tmp_path / "k.gif")]) == 0
     assert "skeleton kit" in capsys.readouterr().out
+    # a batch needs --index
+    np.save(tmp_path / "batch.npy", np.stack([joints_to_features(joints, HUMANML3D)] * 3))
+    with pytest.raises(StableMoError, match="--index"):
+        render.main([str(tmp_path / "batch.npy"), "--out", str(tmp_path / "b.gif")])
+    with pytest.raises(StableMoError, match="out of range"):
+        render.main([str(tmp_path / "batch.npy"), "--index", "3", "--out", str(tmp_path / "b.gif")])
+    assert render.main([str(tmp_path / "batch.npy"), "--index", "1", "--out", str(tmp_path / "b.gif")]) == 0
 
 
 def test_cli_errors(tmp_path, capsys):
