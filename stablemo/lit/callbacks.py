@@ -1,0 +1,47 @@
+"""Training guards: stop on a non-finite loss or gradient before it reaches the weights."""
+
+from __future__ import annotations
+
+import torch
+from lightning.pytorch import Callback, LightningModule, Trainer
+
+from stablemo.errors import StableMoError
+
+
+class NonFiniteLossError(StableMoError):
+    """Training diverged (NaN/Inf loss or gradient); raised before the optimiser step."""
+
+
+class NonFiniteGuard(Callback):
+    """Check the loss and the gradients right before every optimiser step.
+
+    Raising here (rather than in `training_step`) means the check runs after DDP's gradient
+    all-reduce, so every rank sees the same NaN and stops together; and it runs before the weights
+    change, so no checkpoint written afterwards could contain them — in fact none is written, since
+    Lightning saves no checkpoint on an exception.
+    """
+
+    def __init__(self, check_gradients: bool = True) -> None:
+        self.check_gradients = check_gradients
+
+    def on_before_optimizer_step(self, trainer: Trainer, pl_module: LightningModule, optimizer) -> None:
+        problems = []
+        loss = getattr(pl_module, "last_train_loss", None)
+        if loss is not None and not bool(torch.isfinite(loss).all()):
+            problems.append(f"loss = {loss.item()}")
+        # fp16 loss scaling produces Inf gradients by design and skips those steps itself
+        scaled = getattr(trainer.precision_plugin, "scaler", None) is not None
+        if self.check_gradients and not scaled:
+            bad = [name for name, p in pl_module.named_parameters() if p.grad is not None and not torch.isfinite(p.grad).all()]
+            if bad:
+                problems.append(f"non-finite gradients in {len(bad)} tensors (first: {bad[0]})")
+        diverged = trainer.strategy.reduce_boolean_decision(bool(problems), all=False)
+        if not diverged:
+            return
+        ckpt = getattr(trainer.checkpoint_callback, "last_model_path", "") or "none written yet"
+        detail = "; ".join(problems) or "on another rank"
+        raise NonFiniteLossError(
+            f"training diverged at step {trainer.global_step} ({detail}). Stopped before the optimiser step: "
+            f"the weights were not updated and no checkpoint was written. Last good checkpoint: {ckpt}. "
+            "Resume from it with `--ckpt_path last`, e.g. with a lower --model.lr or a finite dataset."
+        )
