@@ -1,0 +1,135 @@
+"""`stablemo generate`: prompts -> features .npy, joints .npy and an animation per prompt.
+
+    stablemo generate "a person walks forward and waves" --seconds 6 --out outputs
+    stablemo generate --prompts prompts.txt --frames 120 --steps 10 --cfg 2.5 --format mp4
+
+Every file is written atomically: an interrupted run leaves no half-written output.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from pathlib import Path
+
+from stablemo.errors import StableMoError
+
+DEFAULT_BUNDLE = Path(__file__).resolve().parent / "assets" / "demo_bundle"
+DEFAULT_SECONDS = 6.0
+
+
+def slugify(text: str, max_len: int = 60) -> str:
+    slug = re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-")[:max_len].rstrip("-")
+    return slug or "motion"
+
+
+def unique_slugs(texts: list[str]) -> list[str]:
+    seen: dict[str, int] = {}
+    out = []
+    for text in texts:
+        slug = slugify(text)
+        seen[slug] = seen.get(slug, 0) + 1
+        out.append(slug if seen[slug] == 1 else f"{slug}-{seen[slug]}")
+    return out
+
+
+def read_prompts(path: str) -> list[str]:
+    """One prompt per line; blank lines and lines starting with '#' are skipped."""
+    file = Path(path)
+    if not file.is_file():
+        raise StableMoError(f"{file}: prompts file not found")
+    prompts = [line.strip() for line in file.read_text().splitlines()]
+    prompts = [p for p in prompts if p and not p.startswith("#")]
+    if not prompts:
+        raise StableMoError(f"{file}: no prompts in the file")
+    return prompts
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="stablemo generate", description="Generate motions from text with a trained bundle.")
+    p.add_argument("prompt", nargs="*", help="text prompt(s), e.g. \"a person walks forward and waves\"")
+    p.add_argument("--prompts", metavar="FILE", help="file with one prompt per line (added to the positional ones)")
+    length = p.add_mutually_exclusive_group()
+    length.add_argument("--seconds", type=float, help=f"motion length in seconds (default {DEFAULT_SECONDS:g}, capped at the model's maximum)")
+    length.add_argument("--frames", type=int, help="motion length in frames")
+    p.add_argument("--steps", type=int, default=10, help="sampler steps (default 10)")
+    p.add_argument("--cfg", type=float, default=2.5, help="classifier-free guidance scale (default 2.5; 1 = off)")
+    p.add_argument("--sampler", default=None, help="ddpm, ddim, dpmpp_2m, dpmpp_2m_sde (default: the bundle kind's default)")
+    p.add_argument("--seed", type=int, default=0, help="seed; prompt i uses seed + i (default 0)")
+    p.add_argument("--bundle", default=None, help=f"bundle folder (default: the packaged demo model, {DEFAULT_BUNDLE})")
+    p.add_argument("--out", default="outputs", help="output folder (default ./outputs)")
+    p.add_argument("--format", choices=["gif", "mp4"], default="gif", help="animation format (mp4 needs ffmpeg)")
+    p.add_argument("--no-render", action="store_true", help="write the .npy files only")
+    p.add_argument("--dtype", default=None, help="network precision: fp32, bf16 (CPU/GPU) or fp16 (GPU); default fp32 on CPU, fp16 on GPU")
+    p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
+    return p
+
+
+def _bundle_path(arg: str | None) -> Path:
+    if arg is not None:
+        path = Path(arg)
+        if not path.is_dir():
+            raise StableMoError(f"--bundle: {path}: bundle folder not found")
+        return path
+    if not (DEFAULT_BUNDLE / "config.json").is_file():
+        raise StableMoError(
+            f"no bundle given and the packaged demo model is missing ({DEFAULT_BUNDLE}). Train one "
+            "(`stablemo fit --config <config.yaml>`), export it (`stablemo export CKPT --out DIR`) "
+            "and pass `--bundle DIR`"
+        )
+    return DEFAULT_BUNDLE
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    prompts = [p.strip() for p in args.prompt]
+    for i, p in enumerate(prompts):
+        if not p:
+            raise StableMoError(f"prompt {i + 1}: empty prompt")
+    if args.prompts:
+        prompts += read_prompts(args.prompts)
+    if not prompts:
+        raise StableMoError("prompt: give a text prompt or --prompts FILE")
+    if args.steps < 1:
+        raise StableMoError(f"--steps: must be >= 1, got {args.steps}")
+    if args.seconds is not None and args.seconds <= 0:
+        raise StableMoError(f"--seconds: must be positive, got {args.seconds:g}")
+    bundle = _bundle_path(args.bundle)
+
+    from stablemo.pipeline import Pipeline
+
+    pipe = Pipeline.from_bundle(bundle, device=args.device, dtype=args.dtype)
+    if args.frames is not None:
+        frames, flag = args.frames, f"--frames {args.frames}"
+    elif args.seconds is not None:
+        frames, flag = round(args.seconds * pipe.fps), f"--seconds {args.seconds:g}"
+    else:
+        frames, flag = min(round(DEFAULT_SECONDS * pipe.fps), pipe.max_length), None
+    if flag and not pipe.min_length <= frames <= pipe.max_length:
+        raise StableMoError(
+            f"{flag}: {frames} frames is outside this model's range [{pipe.min_length}, {pipe.max_length}] frames "
+            f"({pipe.min_length / pipe.fps:g}-{pipe.max_length / pipe.fps:g} s at {pipe.fps:g} fps)"
+        )
+
+    result = pipe.generate(prompts, [frames] * len(prompts), steps=args.steps, cfg=args.cfg, sampler=args.sampler,
+                           seed=args.seed, progress=True)
+
+    from stablemo.io import save_npy
+
+    out = Path(args.out)
+    for text, slug, feats, joints in zip(prompts, unique_slugs(prompts), result.feature_list(), result.joint_list()):
+        save_npy(out / f"{slug}.features.npy", feats)
+        save_npy(out / f"{slug}.joints.npy", joints)
+        written = [f"{slug}.features.npy", f"{slug}.joints.npy"]
+        if not args.no_render:
+            from stablemo.render import render_animation
+
+            render_animation(joints, out / f"{slug}.{args.format}", pipe.skeleton, fps=pipe.fps, title=text)
+            written.append(f"{slug}.{args.format}")
+        print(f"{text!r}: {frames} frames -> {out}/{{{', '.join(written)}}}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

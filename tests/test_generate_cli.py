@@ -1,0 +1,107 @@
+"""`stablemo generate`: outputs per prompt, and one clear error for each kind of bad input."""
+
+import numpy as np
+import pytest
+import torch
+
+from stablemo import cli, generate
+from stablemo.errors import StableMoError
+
+D = 263
+
+
+@pytest.fixture(scope="module")
+def bundle(tmp_path_factory):
+    model_mod = pytest.importorskip("stablemo.model")
+    from stablemo.bundle import save_bundle
+
+    config = {
+        "model": {
+            "denoiser": {"name": "unet", "input_dim": D, "base_channels": 16, "channel_mults": [1, 2],
+                         "time_dim": 32, "num_groups": 4, "num_heads": 2, "dropout": 0.0},
+            "text": {"encoder": "minilm", "latent_dim": 32, "num_layers": 1, "num_heads": 2, "ff_dim": 64, "dropout": 0.0},
+        },
+        "schedule": {"num_train_timesteps": 1000},
+        "prediction_type": "sample",
+        "dataset": "humanml3d",
+        "skeleton": "humanml3d",
+        "fps": 20,
+        "mean": [0.0] * D,
+        "std": [0.1] * D,
+        "min_length": 8,
+        "max_length": 40,
+        "kind": "diffusion",
+    }
+    torch.manual_seed(0)
+    model = model_mod.MotionDiffusionModel(**config["model"])
+    for p in model.parameters():  # the output conv is zero-initialised; give the net a real output
+        torch.nn.init.normal_(p, std=0.05)
+    return save_bundle(tmp_path_factory.mktemp("gen") / "bundle", config, model.state_dict())
+
+
+def test_writes_features_joints_and_animation_per_prompt(bundle, tmp_path, capsys):
+    prompts = tmp_path / "prompts.txt"
+    prompts.write_text("# a comment\na person jumps\n\na person jumps\n")
+    out = tmp_path / "out"
+    rc = generate.main(["a person walks forward and waves", "--prompts", str(prompts), "--frames", "12",
+                        "--steps", "2", "--bundle", str(bundle), "--out", str(out), "--seed", "3"])
+    assert rc == 0
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted([
+        "a-person-walks-forward-and-waves.features.npy", "a-person-walks-forward-and-waves.joints.npy",
+        "a-person-walks-forward-and-waves.gif",
+        "a-person-jumps.features.npy", "a-person-jumps.joints.npy", "a-person-jumps.gif",
+        "a-person-jumps-2.features.npy", "a-person-jumps-2.joints.npy", "a-person-jumps-2.gif",
+    ])  # no temporary files left behind
+    feats = np.load(out / "a-person-jumps.features.npy")
+    joints = np.load(out / "a-person-jumps.joints.npy")
+    assert feats.shape == (12, D) and feats.dtype == np.float32 and joints.shape == (12, 22, 3)
+    # same prompt, different seed (seed + i) -> a different motion
+    assert not np.allclose(feats, np.load(out / "a-person-jumps-2.features.npy"))
+    assert "12 frames" in capsys.readouterr().out
+
+
+def test_seed_reproducible_and_seconds_flag(bundle, tmp_path):
+    args = ["a person runs", "--seconds", "0.8", "--steps", "2", "--bundle", str(bundle), "--no-render"]
+    generate.main(args + ["--out", str(tmp_path / "a")])
+    generate.main(args + ["--out", str(tmp_path / "b")])
+    a = np.load(tmp_path / "a" / "a-person-runs.features.npy")
+    assert a.shape == (16, D)  # 0.8 s at 20 fps
+    assert np.array_equal(a, np.load(tmp_path / "b" / "a-person-runs.features.npy"))
+    assert not (tmp_path / "a" / "a-person-runs.gif").exists()
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["   "], "prompt 1: empty prompt"),
+        ([], "give a text prompt or --prompts FILE"),
+        (["walk", "--frames", "100"], r"--frames 100: 100 frames is outside this model's range \[8, 40\]"),
+        (["walk", "--seconds", "0.2"], r"--seconds 0.2: 4 frames is outside"),
+        (["walk", "--seconds", "-1"], "--seconds: must be positive"),
+        (["walk", "--steps", "0"], "--steps: must be >= 1"),
+        (["walk", "--prompts", "/nonexistent/prompts.txt"], "prompts file not found"),
+        (["walk", "--sampler", "euler", "--frames", "16"], "sampler: unknown 'euler'"),
+    ],
+)
+def test_bad_input_errors(bundle, tmp_path, argv, message):
+    with pytest.raises(StableMoError, match=message):
+        generate.main(argv + ["--bundle", str(bundle), "--out", str(tmp_path)])
+    assert not any(tmp_path.iterdir())  # nothing written
+
+
+def test_missing_bundles(tmp_path, monkeypatch, capsys):
+    with pytest.raises(StableMoError, match="--bundle: .*nope: bundle folder not found"):
+        generate.main(["walk", "--bundle", str(tmp_path / "nope")])
+    monkeypatch.setattr(generate, "DEFAULT_BUNDLE", tmp_path / "demo_bundle")
+    with pytest.raises(StableMoError, match=r"packaged demo model is missing .*demo_bundle.*stablemo export"):
+        generate.main(["walk"])
+    # through the console entry point: one line on stderr, exit code 2
+    assert cli.main(["generate", "walk", "--bundle", str(tmp_path / "nope")]) == 2
+    assert "stablemo generate: error:" in capsys.readouterr().err
+
+
+def test_slugs_are_safe_and_unique():
+    assert generate.slugify("A person: walks / forward!!") == "a-person-walks-forward"
+    assert generate.slugify("???") == "motion"
+    assert generate.unique_slugs(["Jump", "jump", "JUMP"]) == ["jump", "jump-2", "jump-3"]
