@@ -18,7 +18,7 @@ from stablemo.motion import (
     get_skeleton,
     joints_to_features,
 )
-from stablemo.motion.quaternion import qbetween_np, qrot_np, quat_to_matrix_np, rot6d_to_matrix
+from stablemo.motion.quaternion import qbetween_np, qmul_np, qrot_np, quat_to_matrix_np, rot6d_to_matrix
 
 SAMPLE = Path(__file__).resolve().parents[2] / "shared/data/humanml3d-sample"
 CLIP = "012314"
@@ -58,8 +58,6 @@ def random_motion(rng: np.random.Generator, num_frames: int = 120, skeleton=HUMA
         centre, width = rng.uniform(0.2, 0.8) * t[-1], rng.uniform(0.3, 1.0)
         heading = heading + rng.uniform(-3 * np.pi, 3 * np.pi) / (1 + np.exp(-(t - centre) / (width / 6)))
     yaw = _axis_angle_to_quat(heading[:, None] * np.array([0.0, 1.0, 0.0]))
-    from stablemo.motion.quaternion import qmul_np
-
     root_rot = qmul_np(yaw, local[:, 0])
     speed = rng.uniform(0.0, 2.5) * (1 + 0.5 * _smooth_noise(rng, t, (), 0.5))
     direction = np.stack([np.sin(heading), np.zeros_like(heading), np.cos(heading)], -1)
@@ -202,11 +200,9 @@ def test_round_trip_survives_full_turns_past_180_degrees():
     rng = np.random.default_rng(11)
     base = random_motion(rng, num_frames=60)
     angle = np.linspace(0, 6 * np.pi, 60)
-    from stablemo.motion.quaternion import qrot_np as rot
-
     quat = np.stack([np.cos(angle / 2), 0 * angle, np.sin(angle / 2), 0 * angle], -1)
     centred = base - base[:, :1] * np.array([1, 0, 1])
-    joints = rot(np.broadcast_to(quat[:, None], centred.shape[:-1] + (4,)), centred)
+    joints = qrot_np(np.broadcast_to(quat[:, None], centred.shape[:-1] + (4,)), centred)
     feats = joints_to_features(joints, HUMANML3D)
     rec = features_to_joints(feats.astype(np.float64), HUMANML3D)
     assert np.abs(rec - canonicalize_joints(joints, HUMANML3D)[:-1]).max() < 1e-4
