@@ -1,0 +1,97 @@
+"""`stablemo export CKPT --out DIR`: a Lightning training checkpoint -> an inference bundle.
+
+The bundle (stablemo.bundle) holds the EMA weights by default, the network/schedule/prediction
+configuration from the checkpoint's hyperparameters and the dataset facts (Mean/Std, skeleton,
+fps, lengths) the DiffusionModule stored at save time — no dataset is needed to export.
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+from pathlib import Path
+
+import torch
+
+from stablemo.bundle import save_bundle
+from stablemo.errors import StableMoError
+from stablemo.lit.checkpoint_io import load_checkpoint_file
+from stablemo.lit.module import CHECKPOINT_KEY
+
+WEIGHTS = ("ema", "raw")
+
+
+def bundle_from_checkpoint(checkpoint: dict, source: str = "", weights: str = "ema") -> tuple[dict, dict[str, torch.Tensor]]:
+    """(bundle config, state_dict of MotionDiffusionModel) from a loaded DiffusionModule checkpoint."""
+    if weights not in WEIGHTS:
+        raise StableMoError(f"--weights: expected one of {WEIGHTS}, got {weights!r}")
+    hp = checkpoint.get("hyper_parameters")
+    extra = checkpoint.get(CHECKPOINT_KEY)
+    if not isinstance(hp, dict) or "model" not in hp or not isinstance(extra, dict):
+        raise StableMoError(f"{source}: not a DiffusionModule checkpoint (no model hyperparameters / EMA section)")
+    data = extra.get("data")
+    if not data:
+        raise StableMoError(f"{source}: the checkpoint holds no dataset statistics (trained without a data module?)")
+
+    if weights == "ema":
+        state = dict(extra["ema"]["shadow"])
+    else:
+        prefix = "model."
+        state = {k[len(prefix):]: v for k, v in checkpoint["state_dict"].items() if k.startswith(prefix)}
+    if not state:
+        raise StableMoError(f"{source}: no {weights} weights in the checkpoint")
+    bad = [k for k, v in state.items() if v.is_floating_point() and not torch.isfinite(v).all()]
+    if bad:
+        raise StableMoError(f"{source}: {weights} weights contain NaN/Inf (e.g. {bad[0]}); export an earlier checkpoint")
+
+    from stablemo.diffusion.schedule import NoiseSchedule
+    from stablemo.text import TextConditioner
+
+    model = {"denoiser": dict(hp["model"]["denoiser"]), "text": dict(hp["model"].get("text") or {})}
+    # Make the text encoder id explicit even when the training config relied on the default.
+    default_encoder = inspect.signature(TextConditioner.__init__).parameters["encoder"].default
+    model["text"].setdefault("encoder", default_encoder)
+    config = {
+        "kind": "diffusion",
+        "model": model,
+        "schedule": NoiseSchedule(**(hp.get("schedule") or {})).config(),
+        "prediction_type": hp.get("prediction_type", "sample"),
+        "dataset": data["dataset"],
+        "skeleton": data["skeleton"],
+        "fps": data["fps"],
+        "mean": list(data["mean"]),
+        "std": list(data["std"]),
+        "min_length": data["min_length"],
+        "max_length": data["max_length"],
+        "training": {
+            "checkpoint": source,
+            "global_step": int(checkpoint.get("global_step", 0)),
+            "epoch": int(checkpoint.get("epoch", 0)),
+            "weights": weights,
+            "ema_decay": extra["ema"]["decay"],
+            "ema_updates": int(extra["ema"]["num_updates"]),
+            "cond_drop_prob": hp.get("cond_drop_prob"),
+            "lr": hp.get("lr"),
+            "data": {k: v for k, v in (checkpoint.get("datamodule_hyper_parameters") or {}).items()
+                     if not k.startswith("_")},
+            "lightning_version": checkpoint.get("pytorch-lightning_version"),
+        },
+    }
+    return config, state
+
+
+def export(ckpt: str | Path, out: str | Path, weights: str = "ema") -> Path:
+    checkpoint = load_checkpoint_file(ckpt)
+    config, state = bundle_from_checkpoint(checkpoint, source=str(ckpt), weights=weights)
+    return save_bundle(out, config, state)
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="stablemo export", description=__doc__.splitlines()[0])
+    parser.add_argument("ckpt", help="Lightning checkpoint (.ckpt) written by `stablemo fit`")
+    parser.add_argument("--out", required=True, help="bundle folder to write (replaced atomically)")
+    parser.add_argument("--weights", choices=WEIGHTS, default="ema", help="EMA weights (default) or the raw weights")
+    args = parser.parse_args(argv)
+    path = export(args.ckpt, args.out, weights=args.weights)
+    print(f"wrote {path}")
+    return 0
