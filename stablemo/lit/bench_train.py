@@ -1,0 +1,116 @@
+"""`stablemo bench train --config FILE`: training iterations/s and peak memory for a training config.
+
+Builds the model and data exactly as `stablemo fit --config FILE` would, then runs a short fit
+(no validation, no checkpoints, no logger) and times the optimiser steps after a warm-up. Timed
+steps include data loading, text encoding, forward, backward, clipping, the optimiser and the EMA
+update: what a real run pays per step.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import sys
+import time
+
+import torch
+from lightning.pytorch import Callback, Trainer
+
+from stablemo.errors import StableMoError
+
+
+class StepTimer(Callback):
+    def __init__(self) -> None:
+        self.stamps: list[float] = []
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        if pl_module.device.type == "cuda":
+            torch.cuda.synchronize(pl_module.device)
+        self.stamps.append(time.perf_counter())
+
+
+def peak_memory_mb(device: torch.device) -> tuple[str, float]:
+    if device.type == "cuda":
+        return "cuda max allocated", torch.cuda.max_memory_allocated(device) / 2**20
+    # ru_maxrss is KiB on Linux, bytes on macOS
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return "process peak RSS", rss / (2**20 if sys.platform == "darwin" else 2**10)
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="stablemo bench train", description=__doc__.splitlines()[0])
+    parser.add_argument("--config", required=True, help="training YAML (as for `stablemo fit --config`)")
+    parser.add_argument("--steps", type=int, default=20, help="timed optimiser steps (default 20)")
+    parser.add_argument("--warmup", type=int, default=3, help="untimed steps first (default 3)")
+    parser.add_argument("--batch-size", type=int, default=None, help="override data.batch_size")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
+    parser.add_argument("--json", default=None, help="also write the result to this JSON file")
+    parser.add_argument("overrides", nargs="*", help="extra LightningCLI overrides, e.g. --model.lr=1e-4 (after --)")
+    args = parser.parse_args(argv)
+    if args.steps < 1 or args.warmup < 0:
+        raise StableMoError("--steps must be >= 1 and --warmup >= 0")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+
+    from stablemo.data import MotionDataModule
+    from stablemo.lit.cli import StableMoCLI
+    from stablemo.lit.module import DiffusionModule
+
+    cli_args = ["--config", args.config, f"--seed_everything={args.seed}", *args.overrides]
+    if args.batch_size:
+        cli_args.append(f"--data.batch_size={args.batch_size}")
+    cli = StableMoCLI(DiffusionModule, MotionDataModule, args=cli_args, run=False, save_config_callback=None,
+                      auto_configure_optimizers=False)
+    configured = cli.trainer
+    timer = StepTimer()
+    trainer = Trainer(
+        accelerator=configured.accelerator,
+        devices=1,
+        precision=cli.config.trainer.get("precision"),
+        gradient_clip_val=configured.gradient_clip_val,
+        max_steps=args.warmup + args.steps,
+        limit_val_batches=0,
+        num_sanity_val_steps=0,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        callbacks=[timer],
+    )
+    trainer.fit(cli.model, datamodule=cli.datamodule)
+    device = cli.model.device
+    stamps = timer.stamps[args.warmup:]
+    if len(stamps) < 2:
+        raise StableMoError(f"{args.config}: too few steps ran to time ({len(timer.stamps)})")
+    its = (len(stamps) - 1) / (stamps[-1] - stamps[0])
+    kind, peak = peak_memory_mb(device)
+    n_params = sum(p.numel() for p in cli.model.model.parameters() if p.requires_grad)
+    result = {
+        "config": args.config,
+        "device": str(device),
+        "threads": torch.get_num_threads(),
+        "batch_size": cli.datamodule.batch_size,
+        "trainable_params": n_params,
+        "timed_steps": len(stamps) - 1,
+        "it_per_s": its,
+        "s_per_it": 1.0 / its,
+        "samples_per_s": its * cli.datamodule.batch_size,
+        "peak_memory_mb": peak,
+        "peak_memory_kind": kind,
+    }
+    print(f"config            {args.config}")
+    print(f"device            {device} ({result['threads']} threads)")
+    print(f"trainable params  {n_params / 1e6:.2f} M")
+    print(f"batch size        {result['batch_size']}")
+    print(f"training speed    {its:.3f} it/s  ({1 / its:.3f} s/it, {result['samples_per_s']:.1f} samples/s)")
+    print(f"peak memory       {peak:.0f} MiB ({kind})")
+    max_steps = configured.max_steps
+    if max_steps and max_steps > 0:
+        print(f"full run          {max_steps} steps ~ {max_steps / its / 60:.1f} min at this speed")
+    if args.json:
+        from stablemo.io import write_text
+
+        write_text(args.json, json.dumps(result, indent=2) + "\n")
+    return 0
