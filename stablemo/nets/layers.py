@@ -1,0 +1,219 @@
+"""Building blocks shared by the denoisers.
+
+Padding invariance (ARCHITECTURE.md) rests on two rules that every layer here follows:
+
+1. Padded positions are set to exactly zero (with `torch.where`, so NaN/inf padding cannot leak
+   through `0 * nan`) after every operator that mixes time steps or could make them non-zero,
+   before the next temporal operator. A convolution then sees zeros past the last valid frame,
+   which is exactly what its own zero padding shows at the end of a shorter tensor.
+2. Statistics (norms, attention normalisers, pooling) are taken over valid positions only.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from stablemo.errors import StableMoError
+
+
+# ----------------------------------------------------------------------------- masking helpers
+
+
+def zero_pad_btc(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """x: (B, T, C), mask: (B, T) bool -> x with padded rows exactly zero."""
+    return torch.where(mask[:, :, None], x, torch.zeros((), dtype=x.dtype, device=x.device))
+
+
+def zero_pad_bct(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """x: (B, C, T), mask: (B, T) bool -> x with padded columns exactly zero."""
+    return torch.where(mask[:, None, :], x, torch.zeros((), dtype=x.dtype, device=x.device))
+
+
+def downsample_mask(mask: torch.Tensor) -> torch.Tensor:
+    """Mask after a stride-2 down-sampling: output frame j is valid iff input frame 2j is.
+
+    For a prefix mask of length n this is a prefix of length ceil(n / 2), independent of the
+    total padded length.
+    """
+    return mask[:, ::2]
+
+
+def masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """x: (B, L, C), mask: (B, L) -> (B, C) mean over valid rows (zero when none is valid)."""
+    x = zero_pad_btc(x, mask)
+    count = mask.sum(dim=1, keepdim=True).clamp(min=1).to(x.dtype)
+    return x.sum(dim=1) / count
+
+
+def check_inputs(x, t, text, text_mask, motion_mask, input_dim: int, text_dim: int, length_multiple: int):
+    """One clear error for the shape mistakes every denoiser would otherwise report obscurely."""
+    if x.dim() != 3 or x.shape[-1] != input_dim:
+        raise StableMoError(f"x: expected shape (B, T, {input_dim}), got {tuple(x.shape)}")
+    B, T, _ = x.shape
+    if T % length_multiple != 0:
+        raise StableMoError(f"x: length {T} is not a multiple of {length_multiple}; pad the batch")
+    if t.shape != (B,):
+        raise StableMoError(f"t: expected shape ({B},), got {tuple(t.shape)}")
+    if text.dim() != 3 or text.shape[0] != B or text.shape[-1] != text_dim:
+        raise StableMoError(f"text: expected shape ({B}, L, {text_dim}), got {tuple(text.shape)}")
+    if text_mask.shape != text.shape[:2] or text_mask.dtype != torch.bool:
+        raise StableMoError(f"text_mask: expected bool {tuple(text.shape[:2])}, got {text_mask.dtype} {tuple(text_mask.shape)}")
+    if motion_mask.shape != (B, T) or motion_mask.dtype != torch.bool:
+        raise StableMoError(f"motion_mask: expected bool ({B}, {T}), got {motion_mask.dtype} {tuple(motion_mask.shape)}")
+
+
+# ----------------------------------------------------------------------------- timestep embedding
+
+
+def sinusoidal_embedding(positions: torch.Tensor, dim: int, max_period: float = 10000.0) -> torch.Tensor:
+    """positions: (N,) float or int -> (N, dim) float32, [cos | sin] halves (as Stable Diffusion)."""
+    half = dim // 2
+    freqs = torch.exp(-math.log(max_period) * torch.arange(half, dtype=torch.float32, device=positions.device) / half)
+    args = positions.float()[:, None] * freqs[None]
+    emb = torch.cat([torch.cos(args), torch.sin(args)], dim=-1)
+    if dim % 2:
+        emb = F.pad(emb, (0, 1))
+    return emb
+
+
+class TimestepEmbedder(nn.Module):
+    """Sinusoidal encoding of the diffusion step followed by two linear layers (Stable Diffusion)."""
+
+    def __init__(self, dim: int, out_dim: int | None = None):
+        super().__init__()
+        out_dim = out_dim or dim
+        self.dim = dim
+        self.mlp = nn.Sequential(nn.Linear(dim, out_dim), nn.SiLU(), nn.Linear(out_dim, out_dim))
+
+    def forward(self, t: torch.Tensor) -> torch.Tensor:  # t: (B,) -> (B, out_dim)
+        emb = sinusoidal_embedding(t, self.dim)
+        return self.mlp(emb.to(self.mlp[0].weight.dtype))
+
+
+# ----------------------------------------------------------------------------- norms
+
+
+class MaskedGroupNorm(nn.Module):
+    """GroupNorm for (B, C, T) with two modes.
+
+    - ``"group"``: the standard GroupNorm (statistics over the channels of a group *and* time), but
+      with mean/variance taken over valid frames only, so padding cannot shift them.
+    - ``"frame"``: the StableMoFusion "GroupNorm tweak": each frame is normalised on its own over
+      its channel groups; nothing crosses time at all.
+
+    Statistics are computed in float32 whatever the input precision.
+    """
+
+    def __init__(self, num_groups: int, channels: int, mode: str = "frame", eps: float = 1e-5):
+        super().__init__()
+        if mode not in ("group", "frame"):
+            raise StableMoError(f"norm: expected 'group' or 'frame', got {mode!r}")
+        if channels % num_groups:
+            raise StableMoError(f"norm: {channels} channels are not divisible into {num_groups} groups")
+        self.mode, self.num_groups, self.eps = mode, num_groups, eps
+        self.weight = nn.Parameter(torch.ones(channels))
+        self.bias = nn.Parameter(torch.zeros(channels))
+
+    def forward(self, x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        B, C, T = x.shape
+        dtype = torch.promote_types(x.dtype, torch.float32)  # at least float32 statistics
+        g = x.to(dtype).reshape(B, self.num_groups, C // self.num_groups, T)
+        if self.mode == "frame":
+            mean = g.mean(dim=2, keepdim=True)  # (B, G, 1, T)
+            var = (g - mean).pow(2).mean(dim=2, keepdim=True)
+        else:
+            m = mask[:, None, None, :]  # (B, 1, 1, T)
+            count = (mask.sum(dim=1).float() * (C // self.num_groups)).clamp(min=1)[:, None, None, None]
+            g0 = torch.where(m, g, torch.zeros((), dtype=dtype, device=x.device))
+            mean = g0.sum(dim=(2, 3), keepdim=True) / count.to(dtype)
+            centred = torch.where(m, g - mean, torch.zeros((), dtype=dtype, device=x.device))
+            var = centred.pow(2).sum(dim=(2, 3), keepdim=True) / count.to(dtype)
+        y = ((g - mean) * torch.rsqrt(var + self.eps)).reshape(B, C, T)
+        y = y * self.weight.to(dtype)[None, :, None] + self.bias.to(dtype)[None, :, None]
+        return y.to(x.dtype)
+
+
+# ----------------------------------------------------------------------------- attention
+
+
+class LinearCrossAttention(nn.Module):
+    """Residual linear multi-head cross-attention from motion frames to text tokens.
+
+    Efficient attention (as MotionDiffuse uses it): queries are soft-maxed over each head's
+    features, keys over the (valid) text tokens, so the text is summarised into one (d x d)
+    context per head and each frame reads it with its own query: cost O(T + L), and every frame's
+    output depends only on that frame and the text -- no leak across time.
+
+    x: (B, T, C), text: (B, L, text_dim), text_mask: (B, L) bool -> x + attn(x, text): (B, T, C).
+    """
+
+    def __init__(self, dim: int, text_dim: int, num_heads: int = 8, dropout: float = 0.0):
+        super().__init__()
+        if dim % num_heads:
+            raise StableMoError(f"num_heads: {dim} channels are not divisible by {num_heads} heads")
+        self.num_heads = num_heads
+        self.norm = nn.LayerNorm(dim)
+        self.text_norm = nn.LayerNorm(text_dim)
+        self.query = nn.Linear(dim, dim)
+        self.key = nn.Linear(text_dim, dim)
+        self.value = nn.Linear(text_dim, dim)
+        self.out = nn.Linear(dim, dim)
+        self.dropout = nn.Dropout(dropout)
+
+    def forward(self, x: torch.Tensor, text: torch.Tensor, text_mask: torch.Tensor) -> torch.Tensor:
+        B, T, C = x.shape
+        H = self.num_heads
+        text = self.text_norm(zero_pad_btc(text, text_mask))
+        q = self.query(self.norm(x)).reshape(B, T, H, C // H).softmax(dim=-1)
+        k_logits = self.key(text).reshape(B, -1, H, C // H)
+        k_logits = k_logits.masked_fill(~text_mask[:, :, None, None], torch.finfo(k_logits.dtype).min)
+        k = k_logits.softmax(dim=1)
+        valid = text_mask[:, :, None, None]
+        k = torch.where(valid, k, torch.zeros((), dtype=k.dtype, device=k.device))  # no valid token -> no context
+        v = self.value(text).reshape(B, -1, H, C // H)
+        v = torch.where(valid, v, torch.zeros((), dtype=v.dtype, device=v.device))
+        context = torch.einsum("blhd,blhe->bhde", k, v)  # (B, H, d, d)
+        y = torch.einsum("bthd,bhde->bthe", q, context).reshape(B, T, C)
+        return x + self.dropout(self.out(y))
+
+
+def key_padding_attention(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, key_mask: torch.Tensor,
+                          dropout_p: float = 0.0) -> torch.Tensor:
+    """Softmax attention where masked keys get exactly zero weight.
+
+    q, k, v: (B, H, S, d); key_mask: (B, S) bool (at least one valid key per row) -> (B, H, S, d).
+    """
+    attn_mask = key_mask[:, None, None, :]
+    return F.scaled_dot_product_attention(q, k, v, attn_mask=attn_mask, dropout_p=dropout_p)
+
+
+class SelfAttention(nn.Module):
+    """Multi-head self-attention over a masked token sequence. x: (B, S, C), mask: (B, S)."""
+
+    def __init__(self, dim: int, num_heads: int, dropout: float = 0.0):
+        super().__init__()
+        if dim % num_heads:
+            raise StableMoError(f"num_heads: {dim} channels are not divisible by {num_heads} heads")
+        self.num_heads, self.dropout = num_heads, dropout
+        self.qkv = nn.Linear(dim, 3 * dim)
+        self.out = nn.Linear(dim, dim)
+
+    def forward(self, x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        B, S, C = x.shape
+        q, k, v = self.qkv(x).reshape(B, S, 3, self.num_heads, C // self.num_heads).permute(2, 0, 3, 1, 4)
+        y = key_padding_attention(q, k, v, mask, self.dropout if self.training else 0.0)
+        return self.out(y.transpose(1, 2).reshape(B, S, C))
+
+
+class FeedForward(nn.Sequential):
+    def __init__(self, dim: int, hidden: int, dropout: float = 0.0):
+        super().__init__(nn.Linear(dim, hidden), nn.GELU(), nn.Dropout(dropout), nn.Linear(hidden, dim))
+
+
+def modulate(x: torch.Tensor, shift: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """adaLN / AdaGN modulation x * (1 + scale) + shift, with (B, C) shift/scale over (B, S, C)."""
+    return x * (1 + scale[:, None, :]) + shift[:, None, :]

@@ -1,0 +1,57 @@
+"""TextConditioner: frozen token encoder + the paper's small trainable transformer (latent 256).
+
+texts (list[str]) -> (text (B, L, latent_dim), text_mask (B, L) bool). The frozen encoder is kept
+outside the module tree, so it is neither in ``state_dict()`` nor in ``parameters()`` and never
+receives gradients; bundles hold only the trainable part. The classifier-free-guidance null
+condition is the empty string ``NULL_TEXT = ""`` (encoded like any caption: its special tokens).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from stablemo.errors import StableMoError
+from stablemo.text.encoders import MINILM, FrozenTextEncoder, get_encoder
+
+NULL_TEXT = ""
+
+
+class TextConditioner(nn.Module):
+    def __init__(self, encoder: str = MINILM, latent_dim: int = 256, num_layers: int = 4, num_heads: int = 4,
+                 ff_dim: int = 2048, dropout: float = 0.1, cache_size: int = 4096):
+        super().__init__()
+        self.encoder_name, self.latent_dim = encoder, latent_dim
+        # stored in __dict__ (not a submodule): no state_dict entry, no parameters, no .to() moves
+        object.__setattr__(self, "_frozen", get_encoder(encoder, cache_size))
+        self.proj = nn.Linear(self.frozen.dim, latent_dim)
+        layer = nn.TransformerEncoderLayer(latent_dim, num_heads, ff_dim, dropout, activation="gelu", batch_first=True)
+        self.transformer = nn.TransformerEncoder(layer, num_layers, enable_nested_tensor=False)
+        self.norm = nn.LayerNorm(latent_dim)
+
+    @property
+    def frozen(self) -> FrozenTextEncoder:
+        return self._frozen
+
+    def frozen_features(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
+        """Padded frozen token features (B, L, dim) float32 and mask (B, L) bool, on CPU."""
+        if isinstance(texts, str) or not isinstance(texts, (list, tuple)) or not texts:
+            raise StableMoError("texts: expected a non-empty list of strings")
+        feats = self.frozen.encode(list(texts))
+        L = max(f.shape[0] for f in feats)
+        out = torch.zeros(len(feats), L, self.frozen.dim)
+        mask = torch.zeros(len(feats), L, dtype=torch.bool)
+        for i, f in enumerate(feats):
+            out[i, : f.shape[0]] = f
+            mask[i, : f.shape[0]] = True
+        return out, mask
+
+    def forward(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
+        weight = self.proj.weight
+        if self.frozen.device != weight.device:
+            self.frozen.to(weight.device)
+        feats, mask = self.frozen_features(texts)
+        feats, mask = feats.to(weight.device, weight.dtype), mask.to(weight.device)
+        x = self.transformer(self.proj(feats), src_key_padding_mask=~mask)
+        x = self.norm(x)
+        return torch.where(mask[:, :, None], x, torch.zeros((), dtype=x.dtype, device=x.device)), mask
