@@ -13,7 +13,6 @@ accepts features (T, D) or joints (T, J, 3).
 from __future__ import annotations
 
 import argparse
-import os
 import shutil
 import subprocess
 from pathlib import Path
@@ -195,7 +194,6 @@ def _write_gif(frames: Iterator[np.ndarray], path: Path, fps: float) -> None:
     duration = max(int(round(1000.0 / fps)), 10)  # GIF time unit is 10 ms
     with atomic_path(path) as tmp:
         images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=duration, loop=0, optimize=False)
-        _readable(tmp)
 
 
 def _write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float) -> None:
@@ -213,7 +211,6 @@ def _write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float) -> None:
         proc = subprocess.run(cmd, input=b"".join(f.tobytes() for f in frames), capture_output=True)
         if proc.returncode != 0:
             raise StableMoError(f"{path}: ffmpeg failed: {proc.stderr.decode(errors='replace').strip()}")
-        _readable(tmp)
 
 
 def render_animation(
@@ -249,14 +246,6 @@ def _frame_indices(num: int, count: int) -> list[int]:
 def _save_png(fig, path: Path) -> None:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=DPI)
-        _readable(tmp)
-
-
-def _readable(tmp: Path) -> None:
-    # the atomic temporary file is created private (0600); a picture is meant to be looked at
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
 
 
 def render_strip(
