@@ -166,3 +166,37 @@ def test_evaluate_command_real_motion_only(trained, capsys):
     assert result["settings"]["replications"] == 2
     with pytest.raises(StableMoError):
         main(["--data", str(trained["root"]), "--evaluator", str(trained["tmp"] / "nope.ckpt"), "--no-progress"])
+
+
+def test_evaluate_command_with_a_bundle(trained, capsys):
+    """End to end through Pipeline.from_bundle with a tiny untrained model: table, footskate, AITS, JSON."""
+    import json
+
+    from stablemo.bundle import save_bundle
+    from stablemo.eval.command import main
+    from stablemo.model import MotionDiffusionModel
+
+    torch.manual_seed(0)
+    model_cfg = {"denoiser": {"name": "unet", "input_dim": 263, "base_channels": 16, "channel_mults": [1, 2],
+                              "time_dim": 32, "num_groups": 4, "num_heads": 2},
+                 "text": {"latent_dim": 32, "num_layers": 1, "num_heads": 2, "ff_dim": 64}}
+    net = MotionDiffusionModel(**model_cfg)
+    dm = trained["dm"]
+    bundle = save_bundle(trained["tmp"] / "bundle", {
+        "model": model_cfg, "schedule": {}, "prediction_type": "sample", "dataset": "humanml3d",
+        "skeleton": "humanml3d", "fps": 20.0, "mean": dm.mean.tolist(), "std": dm.std.tolist(),
+        "min_length": 40, "max_length": 196, "kind": "diffusion"}, net.state_dict())
+    out = trained["tmp"] / "bundle_results.json"
+    argv = ["--bundle", str(bundle), "--data", str(trained["root"]), "--evaluator", str(trained["ckpt"]),
+            "--split", "train", "--replications", "1", "--steps", "2", "--sampler", "ddim", "--footskate",
+            "--aits", "2", "--max-items", "40", "--out", str(out), "--no-progress"]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "bundle (ddim, 2 steps, cfg 2.5)" in printed and "Skate" in printed and "AITS" in printed
+    result = json.loads(out.read_text())
+    row = result["rows"]["bundle (ddim, 2 steps, cfg 2.5)"]
+    assert set(row) >= {"r1", "r2", "r3", "fid", "mm_dist", "diversity", "skate_ratio"}
+    assert 0.0 <= row["skate_ratio"]["mean"] <= 1.0
+    # An untrained model is far from the data; the real motions are not.
+    assert row["fid"]["mean"] > 5 * result["rows"]["Real motion"]["fid"]["mean"]
+    assert result["aits"] > 0 and result["settings"]["items"] == 40
