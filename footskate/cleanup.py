@@ -1,0 +1,313 @@
+"""Batched foot-skate cleanup: the optimisation of StableMoFusion Eq. 6 over a padded batch.
+
+L = w_q L_pose + w_f L_foot + w_t L_trajectory + w_v L_vGRF (+ a small smoothness term on the
+correction). Variables are the root trajectory and, per frame, the global direction of every
+bone; positions come from forward kinematics with each bone keeping its input length, so bone
+lengths are exact by construction. Contact ranges are found per (sample, foot joint) with segment
+ids from cumulative sums, so the whole batch (any mix of lengths) is one set of tensor ops: no
+Python loop over samples or ranges. Each sample's loss is normalised by its own length and the
+batch loss is their sum, so a sample's result does not depend on its batch-mates.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, asdict
+
+import torch
+
+from footskate.contacts import contacts_from_forces, contacts_from_heights
+from footskate.errors import FootskateError
+from footskate.vgrf import VGRFNet, msle
+
+
+@dataclass
+class CleanupConfig:
+    iters: int = 100
+    lr: float = 1e-2
+    lr_root: float = 1e-3       # metres per step; small so that the legs, not the root, absorb the anchoring
+    fps: float = 20.0
+    up_axis: int = 1
+    w_pose: float = 1.0          # keep bone directions (the pose) close to the input
+    w_norm: float = 1.0          # keep the direction parameters near unit length (UP's quaternion-norm term)
+    w_trajectory: float = 100.0  # keep root velocities (per frame, metres)
+    w_foot: float = 1000.0       # anchor contact joints at their range targets (metres²)
+    w_vgrf: float = 0.05         # keep the predicted vGRFs (MSLE)
+    w_smooth: float = 100.0      # penalise acceleration of the correction (no pops at range borders)
+    w_clearance: float = 1000.0  # outside contact ranges, feet may rise but not sink below their input height
+    ramp_seconds: float = 0.05   # contact weights ramp over this much at each end of a range (5 frames at 100 Hz)
+    min_range: int = 3           # ranges shorter than this get no anchoring
+    vgrf_every: int = 5          # refresh the (linearised) vGRF gradient every k iterations: the net dominates cost
+
+
+@dataclass
+class CleanupResult:
+    joints: torch.Tensor         # (B, T, J, 3) corrected positions (padding copied from the input)
+    contacts: torch.Tensor       # (B, T, 4) bool, contact joints used
+    targets: torch.Tensor        # (B, T, 4, 3) anchor target per contact frame (NaN elsewhere)
+    info: dict = field(default_factory=dict)
+
+
+def ramp(x: torch.Tensor) -> torch.Tensor:
+    """Smooth step on [0, 1]: 2x² for x <= ½, else 1 - 2(1-x)²."""
+    return torch.where(x <= 0.5, 2 * x * x, 1 - 2 * (1 - x) ** 2)
+
+
+def ancestor_matrix(parents: list[int] | torch.Tensor) -> torch.Tensor:
+    """A (J, J-1) with A[j, k] = 1 if bone k (ending at joint k+1) lies on the chain root -> j.
+
+    Joints must be topologically ordered with the root at index 0 (true for HumanML3D/KIT/UP).
+    """
+    parents = [int(p) for p in parents]
+    if parents[0] >= 0 or any(p >= j for j, p in enumerate(parents) if j > 0):
+        raise FootskateError("parents: joints must be topologically ordered with the root first")
+    j_count = len(parents)
+    a = torch.zeros(j_count, j_count - 1)
+    for j in range(1, j_count):
+        k = j
+        while k > 0:
+            a[j, k - 1] = 1.0
+            k = parents[k]
+    return a
+
+
+def leg_joints(parents: list[int], feet: list[int]) -> list[int]:
+    """Joints whose bones the cleanup rotates: the feet and their ancestors, hips excluded
+    (depth >= 2), i.e. knee, ankle and toe bones of each leg."""
+    def depth(j: int) -> int:
+        d = 0
+        while parents[j] >= 0:
+            j, d = parents[j], d + 1
+        return d
+    legs = set()
+    for f in feet:
+        j = f
+        while j > 0 and depth(j) >= 2:
+            legs.add(j)
+            j = parents[j]
+    return sorted(legs)
+
+
+def valid_mask(lengths: torch.Tensor, frames: int) -> torch.Tensor:
+    return torch.arange(frames, device=lengths.device)[None, :] < lengths[:, None]
+
+
+def _fill_padding(x: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
+    """x (B, T, ...): frames past each length replaced by the last valid one."""
+    b, t = x.shape[:2]
+    idx = torch.minimum(torch.arange(t, device=x.device)[None, :], (lengths - 1).clamp(min=0)[:, None])
+    return torch.gather(x, 1, idx.view(b, t, *([1] * (x.dim() - 2))).expand_as(x))
+
+
+def contact_ranges(contacts: torch.Tensor, positions: torch.Tensor, up_axis: int, ramp_frames: int,
+                   min_range: int) -> tuple[torch.Tensor, torch.Tensor, dict]:
+    """Range targets and ramped weights for every contact frame, vectorised with segment ids.
+
+    contacts (B, T, K) bool; positions (B, T, K, 3) of the contact joints in the input motion.
+    Returns targets (B, T, K, 3) — each range's joint position at its middle frame, at the
+    height the joint touches down at (its minimum over the range, clamped at the floor) — and weights (B, T, K), ramped in and out over `ramp_frames`, zero outside ranges.
+    """
+    b, t, k = contacts.shape
+    c = contacts.permute(0, 2, 1).reshape(b * k, t)                        # rows = (sample, joint)
+    prev = torch.nn.functional.pad(c, (1, 0))[:, :-1]
+    starts = c & ~prev
+    per_row = starts.sum(1)
+    row_offset = torch.cumsum(per_row, 0) - per_row                         # exclusive cumsum
+    seg = torch.cumsum(starts.long(), 1) - 1 + row_offset[:, None]          # global range id per frame
+    num = int(per_row.sum())
+    frame = torch.arange(t, device=c.device).expand(b * k, t)
+    seg_c = seg[c]
+    start = torch.zeros(num, dtype=torch.long, device=c.device).scatter_(0, seg[starts], frame[starts])
+    length = torch.bincount(seg_c, minlength=num)
+    mid = start + (length - 1) // 2
+    row = torch.repeat_interleave(torch.arange(b * k, device=c.device), per_row)
+    pos = positions.permute(0, 2, 1, 3).reshape(b * k, t, 3)
+    target = pos[row, mid].clone()                                          # (num, 3)
+    # Height: the lowest the joint gets during the range (its real touch-down height above the
+    # floor, ~1 cm for a toe, ~5-9 cm for an ankle), never below the floor.
+    low = torch.full((num,), float("inf"), dtype=positions.dtype, device=c.device)
+    low = low.scatter_reduce(0, seg_c, pos[..., up_axis][c], reduce="amin")
+    target[:, up_axis] = low.clamp(min=0.0)
+
+    targets = torch.full((b * k, t, 3), float("nan"), dtype=positions.dtype, device=c.device)
+    targets[c] = target[seg_c]
+    d = torch.minimum(frame[c] - start[seg_c], start[seg_c] + length[seg_c] - 1 - frame[c])
+    w = ramp(((d + 1).float() / (ramp_frames + 1)).clamp(max=1.0))
+    w = torch.where(length[seg_c] >= min_range, w, torch.zeros_like(w))
+    weights = torch.zeros(b * k, t, dtype=positions.dtype, device=c.device)
+    weights[c] = w.to(positions.dtype)
+    info = {"ranges": num, "anchored_ranges": int((length >= min_range).sum())}
+    return (targets.view(b, k, t, 3).permute(0, 2, 1, 3), weights.view(b, k, t).permute(0, 2, 1), info)
+
+
+def detect_contacts(joints: torch.Tensor, lengths: torch.Tensor, feet: list[int], fps: float, up_axis: int,
+                    vgrf: VGRFNet | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Contacts (B, T, 4) from the vGRF network if given, else the height/speed heuristic."""
+    mask = valid_mask(lengths, joints.shape[1])
+    if vgrf is not None:
+        with torch.no_grad():
+            forces = vgrf(joints, lengths)
+        contacts = contacts_from_forces(forces, fps, lengths)
+    else:
+        forces = None
+        contacts = contacts_from_heights(joints[:, :, feet], fps, up_axis, lengths)
+    return contacts & mask[..., None], forces
+
+
+def _check(joints: torch.Tensor, parents, feet, lengths) -> torch.Tensor:
+    if joints.dim() != 4 or joints.shape[-1] != 3:
+        raise FootskateError(f"joints: expected (B, T, J, 3), got {tuple(joints.shape)}")
+    if len(parents) != joints.shape[2]:
+        raise FootskateError(f"parents: {len(parents)} entries for {joints.shape[2]} joints")
+    if len(feet) != 4:
+        raise FootskateError("feet: expected 4 joint indices [L_heel, L_toe, R_heel, R_toe]")
+    if not torch.isfinite(joints).all():
+        raise FootskateError("joints: contains NaN or infinite values")
+    b, t = joints.shape[:2]
+    if lengths is None:
+        return torch.full((b,), t, dtype=torch.long, device=joints.device)
+    lengths = torch.as_tensor(lengths, dtype=torch.long, device=joints.device).reshape(-1)
+    if lengths.numel() != b or (lengths < 1).any() or (lengths > t).any():
+        raise FootskateError(f"lengths: expected {b} values in [1, {t}]")
+    return lengths
+
+
+def cleanup(joints: torch.Tensor, parents, feet, lengths: torch.Tensor | None = None,
+            contacts: torch.Tensor | None = None, vgrf: VGRFNet | None = None,
+            config: CleanupConfig | None = None) -> CleanupResult:
+    """Remove foot skating from a batch of joint positions.
+
+    joints (B, T, J, 3) metres, up axis `config.up_axis`, floor at 0; parents (J,) with root 0;
+    feet = joint indices [L_heel, L_toe, R_heel, R_toe]; lengths (B,) valid frames; contacts
+    (B, T, 4) bool or None (then detected with `vgrf`, or heuristically without it).
+    """
+    cfg = config or CleanupConfig()
+    lengths = _check(joints, parents, feet, lengths)
+    started = time.perf_counter()
+    device, dtype = joints.device, torch.float32
+    x0 = _fill_padding(joints.detach().to(dtype), lengths)                     # (B, T, J, 3)
+    b, t, j_count, _ = x0.shape
+    mask = valid_mask(lengths, t)                                              # (B, T)
+    maskf = mask.to(dtype)
+    n_frames = lengths.to(dtype)                                               # per-sample normaliser
+    feet_idx = torch.as_tensor(list(feet), device=device)
+
+    if contacts is None:
+        contacts, forces0 = detect_contacts(x0, lengths, list(feet), cfg.fps, cfg.up_axis, vgrf)
+    else:
+        contacts = torch.as_tensor(contacts, device=device).bool()
+        if contacts.shape != (b, t, 4):
+            raise FootskateError(f"contacts: expected {(b, t, 4)}, got {tuple(contacts.shape)}")
+        contacts = contacts & mask[..., None]
+        forces0 = None
+    ramp_frames = max(1, int(round(cfg.ramp_seconds * cfg.fps)))
+    targets, weights, info = contact_ranges(contacts, x0[:, :, feet_idx], cfg.up_axis, ramp_frames, cfg.min_range)
+    weights = weights * maskf[..., None]
+    targets_filled = torch.nan_to_num(targets)
+
+    # Parameterisation: root trajectory + the global direction of every leg bone (each keeping its
+    # per-frame input length). Bones above the hips move rigidly with the root, which keeps the
+    # upper body as generated and makes an iteration cheap. Positions are affine in the leg bone
+    # vectors: p = root + rel0 + A[:, legs] @ (len * (unit - unit0)).
+    parents = [int(p) for p in parents]
+    anc = ancestor_matrix(parents).to(device, dtype)                            # (J, J-1)
+    legs = leg_joints(parents, list(feet))
+    leg_idx = torch.as_tensor(legs, device=device)
+    leg_parent = torch.as_tensor([parents[j] for j in legs], device=device)
+    anc_legs = anc[:, leg_idx - 1]                                             # (J, L)
+    anc_feet = anc_legs[feet_idx]                                              # (4, L)
+    bones0 = x0[:, :, leg_idx] - x0[:, :, leg_parent]                          # (B, T, L, 3)
+    bone_len = bones0.norm(dim=-1, keepdim=True)                               # fixed, per frame
+    fallback = torch.zeros_like(bones0)
+    fallback[..., cfg.up_axis] = 1.0
+    dir0 = torch.where(bone_len > 1e-8, bones0 / bone_len.clamp(min=1e-8), fallback)
+    root0 = x0[:, :, 0]
+    feet0 = x0[:, :, feet_idx]
+    normalise = lambda d: d / d.norm(dim=-1, keepdim=True).clamp(min=1e-8)
+    unit0 = normalise(dir0)  # same rounding as in the loop, so the correction starts at exactly 0
+    norm0 = dir0.norm(dim=-1)  # ≈ 1; measured, not assumed, so every term is exactly 0 at the start
+
+    def bone_delta(direction: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        unit = normalise(direction)
+        return unit, bone_len * (unit - unit0)                                 # (B, T, L, 3) each
+
+    def positions(shift: torch.Tensor, delta: torch.Tensor, rows: torch.Tensor, base: torch.Tensor) -> torch.Tensor:
+        return base + shift[:, :, None] + torch.einsum("jl,btlc->btjc", rows, delta)
+
+    use_vgrf = vgrf is not None and cfg.w_vgrf > 0
+    if use_vgrf:
+        for p in vgrf.parameters():
+            p.requires_grad_(False)
+        if forces0 is None:
+            with torch.no_grad():
+                forces0 = vgrf(x0, lengths)
+
+    shift = torch.zeros_like(root0, requires_grad=True)                        # root displacement (B, T, 3)
+    direction = dir0.clone().requires_grad_(True)
+    # eps well above rounding-level gradients: Adam would otherwise blow float noise up to full steps
+    opt = torch.optim.Adam([{"params": [shift], "lr": cfg.lr_root}, {"params": [direction], "lr": cfg.lr}], eps=1e-6)
+    pair = (mask[:, 1:] & mask[:, :-1]).to(dtype)                             # valid velocity pairs
+    triple = (mask[:, 2:] & mask[:, :-2]).to(dtype)
+    free = ((weights == 0) & mask[..., None]).to(dtype)                       # (B, T, 4) unanchored foot frames
+    vgrf_grad = None
+    has_anchor = bool((weights > 0).any())
+    history = []
+
+    for it in range(cfg.iters if has_anchor else 0):
+        opt.zero_grad(set_to_none=True)
+        unit, delta = bone_delta(direction)
+        feet_pos = positions(shift, delta, anc_feet, feet0)                    # (B, T, 4, 3)
+        corr = feet_pos - feet0                                                # the correction at the feet
+        acc = corr[:, 2:] - 2 * corr[:, 1:-1] + corr[:, :-2]
+        per_sample = {
+            "pose": ((unit - unit0).square().sum(-1).mean(-1) * maskf).sum(1) / n_frames,
+            "norm": ((direction.norm(dim=-1) - norm0).square().mean(-1) * maskf).sum(1) / n_frames,
+            "trajectory": ((shift[:, 1:] - shift[:, :-1]).square().sum(-1) * pair).sum(1) / n_frames,
+            "foot": ((feet_pos - targets_filled).square().sum(-1) * weights).sum((1, 2)) / n_frames,
+            "smooth": (acc.square().sum(-1).mean(-1) * triple).sum(1) / n_frames,
+            "clearance": ((feet0[..., cfg.up_axis] - feet_pos[..., cfg.up_axis]).clamp(min=0).square()
+                          * free).sum((1, 2)) / n_frames,
+        }
+        loss = (cfg.w_pose * per_sample["pose"] + cfg.w_norm * per_sample["norm"]
+                + cfg.w_trajectory * per_sample["trajectory"] + cfg.w_foot * per_sample["foot"]
+                + cfg.w_smooth * per_sample["smooth"] + cfg.w_clearance * per_sample["clearance"]).sum()
+        if use_vgrf:
+            # The vGRF net costs far more than everything else: its gradient w.r.t. positions is
+            # refreshed every `vgrf_every` iterations and applied as a linear term in between.
+            if it % cfg.vgrf_every == 0:
+                with torch.no_grad():
+                    p_now = positions(shift, delta, anc_legs, x0)
+                p_leaf = p_now.requires_grad_(True)
+                err = msle(vgrf(p_leaf, lengths), forces0).mean((-1, -2))        # (B, T)
+                l_v = ((err * maskf).sum(1) / n_frames).sum()
+                vgrf_grad, = torch.autograd.grad(l_v, p_leaf)
+                per_sample_v = (err.detach() * maskf).sum(1) / n_frames
+                # chain rule through the affine map, precomputed once per refresh
+                g_shift = vgrf_grad.sum(2)                                     # (B, T, 3)
+                g_delta = torch.einsum("jl,btjc->btlc", anc_legs, vgrf_grad)   # (B, T, L, 3)
+            loss = loss + cfg.w_vgrf * ((g_shift * shift).sum() + (g_delta * delta).sum())
+        loss.backward()
+        opt.step()
+        if it == 0 or it == cfg.iters - 1:
+            record = {k: float(v.detach().sum()) for k, v in per_sample.items()}
+            if use_vgrf:
+                record["vgrf"] = float(per_sample_v.sum())
+            history.append(record)
+
+    with torch.no_grad():
+        out = positions(shift, bone_delta(direction)[1], anc_legs, x0) if has_anchor else x0
+        # Bit-exact passthrough where nothing was optimised: untouched samples stay as given.
+        out = torch.where(mask[..., None, None], out, joints.detach().to(dtype))
+        changed = (weights.sum((1, 2)) > 0)
+        out = torch.where(changed[:, None, None, None], out, joints.detach().to(dtype))
+    info.update({"seconds": time.perf_counter() - started, "iters": cfg.iters if has_anchor else 0,
+                 "loss_first": history[0] if history else {}, "loss_last": history[-1] if history else {},
+                 "config": asdict(cfg)})
+    return CleanupResult(joints=out.to(joints.dtype), contacts=contacts, targets=targets, info=info)
+
+
+def anchor_drift(joints: torch.Tensor, result: CleanupResult, feet, up_axis: int = 1) -> torch.Tensor:
+    """Per-frame horizontal distance (B, T, 4) of contact joints from their range targets (NaN off-contact)."""
+    pos = joints[:, :, list(feet)]
+    horiz = [a for a in range(3) if a != up_axis]
+    return (pos[..., horiz] - result.targets[..., horiz]).norm(dim=-1)

@@ -1,0 +1,337 @@
+"""footskate: vGRF network layout and loaders, contacts, force labels, batched cleanup."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from footskate import HUMANML3D, CleanupConfig, FootskateError, VGRFNet, anchor_drift, cleanup
+from footskate.cleanup import contact_ranges, detect_contacts, leg_joints
+from footskate.contacts import contacts_from_forces, contacts_from_heights, majority_filter
+from footskate.forces import forces_from_contacts
+from footskate.vgrf import ATTRIBUTION, load_underpressure, load_vgrf, save_vgrf
+
+SAMPLE = Path(__file__).parents[2] / "shared/data/humanml3d-sample"
+PARENTS, FEET = list(HUMANML3D.parents), list(HUMANML3D.feet)
+# HumanML3D target bone lengths (parent -> k) and a standing pose built from them.
+BONES = [0, .1031, .1099, .1316, .3936, .3902, .1432, .4324, .4256, .0574, .1434, .1494, .2194, .1375,
+         .1434, .1030, .1316, .1230, .2568, .2631, .2660, .2699]
+DIRS = {1: (1, 0, 0), 13: (1, 0, 0), 2: (-1, 0, 0), 14: (-1, 0, 0), 3: (0, 1, 0), 6: (0, 1, 0), 9: (0, 1, 0),
+        12: (0, 1, 0), 10: (0, -.05, 1), 11: (0, -.05, 1), 15: (0, 0, 1), 4: (0, -1, .3), 5: (0, -1, .3),
+        7: (0, -1, -.3), 8: (0, -1, -.3)}
+
+
+def standing_pose() -> torch.Tensor:
+    p = torch.zeros(22, 3)
+    for j in range(1, 22):
+        d = torch.tensor(DIRS.get(j, (0, -1, 0)), dtype=torch.float32)
+        p[j] = p[PARENTS[j]] + BONES[j] * d / d.norm()
+    p[:, 1] -= p[[10, 11], 1].min() - 0.01  # toes 1 cm above the floor
+    return p
+
+
+def bone_lengths(x: torch.Tensor) -> torch.Tensor:
+    return (x[..., 1:, :] - x[..., PARENTS[1:], :]).norm(dim=-1)
+
+
+def drifting_planted_foot(frames: int = 41) -> tuple[torch.Tensor, torch.Tensor]:
+    """Body translating 1 cm/frame while the left foot is labelled planted the whole time."""
+    x = standing_pose().expand(frames, 22, 3).clone()
+    x[:, :, 2] += 0.01 * torch.arange(frames)[:, None]
+    contacts = torch.zeros(frames, 4, dtype=torch.bool)
+    contacts[:, :2] = True
+    return x, contacts
+
+
+def gmd_skating_ratio(joints: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
+    try:
+        from stablemo.eval.physics import foot_skating_ratio
+        return torch.as_tensor(foot_skating_ratio(joints, lengths=lengths))
+    except ImportError:  # the definition (facts §5), for a checkout without the eval package
+        feet = joints[:, :, [10, 11]].double()
+        v = 20 * (feet[:, 1:, :, [0, 2]] - feet[:, :-1, :, [0, 2]]).norm(dim=-1)
+        valid = (torch.arange(joints.shape[1] - 1)[None] < (lengths - 1)[:, None])
+        v = v * valid[..., None]
+        vbar = torch.nn.functional.conv1d(v.transpose(1, 2).reshape(-1, 1, v.shape[1]),
+                                          torch.full((1, 1, 5), 0.2, dtype=v.dtype), padding=2)
+        vbar = vbar.reshape(v.shape[0], 2, -1).transpose(1, 2)
+        h = feet[..., 1]
+        skate = ((h[:, :-1] < 0.05) & (h[:, 1:] < 0.05) & (v > 0.5) & (vbar > 0.5)).any(-1) & valid
+        return skate.sum(1) / valid.sum(1)
+
+
+# --- vGRF network ---------------------------------------------------------------------------
+
+def test_v23_layout_matches_underpressure_keys():
+    model = VGRFNet(23)
+    state = model.state_dict_up()
+    shapes = {k: tuple(v.shape) for k, v in state.items()}
+    assert shapes == {
+        "3.weight": (128, 69, 7), "3.bias": (128,), "6.weight": (128, 128, 7), "6.bias": (128,),
+        "9.weight": (256, 128, 7), "9.bias": (256,), "12.weight": (256, 256, 7), "12.bias": (256,),
+        "16.weight": (256, 256), "16.bias": (256,), "19.weight": (256, 256), "19.bias": (256,),
+        "22.weight": (32, 256)}
+    assert sum(v.numel() for v in state.values()) == 1_005_184
+    assert model.receptive_field == 25
+    out = model.eval()(torch.randn(2, 30, 23, 3))
+    assert out.shape == (2, 30, 2, 16) and (out >= 0).all()
+    assert VGRFNet(22).state_dict_up()["3.weight"].shape == (128, 66, 7)
+    assert VGRFNet(21).state_dict_up()["3.weight"].shape == (128, 63, 7)
+
+
+def test_underpressure_style_checkpoint_loads_weights_only(tmp_path, capsys):
+    torch.manual_seed(0)
+    ref = VGRFNet(23).eval()
+    path = tmp_path / "pretrained.tar"
+    torch.save({"model": ref.state_dict_up()}, path)
+    model = load_underpressure(path)
+    assert "UnderPressure is an InterDigital product" in capsys.readouterr().out
+    x = torch.randn(1, 40, 23, 3)
+    torch.testing.assert_close(model(x), ref(x))
+    bad = tmp_path / "bad.tar"
+    torch.save({"model": {"3.weight": torch.zeros(128, 70, 7)}}, bad)
+    with pytest.raises(FootskateError, match="bad.tar"):
+        load_underpressure(bad)
+    with pytest.raises(FootskateError, match="not found"):
+        load_underpressure(tmp_path / "missing.tar")
+
+
+@pytest.mark.skipif(not os.environ.get("UNDERPRESSURE_WEIGHTS"), reason="set UNDERPRESSURE_WEIGHTS=/path/pretrained.tar")
+def test_user_supplied_underpressure_weights(capsys):
+    model = load_underpressure(os.environ["UNDERPRESSURE_WEIGHTS"])
+    assert ATTRIBUTION in capsys.readouterr().out
+    assert model.num_joints == 23
+    standing = torch.zeros(1, 100, 23, 3)
+    standing[..., 2] = torch.linspace(1.5, 0.0, 23)  # z-up column of joints: feet on the floor
+    forces = model(standing)
+    assert torch.isfinite(forces).all()
+
+
+def test_safetensors_roundtrip_and_padding_invariance(tmp_path):
+    torch.manual_seed(1)
+    model = VGRFNet(22, conv_channels=(16, 16, 32, 32), hidden=32).eval()
+    save_vgrf(model, tmp_path / "v.safetensors", {"steps": 3})
+    loaded = load_vgrf(tmp_path / "v.safetensors")
+    assert loaded.metadata["steps"] == 3
+    x = torch.randn(3, 50, 22, 3)
+    lengths = torch.tensor([50, 31, 12])
+    batched = loaded(x, lengths)
+    for b, n in enumerate(lengths.tolist()):
+        alone = model(x[b:b + 1, :n])
+        torch.testing.assert_close(batched[b:b + 1, :n], alone, rtol=1e-5, atol=1e-6)
+
+
+def test_shipped_weights_load():
+    path = Path(__file__).parents[1] / "footskate/weights/v22_synth.safetensors"
+    if not path.is_file():
+        pytest.skip("shipped V22 weights not built yet")
+    model = load_vgrf(path)
+    assert model.num_joints == 22 and "metrics" in model.metadata
+
+
+# --- contacts ---------------------------------------------------------------------------------
+
+def _forces(front: torch.Tensor, back: torch.Tensor) -> torch.Tensor:
+    """front/back (F, 2) body weights -> (F, 2, 16) spread over the front and back cells."""
+    f = torch.zeros(front.shape[0], 2, 16)
+    f[..., 8:16] = (front / 8)[..., None]
+    f[..., 0:4] = (back / 4)[..., None]
+    return f
+
+
+def test_contacts_from_constructed_force_curves():
+    frames = 300  # 3 s at 100 Hz
+    front, back = torch.zeros(frames, 2), torch.zeros(frames, 2)
+    back[50:150, 0] = 0.6                    # left heel loaded for 1 s
+    front[100:200, 0] = 0.6                  # then the left ball
+    front[120, 1] = 0.8                      # a 10 ms blip on the right foot: filtered out
+    front[250:300, 1] = 0.04                 # right foot below the 0.10 foot threshold
+    c = contacts_from_forces(_forces(front, back), fps=100)   # (F, 4) [L_heel, L_toe, R_heel, R_toe]
+    heel, toe = c[:, 0], c[:, 1]
+    assert heel[60:140].all() and not heel[:45].any() and not heel[155:].any()
+    assert toe[105:195].all() and not toe[:95].any() and not toe[205:].any()
+    assert not c[:, 2:].any()
+    # Parts are rescaled by total/(front+back): mid-foot cells (4-7) load the part that carries weight.
+    f = torch.zeros(frames, 2, 16)
+    f[:, 0, 4:8] = 0.5 / 4
+    f[:, 0, 8:16] = 0.1 / 8
+    c = contacts_from_forces(f, fps=100)
+    assert c[:, 1].all() and not c[:, 0].any()
+
+
+def test_contact_windows_rescale_with_frame_rate():
+    # The same 0.6 s load sampled at 100 Hz and at 20 Hz gives the same contact interval.
+    t100, t20 = torch.arange(300) / 100, torch.arange(60) / 20
+    load = lambda t: torch.where((t >= 1.0) & (t < 1.6), 0.7, 0.0)[:, None].expand(-1, 2).clone()
+    c100 = contacts_from_forces(_forces(load(t100), load(t100)), fps=100)[:, 1]
+    c20 = contacts_from_forces(_forces(load(t20), load(t20)), fps=20)[:, 1]
+    assert abs(c100.float().sum() / 100 - c20.float().sum() / 20) < 0.1
+    assert abs(t100[c100].mean() - t20[c20].mean()) < 0.06
+
+
+def test_majority_filter_batched_equals_per_sample():
+    g = torch.Generator().manual_seed(0)
+    c = torch.rand(4, 60, 3, generator=g) > 0.5
+    lengths = torch.tensor([60, 45, 20, 7])
+    batched = majority_filter(c, 5, lengths)
+    for b, n in enumerate(lengths.tolist()):
+        assert torch.equal(batched[b, :n], majority_filter(c[b:b + 1, :n], 5)[0])
+
+
+def test_height_speed_heuristic():
+    x, _ = drifting_planted_foot()
+    feet = x[None, :, FEET]
+    c = contacts_from_heights(feet, fps=20)[0]     # moving at 0.2 m/s, low: contact
+    assert c.all()
+    fast = x.clone()
+    fast[:, :, 2] *= 10                              # 2 m/s: not a contact
+    assert not contacts_from_heights(fast[None, :, FEET], fps=20).any()
+
+
+def test_force_labels_give_back_their_contacts():
+    x, _ = drifting_planted_foot(60)
+    contacts = torch.zeros(60, 4, dtype=torch.bool)
+    contacts[:40, 0:2] = True                        # left foot flat, then lifts
+    contacts[20:, 2:4] = True                        # right foot lands at 1 s
+    forces = forces_from_contacts(x[None], contacts[None], FEET, fps=20)[0]
+    assert torch.allclose(forces.sum((-1, -2)), torch.ones(60), atol=1e-4)  # static body: weight 1
+    assert (forces[40:, 0] == 0).all() and (forces[:20, 1] == 0).all()
+    recovered = contacts_from_forces(forces, fps=20)
+    assert (recovered == contacts).float().mean() > 0.95
+
+
+# --- cleanup ----------------------------------------------------------------------------------
+
+def test_contact_ranges_match_python_reference():
+    g = torch.Generator().manual_seed(3)
+    c = torch.rand(3, 40, 4, generator=g) > 0.4
+    pos = torch.randn(3, 40, 4, 3, generator=g)
+    targets, weights, info = contact_ranges(c, pos, up_axis=1, ramp_frames=1, min_range=3)
+    count = 0
+    for b in range(3):
+        for k in range(4):
+            t = 0
+            while t < 40:
+                if not c[b, t, k]:
+                    t += 1
+                    continue
+                s = t
+                while t < 40 and c[b, t, k]:
+                    t += 1
+                count += 1
+                mid = s + (t - s - 1) // 2
+                exp = pos[b, mid, k].clone()
+                exp[1] = pos[b, s:t, k, 1].min().clamp(min=0)
+                torch.testing.assert_close(targets[b, s:t, k], exp.expand(t - s, 3))
+                if t - s < 3:
+                    assert (weights[b, s:t, k] == 0).all()
+                else:
+                    assert weights[b, s, k] == 0.5 and weights[b, t - 1, k] == 0.5
+                    assert (weights[b, s + 1:t - 1, k] == 1).all()
+    assert info["ranges"] == count
+    assert torch.isnan(targets[~c]).all() and (weights[~c] == 0).all()
+
+
+def test_planted_foot_drifting_is_anchored():
+    x, contacts = drifting_planted_foot()
+    res = cleanup(x[None], PARENTS, FEET, contacts=contacts[None])
+    out = res.joints[0]
+    drift = anchor_drift(res.joints, res, FEET)[0, :, :2]
+    assert drift.max() < 0.005                                  # was up to 20 cm
+    before = anchor_drift(x[None], res, FEET)[0, :, :2]
+    assert before.max() > 0.19
+    torch.testing.assert_close(bone_lengths(out), bone_lengths(x), atol=1e-5, rtol=0)
+    root_vel, root_vel0 = out[1:, 0] - out[:-1, 0], x[1:, 0] - x[:-1, 0]
+    assert (root_vel - root_vel0).norm(dim=-1).max() < 0.004    # the pelvis may dip a little to reach
+    assert (root_vel - root_vel0)[:, [0, 2]].norm(dim=-1).max() < 0.0015  # heading speed kept (1 cm/frame)
+    others = [j for j in range(22) if j not in leg_joints(PARENTS, FEET)]
+    assert (out[:, others] - x[:, others]).norm(dim=-1).mean() < 0.02
+
+
+def test_clean_motion_is_left_alone_and_cleanup_is_idempotent():
+    x = standing_pose().expand(30, 22, 3).clone()
+    contacts = torch.ones(30, 4, dtype=torch.bool)
+    res = cleanup(x[None], PARENTS, FEET, contacts=contacts[None])
+    torch.testing.assert_close(res.joints[0], x, atol=1e-6, rtol=0)
+    moving, contacts = drifting_planted_foot()
+    once = cleanup(moving[None], PARENTS, FEET, contacts=contacts[None]).joints
+    twice = cleanup(once, PARENTS, FEET, contacts=contacts[None]).joints
+    change = (twice - once).norm(dim=-1)
+    assert change.mean() < 0.001 and change.max() < 0.006  # a second pass only polishes the residual
+
+
+def test_batched_equals_per_sample_with_different_lengths():
+    g = torch.Generator().manual_seed(0)
+    base, _ = drifting_planted_foot(48)
+    lengths = torch.tensor([48, 33, 20])
+    batch = base.expand(3, 48, 22, 3).clone()
+    batch[..., [0, 2]] += 0.02 * torch.randn(3, 48, 1, 2, generator=g).cumsum(1)
+    batch[1, 33:] = 123.0                                        # garbage in padding must not leak
+    model = VGRFNet(22, conv_channels=(16, 16, 32, 32), hidden=32).eval()
+    cfg = CleanupConfig(iters=30)
+    res = cleanup(batch, PARENTS, FEET, lengths=lengths, vgrf=model, config=cfg)
+    for b, n in enumerate(lengths.tolist()):
+        alone = cleanup(batch[b:b + 1, :n], PARENTS, FEET, vgrf=model, config=cfg)
+        assert torch.equal(alone.contacts[0], res.contacts[b, :n])
+        torch.testing.assert_close(res.joints[b, :n], alone.joints[0], atol=2e-5, rtol=0)
+    assert torch.equal(res.joints[1, 33:], batch[1, 33:])
+
+
+@pytest.mark.parametrize("kind", ["none", "all"])
+def test_no_nan_without_or_with_only_contacts(kind):
+    x, _ = drifting_planted_foot(25)
+    contacts = torch.full((1, 25, 4), kind == "all")
+    res = cleanup(x[None], PARENTS, FEET, contacts=contacts, vgrf=VGRFNet(22).eval(), config=CleanupConfig(iters=10))
+    assert torch.isfinite(res.joints).all()
+    if kind == "none":
+        assert torch.equal(res.joints[0], x)
+
+
+def test_bad_input_is_named():
+    x, contacts = drifting_planted_foot(10)
+    with pytest.raises(FootskateError, match="joints"):
+        cleanup(x, PARENTS, FEET)
+    bad = x.clone()
+    bad[3, 4, 0] = float("nan")
+    with pytest.raises(FootskateError, match="NaN"):
+        cleanup(bad[None], PARENTS, FEET)
+    with pytest.raises(FootskateError, match="lengths"):
+        cleanup(x[None], PARENTS, FEET, lengths=torch.tensor([11]))
+
+
+def _injected_sliding(clean: torch.Tensor, contacts: torch.Tensor, gen: torch.Generator, speed: float) -> torch.Tensor:
+    """Feet slide under the body: during each contact the leg drifts (speed m/frame), relaxing in swing."""
+    b_count, frames = clean.shape[:2]
+    out = clean.clone()
+    for side, (knee, ankle, toe) in enumerate(((4, 7, 10), (5, 8, 11))):
+        planted = contacts[..., 2 * side:2 * side + 2].any(-1)
+        angle = torch.rand(b_count, generator=gen) * 2 * torch.pi
+        direction = torch.stack([torch.cos(angle), torch.sin(angle)], -1)
+        offset = torch.zeros(b_count)
+        for t in range(frames):  # test-data construction only
+            offset = torch.where(planted[:, t], offset + speed, offset * 0.6)
+            for joint, w in ((knee, 0.5), (ankle, 1.0), (toe, 1.0)):
+                out[:, t, joint, [0, 2]] += w * offset[:, None] * direction
+    return out
+
+
+@pytest.mark.skipif(not (SAMPLE / "new_joints/012314.npy").is_file(), reason="HumanML3D sample not present")
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_skating_ratio_never_increases(seed):
+    clip = torch.from_numpy(np.load(SAMPLE / "new_joints/012314.npy")).float()
+    g = torch.Generator().manual_seed(seed)
+    frames = clip.shape[0]
+    lengths = torch.randint(80, frames + 1, (4,), generator=g)
+    clean = clip.expand(4, frames, 22, 3).clone()
+    contacts, _ = detect_contacts(clean, lengths, FEET, 20.0, 1)
+    sliding = _injected_sliding(clean, contacts, g, speed=0.015)
+    res = cleanup(sliding, PARENTS, FEET, lengths=lengths)
+    before, after = gmd_skating_ratio(sliding, lengths), gmd_skating_ratio(res.joints, lengths)
+    assert (after <= before + 1e-9).all(), (before, after)
+    assert after.mean() < 0.8 * before.mean()
+    mask = torch.arange(frames)[None] < lengths[:, None]
+    torch.testing.assert_close(bone_lengths(res.joints)[mask], bone_lengths(sliding)[mask], atol=1e-5, rtol=0)
