@@ -4,6 +4,8 @@ Everything is configured in YAML and overridable on the command line. Two callba
 present and configurable under their own keys: `checkpoint` (ModelCheckpoint, save_last on) and
 `guard` (NonFiniteGuard). Checkpoints are written atomically and loaded with weights_only=True
 (AtomicCheckpointIO) unless the config names another CheckpointIO plugin.
+A config whose `model:` has a `class_path` trains that LightningModule instead of DiffusionModule
+(e.g. `stablemo.eval.evaluator.EvaluatorModule` in configs/evaluator_*.yaml).
 """
 
 from __future__ import annotations
@@ -38,15 +40,39 @@ class StableMoCLI(LightningCLI):
         return super().instantiate_trainer(**kwargs)
 
 
+def _names_model_class(argv: list[str]) -> bool:
+    """True if a --config file or a --model.class_path override selects another LightningModule."""
+    from pathlib import Path
+
+    import yaml
+
+    for i, arg in enumerate(argv):
+        if arg.startswith("--model.class_path"):
+            return True
+        path = argv[i + 1] if arg == "--config" and i + 1 < len(argv) else arg.partition("=")[2] if arg.startswith("--config=") else None
+        if path:
+            try:
+                cfg = yaml.safe_load(Path(path).read_text())
+            except (OSError, yaml.YAMLError):
+                continue  # LightningCLI reports unreadable configs itself
+            if isinstance(cfg, dict) and isinstance(cfg.get("model"), dict) and "class_path" in cfg["model"]:
+                return True
+    return False
+
+
 def _run(subcommand: str, argv: list[str]) -> int:
+    from lightning.pytorch import LightningModule
+
     from stablemo.data import MotionDataModule
 
     # `stablemo fit ...` hands LightningCLI its own argv; sys.argv must stay intact for DDP's
     # re-launch of the same command, so the "args and sys.argv both given" warning is noise here.
     warnings.filterwarnings("ignore", message="LightningCLI's args parameter is intended")
+    subclass = _names_model_class(argv)
     StableMoCLI(
-        DiffusionModule,
+        LightningModule if subclass else DiffusionModule,
         MotionDataModule,
+        subclass_mode_model=subclass,
         args=[subcommand, *argv],
         # the same config file may be reused for a resumed run in the same folder
         save_config_kwargs={"overwrite": True},
