@@ -66,7 +66,9 @@ def _place_steps(tl: Timeline, lifts: list[list[float]], swing_frames: float, re
             nxt_lift = lifts[s][k + 1] if k + 1 < len(lifts[s]) else None
             mid = rest_time if nxt_lift is None else min(0.5 * (land + nxt_lift), rest_time)
             xz, yaw = tl.root_at(np.array([mid]))
-            foot_xz = xz[0] + _body_to_world(yaw[0], SIDE_SIGN[s] * half_width, -body.ANKLE_BACK)
+            # The closing steps bring the feet back to a normal standing width.
+            width = body.STANCE_HALF_WIDTH if nxt_lift is None else half_width
+            foot_xz = xz[0] + _body_to_world(yaw[0], SIDE_SIGN[s] * width, -body.ANKLE_BACK)
             tl.plants[s].append(Plant(
                 start=land, end=np.inf if nxt_lift is None else nxt_lift, xz=foot_xz,
                 yaw=float(yaw[0] + SIDE_SIGN[s] * gait.get("toe_out", 0.06)),
@@ -87,7 +89,7 @@ def _place_steps(tl: Timeline, lifts: list[list[float]], swing_frames: float, re
 GAITS = {
     # speed m/s, cadence steps/s, stance fraction of the cycle, ...
     "walk": dict(stance=0.62, heel_off=0.13, off_pitch=0.6, slap=0.08, land_pitch=-0.3,
-                 clearance=0.10, lean=0.05, drop=0.0, arm=0.35, flex=0.2),
+                 clearance=0.10, lean=0.05, drop=0.0, arm=0.28, flex=0.15),
     "walk_backward": dict(cadence=1.7, stance=0.64, heel_off=0.10, off_pitch=0.35, slap=0.06,
                           land_pitch=0.0, clearance=0.09, lean=-0.04, drop=0.0, arm=0.2, flex=0.2),
     "walk_sideways": dict(cadence=1.6, stance=0.68, heel_off=0.08, off_pitch=0.3, slap=0.05,
@@ -98,7 +100,7 @@ GAITS = {
                 clearance=0.18, lean=0.2, drop=0.06, arm=0.7, flex=1.35),
     "circle": dict(stance=0.62, heel_off=0.13, off_pitch=0.55, slap=0.08, land_pitch=-0.3,
                    clearance=0.10, lean=0.05, drop=0.0, arm=0.3, flex=0.2),
-    "turn": dict(heel_off=1.2, off_pitch=0.2, slap=1.0, land_pitch=-0.1, clearance=0.06, toe_out=0.06),
+    "turn": dict(heel_off=1.5, off_pitch=0.35, slap=1.0, land_pitch=-0.1, clearance=0.09, toe_out=0.06),
 }
 
 
@@ -386,7 +388,7 @@ def build_kick(tl: Timeline, p: dict) -> None:
     start = tl.t
     kick = LEFT if p["leg"] == "left" else RIGHT
     support = 1 - kick
-    shift, wind, strike, ret = 0.4 * FPS, 0.3 * FPS, 0.25 * FPS, 0.5 * FPS
+    shift, wind, strike, ret = 0.4 * FPS, 0.45 * FPS, 0.25 * FPS, 0.55 * FPS
     n = int(np.ceil(shift + wind + strike + ret + shift + 0.2 * FPS))
     sl = _hold_root(tl, n)
     f = np.arange(n, dtype=float) + tl.t
@@ -405,18 +407,25 @@ def build_kick(tl: Timeline, p: dict) -> None:
     base, heading = plant.xz.copy(), tl.heading
     flat_y = body.ANKLE_FLAT_HEIGHT[kick]
     height = p.get("height", 0.5)
+    # The strike puts the ankle at (almost) full leg reach from the hip, forward and up.
+    hip_fwd = float(np.dot(xz[int(t_strike - tl.t)] - base, _dir2(heading)))
+    hip_y = body.STAND_HEIGHT - 0.03 - 0.086
+    reach = 0.96 * body.LEG_REACH[kick]
+    strike_fwd = hip_fwd + np.sqrt(max(reach**2 - (hip_y - height) ** 2, 0.04))
     # Keyframes in body frame: (time, forward offset from start spot, height, toe pitch)
-    keys_t = np.array([t_up, t_strike, t_back, t_down])
-    keys_fwd = np.array([0.0, -0.2, 0.62, 0.0])
-    keys_y = np.array([flat_y, flat_y + 0.22, height, flat_y])
-    keys_pitch = np.array([body.FOOT_PITCH, body.FOOT_PITCH + 0.8, body.FOOT_PITCH + 0.5, body.FOOT_PITCH])
+    # Lift in place, wind back, strike, return above the spot, set down vertically (so the toe
+    # never slides while it is near the floor).
+    p0 = body.FOOT_PITCH
+    keys_t = np.array([t_up, t_up + 4, t_strike, t_back, t_down - 4, t_down])
+    keys_fwd = np.array([0.0, 0.0, -0.2, strike_fwd, 0.0, 0.0])
+    keys_y = np.array([flat_y, flat_y + 0.08, flat_y + 0.22, height, flat_y + 0.07, flat_y])
+    keys_pitch = np.array([p0, p0 + 0.3, p0 + 0.8, p0 + 0.3, p0, p0])
 
     def path(frames):
-        seg = np.clip(np.searchsorted(keys_t, frames) - 1, 0, 2)
+        seg = np.clip(np.searchsorted(keys_t, frames) - 1, 0, len(keys_t) - 2)
         u = minjerk((frames - keys_t[seg]) / (keys_t[seg + 1] - keys_t[seg]))
         fwd = keys_fwd[seg] + (keys_fwd[seg + 1] - keys_fwd[seg]) * u
         y = keys_y[seg] + (keys_y[seg + 1] - keys_y[seg]) * u
-        y += 0.06 * np.sin(np.pi * u) * (seg == 2)  # clear the floor on the way back
         pt = keys_pitch[seg] + (keys_pitch[seg + 1] - keys_pitch[seg]) * u
         xz_ = base + _body_to_world(heading, 0.0, fwd)
         return np.stack([xz_[:, 0], y, xz_[:, 1]], -1), np.full(len(frames), plant.yaw), pt

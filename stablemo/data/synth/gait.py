@@ -16,6 +16,10 @@ import numpy as np
 from stablemo.data.synth.body import ANKLE_FLAT_HEIGHT, FOOT_LENGTH, FOOT_PITCH
 
 
+CONTACT_TOL = 0.015  # metres
+SWING_DELAY = 0.10  # fraction of a swing spent lifting (and setting down) the foot in place
+
+
 def smoothstep(x: np.ndarray) -> np.ndarray:
     x = np.clip(x, 0.0, 1.0)
     return x * x * (3 - 2 * x)
@@ -105,6 +109,11 @@ def render_foot(plants: list[Plant], side: int, T: int):
                 p = np.where(peel, pp, p)
                 heel &= ~peel
             ankle[m], yaw[m], pitch[m] = a, pl.yaw, p
+            # Contact = the heel (ankle) / toe is on the floor within CONTACT_TOL: the first moments
+            # of a heel-off or the last of a heel-first landing still count.
+            heel |= a[:, 1] - flat[1] < CONTACT_TOL
+            toe_y = a[:, 1] - FOOT_LENGTH[side] * np.sin(p)
+            toe_down |= toe_y < CONTACT_TOL
             contact[m, 0], contact[m, 1] = heel, toe_down
             assigned |= m
         if k + 1 < len(plants):
@@ -121,12 +130,13 @@ def render_foot(plants: list[Plant], side: int, T: int):
                 a1 = flat_ankle(nxt, side)
                 p1 = FOOT_PITCH + sw.land_pitch
                 tau = (f - pl.end) / (nxt.start - pl.end)
-                s = minjerk(tau)[:, None]
+                # The foot rises before it travels and stops travelling before it comes down.
+                s = minjerk((tau - SWING_DELAY) / (1 - 2 * SWING_DELAY))[:, None]
                 a = a0 + (a1 - a0) * s
                 a[:, 1] = a0[1] + (a1[1] - a0[1]) * smoothstep(tau) + sw.clearance * np.sin(np.pi * tau)
                 # Toes stay pointed down through early swing so they clear the floor at once.
                 p = p0 + (p1 - p0) * smoothstep((tau - 0.25) / 0.75)
-                y = y0 + wrap_angle(nxt.yaw - y0) * smoothstep(tau)
+                y = y0 + wrap_angle(nxt.yaw - y0) * smoothstep((tau - SWING_DELAY) / (1 - 2 * SWING_DELAY))
             ankle[m], yaw[m], pitch[m] = a, y, p
             assigned |= m
     if not assigned.all():

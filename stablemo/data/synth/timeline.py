@@ -150,7 +150,7 @@ def _gait_arm_swing(root, yaw, ankles, gain, flex, upper, fore) -> None:
         offset = np.sum((ankles[s] - root) * fwd, -1)
         offset = gaussian_filter1d(offset, 1.0, mode="nearest")
         alpha = -gain * np.tanh(offset / 0.3)  # + = arm forward
-        bend = flex + 0.4 * np.maximum(alpha, 0.0)
+        bend = flex + 0.3 * np.maximum(alpha, 0.0)
         upper[s] = _unit(body.apply(body.rot_x(-alpha), upper[s]))
         fore[s] = _unit(body.apply(body.rot_x(-(alpha + bend)), fore[s]))
 
