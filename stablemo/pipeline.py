@@ -22,6 +22,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from stablemo.diffusion.accelerate import accelerate
 from stablemo.diffusion.guidance import CFGDenoiser
 from stablemo.diffusion.samplers import SAMPLERS
 from stablemo.diffusion.schedule import NoiseSchedule, check_prediction_type
@@ -108,6 +109,7 @@ class Pipeline:
         device: str | torch.device | None = None,
         dtype=None,
         config: dict | None = None,
+        fast: bool = True,
     ) -> None:
         check_prediction_type(prediction_type)
         if kind not in SAMPLER_TABLES:
@@ -115,6 +117,8 @@ class Pipeline:
         self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         self.dtype = resolve_dtype(dtype, self.device)
         self.model = model.eval().requires_grad_(False).to(self.device)
+        if fast:  # GEMM convolutions, cached low-precision weights (stablemo.diffusion.accelerate)
+            accelerate(self.model)
         self.schedule, self.prediction_type, self.kind = schedule, prediction_type, kind
         self.mean = torch.as_tensor(np.asarray(mean, dtype=np.float32))
         self.std = torch.as_tensor(np.asarray(std, dtype=np.float32))
@@ -128,7 +132,9 @@ class Pipeline:
     # ---- construction -----------------------------------------------------------------------
 
     @classmethod
-    def from_bundle(cls, path: str | Path, device=None, dtype=None) -> "Pipeline":
+    def from_bundle(cls, path: str | Path, device=None, dtype=None, fast: bool = True,
+                    random_weights: bool = False) -> "Pipeline":
+        """Load a bundle; `random_weights` keeps the network's fresh initialisation (benchmarks)."""
         from stablemo.bundle import load_bundle
 
         bundle = load_bundle(path)
@@ -144,10 +150,11 @@ class Pipeline:
         from stablemo.model import MotionDiffusionModel
 
         model = MotionDiffusionModel(**config["model"])
-        try:
-            model.load_state_dict(bundle.state_dict, strict=True)
-        except RuntimeError as err:
-            raise StableMoError(f"{Path(path) / 'model.safetensors'}: weights do not fit the config ({err})") from None
+        if not random_weights:
+            try:
+                model.load_state_dict(bundle.state_dict, strict=True)
+            except RuntimeError as err:
+                raise StableMoError(f"{Path(path) / 'model.safetensors'}: weights do not fit the config ({err})") from None
         return cls(
             model,
             NoiseSchedule(**config.get("schedule", {})),
@@ -162,6 +169,7 @@ class Pipeline:
             device=device,
             dtype=dtype,
             config=config,
+            fast=fast,
         )
 
     # ---- helpers ----------------------------------------------------------------------------
@@ -188,6 +196,13 @@ class Pipeline:
             self._null = self.encode([""])
         text, mask = self._null
         return text.expand(batch, -1, -1), mask.expand(batch, -1)
+
+    def clear_text_caches(self) -> None:
+        """Forget cached text encodings (the null prompt's and the frozen encoder's string cache)."""
+        self._null = None
+        frozen = getattr(getattr(self.model, "text", None), "frozen", None)
+        if frozen is not None and hasattr(frozen, "clear_cache"):
+            frozen.clear_cache()
 
     def _check_request(self, texts, lengths) -> tuple[list[str], list[int]]:
         if isinstance(texts, str):
@@ -224,13 +239,16 @@ class Pipeline:
         hook_steps: Iterable[int] | None = None,
         batch_size: int | None = None,
         parallel_cfg: bool = True,
+        text_cache: bool = True,
         progress: bool = False,
     ) -> Generation:
         """Sample one motion per prompt.
 
         seed: an int (sample i uses seed + i) or one seed per prompt. hook_steps: step indices at
         which x0_hook runs (negative counts from the end; None = every step). batch_size: split
-        large requests into chunks (results do not depend on it).
+        large requests into chunks (results do not depend on it). parallel_cfg=False and
+        text_cache=False (re-encode the prompts at every network call, bypassing every cache) exist
+        to measure the paper's baselines; they change no result.
         """
         texts, lengths = self._check_request(texts, lengths)
         table = SAMPLER_TABLES[self.kind]
@@ -252,7 +270,7 @@ class Pipeline:
         for start in range(0, len(texts), chunk):
             sl = slice(start, start + chunk)
             parts.append(self._generate_batch(texts[sl], lengths[sl], seeds[sl], steps, float(cfg), table[sampler],
-                                              net_dtype, x0_hook, hook_at, parallel_cfg, progress))
+                                              net_dtype, x0_hook, hook_at, parallel_cfg, text_cache, progress))
         T = max(p.shape[1] for p in parts)
         normalized = torch.cat([torch.nn.functional.pad(p, (0, 0, 0, T - p.shape[1])) for p in parts])
         mask = torch.arange(T)[None, :] < torch.tensor(lengths)[:, None]
@@ -269,7 +287,7 @@ class Pipeline:
         return torch.where(mask[:, :, None, None], joints, torch.zeros((), dtype=joints.dtype))
 
     def _generate_batch(self, texts, lengths, seeds, steps, cfg, sampler_fn, net_dtype, x0_hook, hook_at,
-                        parallel_cfg, progress) -> torch.Tensor:
+                        parallel_cfg, text_cache, progress) -> torch.Tensor:
         B, D = len(texts), self.mean.shape[0]
         mult = self.length_multiple
         T = int(math.ceil(max(lengths) / mult) * mult)
@@ -278,10 +296,18 @@ class Pipeline:
         noise = _PerSampleNoise(generators, lengths)
         x_T = noise(torch.empty(B, T, D)).to(self.device)
 
-        text, text_mask = self.encode(texts)  # once per request
-        null_text, null_mask = self.null_condition(B)
-        denoise = CFGDenoiser(self.model, text, text_mask, null_text, null_mask, mask, scale=cfg,
-                              batched=parallel_cfg, dtype=net_dtype)
+        def guided_denoiser() -> CFGDenoiser:
+            text, text_mask = self.encode(texts)
+            null_text, null_mask = self.null_condition(B)
+            return CFGDenoiser(self.model, text, text_mask, null_text, null_mask, mask, scale=cfg,
+                               batched=parallel_cfg, dtype=net_dtype)
+
+        if text_cache:
+            denoise = guided_denoiser()  # text encoded once per request
+        else:
+            def denoise(x, t):
+                self.clear_text_caches()
+                return guided_denoiser()(x, t)
 
         callback = None
         if x0_hook is not None:

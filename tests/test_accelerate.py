@@ -1,0 +1,85 @@
+"""accelerate(): GEMM convolutions and cached low-precision weights give the stock results."""
+
+import copy
+
+import pytest
+import torch
+from torch import nn
+
+from stablemo.diffusion.accelerate import CachedCastLinear, GemmConv1d, GemmConvTranspose1d, accelerate
+
+
+@pytest.mark.parametrize("k, s, p", [(5, 1, 2), (3, 2, 1), (1, 1, 0), (4, 1, 0), (3, 2, 0)])
+@pytest.mark.parametrize("frames_major", [False, True])
+def test_gemm_conv1d_matches_conv1d(k, s, p, frames_major):
+    torch.manual_seed(0)
+    conv = nn.Conv1d(12, 7, k, stride=s, padding=p)
+    fast = accelerate(copy.deepcopy(conv))
+    assert type(fast) is GemmConv1d
+    x = torch.randn(3, 20, 12).transpose(1, 2) if frames_major else torch.randn(3, 12, 19)
+    torch.testing.assert_close(fast(x), conv(x), rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("k, s, p", [(4, 2, 1), (3, 1, 1), (2, 2, 0), (5, 3, 2)])
+def test_gemm_conv_transpose1d_matches(k, s, p):
+    torch.manual_seed(0)
+    conv = nn.ConvTranspose1d(10, 6, k, stride=s, padding=p)
+    fast = accelerate(copy.deepcopy(conv))
+    assert type(fast) is GemmConvTranspose1d
+    x = torch.randn(2, 10, 9)
+    torch.testing.assert_close(fast(x), conv(x), rtol=1e-5, atol=1e-5)
+
+
+def test_unsupported_configurations_fall_back():
+    torch.manual_seed(0)
+    for conv in (nn.Conv1d(4, 4, 3, groups=2, padding=1), nn.Conv1d(4, 4, 3, dilation=2, padding="same"),
+                 nn.Conv1d(4, 4, 3, padding=1, padding_mode="circular")):
+        fast = accelerate(copy.deepcopy(conv))
+        x = torch.randn(2, 4, 10)
+        torch.testing.assert_close(fast(x), conv(x))
+
+
+def test_weight_updates_invalidate_the_cache_and_state_dict_is_unchanged():
+    conv = nn.Conv1d(4, 5, 3, padding=1)
+    keys = list(conv.state_dict())
+    fast = accelerate(conv)
+    assert list(fast.state_dict()) == keys
+    x = torch.randn(1, 4, 8)
+    fast(x)
+    with torch.no_grad():
+        fast.weight.mul_(2)  # in-place update (as load_state_dict does)
+    torch.testing.assert_close(fast(x), nn.functional.conv1d(x, fast.weight, fast.bias, padding=1), rtol=1e-5, atol=1e-5)
+
+
+def test_autocast_uses_one_cached_low_precision_weight():
+    torch.manual_seed(0)
+    lin = accelerate(nn.Linear(8, 3))
+    assert type(lin) is CachedCastLinear
+    x = torch.randn(4, 8)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        y1 = lin(x)
+        y2 = lin(x)
+    assert y1.dtype == torch.bfloat16 and torch.equal(y1, y2)
+    cached = [v for (name, dtype), (_, v) in lin._gemm_cache.items() if name == "weight"]
+    assert len(cached) == 1 and cached[0].dtype == torch.bfloat16
+    torch.testing.assert_close(y1.float(), nn.functional.linear(x, lin.weight, lin.bias), rtol=2e-2, atol=2e-2)
+    assert lin(x).dtype == torch.float32  # outside autocast: the float32 weights
+
+
+def test_accelerated_unet_matches_stock_and_stays_padding_invariant():
+    nets = pytest.importorskip("stablemo.nets")
+    torch.manual_seed(0)
+    net = nets.build_denoiser("unet", input_dim=11, text_dim=8, base_channels=8, channel_mults=(1, 2, 2),
+                              time_dim=16, num_groups=4, num_heads=2, dropout=0.0).eval()
+    for p in net.parameters():
+        nn.init.normal_(p, std=0.1)
+    fast = accelerate(copy.deepcopy(net))
+    x, t = torch.randn(2, 24, 11), torch.tensor([3, 700])
+    text, text_mask = torch.randn(2, 5, 8), torch.tensor([[1, 1, 1, 0, 0], [1, 1, 1, 1, 1]], dtype=torch.bool)
+    mask = torch.arange(24)[None] < torch.tensor([[13], [24]])
+    ref = net(x, t, text, text_mask, mask)
+    out = fast(x, t, text, text_mask, mask)
+    torch.testing.assert_close(out, ref, rtol=1e-5, atol=1e-5)
+    # sample 0 alone, padded only to its own length multiple, gives the same valid frames
+    alone = fast(x[:1, :16], t[:1], text[:1], text_mask[:1], mask[:1, :16])
+    torch.testing.assert_close(alone[0, :13], out[0, :13], rtol=1e-5, atol=1e-5)
