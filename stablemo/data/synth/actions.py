@@ -593,8 +593,8 @@ def build_clap(tl: Timeline, p: dict) -> None:
         closed += np.where((u >= 0) & (u <= 1), np.sin(np.pi * np.clip(u, 0, 1)) ** 2, 0.0)
     for s in (LEFT, RIGHT):
         sg = SIDE_SIGN[s]
-        tl.blend_arm(s, sl, _tile([sg * 0.3, -0.5, 0.8], n), _tile([sg * 0.45, 0.15, 0.85], n), env)
-        tl.blend_arm(s, sl, _tile([sg * 0.2, -0.5, 0.8], n), _tile([-sg * 0.7, 0.2, 0.65], n), closed * env)
+        tl.blend_arm(s, sl, _tile([sg * 0.25, -0.5, 0.8], n), _tile([sg * 0.2, 0.15, 0.9], n), env)
+        tl.blend_arm(s, sl, _tile([sg * 0.15, -0.5, 0.8], n), _tile([-sg * 0.85, 0.2, 0.5], n), closed * env)
     tl.t += n
     tl.add_part("clap", p, start)
 

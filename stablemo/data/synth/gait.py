@@ -16,7 +16,7 @@ import numpy as np
 from stablemo.data.synth.body import ANKLE_FLAT_HEIGHT, FOOT_LENGTH, FOOT_PITCH
 
 
-CONTACT_TOL = 0.015  # metres
+CONTACT_TOL = 0.01  # metres
 SWING_DELAY = 0.10  # fraction of a swing spent lifting (and setting down) the foot in place
 
 
@@ -109,11 +109,9 @@ def render_foot(plants: list[Plant], side: int, T: int):
                 p = np.where(peel, pp, p)
                 heel &= ~peel
             ankle[m], yaw[m], pitch[m] = a, pl.yaw, p
-            # Contact = the heel (ankle) / toe is on the floor within CONTACT_TOL: the first moments
-            # of a heel-off or the last of a heel-first landing still count.
+            # The heel still counts as down in the first moments of a heel-off (raised < CONTACT_TOL);
+            # the toe counts from the moment the foot is flat (it never moves while down).
             heel |= a[:, 1] - flat[1] < CONTACT_TOL
-            toe_y = a[:, 1] - FOOT_LENGTH[side] * np.sin(p)
-            toe_down |= toe_y < CONTACT_TOL
             contact[m, 0], contact[m, 1] = heel, toe_down
             assigned |= m
         if k + 1 < len(plants):
