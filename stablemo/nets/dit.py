@@ -1,0 +1,109 @@
+"""DiT for motion (paper §4.1.2): transformer blocks with adaLN-Zero timestep modulation.
+
+- baseline (``cross_attention=False``): the text tokens are projected to the latent width and
+  concatenated with the motion tokens; self-attention runs over both (masked keys on each side).
+- ``cross_attention=True``: self-attention over motion tokens only, and a residual linear
+  multi-head cross-attention to the text between self-attention and the MLP (paper Fig. 3 d), so
+  the two modalities stay in separate streams.
+
+Motion tokens carry a sinusoidal encoding of their frame index (independent of the total padded
+length); text tokens carry the frozen encoder's own positions plus a learned type embedding.
+Padded tokens are zeroed after every sublayer and masked as keys, so valid outputs are exactly
+padding invariant. ``length_multiple`` is 1.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from stablemo.errors import StableMoError
+from stablemo.nets.layers import (
+    FeedForward,
+    LinearCrossAttention,
+    SelfAttention,
+    TimestepEmbedder,
+    check_inputs,
+    modulate,
+    sinusoidal_embedding,
+    zero_pad_btc,
+)
+
+
+class DiTBlock(nn.Module):
+    """adaLN-Zero block. x: (B, S, C), mask: (B, S); emb: (B, C)."""
+
+    def __init__(self, dim: int, text_dim: int, num_heads: int, ff_dim: int, dropout: float, cross_attention: bool):
+        super().__init__()
+        self.norm1 = nn.LayerNorm(dim, elementwise_affine=False, eps=1e-6)
+        self.attn = SelfAttention(dim, num_heads, dropout)
+        self.cross = LinearCrossAttention(dim, text_dim, num_heads, dropout) if cross_attention else None
+        self.norm2 = nn.LayerNorm(dim, elementwise_affine=False, eps=1e-6)
+        self.mlp = FeedForward(dim, ff_dim, dropout)
+        self.dropout = nn.Dropout(dropout)
+        self.ada = nn.Sequential(nn.SiLU(), nn.Linear(dim, 6 * dim))
+        nn.init.zeros_(self.ada[1].weight)  # adaLN-Zero: every block starts as the identity
+        nn.init.zeros_(self.ada[1].bias)
+
+    def forward(self, x, mask, emb, text, text_mask):
+        shift1, scale1, gate1, shift2, scale2, gate2 = self.ada(emb).chunk(6, dim=-1)
+        h = self.attn(modulate(self.norm1(x), shift1, scale1), mask)
+        x = zero_pad_btc(x + gate1[:, None] * self.dropout(h), mask)
+        if self.cross is not None:
+            x = zero_pad_btc(self.cross(x, text, text_mask), mask)
+        h = self.mlp(modulate(self.norm2(x), shift2, scale2))
+        return zero_pad_btc(x + gate2[:, None] * self.dropout(h), mask)
+
+
+class DiT(nn.Module):
+    """x: (B, T, input_dim), t: (B,), text: (B, L, text_dim) -> (B, T, input_dim)."""
+
+    def __init__(
+        self,
+        input_dim: int,
+        text_dim: int = 256,
+        latent_dim: int = 512,
+        num_layers: int = 8,
+        num_heads: int = 8,
+        ff_dim: int = 2048,
+        dropout: float = 0.1,
+        cross_attention: bool = True,
+    ):
+        super().__init__()
+        if latent_dim % num_heads:
+            raise StableMoError(f"num_heads: latent_dim {latent_dim} is not divisible by {num_heads}")
+        self.input_dim, self.text_dim, self.latent_dim = input_dim, text_dim, latent_dim
+        self.cross_attention = cross_attention
+        self.length_multiple = 1
+        self.motion_in = nn.Linear(input_dim, latent_dim)
+        self.time_embed = TimestepEmbedder(latent_dim)
+        if not cross_attention:
+            self.text_in = nn.Linear(text_dim, latent_dim)
+            self.text_type = nn.Parameter(torch.zeros(latent_dim))
+        self.blocks = nn.ModuleList(
+            DiTBlock(latent_dim, text_dim, num_heads, ff_dim, dropout, cross_attention) for _ in range(num_layers))
+        self.final_norm = nn.LayerNorm(latent_dim, elementwise_affine=False, eps=1e-6)
+        self.final_ada = nn.Sequential(nn.SiLU(), nn.Linear(latent_dim, 2 * latent_dim))
+        self.out = nn.Linear(latent_dim, input_dim)
+        for layer in (self.final_ada[1], self.out):
+            nn.init.zeros_(layer.weight)
+            nn.init.zeros_(layer.bias)
+
+    def forward(self, x, t, text, text_mask, motion_mask):
+        check_inputs(x, t, text, text_mask, motion_mask, self.input_dim, self.text_dim, self.length_multiple)
+        B, T, _ = x.shape
+        emb = self.time_embed(t)  # (B, C)
+        h = self.motion_in(zero_pad_btc(x, motion_mask))
+        h = h + sinusoidal_embedding(torch.arange(T, device=x.device), self.latent_dim).to(h.dtype)[None]
+        h = zero_pad_btc(h, motion_mask)
+        mask = motion_mask
+        if not self.cross_attention:  # baseline: [text tokens | motion tokens]
+            tokens = self.text_in(zero_pad_btc(text, text_mask)) + self.text_type
+            h = torch.cat([zero_pad_btc(tokens, text_mask), h], dim=1)
+            mask = torch.cat([text_mask, motion_mask], dim=1)
+        for block in self.blocks:
+            h = block(h, mask, emb, text, text_mask)
+        h = h[:, -T:]
+        shift, scale = self.final_ada(emb).chunk(2, dim=-1)
+        out = self.out(modulate(self.final_norm(h), shift, scale))
+        return zero_pad_btc(out, motion_mask)

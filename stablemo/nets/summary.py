@@ -1,0 +1,128 @@
+"""`stablemo nets summary --config FILE [--length 196]`: parameters and FLOPs per module.
+
+The config is a denoiser YAML (``name`` + keyword arguments, as in ``configs/nets/``) or a
+training config holding one under ``model.denoiser`` / ``model.init_args.denoiser``. FLOPs are
+counted by ``torch.utils.flop_counter.FlopCounterMode`` for one forward pass (one denoising step
+without CFG) of a batch of one: matrix products, convolutions and attention kernels, 2 FLOPs per
+multiply-add; element-wise operations (norms, activations) are not counted.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import torch
+import yaml
+
+from stablemo.errors import StableMoError
+from stablemo.nets import build_denoiser
+
+
+def load_denoiser_config(path: str | Path) -> dict:
+    """Denoiser dict {"name": ..., **kwargs} from a nets YAML or a training YAML."""
+    path = Path(path)
+    if not path.is_file():
+        raise StableMoError(f"{path}: file not found")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as err:
+        raise StableMoError(f"{path}: not valid YAML ({err})") from None
+    candidates = [data]
+    if isinstance(data, dict):
+        model = data.get("model")
+        if isinstance(model, dict):
+            candidates += [model.get("denoiser"), (model.get("init_args") or {}).get("denoiser")]
+            inner = (model.get("init_args") or {}).get("model")
+            if isinstance(inner, dict):
+                candidates += [inner.get("denoiser"), (inner.get("init_args") or {}).get("denoiser")]
+    for cand in candidates:
+        if isinstance(cand, dict) and isinstance(cand.get("name"), str):
+            return dict(cand)
+    raise StableMoError(f"{path}: no denoiser config (a mapping with 'name') at the top or under model.denoiser")
+
+
+def count_parameters(module: torch.nn.Module) -> int:
+    return sum(p.numel() for p in module.parameters())
+
+
+def summarize(model: torch.nn.Module, length: int, text_length: int = 20, batch: int = 1, depth: int = 1,
+              seed: int = 0) -> tuple[list[tuple[str, int, int]], int, int]:
+    """Rows (module, params, flops), total FLOPs, padded length for one forward at `length` frames."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    if length < 1:
+        raise StableMoError(f"--length: must be >= 1, got {length}")
+    k = int(model.length_multiple)
+    total_len = -(-length // k) * k
+    gen = torch.Generator().manual_seed(seed)
+    x = torch.randn(batch, total_len, model.input_dim, generator=gen)
+    text = torch.randn(batch, text_length, model.text_dim, generator=gen)
+    mm = torch.zeros(batch, total_len, dtype=torch.bool)
+    mm[:, :length] = True
+    tm = torch.ones(batch, text_length, dtype=torch.bool)
+    t = torch.full((batch,), 500)
+    model.eval()
+    with torch.no_grad(), FlopCounterMode(display=False, depth=None) as counter:
+        model(x, t, text, tm, mm)
+    flops = {name: sum(ops.values()) for name, ops in counter.get_flop_counts().items()}
+    root = type(model).__name__
+
+    def module_flops(name: str, module: torch.nn.Module) -> int:
+        # containers that are never called (ModuleList) have no entry: add up their children
+        key = f"{root}.{name}"
+        if key in flops:
+            return int(flops[key])
+        return sum(module_flops(f"{name}.{child}", sub) for child, sub in module.named_children())
+
+    rows = []
+    for name, module in model.named_modules():
+        if not name or name.count(".") >= depth:
+            continue
+        rows.append((name, count_parameters(module), module_flops(name, module)))
+    return rows, int(counter.get_total_flops()), total_len
+
+
+def _human(n: float) -> str:
+    for unit in ("", "K", "M", "G", "T"):
+        if abs(n) < 1000:
+            return f"{n:.2f}{unit}" if unit else f"{int(n)}"
+        n /= 1000
+    return f"{n:.2f}P"
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="stablemo nets", description="denoiser tools")
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("summary", help="parameters and FLOPs per module")
+    p.add_argument("--config", required=True, help="denoiser YAML (name + kwargs) or training YAML")
+    p.add_argument("--length", type=int, default=196, help="motion frames (padded up to the length multiple)")
+    p.add_argument("--text-length", type=int, default=20, help="text tokens")
+    p.add_argument("--input-dim", type=int, default=None, help="feature width if the config has none (263)")
+    p.add_argument("--text-dim", type=int, default=None, help="text latent width if the config has none (256)")
+    p.add_argument("--depth", type=int, default=1, help="module nesting depth to list")
+    p.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+
+    config = load_denoiser_config(args.config)
+    name = config.pop("name")
+    if args.input_dim is not None:
+        config["input_dim"] = args.input_dim
+    if args.text_dim is not None:
+        config["text_dim"] = args.text_dim
+    config.setdefault("input_dim", 263)
+    config.setdefault("text_dim", 256)
+    torch.manual_seed(args.seed)
+    model = build_denoiser(name, **config)
+    rows, total_flops, total_len = summarize(model, args.length, args.text_length, depth=args.depth, seed=args.seed)
+
+    width = max([len("module")] + [len(r[0]) for r in rows])
+    print(f"denoiser {name}: {', '.join(f'{k}={v}' for k, v in config.items())}")
+    print(f"{'module':<{width}}  {'params':>14}  {'GFLOPs':>10}")
+    for mod, n, f in rows:
+        print(f"{mod:<{width}}  {n:>14,}  {f / 1e9:>10.3f}")
+    n_total = count_parameters(model)
+    print(f"{'total':<{width}}  {n_total:>14,}  {total_flops / 1e9:>10.3f}")
+    print(f"parameters: {_human(n_total)}; FLOPs per forward (batch 1, {args.length} frames padded to {total_len}, "
+          f"{args.text_length} text tokens): {_human(total_flops)}")
+    return 0
