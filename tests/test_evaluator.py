@@ -200,3 +200,16 @@ def test_evaluate_command_with_a_bundle(trained, capsys):
     # An untrained model is far from the data; the real motions are not.
     assert row["fid"]["mean"] > 5 * result["rows"]["Real motion"]["fid"]["mean"]
     assert result["aits"] > 0 and result["settings"]["items"] == 40
+
+
+def test_test_stage_restores_statistics_from_checkpoint(trained):
+    import lightning as L
+
+    kwargs = dict(motion_hidden=48, motion_blocks=2, text_hidden=64, embed_dim=32)
+    trainer = L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False, enable_model_summary=False,
+                        default_root_dir=str(trained["tmp"]))
+    res = trainer.test(EvaluatorModule(**kwargs), datamodule=trained["dm"], ckpt_path=str(trained["ckpt"]),
+                       verbose=False)[0]
+    assert res["test/r3"] >= 0.3
+    with pytest.raises(StableMoError, match="statistics"):
+        trainer.test(EvaluatorModule(**kwargs), datamodule=trained["dm"], verbose=False)

@@ -182,9 +182,17 @@ class EvaluatorModule(LightningModule):
             # Batches arrive normalised with the data module's statistics: adopt them as ours.
             self.mean.copy_(torch.as_tensor(np.asarray(dm.mean), dtype=torch.float32))
             self.std.copy_(torch.as_tensor(np.asarray(dm.std), dtype=torch.float32))
-        elif not (np.allclose(self.mean.cpu().numpy(), dm.mean, atol=1e-5)
-                  and np.allclose(self.std.cpu().numpy(), dm.std, atol=1e-5)):
-            raise StableMoError("data: its statistics (Mean/Std, feat_bias) differ from the evaluator's")
+
+    def _check_data_statistics(self) -> None:
+        # Runs after a checkpoint is restored (setup() runs before): validate/test batches must be
+        # normalised the way this evaluator was trained.
+        dm = getattr(self.trainer, "datamodule", None)
+        if dm is None or getattr(dm, "mean", None) is None:
+            return
+        if not (np.allclose(self.mean.cpu().numpy(), dm.mean, atol=1e-5)
+                and np.allclose(self.std.cpu().numpy(), dm.std, atol=1e-5)):
+            raise StableMoError("data: its statistics (Mean/Std with feat_bias) differ from the evaluator's "
+                                "(untrained evaluator? pass --ckpt_path)")
 
     def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
         text = self.embed_text(batch["text"])
@@ -211,6 +219,12 @@ class EvaluatorModule(LightningModule):
         for k in range(3):
             self.log(f"{split}/r{k + 1}", float(res.r_precision[k]), prog_bar=k != 1)
         self.log(f"{split}/mm_dist", res.mm_dist)
+
+    def on_validation_start(self) -> None:
+        self._check_data_statistics()
+
+    def on_test_start(self) -> None:
+        self._check_data_statistics()
 
     def validation_step(self, batch: dict, batch_idx: int) -> None:
         self._eval_step(batch)
