@@ -23,7 +23,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "nets": ("stablemo.nets.summary", "main", "denoiser tools: summary"),
     "bench": ("stablemo.bench", "main", "benchmarks: aits, train"),
     "evaluate": ("stablemo.eval.command", "main", "evaluate a bundle against a dataset"),
-    "footskate": ("footskate.command", "main", "remove foot skating from a motion file"),
+    "footskate": ("stablemo.footskate_guidance", "main", "remove foot skating from a motion file"),
 }
 
 

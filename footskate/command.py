@@ -1,0 +1,152 @@
+"""`stablemo footskate IN.npy --out OUT.npy`: remove foot skating from a motion file.
+
+Joints in (T, J, 3) or (B, T, J, 3) -> joints out. Features in (T, D) or (B, T, D) -> features
+out, all groups re-derived from the corrected positions; that conversion is StableMo's, so it
+comes in as a `codec` (stablemo.footskate_guidance passes it) and this package stays torch-only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+import torch
+
+from footskate.cleanup import CleanupConfig, cleanup
+from footskate.errors import FootskateError
+from footskate.skeletons import TOPOLOGIES, Topology
+from footskate.vgrf import DEFAULT_WEIGHTS, VGRFNet, load_vgrf
+
+
+class FeatureCodec(Protocol):
+    """Features <-> joints for one skeleton (supplied by StableMo)."""
+
+    feature_dim: int
+
+    def to_joints(self, features: np.ndarray) -> np.ndarray: ...             # (B, T, D) -> (B, T, J, 3)
+
+    def to_features(self, joints: np.ndarray, lengths: np.ndarray) -> np.ndarray: ...  # (B, T, J, 3) -> (B, T, D)
+
+
+def resolve_vgrf(weights: str | None, topo: Topology, contacts: str) -> VGRFNet | torch.nn.Module | None:
+    """The vGRF model for `topo`: user weights, else the shipped V22 (HumanML3D), else None (heuristic)."""
+    if contacts == "heuristic" and weights is None:
+        return None
+    if weights is None:
+        if topo.name != "humanml3d" or not DEFAULT_WEIGHTS.is_file():
+            if contacts == "vgrf":
+                raise FootskateError(f"--weights: no default vGRF network for skeleton {topo.name}")
+            return None
+        return load_vgrf(DEFAULT_WEIGHTS)
+    model = load_vgrf(weights)
+    if model.num_joints == 23 and topo.num_joints == 22:
+        from footskate.retarget import UPAdapter
+        return UPAdapter(model).eval()
+    if model.num_joints != topo.num_joints:
+        raise FootskateError(f"{weights}: vGRF network for {model.num_joints} joints, motion has {topo.num_joints}")
+    return model
+
+
+def save_npy(path: Path, array: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp.npy")
+    try:
+        np.save(tmp, array)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def load_motion(path: Path) -> np.ndarray:
+    if not path.is_file():
+        raise FootskateError(f"{path}: file not found")
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except Exception as err:
+        raise FootskateError(f"{path}: not a readable .npy file ({err})") from None
+    if not np.issubdtype(arr.dtype, np.floating) or not np.isfinite(arr).all():
+        raise FootskateError(f"{path}: expected finite floating-point values")
+    return arr
+
+
+def lengths_of(batch: np.ndarray, joints_kind: bool) -> np.ndarray:
+    """Valid length per sample: trailing all-zero frames are padding (as StableMo writes batches)."""
+    flat = batch.reshape(batch.shape[0], batch.shape[1], -1)
+    nonzero = np.abs(flat).sum(-1) > 0
+    last = np.where(nonzero.any(1), batch.shape[1] - np.argmax(nonzero[:, ::-1], axis=1), batch.shape[1])
+    return np.maximum(last, 2)
+
+
+def run(args: argparse.Namespace, codec: FeatureCodec | None) -> dict:
+    torch.manual_seed(args.seed)
+    topo = TOPOLOGIES[args.skeleton]
+    arr = load_motion(Path(args.input))
+    is_joints = arr.shape[-1] == 3 and arr.ndim in (3, 4) and arr.shape[-2] == topo.num_joints
+    if not is_joints:
+        if arr.ndim not in (2, 3):
+            raise FootskateError(f"{args.input}: expected joints (T, {topo.num_joints}, 3) or features (T, D), got {arr.shape}")
+        if codec is None:
+            raise FootskateError(f"{args.input}: feature input needs StableMo (run `stablemo footskate`)")
+        if arr.shape[-1] != codec.feature_dim:
+            raise FootskateError(f"{args.input}: {arr.shape[-1]} feature channels, skeleton {topo.name} has {codec.feature_dim}")
+    single = arr.ndim == (3 if is_joints else 2)
+    batch = arr[None] if single else arr
+    if batch.shape[1] < 2:
+        raise FootskateError(f"{args.input}: need at least 2 frames")
+    lengths = lengths_of(batch, is_joints)
+    joints = batch if is_joints else codec.to_joints(batch.astype(np.float32))
+    vgrf = resolve_vgrf(args.weights, topo, args.contacts)
+    config = CleanupConfig(iters=args.iters, fps=args.fps or topo.fps, up_axis=topo.up_axis)
+    res = cleanup(torch.from_numpy(np.ascontiguousarray(joints, dtype=np.float32)), topo.parents, topo.feet,
+                  lengths=torch.from_numpy(lengths), vgrf=vgrf, config=config)
+    out_joints = res.joints.numpy()
+    if is_joints:
+        out = out_joints.astype(arr.dtype)
+    else:
+        out = codec.to_features(out_joints, lengths).astype(arr.dtype)
+    save_npy(Path(args.out), out[0] if single else out)
+    if args.joints_out:
+        save_npy(Path(args.joints_out), out_joints[0] if single else out_joints)
+    info = {"samples": batch.shape[0], "ranges": res.info["ranges"], "anchored": res.info["anchored_ranges"],
+            "seconds": res.info["seconds"], "contacts": "vgrf" if vgrf is not None else "heuristic"}
+    print(f"footskate: {info['samples']} motion(s), {info['anchored']}/{info['ranges']} contact ranges anchored "
+          f"({info['contacts']} contacts), {info['seconds']:.2f}s -> {args.out}")
+    return info
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="stablemo footskate", description="remove foot skating from a motion file")
+    p.add_argument("input", help="joints (T,J,3)/(B,T,J,3) or features (T,D)/(B,T,D) .npy; zero frames at the end = padding")
+    p.add_argument("--out", required=True, help="output .npy (same kind as the input)")
+    p.add_argument("--joints-out", default=None, help="also write the corrected joint positions here")
+    p.add_argument("--weights", default=None,
+                   help="vGRF weights: our .safetensors or your UnderPressure pretrained.tar (default: shipped V22)")
+    p.add_argument("--contacts", choices=["auto", "vgrf", "heuristic"], default="auto",
+                   help="contact detection: the vGRF network (auto when weights exist) or the height/speed rule")
+    p.add_argument("--iters", type=int, default=CleanupConfig.iters)
+    p.add_argument("--skeleton", choices=["humanml3d", "kit"], default="humanml3d")
+    p.add_argument("--fps", type=float, default=None, help="frame rate (default: the skeleton's)")
+    p.add_argument("--seed", type=int, default=0)
+    return p
+
+
+def main(argv: list[str] | None = None, codec_factory=None) -> int:
+    """Entry point; `codec_factory(skeleton_name) -> FeatureCodec` enables feature files."""
+    args = parser().parse_args(argv)
+    if args.iters < 0:
+        raise FootskateError("--iters: must be >= 0")
+    codec = codec_factory(args.skeleton) if codec_factory is not None else None
+    run(args, codec)
+    return 0
+
+
+if __name__ == "__main__":
+    try:
+        sys.exit(main())
+    except FootskateError as err:
+        print(f"footskate: error: {err}", file=sys.stderr)
+        sys.exit(2)

@@ -1,0 +1,144 @@
+"""StableMo side of foot-skate cleanup: consistent features, the denoising hook, the command.
+
+`footskate` works on joint positions and never imports stablemo; this module converts between
+features and joints (stablemo.motion), so that a cleaned motion's features are *all* re-derived
+from the corrected positions (root, rotations, velocities, contact bits), not patched.
+
+StableMoFusion*: `FootskateGuidance` is an x0 hook for `Pipeline.generate(x0_hook=...,
+hook_steps=...)`: at the last denoising steps it cleans the predicted x0 and hands the consistent
+features back to the sampler, so the remaining steps (the diffusion prior) smooth the correction.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from stablemo.errors import StableMoError
+from stablemo.motion import features_to_joints, get_skeleton, joints_to_features
+
+DEFAULT_HOOK_STEPS = (-2, -1)   # correct x0 at the last two denoising steps
+
+
+def joints_to_consistent_features(joints: np.ndarray, lengths: Sequence[int], skeleton="humanml3d") -> np.ndarray:
+    """joints (B, T, J, 3) -> features (B, T, D), zero on padding; each sample keeps its length.
+
+    The extraction turns T positions into T-1 feature rows, so one frame is extrapolated at a
+    constant velocity first. Samples are converted one at a time because the extraction's
+    canonicalisation (floor, facing smoothing) must only see the sample's own valid frames.
+    """
+    skel = get_skeleton(skeleton)
+    joints = np.asarray(joints, dtype=np.float64)
+    out = np.zeros(joints.shape[:2] + (skel.feature_dim,), dtype=np.float32)
+    for b, n in enumerate(int(n) for n in lengths):  # numpy extraction, outside the optimisation loop
+        j = joints[b, :n]
+        last = j[-1:] + (j[-1:] - j[-2:-1] if n > 1 else 0.0)
+        out[b, :n] = joints_to_features(np.concatenate([j, last], 0), skel)
+    return out
+
+
+class StableMoCodec:
+    """footskate.command.FeatureCodec backed by stablemo.motion."""
+
+    def __init__(self, skeleton: str = "humanml3d"):
+        self.skeleton = get_skeleton(skeleton)
+        self.feature_dim = self.skeleton.feature_dim
+
+    def to_joints(self, features: np.ndarray) -> np.ndarray:
+        return features_to_joints(np.asarray(features, dtype=np.float32), self.skeleton)
+
+    def to_features(self, joints: np.ndarray, lengths) -> np.ndarray:
+        return joints_to_consistent_features(joints, lengths, self.skeleton)
+
+
+def _topology(skeleton):
+    from footskate.skeletons import TOPOLOGIES
+
+    name = get_skeleton(skeleton).name
+    if name not in TOPOLOGIES:
+        raise StableMoError(f"skeleton: foot-skate cleanup does not know skeleton {name!r}")
+    return TOPOLOGIES[name]
+
+
+def load_vgrf_model(weights: str | Path | None, skeleton="humanml3d"):
+    """vGRF model for a skeleton: `weights` (ours or a user's UnderPressure .tar), else the shipped V22, else None."""
+    from footskate.command import resolve_vgrf
+    from footskate.errors import FootskateError
+
+    try:
+        return resolve_vgrf(None if weights is None else str(weights), _topology(skeleton), "auto")
+    except FootskateError as err:
+        raise StableMoError(str(err)) from None
+
+
+def clean_features(features: torch.Tensor | np.ndarray, lengths: Sequence[int], skeleton="humanml3d",
+                   vgrf=None, config=None) -> tuple[np.ndarray, np.ndarray, dict]:
+    """De-normalised features (B, T, D) -> (cleaned features (B, T, D), cleaned joints (B, T, J, 3), info)."""
+    from footskate.cleanup import CleanupConfig, cleanup
+    from footskate.errors import FootskateError
+
+    topo = _topology(skeleton)
+    feats = torch.as_tensor(np.asarray(features) if not torch.is_tensor(features) else features).float().cpu()
+    lengths_t = torch.as_tensor(list(lengths), dtype=torch.long)
+    joints = features_to_joints(feats, get_skeleton(skeleton)).detach()
+    cfg = config or CleanupConfig(fps=get_skeleton(skeleton).fps, up_axis=topo.up_axis)
+    try:
+        res = cleanup(joints, topo.parents, topo.feet, lengths=lengths_t, vgrf=vgrf, config=cfg)
+    except FootskateError as err:
+        raise StableMoError(f"footskate: {err}") from None
+    out_joints = res.joints.numpy()
+    mask = (torch.arange(joints.shape[1])[None, :] < lengths_t[:, None]).numpy()
+    out_joints = np.where(mask[..., None, None], out_joints, 0.0).astype(np.float32)
+    return joints_to_consistent_features(out_joints, lengths, skeleton), out_joints, res.info
+
+
+class FootskateGuidance:
+    """x0 hook (StableMoFusion*): clean the predicted motion at the chosen denoising steps.
+
+    hook(step, t, x0 normalised (B,T,D), mask (B,T)) -> x0 with consistent cleaned features.
+    `calls` keeps the cleanup info of every call (timings, anchored ranges).
+    """
+
+    def __init__(self, pipeline, weights: str | Path | None = None, iters: int | None = None, vgrf="auto"):
+        from footskate.cleanup import CleanupConfig
+
+        self.pipeline = pipeline
+        self.skeleton = pipeline.skeleton
+        self.vgrf = load_vgrf_model(weights, self.skeleton) if vgrf == "auto" else vgrf
+        topo = _topology(self.skeleton)
+        self.config = CleanupConfig(fps=pipeline.fps, up_axis=topo.up_axis)
+        if iters is not None:
+            self.config.iters = int(iters)
+        self.calls: list[dict] = []
+
+    def __call__(self, step: int, t, x0: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        lengths = mask.sum(1).tolist()
+        feats = self.pipeline.denormalize(x0.float().cpu())
+        cleaned, _, info = clean_features(feats, lengths, self.skeleton, self.vgrf, self.config)
+        x = self.pipeline.normalize(torch.from_numpy(cleaned))
+        x = torch.where(mask.cpu()[..., None], x, torch.zeros((), dtype=x.dtype))
+        self.calls.append({"step": int(step), **{k: info[k] for k in ("seconds", "ranges", "anchored_ranges")}})
+        return x.to(device=x0.device, dtype=x0.dtype)
+
+
+def generate_with_footskate(pipeline, texts, lengths, weights=None, iters=None,
+                            hook_steps: Sequence[int] = DEFAULT_HOOK_STEPS, **kwargs):
+    """`pipeline.generate(...)` with foot-skate correction inside the last denoising steps."""
+    hook = FootskateGuidance(pipeline, weights=weights, iters=iters)
+    gen = pipeline.generate(texts, lengths, x0_hook=hook, hook_steps=hook_steps, **kwargs)
+    gen.info["footskate"] = hook.calls
+    return gen
+
+
+def main(argv: list[str]) -> int:
+    """`stablemo footskate IN.npy --out OUT.npy [--weights PATH] [--iters N]` (joints or features)."""
+    from footskate.command import main as footskate_main
+    from footskate.errors import FootskateError
+
+    try:
+        return footskate_main(argv, codec_factory=StableMoCodec)
+    except FootskateError as err:
+        raise StableMoError(str(err)) from None
