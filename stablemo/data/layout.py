@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 from stablemo.errors import StableMoError
 
@@ -98,10 +99,11 @@ def read_split(root: str | Path, split: str) -> list[str]:
     return ids
 
 
-@dataclass(frozen=True)
-class Caption:
+class Caption(NamedTuple):
+    """One caption line. A NamedTuple because a full split holds ~70k of them (cheap to build)."""
+
     text: str
-    tokens: tuple[str, ...]  # `word/POS` strings
+    tokens: str  # space-separated `word/POS` (spaCy coarse tags)
     start: float  # seconds; 0 and 0 = the whole clip
     end: float
 
@@ -135,7 +137,7 @@ def parse_caption_line(line: str, where: str) -> Caption:
     text = "#".join(fields[:-3]).strip()
     if not text:
         raise StableMoError(f"{where}: empty caption")
-    tokens = tuple(fields[-3].split())
+    tokens = " ".join(fields[-3].split())
     return Caption(text, tokens, _parse_time(fields[-2], where), _parse_time(fields[-1], where))
 
 
@@ -144,9 +146,18 @@ def read_captions(path: Path) -> list[Caption]:
     if not path.is_file():
         raise StableMoError(f"{path}: caption file not found")
     try:
-        content = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
+        data = path.read_bytes()
+    except OSError as err:
         raise StableMoError(f"{path}: cannot read caption file ({err})") from None
+    return parse_captions(data, path)
+
+
+def parse_captions(data: bytes, path: Path) -> list[Caption]:
+    """Captions from the bytes of the text file `path` (named in errors)."""
+    try:
+        content = data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise StableMoError(f"{path}: caption file is not UTF-8 text ({err})") from None
     lines = content.rstrip().splitlines()
     if not lines:
         raise StableMoError(f"{path}: caption file is empty")
