@@ -140,9 +140,11 @@ def contact_ranges(contacts: torch.Tensor, positions: torch.Tensor, up_axis: int
     return (targets.view(b, k, t, 3).permute(0, 2, 1, 3), weights.view(b, k, t).permute(0, 2, 1), info)
 
 
-def detect_contacts(joints: torch.Tensor, lengths: torch.Tensor, feet: list[int], fps: float, up_axis: int,
+def detect_contacts(joints: torch.Tensor, lengths: torch.Tensor | None, feet: list[int], fps: float, up_axis: int,
                     vgrf: VGRFNet | None = None) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Contacts (B, T, 4) from the vGRF network if given, else the height/speed heuristic."""
+    if lengths is None:
+        lengths = torch.full((joints.shape[0],), joints.shape[1], dtype=torch.long, device=joints.device)
     mask = valid_mask(lengths, joints.shape[1])
     if vgrf is not None:
         with torch.no_grad():

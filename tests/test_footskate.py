@@ -335,3 +335,123 @@ def test_skating_ratio_never_increases(seed):
     assert after.mean() < 0.8 * before.mean()
     mask = torch.arange(frames)[None] < lengths[:, None]
     torch.testing.assert_close(bone_lengths(res.joints)[mask], bone_lengths(sliding)[mask], atol=1e-5, rtol=0)
+
+
+# --- retargeting, distillation, command, StableMo glue -----------------------------------------
+
+def test_retarget_to_underpressure_skeleton():
+    from footskate.retarget import HML_TO_UP, UPAdapter, resample, to_up_skeleton
+
+    x = standing_pose().expand(2, 12, 22, 3).clone()
+    up = to_up_skeleton(x)
+    assert up.shape == (2, 12, 23, 3)
+    assert sorted(HML_TO_UP) == [i for i in range(23) if i != 4]
+    assert torch.allclose(up[..., 4, :], 0.5 * (up[..., 3, :] + up[..., 5, :]))
+    assert abs(up[0, 0, [18, 22], 2].min() - 0.015) < 1e-6          # z-up, lowest toe at UP's toe height
+    assert 0.75 < up[0, 0, 0, 2] < 1.0                              # pelvis near UP's 0.93 m (knees bent)
+    assert up[0, 0, 6, 2] > up[0, 0, 0, 2] > up[0, 0, 21, 2]        # head above pelvis above ankle
+    # facing +z in HumanML3D (toes ahead of ankles) becomes -y in UP's frame
+    assert (up[0, 0, 22, 1] - up[0, 0, 21, 1]) < -0.1
+    fine, n = resample(x, 5)
+    assert fine.shape[1] == 56 and int(n[0]) == 56
+    torch.manual_seed(0)
+    adapter = UPAdapter(VGRFNet(23).eval())
+    walk = x.clone()
+    walk[..., 2] += 0.02 * torch.arange(12)[:, None]
+    lengths = torch.tensor([12, 7])
+    forces = adapter(walk, lengths)
+    assert forces.shape == (2, 12, 2, 16)
+    torch.testing.assert_close(forces[1, :7], adapter(walk[1:, :7])[0], rtol=1e-4, atol=1e-6)
+
+
+def test_distillation_command_with_a_stand_in_v23(tmp_path, capsys):
+    from footskate.retarget import main as retarget_main
+
+    torch.manual_seed(0)
+    v23 = tmp_path / "pretrained.tar"
+    torch.save({"model": VGRFNet(23).state_dict_up()}, v23)   # random stand-in: UP's weights are never shipped
+    data = tmp_path / "hml" / "new_joints"
+    data.mkdir(parents=True)
+    for i in range(3):
+        x, _ = drifting_planted_foot(30 + 5 * i)
+        np.save(data / f"{i:06d}.npy", x.numpy())
+    out = tmp_path / "v22.safetensors"
+    assert retarget_main(["distill", "--v23", str(v23), "--data", str(data.parent), "--out", str(out),
+                          "--steps", "2", "--width", "half"]) == 0
+    assert "InterDigital" in capsys.readouterr().out
+    model = load_vgrf(out)
+    assert model.num_joints == 22 and model.metadata["labels"] == "teacher"
+    conv = tmp_path / "up.npy"
+    assert retarget_main(["convert", str(data / "000000.npy"), "--out", str(conv)]) == 0
+    assert np.load(conv).shape == ((30 - 1) * 5 + 1, 23, 3)
+
+
+def test_footskate_command_on_joints(tmp_path):
+    from footskate.command import main
+
+    x, _ = drifting_planted_foot(40)
+    x[:, :, 2] *= 0.3                                   # 3 mm/frame: a slow slide the heuristic calls contact
+    src, dst = tmp_path / "in.npy", tmp_path / "out.npy"
+    np.save(src, x.numpy())
+    assert main([str(src), "--out", str(dst), "--contacts", "heuristic"]) == 0
+    out = torch.from_numpy(np.load(dst))
+    assert out.shape == x.shape
+    speed = lambda j: (j[1:, FEET] - j[:-1, FEET])[..., [0, 2]].norm(dim=-1).mean()
+    assert speed(out) < 0.3 * speed(x)
+    with pytest.raises(FootskateError, match="needs StableMo"):
+        np.save(src, np.zeros((10, 263), dtype=np.float32) + 1)
+        main([str(src), "--out", str(dst), "--contacts", "heuristic"])
+
+
+@pytest.mark.skipif(not (SAMPLE / "new_joint_vecs/012314.npy").is_file(), reason="HumanML3D sample not present")
+def test_stablemo_footskate_features_are_consistent(tmp_path):
+    from stablemo.cli import main
+    from stablemo.motion import features_to_joints
+
+    feats = np.load(SAMPLE / "new_joint_vecs/012314.npy")
+    out, joints_out = tmp_path / "clean.npy", tmp_path / "joints.npy"
+    assert main(["footskate", str(SAMPLE / "new_joint_vecs/012314.npy"), "--out", str(out),
+                 "--joints-out", str(joints_out), "--contacts", "heuristic", "--iters", "60"]) == 0
+    cleaned = np.load(out)
+    assert cleaned.shape == feats.shape and np.isfinite(cleaned).all()
+    # every feature group comes from the corrected positions: recovering joints gives them back
+    recovered = features_to_joints(cleaned)
+    assert np.linalg.norm(recovered - np.load(joints_out), axis=-1).mean() < 0.01
+    lengths = torch.tensor([feats.shape[0]])
+    before = gmd_skating_ratio(torch.from_numpy(features_to_joints(feats))[None], lengths)
+    after = gmd_skating_ratio(torch.from_numpy(recovered)[None], lengths)
+    assert after < before
+    assert main(["footskate", str(tmp_path / "missing.npy"), "--out", str(out)]) == 2
+
+
+@pytest.mark.skipif(not (SAMPLE / "new_joints/012314.npy").is_file(), reason="HumanML3D sample not present")
+def test_guidance_hook_cleans_x0_inside_denoising():
+    from stablemo.diffusion.schedule import NoiseSchedule
+    from stablemo.footskate_guidance import FootskateGuidance, joints_to_consistent_features
+    from stablemo.motion import features_to_joints
+    from stablemo.pipeline import Pipeline
+
+    clip = torch.from_numpy(np.load(SAMPLE / "new_joints/012314.npy")).float()[:64]
+    contacts, _ = detect_contacts(clip[None], None, FEET, 20.0, 1)
+    sliding = _injected_sliding(clip[None], contacts, torch.Generator().manual_seed(0), 0.015)
+    target = torch.from_numpy(joints_to_consistent_features(sliding.numpy(), [64]))  # (1, 64, 263)
+    mean, std = np.zeros(263, np.float32), np.ones(263, np.float32)
+
+    class Fixed(torch.nn.Module):  # an "x0 predictor" that always proposes the sliding motion
+        length_multiple = 1
+
+        def encode_text(self, texts):
+            return torch.zeros(len(texts), 1, 4), torch.ones(len(texts), 1, dtype=torch.bool)
+
+        def forward(self, x, t, text, text_mask, motion_mask):
+            return target.expand(x.shape[0], -1, -1)[:, : x.shape[1]].to(x.dtype)
+
+    pipe = Pipeline(Fixed(), NoiseSchedule(), mean, std, min_length=8, max_length=64, device="cpu", fast=False)
+    hook = FootskateGuidance(pipe, vgrf=None, iters=60)
+    plain = pipe.generate(["walk"], [64], steps=3, seed=0)
+    guided = pipe.generate(["walk"], [64], steps=3, seed=0, x0_hook=hook, hook_steps=[-1])
+    assert [c["step"] for c in hook.calls] == [2]
+    lengths = torch.tensor([64])
+    j_plain = features_to_joints(plain.features)
+    j_guided = features_to_joints(guided.features)
+    assert gmd_skating_ratio(j_guided, lengths) < 0.8 * gmd_skating_ratio(j_plain, lengths)
