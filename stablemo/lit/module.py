@@ -133,17 +133,23 @@ class DiffusionModule(LightningModule):
                 f"data.pad_multiple: batches have {x.shape[1]} frames but the denoiser needs a multiple of {multiple}"
             )
 
-    def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
-        x0, mask = batch["motion"], batch["mask"]  # (B, T, D), (B, T)
-        self._check_length(x0)
+    def training_inputs(self, batch: dict, batch_idx: int):
+        """The step's random draws: captions after CFG dropout, drop mask (B,), timesteps (B,), noise (B,T,D)."""
+        x0 = batch["motion"]
         gen = self._step_generator(batch_idx)
         bsz = x0.shape[0]
         drop = torch.rand(bsz, generator=gen) < self.hparams.cond_drop_prob
         texts = ["" if d else caption for d, caption in zip(drop.tolist(), batch["text"])]
-        t = torch.randint(0, self.schedule.num_train_timesteps, (bsz,), generator=gen).to(self.device)
-        noise = torch.randn(x0.shape, generator=gen).to(device=self.device, dtype=x0.dtype)
+        t = torch.randint(0, self.schedule.num_train_timesteps, (bsz,), generator=gen).to(x0.device)
+        noise = torch.randn(x0.shape, generator=gen).to(device=x0.device, dtype=x0.dtype)
+        return texts, drop, t, noise
+
+    def training_step(self, batch: dict, batch_idx: int) -> torch.Tensor:
+        x0, mask = batch["motion"], batch["mask"]  # (B, T, D), (B, T)
+        self._check_length(x0)
+        texts, drop, t, noise = self.training_inputs(batch, batch_idx)
         # Dropout layers draw from the global RNG: give them a per-step stream too.
-        devices = [self.device] if self.device.type == "cuda" else []
+        devices = [x0.device] if x0.device.type == "cuda" else []
         with torch.random.fork_rng(devices=devices):
             torch.manual_seed(derive_seed("dropout", self.hparams.seed, self.global_step, batch_idx, self.global_rank))
             per_sample = self._loss(x0, mask, texts, t, noise)
@@ -151,6 +157,7 @@ class DiffusionModule(LightningModule):
         frames = mask.float().sum(dim=1)
         loss = (per_sample * frames).sum() / frames.sum().clamp(min=1.0)
         self.last_train_loss = loss.detach()
+        bsz = x0.shape[0]
         self.log("train/loss", loss, prog_bar=True, batch_size=bsz)
         self.log("train/cond_dropped", drop.float().mean(), batch_size=bsz)
         return loss
@@ -193,8 +200,8 @@ class DiffusionModule(LightningModule):
                 torch.randn(max(frames, VAL_NOISE_FRAMES), dim, generator=torch.Generator().manual_seed(
                     derive_seed("val", zlib.crc32(str(clip).encode()), step)))[:frames]
                 for clip in batch["id"]
-            ]).to(device=self.device, dtype=x0.dtype)
-            t = torch.full((bsz,), int(step), device=self.device, dtype=torch.long)
+            ]).to(device=x0.device, dtype=x0.dtype)
+            t = torch.full((bsz,), int(step), device=x0.device, dtype=torch.long)
             x_t = self.schedule.q_sample(x0, t, noise)
             pred = self.model(x_t, t, text, text_mask, mask)
             target = self.schedule.target(x0, noise, self.hparams.prediction_type)

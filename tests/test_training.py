@@ -1,0 +1,395 @@
+"""Training: EMA arithmetic, CFG dropout, overfitting, exact resume, NaN guard, export, DDP."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+from lightning.pytorch import Trainer
+from lightning.pytorch.callbacks import ModelCheckpoint
+from torch import nn
+
+from stablemo.bundle import load_bundle
+from stablemo.errors import StableMoError
+from stablemo.lit.callbacks import NonFiniteGuard, NonFiniteLossError
+from stablemo.lit.checkpoint_io import AtomicCheckpointIO, load_checkpoint_file
+from stablemo.lit.ema import EMA
+
+REPO = Path(__file__).resolve().parents[1]
+
+TINY_MODEL = {
+    "denoiser": {"name": "unet", "input_dim": 263, "base_channels": 16, "channel_mults": [1, 2], "time_dim": 32,
+                 "num_groups": 4, "num_heads": 2, "dropout": 0.1},
+    "text": {"encoder": "minilm", "latent_dim": 32, "num_layers": 1, "num_heads": 2, "ff_dim": 64},
+}
+VERBS = ["walks", "runs", "jumps", "waves", "turns", "kicks"]
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    # The test machine is shared: oversubscribed BLAS threads are far slower than one.
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def write_random_dataset(root: Path, num: int = 24, dim: int = 263, seed: int = 0,
+                         splits: tuple[int, int] = (16, 4)) -> Path:
+    """Smooth random features with two captions per clip, in the HumanML3D folder layout."""
+    rng = np.random.default_rng(seed)
+    (root / "new_joint_vecs").mkdir(parents=True)
+    (root / "texts").mkdir()
+    ids = []
+    for i in range(num):
+        clip = f"{i:06d}"
+        frames = int(rng.integers(40, 64))
+        x = np.cumsum(rng.normal(size=(frames, dim)), axis=0) * 0.1 + rng.normal(size=dim)
+        np.save(root / "new_joint_vecs" / f"{clip}.npy", x.astype(np.float32))
+        verb = VERBS[i % len(VERBS)]
+        (root / "texts" / f"{clip}.txt").write_text(
+            f"a person {verb}#a/DET person/NOUN {verb}/VERB#0.0#0.0\n"
+            f"someone {verb} slowly#someone/PRON {verb}/VERB slowly/ADV#0.0#0.0\n")
+        ids.append(clip)
+    feats = np.concatenate([np.load(root / "new_joint_vecs" / f"{c}.npy") for c in ids])
+    np.save(root / "Mean.npy", feats.mean(0).astype(np.float32))
+    np.save(root / "Std.npy", (feats.std(0) + 1e-3).astype(np.float32))
+    n_train, n_val = splits
+    parts = {"train": ids[:n_train], "val": ids[n_train:n_train + n_val], "test": ids[n_train + n_val:], "all": ids}
+    for name, part in parts.items():
+        (root / f"{name}.txt").write_text("\n".join(part) + "\n")
+    return root
+
+
+@pytest.fixture(scope="module")
+def tiny_data(tmp_path_factory) -> Path:
+    return write_random_dataset(tmp_path_factory.mktemp("data") / "tiny")
+
+
+def tiny_config(tmp: Path, data_dir: Path, **overrides) -> Path:
+    config = {
+        "seed_everything": 0,
+        "trainer": {
+            "accelerator": "cpu", "devices": 1, "max_steps": 6, "gradient_clip_val": 1.0, "limit_val_batches": 0,
+            "log_every_n_steps": 1, "default_root_dir": str(tmp), "enable_progress_bar": False,
+            "enable_model_summary": False,
+            "logger": {"class_path": "lightning.pytorch.loggers.CSVLogger",
+                       "init_args": {"save_dir": str(tmp), "name": "logs"}},
+        },
+        "checkpoint": {"dirpath": str(tmp / "checkpoints"), "every_n_train_steps": 3},
+        "model": {"model": TINY_MODEL, "ema_decay": 0.9, "lr": 1e-3},
+        "data": {"data_dir": str(data_dir), "batch_size": 4, "pad_multiple": 2, "max_length": 64},
+    }
+    for key, value in overrides.items():
+        section, name = key.split(".", 1)
+        config[section][name] = value
+    tmp.mkdir(parents=True, exist_ok=True)
+    path = tmp / "config.yaml"
+    path.write_text(yaml.safe_dump(config))
+    return path
+
+
+def make_module(**kwargs):
+    from stablemo.lit.module import DiffusionModule
+
+    return DiffusionModule(model=TINY_MODEL, **kwargs)
+
+
+def make_datamodule(data_dir: Path, **kwargs):
+    from stablemo.data import MotionDataModule
+
+    return MotionDataModule(data_dir=str(data_dir), **{"batch_size": 4, "pad_multiple": 2, "max_length": 64, **kwargs})
+
+
+# ---------------------------------------------------------------------------------------------- EMA
+
+
+def test_ema_arithmetic_with_and_without_warmup():
+    model = nn.Linear(3, 2)
+    with torch.no_grad():
+        model.weight.fill_(1.0)
+        model.bias.fill_(0.0)
+    ema = EMA(model, decay=0.9, warmup=0.0)  # warm-up off: beta = decay from the first step
+    with torch.no_grad():
+        model.weight.fill_(3.0)
+        model.bias.fill_(-1.0)
+    ema.update(model)
+    assert torch.allclose(ema.shadow["weight"], torch.full((2, 3), 0.9 * 1.0 + 0.1 * 3.0))
+    assert torch.allclose(ema.shadow["bias"], torch.full((2,), 0.1 * -1.0))
+    ema.update(model)
+    assert torch.allclose(ema.shadow["weight"], torch.full((2, 3), 0.9 * 1.2 + 0.1 * 3.0))
+
+    warm = EMA(model, decay=0.9, warmup=10.0)
+    # beta_n = min(decay, (1 + n) / (10 + n))
+    expected = [0.1, 2 / 11, 3 / 12]
+    for n, beta in enumerate(expected):
+        assert warm.current_decay() == pytest.approx(beta)
+        warm.update(model)
+    assert warm.num_updates == 3
+    for _ in range(200):
+        warm.update(model)
+    assert warm.current_decay() == pytest.approx(0.9)
+
+
+def test_ema_swap_restores_live_weights_and_state_round_trips():
+    model = nn.Sequential(nn.Linear(4, 4), nn.BatchNorm1d(4))
+    ema = EMA(model, decay=0.5, warmup=0.0)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.add_(1.0)
+    live = {k: v.clone() for k, v in model.state_dict().items()}
+    ema.update(model)
+    with ema.swapped_into(model):
+        assert torch.equal(model[0].weight, ema.shadow["0.weight"])
+        assert not torch.equal(model[0].weight, live["0.weight"])
+    for k, v in model.state_dict().items():
+        assert torch.equal(v, live[k]), k
+    # integer buffers are copied, not averaged
+    assert int(ema.shadow["1.num_batches_tracked"]) == int(model[1].num_batches_tracked)
+
+    other = EMA(model, decay=0.5, warmup=0.0)
+    other.load_state_dict(ema.state_dict())
+    assert other.num_updates == 1
+    assert all(torch.equal(other.shadow[k], ema.shadow[k]) for k in ema.shadow)
+    with pytest.raises(StableMoError):
+        EMA(nn.Linear(2, 2)).load_state_dict(ema.state_dict())
+    with pytest.raises(StableMoError):
+        EMA(model, decay=1.0)
+
+
+# ---------------------------------------------------------------------------------------------- objective
+
+
+def test_cfg_dropout_rate_is_seeded_and_per_sample():
+    module = make_module(cond_drop_prob=0.1, seed=3)
+    bsz = 50
+    batch = {"motion": torch.zeros(bsz, 8, 263), "mask": torch.ones(bsz, 8, dtype=torch.bool),
+             "text": [f"caption {i}" for i in range(bsz)], "id": [str(i) for i in range(bsz)]}
+    drops = []
+    for batch_idx in range(60):
+        texts, drop, t, noise = module.training_inputs(batch, batch_idx)
+        assert [tx == "" for tx in texts] == drop.tolist()
+        assert all(tx == f"caption {i}" for i, tx in enumerate(texts) if not drop[i])
+        assert t.min() >= 0 and t.max() < 1000 and noise.shape == (bsz, 8, 263)
+        drops.append(drop)
+    rate = torch.cat(drops).float().mean().item()
+    # 3000 Bernoulli(0.1) draws: sd 0.0055
+    assert abs(rate - 0.1) < 0.02, rate
+    # same step -> same draws; other step -> other draws; every sample decides on its own
+    again = module.training_inputs(batch, 0)
+    assert torch.equal(again[1], drops[0]) and torch.equal(again[2], module.training_inputs(batch, 0)[2])
+    assert not all(torch.equal(drops[0], d) for d in drops[1:])
+    per_batch = torch.stack(drops).sum(1)
+    assert ((per_batch > 0) & (per_batch < bsz)).any()  # not one coin per batch
+    none = make_module(cond_drop_prob=0.0).training_inputs(batch, 0)[1]
+    assert not none.any()
+
+
+def test_bad_hyperparameters_are_named():
+    with pytest.raises(StableMoError, match="prediction_type"):
+        make_module(prediction_type="v")
+    with pytest.raises(StableMoError, match="val_timesteps"):
+        make_module(val_timesteps=[1000])
+
+
+def test_validation_loss_is_fixed_and_independent_of_batching(tiny_data):
+    module = make_module().eval()
+    dm = make_datamodule(tiny_data, batch_size=4)
+    dm.setup("validate")
+    batch = next(iter(dm.val_dataloader()))
+    both = module.fixed_noise_losses(batch)  # (B, K)
+    assert both.shape == (batch["motion"].shape[0], 5)
+    assert torch.equal(both, module.fixed_noise_losses(batch))
+    # the first clip alone, with 8 more frames of padding, scores the same
+    n = int(batch["length"][0])
+    frames = batch["motion"].shape[1] + 8
+    alone = {"motion": torch.zeros(1, frames, 263), "mask": torch.zeros(1, frames, dtype=torch.bool),
+             "text": batch["text"][:1], "id": batch["id"][:1]}
+    alone["motion"][0, :n] = batch["motion"][0, :n]
+    alone["mask"][0, :n] = True
+    torch.testing.assert_close(module.fixed_noise_losses(alone)[0], both[0], rtol=1e-4, atol=1e-6)
+
+
+def test_tiny_model_overfits_a_tiny_batch(tiny_data, tmp_path):
+    from lightning.pytorch.loggers import CSVLogger
+
+    model = dict(TINY_MODEL, denoiser=dict(TINY_MODEL["denoiser"], dropout=0.0),
+                 text=dict(TINY_MODEL["text"], dropout=0.0))
+    from stablemo.lit.module import DiffusionModule
+
+    module = DiffusionModule(model=model, lr=3e-3, lr_step=1000, cond_drop_prob=0.0, seed=0)
+    data = tmp_path / "four"
+    write_random_dataset(data, num=6, splits=(4, 1))
+    dm = make_datamodule(data, batch_size=4)
+    trainer = Trainer(accelerator="cpu", devices=1, max_steps=150, limit_val_batches=0, logger=CSVLogger(tmp_path),
+                      log_every_n_steps=1, enable_checkpointing=False, enable_progress_bar=False,
+                      enable_model_summary=False, gradient_clip_val=1.0)
+    trainer.fit(module, datamodule=dm)
+    import csv
+
+    rows = list(csv.DictReader(open(Path(trainer.logger.log_dir) / "metrics.csv")))
+    losses = [float(r["train/loss"]) for r in rows if r.get("train/loss")]
+    assert len(losses) == 150
+    first, last = np.mean(losses[:10]), np.mean(losses[-10:])
+    assert last < first / 5, (first, last)
+
+
+# ---------------------------------------------------------------------------------------------- checkpoints
+
+
+def test_atomic_checkpoint_io_keeps_old_file_on_failure(tmp_path):
+    io = AtomicCheckpointIO()
+    path = tmp_path / "last.ckpt"
+    io.save_checkpoint({"x": torch.ones(3)}, path)
+    before = path.read_bytes()
+
+    class Unsaveable:
+        def __reduce__(self):
+            raise RuntimeError("disk full, say")
+
+    with pytest.raises(RuntimeError):
+        io.save_checkpoint({"x": torch.zeros(3), "bad": Unsaveable()}, path)
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["last.ckpt"]
+    assert torch.equal(io.load_checkpoint(path)["x"], torch.ones(3))
+
+
+def test_checkpoint_loading_never_unpickles_objects(tmp_path):
+    path = tmp_path / "evil.ckpt"
+    torch.save({"state_dict": {}, "payload": Path("/etc/passwd")}, path)  # an arbitrary class
+    with pytest.raises(StableMoError, match="evil.ckpt"):
+        load_checkpoint_file(path)
+    with pytest.raises(StableMoError, match="not found"):
+        load_checkpoint_file(tmp_path / "missing.ckpt")
+
+
+def _fit(config: Path, *extra: str) -> None:
+    from stablemo.lit.cli import main_fit
+
+    assert main_fit(["--config", str(config), *extra]) == 0
+
+
+def test_resume_is_exact(tiny_data, tmp_path):
+    """6 steps straight == 3 steps, then resume for 3 (mid-epoch: 4 batches per epoch)."""
+    straight, split = tmp_path / "straight", tmp_path / "split"
+    _fit(tiny_config(straight, tiny_data))
+    cfg = tiny_config(split, tiny_data)
+    _fit(cfg, "--trainer.max_steps=3")
+    _fit(cfg, "--ckpt_path=last")
+    a = load_checkpoint_file(straight / "checkpoints" / "last.ckpt")
+    b = load_checkpoint_file(split / "checkpoints" / "last.ckpt")
+    assert a["global_step"] == b["global_step"] == 6
+    assert a["state_dict"].keys() == b["state_dict"].keys()
+    for key in a["state_dict"]:
+        assert torch.equal(a["state_dict"][key], b["state_dict"][key]), key
+    ema_a, ema_b = a["stablemo"]["ema"], b["stablemo"]["ema"]
+    assert ema_a["num_updates"] == ema_b["num_updates"] == 6
+    for key in ema_a["shadow"]:
+        assert torch.equal(ema_a["shadow"][key], ema_b["shadow"][key]), key
+    opt_a, opt_b = a["optimizer_states"][0]["state"], b["optimizer_states"][0]["state"]
+    for idx in opt_a:
+        for name in ("exp_avg", "exp_avg_sq"):
+            assert torch.equal(opt_a[idx][name], opt_b[idx][name])
+    assert a["lr_schedulers"] == b["lr_schedulers"]
+
+
+
+def test_nan_loss_stops_and_keeps_last_good_checkpoint(tiny_data, tmp_path):
+    from stablemo.lit.module import DiffusionModule
+
+    class PoisonedAt(DiffusionModule):
+        def training_step(self, batch, batch_idx):
+            if self.global_step == 4:
+                batch = dict(batch, motion=batch["motion"] * float("nan"))
+            return super().training_step(batch, batch_idx)
+
+    module = PoisonedAt(model=TINY_MODEL, lr=1e-3)
+    ckpt_dir = tmp_path / "checkpoints"
+    checkpoint = ModelCheckpoint(dirpath=ckpt_dir, every_n_train_steps=2, save_last=True)
+    trainer = Trainer(accelerator="cpu", devices=1, max_steps=10, limit_val_batches=0, logger=False,
+                      callbacks=[checkpoint, NonFiniteGuard()], plugins=[AtomicCheckpointIO()],
+                      enable_progress_bar=False, enable_model_summary=False, gradient_clip_val=1.0)
+    with pytest.raises(NonFiniteLossError, match=r"diverged at step 4 .*loss = nan.*last\.ckpt"):
+        trainer.fit(module, datamodule=make_datamodule(tiny_data))
+    last = ckpt_dir / "last.ckpt"
+    saved = load_checkpoint_file(last)
+    assert saved["global_step"] == 4
+    assert all(torch.isfinite(v).all() for v in saved["state_dict"].values() if v.is_floating_point())
+    # the live weights were never touched by the NaN step either
+    assert all(torch.isfinite(p).all() for p in module.parameters())
+    for key, value in module.model.state_dict().items():
+        assert torch.equal(value, saved["state_dict"]["model." + key]), key
+    assert not any(p.name.startswith(".") for p in ckpt_dir.iterdir())  # no temp files left
+
+
+# ---------------------------------------------------------------------------------------------- export
+
+
+def test_export_round_trip_reproduces_the_ema_model(tiny_data, tmp_path):
+    from stablemo.lit.export import main as export_main
+    from stablemo.lit.module import DiffusionModule
+    from stablemo.model import MotionDiffusionModel
+
+    run = tmp_path / "run"
+    _fit(tiny_config(run, tiny_data, **{"trainer.max_steps": 3}))
+    ckpt = run / "checkpoints" / "last.ckpt"
+    out = tmp_path / "bundle"
+    assert export_main([str(ckpt), "--out", str(out)]) == 0
+    bundle = load_bundle(out)
+    dm = make_datamodule(tiny_data)
+    assert bundle.config["prediction_type"] == "sample"
+    assert bundle.config["schedule"]["num_train_timesteps"] == 1000
+    assert bundle.config["model"]["text"]["encoder"] == "minilm"
+    assert bundle.config["dataset"] == "humanml3d" and bundle.config["skeleton"] == "humanml3d"
+    np.testing.assert_allclose(bundle.config["mean"], dm.mean, rtol=1e-6)
+    np.testing.assert_allclose(bundle.config["std"], dm.std, rtol=1e-6)
+    assert bundle.config["training"]["global_step"] == 3
+
+    loaded = MotionDiffusionModel(**bundle.config["model"]).eval()
+    loaded.load_state_dict(bundle.state_dict, strict=True)
+    module = DiffusionModule.load_from_checkpoint(ckpt, weights_only=True).eval()
+    gen = torch.Generator().manual_seed(0)
+    x, t = torch.randn(2, 16, 263, generator=gen), torch.tensor([10, 900])
+    mask = torch.ones(2, 16, dtype=torch.bool)
+    texts = ["a person walks", ""]
+    with torch.no_grad():
+        with module.ema.swapped_into(module.model):
+            want = module.model(x, t, *module.model.encode_text(texts), mask)
+        got = loaded(x, t, *loaded.encode_text(texts), mask)
+        raw = module.model(x, t, *module.model.encode_text(texts), mask)
+    assert torch.equal(got, want)
+    assert not torch.allclose(got, raw)  # EMA weights, not the raw ones
+
+    with pytest.raises(StableMoError, match="checkpoint not found"):
+        export_main([str(tmp_path / "nope.ckpt"), "--out", str(tmp_path / "b2")])
+
+
+def test_input_dim_mismatch_is_a_clear_error(tiny_data, tmp_path):
+    model = dict(TINY_MODEL, denoiser=dict(TINY_MODEL["denoiser"], input_dim=251))
+    cfg = tiny_config(tmp_path, tiny_data, **{"model.model": model})
+    with pytest.raises(StableMoError, match="input_dim: 251 does not match .* 263"):
+        _fit(cfg)
+
+
+# ---------------------------------------------------------------------------------------------- DDP
+
+
+def test_ddp_smoke_two_cpu_processes(tiny_data, tmp_path):
+    cfg = tiny_config(tmp_path, tiny_data, **{"trainer.max_steps": 2})
+    env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONWARNINGS="ignore")
+    proc = subprocess.run(
+        [sys.executable, "-m", "stablemo.cli", "fit", "--config", str(cfg), "--trainer.strategy=ddp",
+         "--trainer.devices=2", "--trainer.accelerator=cpu", "--checkpoint.every_n_train_steps=2"],
+        cwd=REPO, env=env, capture_output=True, text=True, timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "world_size=2" in proc.stderr + proc.stdout or "Initializing distributed" in proc.stderr + proc.stdout
+    saved = load_checkpoint_file(tmp_path / "checkpoints" / "last.ckpt")
+    assert saved["global_step"] == 2 and saved["stablemo"]["ema"]["num_updates"] == 2
