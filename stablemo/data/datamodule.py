@@ -13,6 +13,7 @@ from stablemo.data.cache import load_split
 from stablemo.data.collate import Collate
 from stablemo.data.dataset import CROPS, MotionDataset
 from stablemo.data.layout import check_root, get_spec
+from stablemo.data.resumable import ResumableLoader
 from stablemo.data.sampler import EpochSampler
 from stablemo.data.stats import load_model_stats
 from stablemo.errors import StableMoError
@@ -160,7 +161,8 @@ class MotionDataModule(L.LightningDataModule):
     def _loader(self, role: str, shuffle: bool) -> DataLoader:
         ds = self._dataset(role)
         sampler = EpochSampler(len(ds), seed=self.seed, shuffle=shuffle, per_epoch=shuffle)
-        return DataLoader(
+        # ResumableLoader: a DataLoader whose in-epoch position is saved in Lightning checkpoints
+        return ResumableLoader(
             ds,
             batch_size=self.batch_size,
             sampler=sampler,
