@@ -438,3 +438,81 @@ def test_data_check_kit(tmp_path, capsys):
     assert "kit: 251-d features, 12.5 fps, clips used when 24 <= frames < 200" in capsys.readouterr().out
     assert main(["check", str(root)]) == 1  # 251-d files are wrong for HumanML3D
     assert "expected features of shape (T, 263) for humanml3d" in capsys.readouterr().out
+
+
+# --- Lightning integration: epoch seeding through the Trainer, resume ----------------------------------
+
+class _Recorder:
+    """A tiny LightningModule (built lazily so importing this file stays cheap) that records batch ids."""
+
+    @staticmethod
+    def make():
+        import lightning as L
+
+        class Rec(L.LightningModule):
+            def __init__(self):
+                super().__init__()
+                self.layer = torch.nn.Linear(263, 1)
+                self.seen: list[tuple[int, list[str], list[str]]] = []
+
+            def training_step(self, batch, batch_idx):
+                self.seen.append((self.current_epoch, batch["id"], batch["text"]))
+                x = (batch["motion"] * batch["mask"][..., None]).sum(1) / batch["length"][:, None]
+                return self.layer(x).pow(2).mean()
+
+            def configure_optimizers(self):
+                return torch.optim.SGD(self.parameters(), lr=0.01)
+
+        return Rec()
+
+
+def _fit(root, tmp, epochs, ckpt=None):
+    import lightning as L
+
+    model = _Recorder.make()
+    trainer = L.Trainer(max_epochs=epochs, accelerator="cpu", logger=False, enable_progress_bar=False,
+                        enable_model_summary=False, limit_val_batches=0, default_root_dir=tmp,
+                        callbacks=[L.pytorch.callbacks.ModelCheckpoint(dirpath=tmp, save_top_k=-1, every_n_epochs=1)])
+    trainer.fit(model, datamodule=MotionDataModule(str(root), batch_size=4, seed=11), ckpt_path=ckpt)
+    return model.seen
+
+
+@pytest.mark.filterwarnings("ignore::UserWarning")  # Lightning's notes about tiny datasets and checkpoint dirs
+def test_trainer_epochs_reshuffle_and_resume_reproduces_order(tmp_path):
+    root = write_dataset(tmp_path / "data")
+    full = _fit(root, tmp_path / "a", epochs=3)
+    epochs = [[e for e in full if e[0] == k] for k in range(3)]
+    assert all(epochs) and epochs[0] != epochs[1] != epochs[2]  # Lightning calls set_epoch: new order each epoch
+    assert sorted(i for e in epochs[0] for i in e[1]) == sorted(i for e in epochs[1] for i in e[1])
+    assert _fit(root, tmp_path / "b", epochs=3) == full  # same seed, same run
+    ckpt = next((tmp_path / "a").glob("epoch=0-*.ckpt"))
+    resumed = _fit(root, tmp_path / "c", epochs=3, ckpt=str(ckpt))
+    assert resumed == epochs[1] + epochs[2]  # resuming after epoch 0 replays epochs 1 and 2 exactly
+
+
+# --- the real HumanML3D clip (outside the repo; skipped when absent) -------------------------------------
+
+SAMPLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "humanml3d-sample"
+
+
+@pytest.mark.skipif(not SAMPLE.is_dir(), reason="../shared/data/humanml3d-sample not present")
+def test_real_clip_and_statistics(tmp_path):
+    root = tmp_path / "h3d"
+    (root / "new_joint_vecs").mkdir(parents=True)
+    (root / "texts").mkdir()
+    (root / "new_joint_vecs" / "012314.npy").write_bytes((SAMPLE / "new_joint_vecs" / "012314.npy").read_bytes())
+    for name in ("Mean.npy", "Std.npy"):
+        (root / name).write_bytes((SAMPLE / name).read_bytes())
+    (root / "texts" / "012314.txt").write_text(WHOLE + "\n" + "turns#turn/VERB#2.0#6.0\n")
+    (root / "train.txt").write_text("012314\n")
+    dm = MotionDataModule(str(root), batch_size=2, pad_multiple=16)
+    dm.setup("fit")
+    dataset_std = np.load(SAMPLE / "Std.npy")
+    np.testing.assert_allclose(dm.std[4:259], dataset_std[4:259])
+    np.testing.assert_allclose(dm.std[:4] * 5, dataset_std[:4], rtol=1e-6)
+    np.testing.assert_allclose(dm.std[259:] * 5, dataset_std[259:], rtol=1e-6)
+    batch = next(iter(dm.train_dataloader()))
+    assert sorted(batch["id"]) == ["012314", "012314#40-120"] and batch["motion"].shape == (2, 176, 263)
+    full = batch["motion"][batch["id"].index("012314")]
+    np.testing.assert_allclose(denormalize(full[:170], dm.mean, dm.std).numpy(),
+                               np.load(SAMPLE / "new_joint_vecs" / "012314.npy"), atol=1e-5)
