@@ -116,15 +116,17 @@ def test_features_round_trip(sample):
 
 
 def test_contacts_agree_with_feature_bits(sample):
-    agree, frames = 0.0, 0
+    agree, swapped, frames = 0.0, 0.0, 0
     for m in sample:
         bits = joints_to_features(m.joints)[:, -4:] > 0.5
         gt = m.contacts[: len(bits)]
         agree += (bits == gt).sum()
+        swapped += (bits == gt[:, [2, 3, 0, 1]]).sum()
         frames += bits.size
         # contact channels are in HumanML3D order: a standing-still start has all four down
         assert gt[0].all()
     assert agree / frames >= 0.9
+    assert swapped / frames < agree / frames - 0.04  # left/right order matters
 
 
 def test_determinism(sample):

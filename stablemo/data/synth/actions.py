@@ -64,7 +64,7 @@ def _place_steps(tl: Timeline, lifts: list[list[float]], swing_frames: float, re
         cur.end, cur.heel_off, cur.off_pitch = lifts[s][0], gait["heel_off"], gait["off_pitch"]
         for k, land in enumerate(lands):
             nxt_lift = lifts[s][k + 1] if k + 1 < len(lifts[s]) else None
-            mid = rest_time if nxt_lift is None else min(0.5 * (land + nxt_lift), rest_time)
+            mid = rest_time if nxt_lift is None else min(land + gait.get("under", 0.5) * (nxt_lift - land), rest_time)
             xz, yaw = tl.root_at(np.array([mid]))
             # The closing steps bring the feet back to a normal standing width.
             width = body.STANCE_HALF_WIDTH if nxt_lift is None else half_width
@@ -88,17 +88,17 @@ def _place_steps(tl: Timeline, lifts: list[list[float]], swing_frames: float, re
 
 GAITS = {
     # speed m/s, cadence steps/s, stance fraction of the cycle, ...
-    "walk": dict(stance=0.62, heel_off=0.13, off_pitch=0.6, slap=0.08, land_pitch=-0.3,
+    "walk": dict(stance=0.56, under=0.45, heel_off=0.2, off_pitch=1.0, slap=0.08, land_pitch=-0.3,
                  clearance=0.10, lean=0.05, drop=0.0, arm=0.28, flex=0.15),
     "walk_backward": dict(cadence=1.7, stance=0.64, heel_off=0.10, off_pitch=0.35, slap=0.06,
                           land_pitch=0.0, clearance=0.09, lean=-0.04, drop=0.0, arm=0.2, flex=0.2),
     "walk_sideways": dict(cadence=1.6, stance=0.68, heel_off=0.08, off_pitch=0.3, slap=0.05,
                           land_pitch=-0.1, clearance=0.08, lean=0.0, drop=0.01, arm=0.0, flex=0.15),
-    "jog": dict(cadence=2.6, stance=0.42, heel_off=0.10, off_pitch=0.6, slap=0.06, land_pitch=-0.15,
+    "jog": dict(cadence=2.7, stance=0.38, under=0.42, heel_off=0.12, off_pitch=0.6, slap=0.06, land_pitch=-0.15,
                 clearance=0.14, lean=0.12, drop=0.04, arm=0.55, flex=1.1),
-    "run": dict(cadence=2.9, stance=0.34, heel_off=0.10, off_pitch=0.7, slap=0.05, land_pitch=-0.1,
+    "run": dict(cadence=3.1, stance=0.30, under=0.42, heel_off=0.10, off_pitch=0.7, slap=0.05, land_pitch=-0.1,
                 clearance=0.18, lean=0.2, drop=0.06, arm=0.7, flex=1.35),
-    "circle": dict(stance=0.62, heel_off=0.13, off_pitch=0.55, slap=0.08, land_pitch=-0.3,
+    "circle": dict(stance=0.56, under=0.45, heel_off=0.2, off_pitch=1.0, slap=0.08, land_pitch=-0.3,
                    clearance=0.10, lean=0.05, drop=0.0, arm=0.3, flex=0.2),
     "turn": dict(heel_off=1.5, off_pitch=0.35, slap=1.0, land_pitch=-0.1, clearance=0.09, toe_out=0.06),
 }
@@ -111,7 +111,8 @@ def _locomote(tl: Timeline, params: dict, gait_name: str, direction: float, curv
     g = GAITS[gait_name]
     v = params["speed"]
     t_acc = t_dec = (0.8 if v < 2 else 1.0) * FPS
-    cadence = g["cadence"] if "cadence" in g else float(np.clip(1.15 + 0.55 * v, 1.4, 2.3))
+    # Cadence grows with speed; steps longer than 0.72 m would overstretch this skeleton's legs.
+    cadence = g["cadence"] if "cadence" in g else float(np.clip(max(1.15 + 0.55 * v, v / 0.72), 1.4, 2.6))
     cycle = 2.0 / cadence * FPS  # frames per stride (two steps)
     if distance is not None:
         moving = distance / (v / FPS) + 0.5 * (t_acc + t_dec)
@@ -158,6 +159,9 @@ def _locomote(tl: Timeline, params: dict, gait_name: str, direction: float, curv
 
     half_width = body.STANCE_HALF_WIDTH + abs(np.sin(direction)) * v * (cycle / FPS) / 4
     gp = {k: g[k] for k in ("off_pitch", "land_pitch", "clearance")}
+    # The ankle passes under the pelvis before mid-stance: the foot rolls heel to toe, and the
+    # trailing ankle rises on the toe, reaching further back than a flat foot could.
+    gp["under"] = g.get("under", 0.5)
     gp["heel_off"] = g["heel_off"] * cycle
     gp["slap"] = g["slap"] * cycle
     _place_steps(tl, lifts, sw, rest_time, half_width, gp)
