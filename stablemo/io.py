@@ -52,6 +52,8 @@ def load_npy(path: str | os.PathLike, *, mmap: bool = False) -> np.ndarray:
         array = np.load(path, allow_pickle=False, mmap_mode="r" if mmap else None)
     except Exception as err:  # numpy raises ValueError/EOFError/OSError for broken files
         raise StableMoError(f"{path}: not a readable .npy file ({err})") from None
+    if not isinstance(array, np.ndarray):  # np.load returns an NpzFile for zip content
+        raise StableMoError(f"{path}: not a .npy file (found an .npz archive)")
     if not np.issubdtype(array.dtype, np.number):
         raise StableMoError(f"{path}: expected a numeric array, found dtype {array.dtype}")
     return array

@@ -516,3 +516,14 @@ def test_real_clip_and_statistics(tmp_path):
     full = batch["motion"][batch["id"].index("012314")]
     np.testing.assert_allclose(denormalize(full[:170], dm.mean, dm.std).numpy(),
                                np.load(SAMPLE / "new_joint_vecs" / "012314.npy"), atol=1e-5)
+
+
+def test_npz_disguised_as_npy(tmp_path):
+    root = write_dataset(tmp_path, splits={"train": [f"{i:06d}" for i in range(12)]})
+    for path in (root / "new_joint_vecs" / "000004.npy", root / "Mean.npy"):
+        with open(path, "wb") as f:
+            np.savez(f, a=np.ones(3))
+    with pytest.raises(StableMoError, match=r"000004.npy: not a .npy file \(found an .npz archive\)"):
+        load_split(root, "train", get_spec("humanml3d"), progress=False)
+    with pytest.raises(StableMoError, match=r"Mean.npy: not a .npy file"):
+        MotionDataModule(str(root)).mean
