@@ -419,9 +419,14 @@ def test_data_check_reports_every_problem(tmp_path, capsys):
     (root / "texts" / "000005.txt").write_text("bad line\n")
     np.save(root / "new_joint_vecs" / "000010.npy", np.zeros((50, 251), np.float32))
     (root / "test.txt").write_text("000010\n000011\n000001\n")
+    # all.txt repeats every clip (each bad one is reported once) and adds one listed nowhere else.
+    (root / "all.txt").write_text("".join(f"{i:06d}\n" for i in range(12)) + "000099\n000077\n")
     assert cli(["data", "check", str(root)]) == 1
     out = capsys.readouterr().out
-    assert "problems (5):" in out
+    assert "problems (6):" in out
+    assert "000077.npy: listed in all.txt but the feature file does not exist" in out
+    assert sorted(p.name for p in (root / ".stablemo_cache").glob("*.json")) == [
+        "test.humanml3d.json", "train.humanml3d.json", "val.humanml3d.json"]
     assert "000003.npy: 1 NaN/Inf value(s), first in frame 10" in out
     assert "000005.txt:1: malformed caption line" in out
     assert "000099.npy: listed in val.txt but the feature file does not exist" in out

@@ -290,6 +290,12 @@ def _build(root: Path, split: str, ids: list[str], spec: DatasetSpec, skip_bad: 
     return SplitData(root, split, reader.ids, lengths, _offsets(lengths), features, reader.captions, reader.problems)
 
 
+def read_clips(root: Path, split: str, ids: list[str], spec: DatasetSpec, *, skip_bad: bool = False,
+               progress: bool = True) -> SplitData:
+    """Read the given clips into memory without touching any cache."""
+    return _build(check_root(root), split, ids, spec, skip_bad, None, "", progress)
+
+
 def _remove_stale(cache_dir: Path, split: str, spec: DatasetSpec, keep: str) -> None:
     # Readers that still map an old file keep it alive (POSIX unlink semantics).
     for path in cache_dir.glob(f"{split}.{spec.name}.*.f32"):

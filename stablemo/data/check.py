@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from stablemo.data.cache import SplitData, load_split
+from stablemo.data.cache import SplitData, load_split, read_clips
 from stablemo.data.dataset import build_items
-from stablemo.data.layout import FEATURE_DIR, JOINT_DIR, SPLITS, DatasetSpec, check_root, get_spec
+from stablemo.data.layout import FEATURE_DIR, JOINT_DIR, SPLITS, Caption, DatasetSpec, check_root, get_spec, read_split
 from stablemo.data.stats import load_dataset_stats
 from stablemo.errors import StableMoError
 
@@ -62,32 +62,40 @@ def check_dataset(root: str | Path, dataset: str = "humanml3d", *, cache: bool =
     except StableMoError as err:
         report.problems.append(str(err))
 
-    problems: dict[str, None] = {}  # ordered set: all.txt repeats the clips of the other splits
-    clips: dict[str, tuple[int, list]] = {}
-    split_ids: dict[str, set[str]] = {}
+    # Each clip is read once: train/val/test through their caches (which training reuses), the
+    # clips only listed in train_val/all (normally none) directly.
+    results: dict[str, tuple[int, list[Caption]] | str] = {}  # id -> (frames, captions) or problem
+    problems: dict[str, None] = {}  # ordered set
+    split_ids: dict[str, list[str]] = {}
     for split in SPLITS:
         if not (root / f"{split}.txt").is_file():
             if split in REQUIRED_SPLITS:
                 problems[f"{root / f'{split}.txt'}: split file not found"] = None
             continue
         try:
+            ids = read_split(root, split)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                data = load_split(root, split, spec, skip_bad=True, cache=cache)
-        except StableMoError as err:  # unreadable split file itself
+                if split in REQUIRED_SPLITS:
+                    data = load_split(root, split, spec, skip_bad=True, cache=cache)
+                    _record(results, ids, data)
+                else:
+                    unseen = [i for i in ids if i not in results]
+                    if unseen:
+                        _record(results, unseen, read_clips(root, split, unseen, spec, skip_bad=True))
+        except StableMoError as err:  # the split file itself is unreadable
             problems[str(err)] = None
             continue
-        problems.update(dict.fromkeys(data.problems))
-        report.splits[split] = _summarise(data, spec, len(data.ids) + len(data.problems))
-        split_ids[split] = set(data.ids)
-        for clip_id, n, caps in zip(data.ids, data.lengths.tolist(), data.captions):
-            clips.setdefault(clip_id, (n, caps))
+        split_ids[split] = ids
+        problems.update((r, None) for r in (results[i] for i in ids) if isinstance(r, str))
+        report.splits[split] = _summarise(root, split, ids, results, spec)
     for a, b in DISJOINT:
-        shared = split_ids.get(a, set()) & split_ids.get(b, set())
+        shared = set(split_ids.get(a, ())) & set(split_ids.get(b, ()))
         if shared:
             problems[f"{root / f'{a}.txt'}: {len(shared)} id(s) also in {b}.txt (e.g. {min(shared)})"] = None
     report.problems += list(problems)
 
+    clips = {i: r for i, r in results.items() if not isinstance(r, str)}
     for n, caps in clips.values():
         report.lengths.append(n)
         report.captions_per_motion.append(len(caps))
@@ -100,16 +108,28 @@ def check_dataset(root: str | Path, dataset: str = "humanml3d", *, cache: bool =
     return report
 
 
-def _summarise(data: SplitData, spec: DatasetSpec, listed: int) -> SplitSummary:
+def _record(results: dict, ids: list[str], data: SplitData) -> None:
+    """Store each id's (frames, captions), or its problem: the reader keeps problems in id order."""
+    good = dict(zip(data.ids, zip(data.lengths.tolist(), data.captions)))
+    bad = iter(data.problems)
+    for clip_id in ids:
+        if clip_id not in results:
+            results[clip_id] = good[clip_id] if clip_id in good else next(bad)
+
+
+def _summarise(root: Path, split: str, ids: list[str], results: dict, spec: DatasetSpec) -> SplitSummary:
+    good = [i for i in ids if not isinstance(results[i], str)]
+    lengths = np.asarray([results[i][0] for i in good], dtype=np.int64)
+    data = SplitData(root, split, good, lengths, np.zeros_like(lengths), np.zeros((0, spec.feature_dim), np.float32),
+                     [results[i][1] for i in good])
     items = build_items(data, spec)
-    sub = sum("#" in i for i in items.ids)
     return SplitSummary(
-        listed=listed,
-        readable=len(data.ids),
+        listed=len(ids),
+        readable=len(good),
         items=len(items),
-        sub_items=sub,
-        too_short=int((data.lengths < spec.min_length).sum()),
-        too_long=int((data.lengths >= spec.max_clip_length).sum()),
+        sub_items=sum("#" in i for i in items.ids),
+        too_short=int((lengths < spec.min_length).sum()),
+        too_long=int((lengths >= spec.max_clip_length).sum()),
     )
 
 
