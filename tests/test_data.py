@@ -249,6 +249,29 @@ def test_cache_is_reused_and_invalidated(tmp_path):
     assert not fourth.from_cache and fourth.captions[0][0].text == "a person talks forward"
 
 
+def test_cached_split_pickles_by_file_name(tmp_path):
+    import pickle
+
+    root = write_dataset(tmp_path)
+    data = load_split(root, "train", get_spec("humanml3d"), progress=False)
+    blob = pickle.dumps(data)
+    assert len(blob) < data.features.nbytes / 10  # spawn-started workers do not copy the features
+    copy = pickle.loads(blob)
+    assert isinstance(copy.features, np.memmap)
+    np.testing.assert_array_equal(copy.motion(2), data.motion(2))
+
+
+def test_read_only_dataset_uses_user_cache(tmp_path, monkeypatch):
+    root = write_dataset(tmp_path / "data")
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode: False if Path(p) == root else real_access(p, mode))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    load_split(root, "train", get_spec("humanml3d"), progress=False)
+    assert not (root / ".stablemo_cache").exists()
+    assert len(list((tmp_path / "xdg" / "stablemo" / "datasets").glob("*/train.humanml3d.json"))) == 1
+    assert load_split(root, "train", get_spec("humanml3d"), progress=False).from_cache
+
+
 def test_damaged_cache_is_rebuilt(tmp_path):
     root = write_dataset(tmp_path)
     spec = get_spec("humanml3d")
@@ -482,7 +505,7 @@ def _fit(root, tmp, epochs, ckpt=None):
     return model.seen
 
 
-@pytest.mark.filterwarnings("ignore::UserWarning")  # Lightning's notes about tiny datasets and checkpoint dirs
+@pytest.mark.filterwarnings("ignore")  # Lightning's notes about tiny datasets, checkpoint dirs, deprecations
 def test_trainer_epochs_reshuffle_and_resume_reproduces_order(tmp_path):
     root = write_dataset(tmp_path / "data")
     full = _fit(root, tmp_path / "a", epochs=3)

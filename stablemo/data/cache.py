@@ -67,6 +67,20 @@ class SplitData:
     def __len__(self) -> int:
         return len(self.ids)
 
+    def __getstate__(self) -> dict:
+        # DataLoader workers started with "spawn" pickle the dataset: send the cache file's name,
+        # not gigabytes of mapped features.
+        state = dict(self.__dict__)
+        if isinstance(self.features, np.memmap) and self.features.filename:
+            state["features"] = ("memmap", self.features.filename, self.features.shape)
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        features = state["features"]
+        if isinstance(features, tuple) and features[0] == "memmap":
+            state["features"] = np.memmap(features[1], dtype=np.float32, mode="r", shape=features[2])
+        self.__dict__.update(state)
+
 
 def validate_features(array: np.ndarray, path: Path, spec: DatasetSpec) -> np.ndarray:
     """(T, D) finite float features or a StableMoError naming `path`."""
