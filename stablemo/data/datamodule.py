@@ -77,7 +77,7 @@ class MotionDataModule(L.LightningDataModule):
         if eval_crop not in CROPS:
             raise StableMoError(f"eval_crop={eval_crop!r}: choose from {', '.join(CROPS)}")
         self.save_hyperparameters()
-        self.data_dir = data_dir
+        self.data_dir, self.dataset = data_dir, self.spec.name
         self.batch_size, self.num_workers = batch_size, num_workers
         self.pad_multiple, self.max_length, self.feat_bias = pad_multiple, max_length, feat_bias
         self.seed, self.skip_bad = seed, skip_bad
