@@ -392,7 +392,7 @@ def build_kick(tl: Timeline, p: dict) -> None:
     start = tl.t
     kick = LEFT if p["leg"] == "left" else RIGHT
     support = 1 - kick
-    shift, wind, strike, ret = 0.4 * FPS, 0.45 * FPS, 0.25 * FPS, 0.55 * FPS
+    shift, wind, strike, ret = 0.4 * FPS, 0.45 * FPS, 0.25 * FPS, 0.65 * FPS
     n = int(np.ceil(shift + wind + strike + ret + shift + 0.2 * FPS))
     sl = _hold_root(tl, n)
     f = np.arange(n, dtype=float) + tl.t
@@ -420,10 +420,11 @@ def build_kick(tl: Timeline, p: dict) -> None:
     # Lift in place, wind back, strike, return above the spot, set down vertically (so the toe
     # never slides while it is near the floor).
     p0 = body.FOOT_PITCH
-    keys_t = np.array([t_up, t_up + 4, t_strike, t_back, t_down - 4, t_down])
-    keys_fwd = np.array([0.0, 0.0, -0.2, strike_fwd, 0.0, 0.0])
-    keys_y = np.array([flat_y, flat_y + 0.08, flat_y + 0.22, height, flat_y + 0.07, flat_y])
-    keys_pitch = np.array([p0, p0 + 0.3, p0 + 0.8, p0 + 0.3, p0, p0])
+    hold = 3.0  # frames at full extension
+    keys_t = np.array([t_up, t_up + 4, t_strike, t_back, t_back + hold, t_down - 4, t_down])
+    keys_fwd = np.array([0.0, 0.0, -0.2, strike_fwd, strike_fwd - 0.02, 0.0, 0.0])
+    keys_y = np.array([flat_y, flat_y + 0.08, flat_y + 0.22, height, height - 0.01, flat_y + 0.07, flat_y])
+    keys_pitch = np.array([p0, p0 + 0.3, p0 + 0.8, p0 + 0.3, p0 + 0.3, p0, p0])
 
     def path(frames):
         seg = np.clip(np.searchsorted(keys_t, frames) - 1, 0, len(keys_t) - 2)
