@@ -1,7 +1,7 @@
 """`stablemo nets summary --config FILE [--length 196]`: parameters and FLOPs per module.
 
 The config is a denoiser YAML (``name`` + keyword arguments, as in ``configs/nets/``) or a
-training config holding one under ``model.denoiser`` / ``model.init_args.denoiser``. FLOPs are
+training config holding one under a ``denoiser`` key (e.g. ``model.model.denoiser``). FLOPs are
 counted by ``torch.utils.flop_counter.FlopCounterMode`` for one forward pass (one denoising step
 without CFG) of a batch of one: matrix products, convolutions and attention kernels, 2 FLOPs per
 multiply-add; element-wise operations (norms, activations) are not counted.
@@ -28,18 +28,33 @@ def load_denoiser_config(path: str | Path) -> dict:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as err:
         raise StableMoError(f"{path}: not valid YAML ({err})") from None
-    candidates = [data]
-    if isinstance(data, dict):
-        model = data.get("model")
-        if isinstance(model, dict):
-            candidates += [model.get("denoiser"), (model.get("init_args") or {}).get("denoiser")]
-            inner = (model.get("init_args") or {}).get("model")
-            if isinstance(inner, dict):
-                candidates += [inner.get("denoiser"), (inner.get("init_args") or {}).get("denoiser")]
-    for cand in candidates:
+    if isinstance(data, dict) and isinstance(data.get("name"), str):
+        return dict(data)
+    found = _find_denoiser(data)
+    if found is not None:
+        return dict(found)
+    raise StableMoError(f"{path}: no denoiser config (a mapping with 'name') at the top or under a 'denoiser' key")
+
+
+def _find_denoiser(node):
+    """First mapping stored under a `denoiser` key that has a `name` (any nesting: LightningCLI configs)."""
+    if isinstance(node, dict):
+        cand = node.get("denoiser")
         if isinstance(cand, dict) and isinstance(cand.get("name"), str):
-            return dict(cand)
-    raise StableMoError(f"{path}: no denoiser config (a mapping with 'name') at the top or under model.denoiser")
+            text = node.get("text")
+            if isinstance(text, dict) and "latent_dim" in text and "text_dim" not in cand:
+                cand = {**cand, "text_dim": text["latent_dim"]}  # the conditioner beside it sets the width
+            return cand
+        children = node.values()
+    elif isinstance(node, list):
+        children = node
+    else:
+        return None
+    for child in children:
+        found = _find_denoiser(child)
+        if found is not None:
+            return found
+    return None
 
 
 def count_parameters(module: torch.nn.Module) -> int:
