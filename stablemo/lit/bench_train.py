@@ -23,11 +23,13 @@ from stablemo.errors import StableMoError
 class StepTimer(Callback):
     def __init__(self) -> None:
         self.stamps: list[float] = []
+        self.cpu: list[float] = []  # process CPU time: what the steps cost on a machine shared with others
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
         if pl_module.device.type == "cuda":
             torch.cuda.synchronize(pl_module.device)
         self.stamps.append(time.perf_counter())
+        self.cpu.append(time.process_time())
 
 
 def peak_memory_mb(device: torch.device) -> tuple[str, float]:
@@ -85,6 +87,8 @@ def main(argv: list[str]) -> int:
     if len(stamps) < 2:
         raise StableMoError(f"{args.config}: too few steps ran to time ({len(timer.stamps)})")
     its = (len(stamps) - 1) / (stamps[-1] - stamps[0])
+    cpu = timer.cpu[args.warmup:]
+    cpu_per_it = (cpu[-1] - cpu[0]) / (len(cpu) - 1)
     kind, peak = peak_memory_mb(device)
     n_params = sum(p.numel() for p in cli.model.model.parameters() if p.requires_grad)
     result = {
@@ -97,6 +101,7 @@ def main(argv: list[str]) -> int:
         "it_per_s": its,
         "s_per_it": 1.0 / its,
         "samples_per_s": its * cli.datamodule.batch_size,
+        "cpu_s_per_it": cpu_per_it,
         "peak_memory_mb": peak,
         "peak_memory_kind": kind,
     }
@@ -105,6 +110,7 @@ def main(argv: list[str]) -> int:
     print(f"trainable params  {n_params / 1e6:.2f} M")
     print(f"batch size        {result['batch_size']}")
     print(f"training speed    {its:.3f} it/s  ({1 / its:.3f} s/it, {result['samples_per_s']:.1f} samples/s)")
+    print(f"CPU time          {cpu_per_it:.3f} CPU-s/it (all threads; wall time when nothing else runs, 1 thread)")
     print(f"peak memory       {peak:.0f} MiB ({kind})")
     max_steps = configured.max_steps
     if max_steps and max_steps > 0:
