@@ -163,18 +163,27 @@ def test_mixed_batch_shuffle_and_masked_text_tokens(variant):
 
 @pytest.mark.parametrize("variant", sorted(TINY))
 def test_bfloat16_cpu_close_to_float32(variant):
+    """bf16 weights and bf16 autocast (Lightning "bf16-mixed") both run, stay close to float32, and
+    keep padding invariance within bf16 precision."""
     model = make(variant)
+    k = model.length_multiple
     gen = torch.Generator().manual_seed(2)
     items = sample_items(gen, [16, 9], [4, 2])
-    batch = collate(items, round_up(16, model.length_multiple), 4, None)
+    batch = collate(items, round_up(16, k), 4, None)
     with torch.no_grad():
         ref = model(*batch)
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            mixed = model(*batch)
         model = model.to(torch.bfloat16)
-        x, t, text, tm, mm = batch
-        out = model(x.bfloat16(), t, text.bfloat16(), tm, mm)
-    assert out.dtype == torch.bfloat16 and torch.isfinite(out).all()
-    err = (out.float() - ref).norm() / ref.norm()
-    assert err < 0.1, f"bf16 relative error {err:.3f}"
+        out = model(*cast(batch, torch.bfloat16))
+        longer = model(*cast(collate(items, round_up(16, k) + 3 * k, 9, gen, pad_scale=100.0), torch.bfloat16))
+    for y in (mixed, out):
+        assert y.dtype == torch.bfloat16 and torch.isfinite(y).all()
+        err = (y.float() - ref).norm() / ref.norm()
+        assert err < 0.1, f"bf16 relative error {err:.3f}"
+    for i, it in enumerate(items):
+        n = it["x"].shape[0]
+        assert_close_rel(longer[i, :n].float(), out[i, :n].float(), rtol=2e-2)
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="float16 needs CUDA")
@@ -360,3 +369,21 @@ def test_train_steps_on_synthetic_data(variant, synth_batch):
         opt.step()
     untouched = [n for n, ok in touched.items() if not ok]
     assert not untouched, untouched
+
+
+@pytest.mark.parametrize("variant", sorted(TINY))
+def test_no_gradient_reaches_padding_or_other_items(variant):
+    """Gradients of one item's valid outputs are exactly zero on padded frames, padded text tokens
+    and on every other batch item (the training loss cannot learn from padding)."""
+    model = make(variant, seed=5)
+    k = model.length_multiple
+    gen = torch.Generator().manual_seed(9)
+    items = sample_items(gen, [5, 14], [3, 2])
+    x, t, text, tm, mm = collate(items, round_up(14, k) + k, 4, gen, pad_scale=10.0)
+    x.requires_grad_(True)
+    text.requires_grad_(True)
+    out = model(x, t, text, tm, mm)
+    out[0][mm[0]].pow(2).sum().backward()
+    assert (x.grad[0][~mm[0]] == 0).all() and (x.grad[1] == 0).all()
+    assert (text.grad[0][~tm[0]] == 0).all() and (text.grad[1] == 0).all()
+    assert x.grad[0][mm[0]].abs().sum() > 0 and text.grad[0][tm[0]].abs().sum() > 0
