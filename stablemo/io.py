@@ -49,6 +49,14 @@ def load_npy(path: str | os.PathLike, *, mmap: bool = False) -> np.ndarray:
     if not path.is_file():
         raise StableMoError(f"{path}: file not found")
     try:
+        with open(path, "rb") as f:
+            magic = f.read(6)
+    except OSError as err:
+        raise StableMoError(f"{path}: cannot read ({err})") from None
+    if magic != b"\x93NUMPY" and not magic.startswith(b"PK\x03\x04"):
+        # numpy would fall back to pickle here and suggest allow_pickle=True: never for us.
+        raise StableMoError(f"{path}: not a .npy file ({'empty file' if not magic else 'no NUMPY header'})")
+    try:
         array = np.load(path, allow_pickle=False, mmap_mode="r" if mmap else None)
     except Exception as err:  # numpy raises ValueError/EOFError/OSError for broken files
         raise StableMoError(f"{path}: not a readable .npy file ({err})") from None

@@ -321,6 +321,13 @@ def _break(root: Path, case: str) -> Path:
         feat.write_text("this is not numpy")
     elif case == "pickle":
         np.save(feat, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    elif case == "empty_file":
+        feat.write_bytes(b"")
+    elif case == "complex":
+        np.save(feat, np.zeros((80, 263), np.complex64))
+    elif case == "directory":
+        feat.unlink()
+        feat.mkdir()
     elif case == "missing_features":
         feat.unlink()
     elif case == "missing_text":
@@ -341,7 +348,8 @@ def _break(root: Path, case: str) -> Path:
     return feat
 
 
-BAD_CASES = ["width", "ndim", "nan", "inf", "truncated", "not_npy", "pickle", "missing_features", "missing_text",
+BAD_CASES = ["width", "ndim", "nan", "inf", "truncated", "not_npy", "pickle", "empty_file", "complex", "directory",
+             "missing_features", "missing_text",
              "empty_text", "blank_line", "malformed", "bad_time"]
 
 
@@ -352,7 +360,7 @@ def test_bad_clip_raises_one_clear_error(tmp_path, case):
     with pytest.raises(StableMoError) as err:
         MotionDataset.from_folder(root, "train", progress=False)
     assert str(culprit) in str(err.value)
-    assert "\n" not in str(err.value)
+    assert "\n" not in str(err.value) and "pickle" not in str(err.value).replace("allow_pickle=False", "")
     assert not list((root / ".stablemo_cache").glob("*.json"))  # nothing half-built is committed
 
 
@@ -554,4 +562,11 @@ def test_npz_disguised_as_npy(tmp_path):
     with pytest.raises(StableMoError, match=r"000004.npy: not a .npy file \(found an .npz archive\)"):
         load_split(root, "train", get_spec("humanml3d"), progress=False)
     with pytest.raises(StableMoError, match=r"Mean.npy: not a .npy file"):
+        MotionDataModule(str(root)).mean
+
+
+def test_stats_file_that_is_not_npy(tmp_path):
+    root = write_dataset(tmp_path)
+    (root / "Mean.npy").write_text("mean values")
+    with pytest.raises(StableMoError, match=r"Mean.npy: not a .npy file \(no NUMPY header\)"):
         MotionDataModule(str(root)).mean

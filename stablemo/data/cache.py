@@ -100,14 +100,17 @@ def validate_features(array: np.ndarray, path: Path, spec: DatasetSpec) -> np.nd
 
 def parse_npy(data: bytes, path: Path) -> np.ndarray:
     """A numeric array from the bytes of the .npy file `path` (named in errors); never unpickles."""
+    # Check the magic ourselves: for other content numpy falls back to pickle and says so.
+    if data.startswith(b"PK\x03\x04"):
+        raise StableMoError(f"{path}: not a .npy file (found an .npz archive)")
+    if not data.startswith(b"\x93NUMPY"):
+        raise StableMoError(f"{path}: not a .npy file ({'empty file' if not data else 'no NUMPY header'})")
     try:
         array = np.load(io.BytesIO(data), allow_pickle=False)
     except Exception as err:  # numpy raises ValueError/EOFError/OSError/SyntaxError for broken files
         raise StableMoError(f"{path}: not a readable .npy file ({err})") from None
-    if not isinstance(array, np.ndarray):
-        raise StableMoError(f"{path}: not a .npy file (found an .npz archive)")
-    if not np.issubdtype(array.dtype, np.number):
-        raise StableMoError(f"{path}: expected a numeric array, found dtype {array.dtype}")
+    if not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
+        raise StableMoError(f"{path}: expected a real-valued numeric array, found dtype {array.dtype}")
     return array
 
 
