@@ -48,7 +48,6 @@ class FrozenTextEncoder:
             raise StableMoError(f"cache_size: must be >= 0, got {cache_size}")
         if name == MINILM:
             source, local = str(minilm_path()), True
-            os.environ.setdefault("HF_HUB_OFFLINE", "1")
         else:
             local = Path(name).expanduser().is_dir()
             source = str(Path(name).expanduser()) if local else name
@@ -56,6 +55,9 @@ class FrozenTextEncoder:
 
         bar_was_on = hf_logging.is_progress_bar_enabled()
         hf_logging.disable_progress_bar()  # a per-load bar is noise in logs and CLI output
+        offline_before = os.environ.get("HF_HUB_OFFLINE")
+        if local:  # a local folder never needs the hub; make sure nothing tries to reach it
+            os.environ["HF_HUB_OFFLINE"] = "1"
         try:
             config = AutoConfig.from_pretrained(source, local_files_only=local)
             self.tokenizer = AutoTokenizer.from_pretrained(source, local_files_only=local)
@@ -68,6 +70,11 @@ class FrozenTextEncoder:
         except (OSError, ValueError) as err:
             raise StableMoError(f"text encoder {name!r}: cannot load ({err})") from None
         finally:
+            if local:
+                if offline_before is None:
+                    os.environ.pop("HF_HUB_OFFLINE", None)
+                else:
+                    os.environ["HF_HUB_OFFLINE"] = offline_before
             if bar_was_on:
                 hf_logging.enable_progress_bar()
         self.model.eval().requires_grad_(False)
