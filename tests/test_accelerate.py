@@ -9,7 +9,7 @@ from torch import nn
 from stablemo.diffusion.accelerate import CachedCastLinear, GemmConv1d, GemmConvTranspose1d, accelerate
 
 
-@pytest.mark.parametrize("k, s, p", [(5, 1, 2), (3, 2, 1), (1, 1, 0), (4, 1, 0), (3, 2, 0)])
+@pytest.mark.parametrize("k, s, p", [(5, 1, 2), (3, 2, 1), (1, 1, 0), (4, 1, 0), (3, 2, 0), (5, 1, 3), (5, 3, 2), (2, 1, 1), (1, 1, 1)])
 @pytest.mark.parametrize("frames_major", [False, True])
 def test_gemm_conv1d_matches_conv1d(k, s, p, frames_major):
     torch.manual_seed(0)

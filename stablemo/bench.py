@@ -1,0 +1,336 @@
+"""`stablemo bench`: inference timing (AITS, paper Table 5) and, via the training package, training speed.
+
+    stablemo bench aits [--config FILE | --bundle DIR] [--random-weights] [--frames 196] [--repeats N]
+    stablemo bench train ...   (stablemo.lit.bench_train)
+
+AITS = average inference time per sentence: batch 1, text in -> de-normalised features and joints
+out, model loading and warm-up excluded. The progressive tricks of Table 5 are measured side by
+side in one run, each row adding one trick to the previous one:
+
+    DDPM 1000 steps (text re-encoded at every call, CFG as two forwards, fp32)
+    + 10-step SDE-DPM-Solver++ 2M (Karras)
+    + text cache (prompt encoded once per request)
+    + parallel CFG (conditional and unconditional halves in one forward)
+    + low precision (bf16 on CPU, fp16 on CUDA; network only)
+
+The denoiser's FLOPs per step come from torch.utils.flop_counter; achieved GFLOP/s of a row are
+steps x FLOPs/step / AITS, and its efficiency is that over this machine's fp32 matmul throughput,
+measured in the same run (best of several large square matmuls, before and after the rows; the
+higher figure is used, which makes the efficiency a lower bound).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import statistics
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import torch
+
+from stablemo.errors import StableMoError
+
+PAPER_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "nets" / "unet_paper.yaml"
+
+# StableMoFusion's network (paper §4.1.1, §5.1): Conv1D UNet, base 512, multipliers [2, 2, 2, 2],
+# time embedding 512, text latent 256 with 4 transformer layers. The paper's frozen encoder is
+# CLIP ViT-B/32; the packaged MiniLM stands in for it (it runs once per request, not per step).
+BUILTIN_PAPER_MODEL = {
+    "denoiser": {"name": "unet", "input_dim": 263, "base_channels": 512, "channel_mults": [2, 2, 2, 2],
+                 "time_dim": 512, "kernel_size": 5, "num_groups": 8, "num_heads": 8, "dropout": 0.1,
+                 "cross_attention": True, "norm": "frame"},
+    "text": {"encoder": "minilm", "latent_dim": 256, "num_layers": 4, "num_heads": 4, "ff_dim": 2048, "dropout": 0.1},
+}
+
+PROMPTS = [
+    "a person walks forward and waves with the right hand",
+    "a man jumps up and down twice",
+    "someone turns to the left and sits down",
+    "a person runs in a circle",
+    "the person kicks with the left leg then steps back",
+    "a figure raises both arms above the head",
+    "a person walks backwards slowly",
+    "a man crouches and then stands up",
+]
+
+
+@dataclass
+class Row:
+    name: str
+    sampler: str
+    steps: int
+    text_cache: bool
+    parallel_cfg: bool
+    dtype: str
+    seconds: list[float]
+    measured_steps: int
+    flops_per_step: float
+
+    @property
+    def aits(self) -> float:
+        """Seconds per sentence for the full number of steps (extrapolated if fewer were run)."""
+        return statistics.mean(self.seconds) * self.steps / self.measured_steps
+
+    @property
+    def best(self) -> float:
+        return min(self.seconds) * self.steps / self.measured_steps
+
+
+# ---- model --------------------------------------------------------------------------------------
+
+
+def _model_kwargs(config_path: str | None) -> tuple[dict, str]:
+    """MotionDiffusionModel kwargs from a YAML file: {denoiser, text}, {model: {...}} or a LightningCLI config."""
+    if config_path is None and PAPER_CONFIG.is_file():
+        config_path = str(PAPER_CONFIG)
+    if config_path is None:
+        return copy.deepcopy(BUILTIN_PAPER_MODEL), "built-in paper UNet (configs/nets/unet_paper.yaml absent)"
+    import yaml
+
+    file = Path(config_path)
+    if not file.is_file():
+        raise StableMoError(f"--config: {file}: file not found")
+    try:
+        data = yaml.safe_load(file.read_text())
+    except yaml.YAMLError as err:
+        raise StableMoError(f"{file}: not valid YAML ({err})") from None
+
+    def find(node):
+        if isinstance(node, dict):
+            if "denoiser" in node and isinstance(node["denoiser"], dict):
+                return node
+            for value in node.values():
+                found = find(value)
+                if found is not None:
+                    return found
+        return None
+
+    found = find(data)
+    if found is None:
+        raise StableMoError(f"{file}: no model description found (expected a 'denoiser' mapping, "
+                            "optionally with 'text', at any level)")
+    kwargs = {"denoiser": dict(found["denoiser"]), "text": dict(found.get("text") or {})}
+    kwargs["denoiser"].setdefault("input_dim", 263)
+    if "name" not in kwargs["denoiser"]:
+        raise StableMoError(f"{file}: denoiser needs a 'name' (unet, dit, retnet)")
+    return kwargs, str(file)
+
+
+def _build_pipeline(args, fast: bool):
+    from stablemo.diffusion.schedule import NoiseSchedule
+    from stablemo.model import MotionDiffusionModel
+    from stablemo.pipeline import Pipeline
+
+    if args.bundle:
+        pipe = Pipeline.from_bundle(args.bundle, device=args.device, fast=fast, random_weights=args.random_weights)
+        source = f"bundle {args.bundle}" + (" (random weights)" if args.random_weights else "")
+        return pipe, source
+    kwargs, source = _model_kwargs(args.config)
+    torch.manual_seed(args.seed)
+    model = MotionDiffusionModel(**kwargs)
+    dim = int(kwargs["denoiser"]["input_dim"])
+    pipe = Pipeline(model, NoiseSchedule(), mean=[0.0] * dim, std=[1.0] * dim, prediction_type="sample",
+                    skeleton="humanml3d" if dim == 263 else "kit", min_length=1, max_length=10_000,
+                    device=args.device, fast=fast)
+    return pipe, f"{source}, random weights"
+
+
+# ---- measurements -------------------------------------------------------------------------------
+
+
+def matmul_gflops(dtype: torch.dtype = torch.float32, n: int = 2048, repeats: int = 5) -> float:
+    """Best-of-`repeats` throughput of an n x n x n matmul, GFLOP/s."""
+    a = torch.randn(n, n).to(dtype)
+    b = torch.randn(n, n).to(dtype)
+    with torch.inference_mode():
+        a @ b
+        best = float("inf")
+        for _ in range(repeats):
+            start = time.perf_counter()
+            a @ b
+            best = min(best, time.perf_counter() - start)
+    return 2 * n**3 / best / 1e9
+
+
+def denoiser_flops(pipe, frames: int, batch: int) -> float:
+    """FLOPs of one network call on `batch` sequences of `frames` frames (padded as generation pads)."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    mult = pipe.length_multiple
+    T = -(-frames // mult) * mult
+    text, text_mask = pipe.encode(["a person walks"] * batch)
+    x = torch.zeros(batch, T, pipe.mean.shape[0], device=pipe.device)
+    t = torch.full((batch,), 500, dtype=torch.long, device=pipe.device)
+    mask = (torch.arange(T, device=pipe.device)[None] < frames).expand(batch, T)
+    counter = FlopCounterMode(display=False)
+    with torch.inference_mode(), counter:
+        pipe.model(x, t, text, text_mask, mask)
+    return float(counter.get_total_flops())
+
+
+class _Stop(Exception):
+    pass
+
+
+def time_generation(pipe, prompt: str, frames: int, sampler: str, steps: int, cfg: float, text_cache: bool,
+                    parallel_cfg: bool, dtype, seed: int, max_steps: int | None = None) -> tuple[float, int]:
+    """Wall time of one generate() call, and how many sampler steps it ran (max_steps stops early)."""
+    done = [0]
+    hook = None
+    if max_steps is not None and max_steps < steps:
+        def hook(step, t, x0, mask):  # counts steps; aborts after max_steps (time per step is extrapolated)
+            done[0] = step + 1
+            if step + 1 >= max_steps:
+                raise _Stop
+            return None
+
+    pipe.clear_text_caches()  # every timed sentence encodes its text (a cache across requests is not a trick here)
+    start = time.perf_counter()
+    try:
+        pipe.generate([prompt], [frames], steps=steps, cfg=cfg, sampler=sampler, seed=seed, dtype=dtype,
+                      x0_hook=hook, text_cache=text_cache, parallel_cfg=parallel_cfg)
+        done[0] = steps
+    except _Stop:
+        pass
+    return time.perf_counter() - start, done[0]
+
+
+def run_aits(args) -> dict:
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    pipe, source = _build_pipeline(args, fast=not args.stock)
+    low = "fp16" if pipe.device.type == "cuda" else "bf16"
+    B = 1
+    flops_cfg = denoiser_flops(pipe, args.frames, 2 * B)  # one step of CFG = 2 sequences
+    peaks = [matmul_gflops()]
+
+    rows_spec = [
+        ("DDPM 1000 (baseline)", "ddpm", 1000, False, False, "fp32"),
+        (f"+ SDE-DPM-Solver++ 2M, {args.steps} steps", "dpmpp_2m_sde", args.steps, False, False, "fp32"),
+        ("+ text cache", "dpmpp_2m_sde", args.steps, True, False, "fp32"),
+        ("+ parallel CFG", "dpmpp_2m_sde", args.steps, True, True, "fp32"),
+        (f"+ low precision ({low})", "dpmpp_2m_sde", args.steps, True, True, low),
+    ]
+    if args.skip_ddpm:
+        rows_spec = rows_spec[1:]
+    # warm-up (part of loading): kernels, low-precision weight copies
+    for dtype in ("fp32", low):
+        time_generation(pipe, "warm up", args.frames, "dpmpp_2m_sde", 2, args.cfg, True, True, dtype, 0)
+
+    rows = []
+    for name, sampler, steps, cache, parallel, dtype in rows_spec:
+        limit = args.ddpm_steps if sampler == "ddpm" else None
+        seconds, measured = [], steps
+        for r in range(args.repeats):
+            prompt = PROMPTS[r % len(PROMPTS)]
+            elapsed, measured = time_generation(pipe, prompt, args.frames, sampler, steps, args.cfg, cache, parallel,
+                                                dtype, args.seed + r, limit)
+            seconds.append(elapsed)
+        rows.append(Row(name, sampler, steps, cache, parallel, dtype, seconds, measured, flops_cfg))
+        print(f"  measured {name}: {statistics.mean(seconds):.2f} s over {measured} step(s)", file=sys.stderr)
+    peaks.append(matmul_gflops())
+    peak = max(peaks)
+    peak_low = matmul_gflops(torch.bfloat16 if low == "bf16" else torch.float16) if pipe.device.type != "cuda" or low == "fp16" else None
+    return {
+        "model": source,
+        "parameters_M": sum(p.numel() for p in pipe.model.parameters()) / 1e6,
+        "frames": args.frames,
+        "cfg": args.cfg,
+        "threads": torch.get_num_threads(),
+        "device": str(pipe.device),
+        "kernels": "stock PyTorch" if args.stock else "stablemo.diffusion.accelerate (GEMM convolutions)",
+        "flops_per_step": flops_cfg,
+        "matmul_fp32_gflops": peak,
+        "matmul_fp32_gflops_samples": peaks,
+        "matmul_low_gflops": peak_low,
+        "low_precision": low,
+        "rows": rows,
+    }
+
+
+def format_report(result: dict) -> str:
+    peak = result["matmul_fp32_gflops"]
+    lines = [
+        f"AITS benchmark: {result['model']} ({result['parameters_M']:.1f} M parameters)",
+        f"batch 1, {result['frames']} frames, CFG {result['cfg']:g}, device {result['device']}, "
+        f"{result['threads']} thread(s), kernels: {result['kernels']}",
+        f"denoiser FLOPs per step (conditional + unconditional): {result['flops_per_step'] / 1e9:.1f} GFLOP",
+        f"measured matmul throughput: fp32 {peak:.1f} GFLOP/s"
+        + (f", {result['low_precision']} {result['matmul_low_gflops']:.1f} GFLOP/s" if result["matmul_low_gflops"] else ""),
+        "",
+        f"{'method':<36} {'steps':>5} {'AITS (s)':>10} {'best (s)':>9} {'GFLOP/s':>8} {'of fp32 matmul':>15}",
+    ]
+    for row in result["rows"]:
+        gflops = row.flops_per_step * row.steps / row.aits / 1e9
+        note = f"  (extrapolated from {row.measured_steps} of {row.steps} steps)" if row.measured_steps < row.steps else ""
+        lines.append(f"{row.name:<36} {row.steps:>5} {row.aits:>10.3f} {row.best:>9.3f} {gflops:>8.1f} "
+                     f"{gflops / peak:>14.0%}{note}")
+    lines.append("")
+    lines.append("AITS = mean wall time per sentence over the repeats (text in -> features and joints out); "
+                 "GFLOP/s counts the denoiser only.")
+    return "\n".join(lines)
+
+
+def _aits_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="stablemo bench aits", description=__doc__.split("\n\n")[0])
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--config", help="YAML with the model description (default: configs/nets/unet_paper.yaml, "
+                                      "else the built-in paper UNet)")
+    src.add_argument("--bundle", help="an inference bundle folder")
+    p.add_argument("--random-weights", action="store_true", help="with --bundle: do not load its weights")
+    p.add_argument("--frames", type=int, default=196, help="motion length (default 196)")
+    p.add_argument("--repeats", type=int, default=3, help="timed sentences per row (default 3)")
+    p.add_argument("--steps", type=int, default=10, help="steps of the fast sampler (default 10)")
+    p.add_argument("--cfg", type=float, default=2.5)
+    p.add_argument("--ddpm-steps", type=int, default=None,
+                   help="run only this many of the 1000 DDPM steps and extrapolate (label shown in the table)")
+    p.add_argument("--skip-ddpm", action="store_true", help="leave out the DDPM baseline row")
+    p.add_argument("--stock", action="store_true", help="stock PyTorch convolutions (no stablemo.diffusion.accelerate)")
+    p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", help="also write the results as JSON to this file")
+    return p
+
+
+def main_aits(argv: list[str]) -> int:
+    args = _aits_parser().parse_args(argv)
+    if args.frames < 1:
+        raise StableMoError(f"--frames: must be >= 1, got {args.frames}")
+    if args.repeats < 1:
+        raise StableMoError(f"--repeats: must be >= 1, got {args.repeats}")
+    if args.ddpm_steps is not None and not 1 <= args.ddpm_steps <= 1000:
+        raise StableMoError(f"--ddpm-steps: must be in [1, 1000], got {args.ddpm_steps}")
+    result = run_aits(args)
+    print(format_report(result))
+    if args.json:
+        from stablemo.io import write_text
+
+        data = dict(result, rows=[dict(asdict(r), aits=r.aits, best=r.best) for r in result["rows"]])
+        write_text(args.json, json.dumps(data, indent=2) + "\n")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    usage = "usage: stablemo bench {aits,train} [options]"
+    if not argv or argv[0] in ("-h", "--help"):
+        print(usage + "\n\n  aits   inference time per sentence (paper Table 5) and FLOP efficiency\n"
+                      "  train  training throughput (stablemo.lit.bench_train)")
+        return 0
+    name, rest = argv[0], argv[1:]
+    if name == "aits":
+        return main_aits(rest)
+    if name == "train":
+        from stablemo.lit.bench_train import main as main_train  # owned by the training package
+
+        return int(main_train(rest) or 0)
+    raise StableMoError(f"bench: unknown benchmark {name!r}; {usage}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
