@@ -44,15 +44,15 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="stablemo bench train", description=__doc__.splitlines()[0])
     parser.add_argument("--config", required=True, help="training YAML (as for `stablemo fit --config`)")
     parser.add_argument("--steps", type=int, default=20, help="timed optimiser steps (default 20)")
-    parser.add_argument("--warmup", type=int, default=3, help="untimed steps first (default 3)")
+    parser.add_argument("--warmup", type=int, default=3, help="untimed steps first, >= 1 (default 3)")
     parser.add_argument("--batch-size", type=int, default=None, help="override data.batch_size")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
     parser.add_argument("--json", default=None, help="also write the result to this JSON file")
     parser.add_argument("overrides", nargs="*", help="extra LightningCLI overrides, e.g. --model.lr=1e-4 (after --)")
     args = parser.parse_args(argv)
-    if args.steps < 1 or args.warmup < 0:
-        raise StableMoError("--steps must be >= 1 and --warmup >= 0")
+    if args.steps < 1 or args.warmup < 1:
+        raise StableMoError("--steps and --warmup must be >= 1")
     if args.threads:
         torch.set_num_threads(args.threads)
 
@@ -83,11 +83,12 @@ def main(argv: list[str]) -> int:
     )
     trainer.fit(cli.model, datamodule=cli.datamodule)
     device = cli.model.device
-    stamps = timer.stamps[args.warmup:]
+    # timed: from the end of the last warm-up step to the end of the last step
+    stamps = timer.stamps[args.warmup - 1:]
     if len(stamps) < 2:
         raise StableMoError(f"{args.config}: too few steps ran to time ({len(timer.stamps)})")
     its = (len(stamps) - 1) / (stamps[-1] - stamps[0])
-    cpu = timer.cpu[args.warmup:]
+    cpu = timer.cpu[args.warmup - 1:]
     cpu_per_it = (cpu[-1] - cpu[0]) / (len(cpu) - 1)
     kind, peak = peak_memory_mb(device)
     n_params = sum(p.numel() for p in cli.model.model.parameters() if p.requires_grad)
