@@ -72,7 +72,7 @@ def test_both_layouts_load_with_their_width(tmp_path, dataset, dim):
     root = write_dataset(tmp_path, dataset)
     ds = MotionDataset.from_folder(root, "train", dataset, progress=False)
     item = ds[0]
-    assert item["motion"].shape[1] == dim and item["motion"].dtype == np.float32
+    assert item["motion"].shape[1] == dim and item["motion"].dtype == torch.float32
     assert item["text"] in ("a person walks forward", "someone strolls ahead")
     assert len(ds) == len((root / "train.txt").read_text().split())
 
@@ -95,7 +95,7 @@ def test_length_filter_and_sub_captions(tmp_path):
     assert by_id["000003#20-80"]["tokens"] == ["turn/VERB", "left/ADV"]
     std = apply_feat_bias(np.linspace(1.0, 3.0, 263).astype(np.float32), 5.0)
     expected = (raw(root, "000003")[20:80] - 2.0) / std
-    np.testing.assert_allclose(by_id["000003#20-80"]["motion"], expected, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(by_id["000003#20-80"]["motion"].numpy(), expected, rtol=1e-5, atol=1e-5)
     assert by_id["000003#100-150"]["length"] == 50
 
 
@@ -120,7 +120,7 @@ def test_feat_bias_and_normalisation(tmp_path):
     assert dm.std.dtype == np.float32 and dm.std.shape == (263,)
     ds = MotionDataset.from_folder(root, "test", crop="none", progress=False)
     item = ds[0]
-    np.testing.assert_allclose(denormalize(torch.from_numpy(item["motion"]), dm.mean, dm.std).numpy(),
+    np.testing.assert_allclose(denormalize(item["motion"], dm.mean, dm.std).numpy(),
                                raw(root, item["id"]),
                                rtol=1e-5, atol=1e-4)
 
@@ -161,6 +161,12 @@ def test_pad_multiple_and_mask():
     assert torch.all(motion[0, 5:] == 0) and torch.all(motion[1, 17:] == 0) and torch.all(motion[1, :17] == 2)
     assert pad_motions([torch.ones(16, 3)], 16)[0].shape[1] == 16
     assert pad_motions([torch.ones(7, 3)], 1)[0].shape[1] == 7
+    as_numpy = pad_motions([m.numpy() for m in motions], pad_multiple=16)
+    assert all(torch.equal(a, b) for a, b in zip(as_numpy, (motion, mask, length)))
+    grad = [torch.ones(5, 3, requires_grad=True)]
+    padded = pad_motions(grad, 4)[0]
+    padded.sum().backward()  # tensors that need gradients are padded with torch, keeping the graph
+    assert torch.equal(grad[0].grad, torch.ones(5, 3))
 
 
 @pytest.mark.parametrize("dataset", ["humanml3d", "kit"])

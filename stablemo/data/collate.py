@@ -24,15 +24,17 @@ def pad_motions(
     """[(T_i, D)] -> motion (B, T, D) zero-padded, mask (B, T) bool, length (B,) int64;
     T is the longest T_i rounded up to a multiple of pad_multiple.
 
-    Numpy inputs are padded with numpy (single-threaded, ~10x faster than small torch copies on a
-    busy CPU); tensors keep their dtype and device.
+    CPU inputs are padded with numpy: many small torch copies are ~10x slower on a busy CPU
+    (intra-op thread hand-offs). Other tensors keep their dtype and device.
     """
     if not len(motions):
         raise StableMoError("pad_motions: empty batch")
     lengths = torch.tensor([len(m) for m in motions], dtype=torch.int64)
     total = padded_length(int(lengths.max()), pad_multiple, min_length)
     dim = motions[0].shape[-1]
-    if isinstance(motions[0], np.ndarray):
+    if all(isinstance(m, torch.Tensor) and m.device.type == "cpu" and not m.requires_grad for m in motions):
+        motions = [m.numpy() for m in motions]  # zero-copy views
+    if all(isinstance(m, np.ndarray) for m in motions):
         padded = np.zeros((len(motions), total, dim), dtype=motions[0].dtype)
         for row, m in enumerate(motions):
             padded[row, : len(m)] = m

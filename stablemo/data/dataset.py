@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 from torch.utils.data import Dataset
 
 from stablemo.data.cache import SplitData, load_split
@@ -90,7 +91,7 @@ def crop_window(length: int, mode: str, max_length: int, unit_length: int, rng: 
 
 class MotionDataset(Dataset):
     """Items of one split. `dataset[i]` or `dataset[(i, epoch)]` -> dict with
-    motion (T, D) float32 numpy normalised, length, text (one caption), tokens list[str], id."""
+    motion (T, D) float32 tensor normalised, length, text (one caption), tokens list[str], id."""
 
     def __init__(
         self,
@@ -157,7 +158,7 @@ class MotionDataset(Dataset):
         start = int(self.items.start[index]) + offset
         raw = self.data.motion(int(self.items.clip[index]))[start : start + length]  # (T, D)
         return {
-            "motion": normalize(raw, self.mean, self.std),  # numpy: Collate pads on the numpy side
+            "motion": torch.from_numpy(normalize(raw, self.mean, self.std)),
             "length": length,
             "text": caption.text,
             "tokens": caption.tokens.split(),
