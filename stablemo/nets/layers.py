@@ -121,17 +121,22 @@ class MaskedGroupNorm(nn.Module):
     def forward(self, x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         B, C, T = x.shape
         dtype = torch.promote_types(x.dtype, torch.float32)  # at least float32 statistics
-        g = x.to(dtype).reshape(B, self.num_groups, C // self.num_groups, T)
         if self.mode == "frame":
-            mean = g.mean(dim=2, keepdim=True)  # (B, G, 1, T)
-            var = (g - mean).pow(2).mean(dim=2, keepdim=True)
-        else:
-            m = mask[:, None, None, :]  # (B, 1, 1, T)
-            count = (mask.sum(dim=1).float() * (C // self.num_groups)).clamp(min=1)[:, None, None, None]
-            g0 = torch.where(m, g, torch.zeros((), dtype=dtype, device=x.device))
-            mean = g0.sum(dim=(2, 3), keepdim=True) / count.to(dtype)
-            centred = torch.where(m, g - mean, torch.zeros((), dtype=dtype, device=x.device))
-            var = centred.pow(2).sum(dim=(2, 3), keepdim=True) / count.to(dtype)
+            # per-frame statistics over a channel group = layer_norm over that group's channels: one
+            # fused pass, on a free view when x is frames-major (as stablemo.diffusion.accelerate's
+            # GEMM convolutions return it); the result is returned frames-major as well
+            G = self.num_groups
+            frames = x.to(dtype).transpose(1, 2).reshape(B, T, G, C // G)
+            y = F.layer_norm(frames, (C // G,), eps=self.eps).reshape(B, T, C)
+            y = torch.addcmul(self.bias.to(dtype), y, self.weight.to(dtype))
+            return y.transpose(1, 2).to(x.dtype)
+        g = x.to(dtype).reshape(B, self.num_groups, C // self.num_groups, T)
+        m = mask[:, None, None, :]  # (B, 1, 1, T)
+        count = (mask.sum(dim=1).float() * (C // self.num_groups)).clamp(min=1)[:, None, None, None]
+        g0 = torch.where(m, g, torch.zeros((), dtype=dtype, device=x.device))
+        mean = g0.sum(dim=(2, 3), keepdim=True) / count.to(dtype)
+        centred = torch.where(m, g - mean, torch.zeros((), dtype=dtype, device=x.device))
+        var = centred.pow(2).sum(dim=(2, 3), keepdim=True) / count.to(dtype)
         y = ((g - mean) * torch.rsqrt(var + self.eps)).reshape(B, C, T)
         y = y * self.weight.to(dtype)[None, :, None] + self.bias.to(dtype)[None, :, None]
         return y.to(x.dtype)

@@ -54,7 +54,7 @@ class ResBlock1D(nn.Module):
     def forward(self, x: torch.Tensor, emb: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         h = self.norm1(self.conv1(x), mask)
         scale, shift = self.emb(emb)[:, :, None].chunk(2, dim=1)  # (B, C_out, 1) each
-        h = F.mish(h * (1 + scale) + shift)
+        h = F.mish(torch.addcmul(shift, h, 1 + scale))  # h * (1 + scale) + shift in one pass
         h = zero_pad_bct(self.dropout(h), mask)
         h = F.mish(self.norm2(self.conv2(h), mask))
         return zero_pad_bct(h + self.skip(x), mask)
