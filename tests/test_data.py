@@ -479,7 +479,9 @@ def test_data_check_kit(tmp_path, capsys):
     assert main(["check", str(root), "--dataset", "kit"]) == 0
     assert "kit: 251-d features, 12.5 fps, clips used when 24 <= frames < 200" in capsys.readouterr().out
     assert main(["check", str(root)]) == 1  # 251-d files are wrong for HumanML3D
-    assert "expected features of shape (T, 263) for humanml3d" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "expected features of shape (T, 263) for humanml3d" in out
+    assert "Mean.npy is 251-d: this looks like a kit folder (--dataset kit)" in out
 
 
 # --- Lightning integration: epoch seeding through the Trainer, resume ----------------------------------
@@ -576,3 +578,13 @@ def test_stats_file_that_is_not_npy(tmp_path):
     (root / "Mean.npy").write_text("mean values")
     with pytest.raises(StableMoError, match=r"Mean.npy: not a .npy file \(no NUMPY header\)"):
         MotionDataModule(str(root)).mean
+
+
+def test_data_check_lists_the_first_problems_only(tmp_path):
+    from stablemo.data.check import check_dataset, format_report
+
+    root = write_dataset(tmp_path, "kit")
+    report = check_dataset(root, "humanml3d")
+    assert len(report.problems) == 14  # Mean.npy, Std.npy and 12 clips of the wrong width
+    text = format_report(report, max_problems=3)
+    assert text.count("\n  - ") - len(report.notes) == 3 and "... and 11 more (--all-problems lists them)" in text

@@ -15,9 +15,10 @@ import numpy as np
 
 from stablemo.data.cache import SplitData, load_split, read_clips
 from stablemo.data.dataset import build_items
-from stablemo.data.layout import FEATURE_DIR, JOINT_DIR, SPLITS, Caption, DatasetSpec, check_root, get_spec, read_split
+from stablemo.data.layout import DATASETS, FEATURE_DIR, JOINT_DIR, SPLITS, Caption, DatasetSpec, check_root, get_spec, read_split
 from stablemo.data.stats import load_dataset_stats
 from stablemo.errors import StableMoError
+from stablemo.io import load_npy
 
 REQUIRED_SPLITS = ("train", "val", "test")
 DISJOINT = (("train", "val"), ("train", "test"), ("val", "test"))
@@ -61,6 +62,7 @@ def check_dataset(root: str | Path, dataset: str = "humanml3d", *, cache: bool =
         load_dataset_stats(root, spec)
     except StableMoError as err:
         report.problems.append(str(err))
+        _guess_dataset(report)
 
     # Each clip is read once: train/val/test through their caches (which training reuses), the
     # clips only listed in train_val/all (normally none) directly.
@@ -131,6 +133,17 @@ def _summarise(root: Path, split: str, ids: list[str], results: dict, spec: Data
         too_short=int((lengths < spec.min_length).sum()),
         too_long=int((lengths >= spec.max_clip_length).sum()),
     )
+
+
+def _guess_dataset(report: CheckReport) -> None:
+    """A hint when Mean.npy has the width of another dataset (a KIT folder checked as HumanML3D, ...)."""
+    try:
+        width = load_npy(report.root / "Mean.npy").shape[-1]
+    except (StableMoError, IndexError):
+        return
+    for other in DATASETS.values():
+        if other.name != report.spec.name and other.feature_dim == width:
+            report.notes.append(f"Mean.npy is {width}-d: this looks like a {other.name} folder (--dataset {other.name})")
 
 
 def _add_notes(report: CheckReport, readable: set[str]) -> None:
