@@ -16,7 +16,7 @@ import numpy as np
 from stablemo.data.cache import SplitData, load_split, read_clips
 from stablemo.data.dataset import build_items
 from stablemo.data.layout import DATASETS, FEATURE_DIR, JOINT_DIR, SPLITS, Caption, DatasetSpec, check_root, get_spec, read_split
-from stablemo.data.stats import load_dataset_stats
+from stablemo.data.stats import load_stat
 from stablemo.errors import StableMoError
 from stablemo.io import load_npy
 
@@ -58,10 +58,12 @@ def check_dataset(root: str | Path, dataset: str = "humanml3d", *, cache: bool =
     spec = get_spec(dataset)
     root = check_root(root)
     report = CheckReport(root, spec)
-    try:
-        load_dataset_stats(root, spec)
-    except StableMoError as err:
-        report.problems.append(str(err))
+    for name in ("Mean.npy", "Std.npy"):
+        try:
+            load_stat(root, name, spec)
+        except StableMoError as err:
+            report.problems.append(str(err))
+    if report.problems:
         _guess_dataset(report)
 
     # Each clip is read once: train/val/test through their caches (which training reuses), the

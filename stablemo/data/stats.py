@@ -42,12 +42,15 @@ def _check_stat(array: np.ndarray, path: Path, dim: int, positive: bool) -> np.n
     return array
 
 
+def load_stat(root: str | Path, name: str, spec: DatasetSpec) -> np.ndarray:
+    """One validated statistics file ("Mean.npy" or "Std.npy", the latter must be > 0) as float32 (D,)."""
+    path = check_root(root) / name
+    return _check_stat(load_npy(path), path, spec.feature_dim, positive=name == "Std.npy")
+
+
 def load_dataset_stats(root: str | Path, spec: DatasetSpec) -> tuple[np.ndarray, np.ndarray]:
     """The dataset's own Mean.npy / Std.npy, validated, as float32 (D,)."""
-    root = check_root(root)
-    mean = _check_stat(load_npy(root / "Mean.npy"), root / "Mean.npy", spec.feature_dim, positive=False)
-    std = _check_stat(load_npy(root / "Std.npy"), root / "Std.npy", spec.feature_dim, positive=True)
-    return mean, std
+    return load_stat(root, "Mean.npy", spec), load_stat(root, "Std.npy", spec)
 
 
 def load_model_stats(root: str | Path, spec: DatasetSpec, feat_bias: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
