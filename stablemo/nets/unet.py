@@ -1,7 +1,8 @@
 """CondUNet1D: the StableMoFusion motion denoiser (paper §4.1.1).
 
-A Conv1D UNet over time with four resolution stages (three stride-2 down-samplings, so T must be
-a multiple of 8), two residual blocks per stage on the way down and on the way up, skip
+A Conv1D UNet over time with four resolution stages (three stride-2 down-samplings: the length
+goes from N to N/8 as the paper's text says, so T must be a multiple of 8; ``length_multiple`` is
+2^(len(channel_mults) - 1)), two residual blocks per stage on the way down and on the way up, skip
 connections between matching stages, and a zero-initialised output convolution.
 
 Each residual block: conv -> norm -> AdaGN (x * (1 + scale) + shift from the timestep embedding,
