@@ -43,6 +43,7 @@ from stablemo.io import atomic_path
 
 CACHE_VERSION = 1
 CACHE_DIRNAME = ".stablemo_cache"
+CACHE_DTYPE = np.dtype("<f4")  # explicit little-endian float32: the file means the same on any machine
 
 
 @dataclass
@@ -78,7 +79,7 @@ class SplitData:
     def __setstate__(self, state: dict) -> None:
         features = state["features"]
         if isinstance(features, tuple) and features[0] == "memmap":
-            state["features"] = np.memmap(features[1], dtype=np.float32, mode="r", shape=features[2])
+            state["features"] = np.memmap(features[1], dtype=CACHE_DTYPE, mode="r", shape=features[2])
         self.__dict__.update(state)
 
 
@@ -209,7 +210,7 @@ def _try_load_cache(cache_dir: Path, root: Path, split: str, spec: DatasetSpec, 
 def _open_features(path: Path, total: int, dim: int) -> np.ndarray:
     if total == 0:
         return np.zeros((0, dim), np.float32)
-    return np.memmap(path, dtype=np.float32, mode="r", shape=(total, dim))
+    return np.memmap(path, dtype=CACHE_DTYPE, mode="r", shape=(total, dim))
 
 
 def _offsets(lengths: np.ndarray) -> np.ndarray:
@@ -275,7 +276,7 @@ def _build(root: Path, split: str, ids: list[str], spec: DatasetSpec, skip_bad: 
             cache_dir.mkdir(parents=True, exist_ok=True)
             data_name = f"{split}.{spec.name}.{secrets.token_hex(6)}.f32"
             with atomic_path(cache_dir / data_name) as tmp, open(tmp, "wb") as f:
-                reader(ids, lambda a: f.write(a.tobytes()))
+                reader(ids, lambda a: f.write(a.astype(CACHE_DTYPE, copy=False).tobytes()))
                 os.chmod(tmp, 0o644)  # a shared dataset folder: other users may read the cache
             total = int(sum(reader.lengths))
             features = _open_features(cache_dir / data_name, total, spec.feature_dim)
