@@ -18,13 +18,14 @@ from stablemo.errors import StableMoError
 from stablemo.eval.physics import foot_skating_ratio
 from stablemo.motion import features_to_joints, joints_to_features
 
-N_SAMPLE = 48
+N_SAMPLE = 60
 FPS = 20
 
 
 @pytest.fixture(scope="module")
 def sample():
-    return [generate_motion(motion_rng(11, i)) for i in range(N_SAMPLE)]
+    """The first motions of the default dataset (`stablemo data synth` uses seed 0)."""
+    return [generate_motion(motion_rng(0, i)) for i in range(N_SAMPLE)]
 
 
 def _gallery(seed: int = 0):
@@ -81,20 +82,16 @@ def test_planted_feet_no_skating(sample, gallery):
     motions = [m.joints for m in sample] + [b.joints for _, _, b in gallery]
     ratios = np.array([foot_skating_ratio(j)[0] for j in motions])
     assert ratios.max() < 0.01, ratios.max()
-    # ground-truth contacts: a toe in contact does not move at all; a heel (ankle) in contact is
-    # within 1 cm of its flat-foot height and does not slide (the first moments of a heel-off count)
+    # ground-truth contacts: a foot part in contact is within 1 cm of its flat-foot height and does
+    # not slide (the first moments of a heel-off and the last of a heel strike count as contact)
     for m in sample:
         j = m.joints.astype(np.float64)
-        for toe, ch in ((10, 1), (11, 3)):
-            both = m.contacts[1:, ch] & m.contacts[:-1, ch]
-            if both.any():
-                assert np.linalg.norm(np.diff(j[:, toe], axis=0), axis=-1)[both].max() < 1e-5
-        for ankle, ch in ((7, 0), (8, 2)):
+        for joint, ch in ((7, 0), (10, 1), (8, 2), (11, 3)):
             c = m.contacts[:, ch]
             both = c[1:] & c[:-1]
             if both.any():
-                assert np.linalg.norm(np.diff(j[:, ankle][:, [0, 2]], axis=0), axis=-1)[both].max() < 0.005
-                assert np.ptp(j[c, ankle, 1]) < 0.0105
+                assert np.linalg.norm(np.diff(j[:, joint][:, [0, 2]], axis=0), axis=-1)[both].max() < 0.005
+                assert np.ptp(j[c, joint, 1]) < 0.0105
 
 
 def test_smooth_trajectories(sample):
@@ -130,10 +127,10 @@ def test_contacts_agree_with_feature_bits(sample):
 
 
 def test_determinism(sample):
-    again = generate_motion(motion_rng(11, 5))
+    again = generate_motion(motion_rng(0, 5))
     assert np.array_equal(again.joints, sample[5].joints)
     assert again.captions == sample[5].captions
-    other = generate_motion(motion_rng(12, 5))
+    other = generate_motion(motion_rng(1, 5))
     assert not (other.joints.shape == sample[5].joints.shape and np.array_equal(other.joints, sample[5].joints))
 
 
@@ -195,7 +192,7 @@ def _measure(action: str, j: np.ndarray, text: str) -> None:
         assert "back" in text and disp @ fwd0 < -0.6 and abs(turned) < 10
     elif action == "walk_sideways":
         sign = 1 if _side_in(text) == "left" else -1
-        assert sign * (disp @ left0) > 0.5 and abs(disp @ fwd0) < 0.15 and abs(turned) < 10
+        assert sign * (disp @ left0) > 0.3 and abs(disp @ fwd0) < 0.15 and abs(turned) < 10
     elif action == "turn":
         sign = 1 if _side_in(text) == "left" else -1
         angle = 180 if re.search(r"around|180|half", text) else 90

@@ -88,19 +88,19 @@ def _place_steps(tl: Timeline, lifts: list[list[float]], swing_frames: float, re
 
 GAITS = {
     # speed m/s, cadence steps/s, stance fraction of the cycle, ...
-    "walk": dict(stance=0.56, under=0.45, heel_off=0.2, off_pitch=1.0, slap=0.08, land_pitch=-0.3,
+    "walk": dict(stance=0.56, under=0.45, heel_off=0.08, off_pitch=1.0, slap=0.05, land_pitch=-0.22,
                  clearance=0.10, lean=0.05, drop=0.0, arm=0.28, flex=0.15),
-    "walk_backward": dict(cadence=1.7, stance=0.64, heel_off=0.10, off_pitch=0.35, slap=0.06,
-                          land_pitch=0.0, clearance=0.09, lean=-0.04, drop=0.0, arm=0.2, flex=0.2),
+    "walk_backward": dict(cadence=1.7, stance=0.64, heel_off=0.10, off_pitch=0.5, slap=0.06,
+                          land_pitch=0.0, clearance=0.12, lean=-0.04, drop=0.0, arm=0.2, flex=0.2),
     "walk_sideways": dict(cadence=1.6, stance=0.68, heel_off=0.08, off_pitch=0.3, slap=0.05,
                           land_pitch=-0.1, clearance=0.08, lean=0.0, drop=0.01, arm=0.0, flex=0.15),
-    "jog": dict(cadence=2.7, stance=0.38, under=0.42, heel_off=0.12, off_pitch=0.6, slap=0.06, land_pitch=-0.15,
+    "jog": dict(cadence=2.7, stance=0.38, under=0.42, heel_off=0.08, off_pitch=0.6, slap=0.06, land_pitch=-0.15,
                 clearance=0.14, lean=0.12, drop=0.04, arm=0.55, flex=1.1),
     "run": dict(cadence=3.1, stance=0.30, under=0.42, heel_off=0.10, off_pitch=0.7, slap=0.05, land_pitch=-0.1,
                 clearance=0.18, lean=0.2, drop=0.06, arm=0.7, flex=1.35),
-    "circle": dict(stance=0.56, under=0.45, heel_off=0.2, off_pitch=1.0, slap=0.08, land_pitch=-0.3,
+    "circle": dict(stance=0.56, under=0.45, heel_off=0.08, off_pitch=1.0, slap=0.05, land_pitch=-0.22,
                    clearance=0.10, lean=0.05, drop=0.0, arm=0.3, flex=0.2),
-    "turn": dict(heel_off=1.5, off_pitch=0.35, slap=1.0, land_pitch=-0.1, clearance=0.09, toe_out=0.06),
+    "turn": dict(heel_off=1.5, off_pitch=0.45, slap=1.0, land_pitch=-0.1, clearance=0.11, toe_out=0.06),
 }
 
 
@@ -215,7 +215,7 @@ def build_turn(tl: Timeline, p: dict) -> None:
     angle = np.deg2rad(p["angle"])
     duration = (0.55 + angle / np.deg2rad(p.get("rate", 150.0))) * FPS
     n_steps = int(np.ceil(angle / np.deg2rad(50.0))) + 1
-    sw = 0.3 * FPS
+    sw = 0.22 * FPS
     n = int(np.ceil(duration + 0.5 * sw)) + int(0.3 * FPS)
     sl = tl.frames(n)
     f = np.arange(n, dtype=float)
@@ -370,8 +370,11 @@ def build_hop(tl: Timeline, p: dict) -> None:
     def path(frames):
         idx = np.clip(frames.astype(int), 0, len(root_y) - 1)
         hip = root_xz[idx] + _body_to_world(heading, SIDE_SIGN[free] * 0.08, 0.0)
-        raised_xz = hip + _body_to_world(heading, 0.0, -0.28)
-        raised_y = root_y[idx] - 0.55
+        # The free leg pumps with the hops (foot swings forward and back under the knee).
+        phase = 2 * np.pi * (frames - t_hops) / per
+        pump = np.sin(phase) * smoothstep((frames - t_hops) / 4) * (1 - smoothstep((frames - t_down + 4) / 4))
+        raised_xz = hip + _body_to_world(heading, 0.0, -0.26 + 0.12 * pump)
+        raised_y = root_y[idx] - 0.55 + 0.05 * pump
         w = smoothstep((frames - t_lift) / lift) * (1 - smoothstep((frames - t_down) / lift))
         xz_ = base + (raised_xz - base) * w[:, None]
         y_ = flat_y + (raised_y - flat_y) * w

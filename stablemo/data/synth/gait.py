@@ -17,7 +17,8 @@ from stablemo.data.synth.body import ANKLE_FLAT_HEIGHT, FOOT_LENGTH, FOOT_PITCH
 
 
 CONTACT_TOL = 0.01  # metres
-SWING_DELAY = 0.10  # fraction of a swing spent lifting (and setting down) the foot in place
+SWING_DELAY = (0.14, 0.09)  # fractions of a swing spent lifting / setting down the foot in place
+BUMP_SKEW = 1.0  # < 1: the foot rises quickly after lift-off and comes down gently
 
 
 def smoothstep(x: np.ndarray) -> np.ndarray:
@@ -109,9 +110,10 @@ def render_foot(plants: list[Plant], side: int, T: int):
                 p = np.where(peel, pp, p)
                 heel &= ~peel
             ankle[m], yaw[m], pitch[m] = a, pl.yaw, p
-            # The heel still counts as down in the first moments of a heel-off (raised < CONTACT_TOL);
-            # the toe counts from the moment the foot is flat (it never moves while down).
+            # A planted foot part within CONTACT_TOL of the floor counts as down: the first moments
+            # of a heel-off (heel) and the last moment of a heel-first landing (toe).
             heel |= a[:, 1] - flat[1] < CONTACT_TOL
+            toe_down |= a[:, 1] - FOOT_LENGTH[side] * np.sin(p) < CONTACT_TOL
             contact[m, 0], contact[m, 1] = heel, toe_down
             assigned |= m
         if k + 1 < len(plants):
@@ -129,12 +131,12 @@ def render_foot(plants: list[Plant], side: int, T: int):
                 p1 = FOOT_PITCH + sw.land_pitch
                 tau = (f - pl.end) / (nxt.start - pl.end)
                 # The foot rises before it travels and stops travelling before it comes down.
-                s = minjerk((tau - SWING_DELAY) / (1 - 2 * SWING_DELAY))[:, None]
+                s = smoothstep((tau - SWING_DELAY[0]) / (1 - sum(SWING_DELAY)))[:, None]
                 a = a0 + (a1 - a0) * s
-                a[:, 1] = a0[1] + (a1[1] - a0[1]) * smoothstep(tau) + sw.clearance * np.sin(np.pi * tau)
+                a[:, 1] = a0[1] + (a1[1] - a0[1]) * smoothstep(tau) + sw.clearance * np.sin(np.pi * tau**BUMP_SKEW)
                 # Toes stay pointed down through early swing so they clear the floor at once.
                 p = p0 + (p1 - p0) * smoothstep((tau - 0.25) / 0.75)
-                y = y0 + wrap_angle(nxt.yaw - y0) * smoothstep((tau - SWING_DELAY) / (1 - 2 * SWING_DELAY))
+                y = y0 + wrap_angle(nxt.yaw - y0) * smoothstep((tau - SWING_DELAY[0]) / (1 - sum(SWING_DELAY)))
             ankle[m], yaw[m], pitch[m] = a, y, p
             assigned |= m
     if not assigned.all():
