@@ -78,14 +78,23 @@ class NoiseSchedule:
 
     def _coef(self, t: torch.Tensor, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """sqrt(abar_t), sqrt(1 - abar_t) for integer t (B,), shaped to broadcast against `like`."""
-        t = torch.as_tensor(t, device=self._abar64.device).long().reshape(-1)
-        if t.numel() and (int(t.min()) < 0 or int(t.max()) >= self.num_train_timesteps):
+        t = torch.as_tensor(t, device=like.device).long().reshape(-1)
+        if like.device.type == "cpu" and t.numel() and (int(t.min()) < 0 or int(t.max()) >= self.num_train_timesteps):
             raise StableMoError(f"t: timesteps must lie in [0, {self.num_train_timesteps - 1}]")
-        abar = self._abar64[t]
+        sqrt_abar, sqrt_one_minus = self._tables(like.device)  # on like's device: no host sync on GPUs
         shape = (-1,) + (1,) * (like.dim() - 1)
-        a = abar.sqrt().to(like.device, like.dtype).reshape(shape)
-        s = (1 - abar).sqrt().to(like.device, like.dtype).reshape(shape)
+        a = sqrt_abar[t].to(like.dtype).reshape(shape)
+        s = sqrt_one_minus[t].to(like.dtype).reshape(shape)
         return a, s
+
+    def _tables(self, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+        """sqrt(abar), sqrt(1 - abar) in float64 (float32 where float64 is unsupported), per device."""
+        cache = self.__dict__.setdefault("_device_tables", {})
+        key = str(device)
+        if key not in cache:
+            dtype = torch.float32 if torch.device(device).type == "mps" else torch.float64
+            cache[key] = (self._abar64.sqrt().to(device, dtype), (1 - self._abar64).sqrt().to(device, dtype))
+        return cache[key]
 
     def q_sample(self, x0: torch.Tensor, t: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
         """x_t = sqrt(abar_t) x0 + sqrt(1 - abar_t) noise;  x0, noise: (B, ...), t: (B,) long."""

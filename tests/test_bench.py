@@ -1,0 +1,81 @@
+"""`stablemo bench aits`: the Table 5 rows, FLOPs and efficiency figures, on a tiny network."""
+
+import json
+
+import pytest
+import torch
+
+from stablemo import bench
+from stablemo.errors import StableMoError
+
+TINY = """
+denoiser: {name: unet, input_dim: 263, base_channels: 8, channel_mults: [1, 2], time_dim: 16, num_groups: 4, num_heads: 2}
+text: {encoder: minilm, latent_dim: 16, num_layers: 1, num_heads: 2, ff_dim: 32}
+"""
+
+
+@pytest.fixture
+def tiny_config(tmp_path):
+    pytest.importorskip("stablemo.model")
+    path = tmp_path / "tiny.yaml"
+    path.write_text(TINY)
+    return path
+
+
+def test_aits_table_and_json(tiny_config, tmp_path, capsys):
+    out = tmp_path / "aits.json"
+    threads = torch.get_num_threads()
+    rc = bench.main(["aits", "--config", str(tiny_config), "--frames", "12", "--repeats", "1", "--steps", "3",
+                     "--ddpm-steps", "2", "--threads", "1", "--json", str(out)])
+    assert rc == 0 and torch.get_num_threads() == threads  # thread setting restored
+    text = capsys.readouterr().out
+    for name in ("DDPM 1000 (baseline) *", "+ SDE-DPM-Solver++ 2M, 3 steps", "+ text cache", "+ parallel CFG",
+                 "+ low precision (bf16)", "extrapolated: 2 of 1000 steps", "measured fp32 matmul"):
+        assert name in text
+    data = json.loads(out.read_text())
+    rows = data["rows"]
+    assert [r["steps"] for r in rows] == [1000, 3, 3, 3, 3]
+    assert rows[0]["measured_steps"] == 2 and rows[0]["aits"] == pytest.approx(rows[0]["seconds"][0] * 500)
+    assert [(r["text_cache"], r["parallel_cfg"], r["dtype"]) for r in rows[1:]] == [
+        (False, False, "fp32"), (True, False, "fp32"), (True, True, "fp32"), (True, True, "bf16")]
+    assert data["matmul_fp32_gflops"] > 0 and data["frames"] == 12
+
+
+def test_flops_per_step_counts_both_cfg_halves(tiny_config):
+    from stablemo.diffusion.schedule import NoiseSchedule
+    from stablemo.model import MotionDiffusionModel
+    from stablemo.pipeline import Pipeline
+
+    kwargs, _ = bench._model_kwargs(str(tiny_config))
+    pipe = Pipeline(MotionDiffusionModel(**kwargs), NoiseSchedule(), [0.0] * 263, [1.0] * 263, device="cpu")
+    one, two = bench.denoiser_flops(pipe, 12, 1), bench.denoiser_flops(pipe, 12, 2)
+    assert one > 0 and two == pytest.approx(2 * one)
+    # frames are padded to the network's length multiple (2 here): 11 frames cost as much as 12
+    assert bench.denoiser_flops(pipe, 11, 1) == one
+
+
+def test_model_description_formats(tmp_path):
+    denoiser_only = tmp_path / "d.yaml"
+    denoiser_only.write_text("name: unet\nbase_channels: 8\ntext_dim: 32\n")
+    kwargs, _ = bench._model_kwargs(str(denoiser_only))
+    assert kwargs["denoiser"]["name"] == "unet" and kwargs["denoiser"]["input_dim"] == 263
+    assert kwargs["text"]["latent_dim"] == 32 and kwargs["text"]["encoder"] == "minilm"
+    lightning = tmp_path / "l.yaml"
+    lightning.write_text("model:\n  model:\n    denoiser: {name: dit, input_dim: 251}\n    text: {latent_dim: 64}\n")
+    kwargs, _ = bench._model_kwargs(str(lightning))
+    assert kwargs["denoiser"] == {"name": "dit", "input_dim": 251} and kwargs["text"]["latent_dim"] == 64
+    kwargs, source = bench._model_kwargs(None)  # the paper network by default
+    assert kwargs["denoiser"]["base_channels"] == 512 and list(kwargs["denoiser"]["channel_mults"]) == [2, 2, 2, 2]
+
+
+def test_bad_arguments(tmp_path):
+    with pytest.raises(StableMoError, match="--config: .*missing.yaml: file not found"):
+        bench.main(["aits", "--config", str(tmp_path / "missing.yaml")])
+    with pytest.raises(StableMoError, match="--ddpm-steps"):
+        bench.main(["aits", "--ddpm-steps", "0"])
+    empty = tmp_path / "empty.yaml"
+    empty.write_text("trainer: {max_steps: 3}\n")
+    with pytest.raises(StableMoError, match="no model description"):
+        bench.main(["aits", "--config", str(empty)])
+    with pytest.raises(StableMoError, match="unknown benchmark 'speed'"):
+        bench.main(["speed"])
