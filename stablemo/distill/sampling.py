@@ -1,0 +1,79 @@
+"""1-4 step sampling with a consistency student (same `denoise(x_t, t) -> x0_hat` contract as the samplers).
+
+- LCM: at each chosen timestep apply the consistency function; between steps re-noise the clean
+  estimate to the next timestep with fresh noise (MotionLCM's multi-step sampling).
+- PCM: deterministic; each step jumps DDIM-style from the current edge to a lower edge, no noise.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+import torch
+
+from stablemo.diffusion.schedule import NoiseSchedule
+from stablemo.distill.consistency import CLEAN, ddim_jump, ddim_grid, lcm_consistency, renoise
+from stablemo.errors import StableMoError
+
+Denoise = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+NoiseFn = Callable[[torch.Tensor], torch.Tensor]
+
+
+def lcm_timesteps(num_train_timesteps: int, ddim_steps: int, steps: int) -> list[int]:
+    """LCM's inference timesteps: the DDIM grid, descending, at floor(linspace(0, N, n, endpoint=False)).
+
+    T = 1000, N = 50: 1 step [999]; 2 steps [999, 499]; 4 steps [999, 759, 499, 259].
+    """
+    if not 1 <= steps <= ddim_steps:
+        raise StableMoError(f"steps: must lie in [1, {ddim_steps}] for this student, got {steps}")
+    descending = ddim_grid(num_train_timesteps, ddim_steps)[::-1]
+    picks = np.floor(np.linspace(0, ddim_steps, steps, endpoint=False)).astype(int)
+    return [descending[i] for i in picks]
+
+
+def pcm_path(edges: list[int], steps: int) -> list[int]:
+    """Edges visited from the top, descending, ending at CLEAN; `steps` must divide the phase count.
+
+    With steps = M every phase is one jump (the trained path); fewer steps skip edges.
+    """
+    phases = len(edges) - 1
+    if steps < 1 or phases % steps:
+        raise StableMoError(f"steps: a {phases}-phase student samples with a divisor of {phases} steps, got {steps}")
+    stride = phases // steps
+    return edges[::-1][::stride]
+
+
+def sample_lcm(denoise: Denoise, x: torch.Tensor, schedule: NoiseSchedule, timesteps: list[int], noise: NoiseFn,
+               sigma_data: float = 0.5, timestep_scale: float = 10.0, callback=None) -> torch.Tensor:
+    """x: (B,T,D) standard normal at the first timestep (alpha ~ 0 there, as in MotionLCM)."""
+    batch = x.shape[0]
+    sample = x
+    for i, t_int in enumerate(timesteps):
+        t = torch.full((batch,), t_int, dtype=torch.long, device=x.device)
+        x0 = denoise(sample, t)
+        if callback is not None:
+            out = callback(i, t_int, x0)
+            x0 = x0 if out is None else out
+        clean = lcm_consistency(sample, x0, t, sigma_data, timestep_scale)
+        if i + 1 < len(timesteps):
+            t_next = torch.full((batch,), timesteps[i + 1], dtype=torch.long, device=x.device)
+            sample = renoise(schedule, clean, t_next, noise(clean))
+        else:
+            sample = clean
+    return sample
+
+
+def sample_pcm(denoise: Denoise, x: torch.Tensor, schedule: NoiseSchedule, path: list[int], callback=None) -> torch.Tensor:
+    """Deterministic phased sampling along `path` (descending edges ending at CLEAN)."""
+    batch = x.shape[0]
+    sample = x
+    for i, (t_int, to_int) in enumerate(zip(path[:-1], path[1:])):
+        t = torch.full((batch,), t_int, dtype=torch.long, device=x.device)
+        x0 = denoise(sample, t)
+        if callback is not None:
+            out = callback(i, t_int, x0)
+            x0 = x0 if out is None else out
+        to = torch.full((batch,), to_int, dtype=torch.long, device=x.device)
+        sample = x0 if to_int == CLEAN else ddim_jump(schedule, sample, x0, t, to)
+    return sample
