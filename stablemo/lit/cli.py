@@ -22,6 +22,12 @@ from stablemo.lit.module import DiffusionModule
 
 
 class StableMoCLI(LightningCLI):
+    def __init__(self, *args, **kwargs) -> None:
+        # `stablemo fit ...` hands LightningCLI its own argv; sys.argv must stay intact for DDP's
+        # re-launch of the same command, so the "args and sys.argv both given" warning is noise here.
+        warnings.filterwarnings("ignore", message="LightningCLI's args parameter is intended")
+        super().__init__(*args, **kwargs)
+
     def add_arguments_to_parser(self, parser) -> None:
         parser.add_lightning_class_args(ModelCheckpoint, "checkpoint")
         parser.set_defaults({
@@ -65,9 +71,6 @@ def _run(subcommand: str, argv: list[str]) -> int:
 
     from stablemo.data import MotionDataModule
 
-    # `stablemo fit ...` hands LightningCLI its own argv; sys.argv must stay intact for DDP's
-    # re-launch of the same command, so the "args and sys.argv both given" warning is noise here.
-    warnings.filterwarnings("ignore", message="LightningCLI's args parameter is intended")
     subclass = _names_model_class(argv)
     StableMoCLI(
         LightningModule if subclass else DiffusionModule,
