@@ -267,6 +267,16 @@ def test_cached_split_pickles_by_file_name(tmp_path):
     np.testing.assert_array_equal(copy.motion(2), data.motion(2))
 
 
+def test_unwritable_cache_dir_falls_back_to_memory(tmp_path):
+    root = write_dataset(tmp_path / "data")
+    (tmp_path / "a_file").write_text("")
+    with pytest.warns(UserWarning, match="cannot write the dataset cache"):
+        data = load_split(root, "train", get_spec("humanml3d"), cache_dir=tmp_path / "a_file" / "cache",
+                          progress=False)
+    assert not isinstance(data.features, np.memmap) and len(data.ids) == 8
+    np.testing.assert_array_equal(data.motion(3), raw(root, data.ids[3]))
+
+
 def test_read_only_dataset_uses_user_cache(tmp_path, monkeypatch):
     root = write_dataset(tmp_path / "data")
     real_access = os.access
