@@ -464,6 +464,7 @@ def test_data_check_reports_every_problem(tmp_path, capsys):
                                            "val": ["000008", "000009", "000099"], "test": ["000010", "000011"]})
     _break(root, "nan")
     (root / "texts" / "000005.txt").write_text("bad line\n")
+    (root / "texts" / "000006.txt").write_text("a person waves##0.0#0.0\n")
     np.save(root / "new_joint_vecs" / "000010.npy", np.zeros((50, 251), np.float32))
     (root / "test.txt").write_text("000010\n000011\n000001\n")
     # all.txt repeats every clip (each bad one is reported once) and adds one listed nowhere else.
@@ -472,6 +473,7 @@ def test_data_check_reports_every_problem(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "problems (6):" in out
     assert "000077.npy: listed in all.txt but the feature file does not exist" in out
+    assert "1 caption(s) have no word/POS tokens" in out
     assert sorted(p.name for p in (root / ".stablemo_cache").glob("*.json")) == [
         "test.humanml3d.json", "train.humanml3d.json", "val.humanml3d.json"]
     assert "000003.npy: 1 NaN/Inf value(s), first in frame 10" in out

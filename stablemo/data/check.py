@@ -100,6 +100,7 @@ def check_dataset(root: str | Path, dataset: str = "humanml3d", *, cache: bool =
     report.problems += list(problems)
 
     clips = {i: r for i, r in results.items() if not isinstance(r, str)}
+    untagged = 0
     for n, caps in clips.values():
         report.lengths.append(n)
         report.captions_per_motion.append(len(caps))
@@ -108,6 +109,9 @@ def check_dataset(root: str | Path, dataset: str = "humanml3d", *, cache: bool =
             report.words_per_caption.append(len(words))
             report.vocabulary.update(words)
             report.sub_captions += not cap.whole_clip
+            untagged += not cap.tokens
+    if untagged:
+        report.notes.append(f"{untagged} caption(s) have no word/POS tokens (the Guo et al. evaluator needs them)")
     _add_notes(report, set(clips))
     return report
 
