@@ -86,10 +86,12 @@ def test_length_filter_and_sub_captions(tmp_path):
                          "runs#run/VERB#5.0#20.0"]),  # [100, 400) clipped to [100, 150): 50 frames kept
         "000004": (120, ["kicks#kick/VERB#1.0#3.5"]),  # only a sub-caption: no whole-clip item
         "000005": (40, [WHOLE]),  # exactly min: kept
+        "000006": (90, ["hops#hop/VERB#0.0#2.5", "jumps#jump/VERB#0.0#2.5"]),  # from 0: still a sub-caption
     }
     root = write_dataset(tmp_path, clips=clips, splits={"train": list(clips)})
     ds = MotionDataset.from_folder(root, "train", crop="none", progress=False)
-    assert ds.items.ids == ["000003", "000003#20-80", "000003#100-150", "000004#20-70", "000005"]
+    assert ds.items.ids == ["000003", "000003#20-80", "000003#100-150", "000004#20-70", "000005", "000006#0-50",
+                            "000006#0-50.1"]
     by_id = {ds.items.ids[i]: ds[i] for i in range(len(ds))}
     assert by_id["000003#20-80"]["text"] == "turns left"
     assert by_id["000003#20-80"]["tokens"] == ["turn/VERB", "left/ADV"]

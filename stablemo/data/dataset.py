@@ -37,18 +37,24 @@ class ItemIndex:
 
 def build_items(data: SplitData, spec: DatasetSpec) -> ItemIndex:
     """Whole clips with min <= T < max_clip_length (if they have a whole-clip caption) plus one item
-    per sub-caption whose window [int(from*20), int(to*20)) has min <= length < max_clip_length."""
+    per sub-caption whose window [int(from*20), int(to*20)) has min <= length < max_clip_length.
+    Sub-caption items are named `<clip>#<start>-<end>` (`.1`, `.2`, ... for repeated windows)."""
     ids: list[str] = []
-    clip, start, length = [], [], []
+    rows: list[tuple[int, int, int]] = []  # (clip row, start, length)
     captions: list[list[Caption]] = []
+
+    def add(item_id: str, row: int, start: int, length: int, caps: list[Caption]) -> None:
+        ids.append(item_id)
+        rows.append((row, start, length))
+        captions.append(caps)
+
     for row, (clip_id, n, caps) in enumerate(zip(data.ids, data.lengths.tolist(), data.captions)):
         if not spec.min_length <= n < spec.max_clip_length:
             continue
         whole = [c for c in caps if c.whole_clip]
         if whole:
-            ids.append(clip_id)
-            clip.append(row), start.append(0), length.append(n), captions.append(whole)
-        seen: dict[str, int] = {}
+            add(clip_id, row, 0, n, whole)
+        repeats: dict[str, int] = {}
         for cap in caps:
             if cap.whole_clip:
                 continue
@@ -57,13 +63,10 @@ def build_items(data: SplitData, spec: DatasetSpec) -> ItemIndex:
             if not spec.min_length <= b - a < spec.max_clip_length:
                 continue
             item_id = f"{clip_id}#{a}-{b}"
-            seen[item_id] = seen.get(item_id, 0) + 1
-            if seen[item_id] > 1:
-                item_id += f".{seen[item_id] - 1}"
-            ids.append(item_id)
-            clip.append(row), start.append(a), length.append(b - a), captions.append([cap])
-    as_int = lambda values: np.asarray(values, dtype=np.int64)  # noqa: E731
-    return ItemIndex(ids, as_int(clip), as_int(start), as_int(length), captions)
+            repeats[item_id] = repeats.get(item_id, 0) + 1
+            add(item_id if repeats[item_id] == 1 else f"{item_id}.{repeats[item_id] - 1}", row, a, b - a, [cap])
+    table = np.asarray(rows, dtype=np.int64).reshape(-1, 3)
+    return ItemIndex(ids, table[:, 0], table[:, 1], table[:, 2], captions)
 
 
 def crop_window(length: int, mode: str, max_length: int, unit_length: int, rng: np.random.Generator) -> tuple[int, int]:
