@@ -156,7 +156,7 @@ def write_dataset(out_dir, num: int = 2000, seed: int = 0, workers: int | None =
         kinds = Counter(a for r in results for names in r[3] for a in names.split("+"))
         meta = dict(generator="stablemo.data.synth", version=VERSION, seed=seed, num=num, fps=20,
                     skeleton="humanml3d", frames=int(count), action_counts=dict(sorted(kinds.items())),
-                    parts=dict(Counter(len(n.split("+")) for r in results for n in r[3])))
+                    parts=dict(sorted(Counter(len(n.split("+")) for r in results for n in r[3]).items())))
         write_text(tmp / MARKER, json.dumps(meta, indent=2) + "\n")
         _commit(tmp, out_dir)
     finally:
