@@ -602,3 +602,13 @@ def test_data_check_lists_the_first_problems_only(tmp_path):
     assert len(report.problems) == 14  # Mean.npy, Std.npy and 12 clips of the wrong width
     text = format_report(report, max_problems=3)
     assert text.count("\n  - ") - len(report.notes) == 3 and "... and 11 more (--all-problems lists them)" in text
+
+
+def test_windows_line_endings_and_byte_order_mark(tmp_path):
+    root = write_dataset(tmp_path, clips={"000001": (60, [WHOLE]), "000002": (70, [WHOLE])},
+                         splits={"train": ["000001", "000002"]})
+    (root / "train.txt").write_bytes(b"\xef\xbb\xbf000001\r\n000002\r\n")
+    (root / "texts" / "000002.txt").write_bytes(b"\xef\xbb\xbf" + (WHOLE2 + "\r\n" + WHOLE + "\r\n").encode())
+    ds = MotionDataset.from_folder(root, "train", crop="none", progress=False)
+    assert ds.items.ids == ["000001", "000002"]
+    assert [c.text for c in ds.items.captions[1]] == ["someone strolls ahead", "a person walks forward"]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import random
+from typing import Literal
 
 import lightning as L
 import numpy as np
@@ -60,7 +61,7 @@ class MotionDataModule(L.LightningDataModule):
         train_split: str = "train",
         val_split: str = "val",
         test_split: str = "test",
-        eval_crop: str = "eval",
+        eval_crop: Literal["eval", "train", "none"] = "eval",
         cache: bool = True,
         cache_dir: str | None = None,
         drop_last: bool = False,

@@ -79,7 +79,7 @@ def read_split(root: str | Path, split: str) -> list[str]:
     if not path.is_file():
         raise StableMoError(f"{path}: split file not found")
     try:
-        lines = path.read_text(encoding="utf-8").splitlines()
+        lines = path.read_text(encoding="utf-8-sig").splitlines()
     except (OSError, UnicodeDecodeError) as err:
         raise StableMoError(f"{path}: cannot read split file ({err})") from None
     ids: list[str] = []
@@ -155,7 +155,7 @@ def read_captions(path: Path) -> list[Caption]:
 def parse_captions(data: bytes, path: Path) -> list[Caption]:
     """Captions from the bytes of the text file `path` (named in errors)."""
     try:
-        content = data.decode("utf-8")
+        content = data.decode("utf-8-sig")  # tolerate a byte-order mark
     except UnicodeDecodeError as err:
         raise StableMoError(f"{path}: caption file is not UTF-8 text ({err})") from None
     lines = content.rstrip().splitlines()
