@@ -188,6 +188,8 @@ def _measure(action: str, j: np.ndarray, text: str) -> None:
             assert top <= {"slow": (0.5, 1.05), "normal": (0.95, 1.5), "fast": (1.45, 2.0)}[label][1]
         else:
             assert (1.8 <= top <= 2.7) if action == "jog" else top >= 2.8
+        if re.search(r"\bwav", text):  # "walks forward while waving the left hand"
+            _measure("wave", j, text)
     elif action == "walk_backward":
         assert "back" in text and disp @ fwd0 < -0.6 and abs(turned) < 10
     elif action == "walk_sideways":
@@ -280,6 +282,14 @@ def test_sub_captions_match_their_parts(sample):
     assert checked > 10
 
 
+def test_walk_while_waving():
+    params = dict(speed_label="normal", speed=1.2, duration=3.0, first_foot=0, waving="left")
+    built = compose.build([("walk", params)])
+    for text in synth_captions.captions_for([("walk", params)], np.random.default_rng(3)):
+        assert "wav" in text and "left" in text
+        _measure("walk", built.joints, text)
+
+
 def test_tagger():
     line = synth_captions.caption_line("a man walks forward quickly, then turns left and waves with his right hand.")
     text, tokens, start, end = line.split("#")
@@ -289,6 +299,7 @@ def test_tagger():
                               "right/ADJ", "hand/NOUN"]
     assert "squat/NOUN" in synth_captions.tag("someone does two squats")
     assert "punch/VERB" in synth_captions.tag("a person punches twice")
+    assert synth_captions.tag("she waves while walking").split()[2:] == ["while/SCONJ", "walk/VERB"]
 
 
 def test_every_action_named_in_captions():

@@ -151,7 +151,7 @@ def _locomote(tl: Timeline, params: dict, gait_name: str, direction: float, curv
     ramp = np.interp(f, tt, vel) / (v / FPS)
     tl.torso_pitch[sl] += g["lean"] * ramp
     tl.root_y[sl] -= g["drop"] * ramp
-    tl.arm_swing[sl] += g["arm"] * ramp
+    tl.arm_swing[sl] += g["arm"] * ramp[:, None]
     tl.elbow_flex[sl] += g["flex"] * ramp
     if curvature:
         # Lean into the curve.
@@ -171,6 +171,12 @@ def _locomote(tl: Timeline, params: dict, gait_name: str, direction: float, curv
 def build_walk(tl: Timeline, p: dict) -> None:
     start = tl.t
     _locomote(tl, p, "walk", 0.0)
+    if p.get("waving"):  # "walks forward while waving": the gesture replaces that arm's swing
+        sl = slice(start, tl.t)
+        env = envelope(tl.t - start, 0.5 * FPS, 0.5 * FPS)
+        _wave_arms(tl, sl, p["waving"], env)
+        for s in _arm_sides(p["waving"]):
+            tl.arm_swing[sl, s] *= 1 - env
     tl.add_part("walk", p, start)
 
 
@@ -227,7 +233,7 @@ def build_turn(tl: Timeline, p: dict) -> None:
     for i in range(n_steps):
         lifts[lead if i % 2 == 0 else 1 - lead].append(tl.t + 1.0 + i * gap)
     _place_steps(tl, lifts, sw, tl.t + duration, body.STANCE_HALF_WIDTH, GAITS["turn"])
-    tl.arm_swing[sl] += 0.08 * envelope(n, 4, 4)
+    tl.arm_swing[sl] += 0.08 * envelope(n, 4, 4)[:, None]
     tl.t += n
     tl.add_part("turn", p, start)
 
@@ -526,19 +532,25 @@ def build_wave(tl: Timeline, p: dict) -> None:
     start = tl.t
     n = int(p.get("duration", 2.4) * FPS)
     sl = _hold_root(tl, n)
-    f = np.arange(n, dtype=float)
     env = envelope(n, 0.45 * FPS, 0.45 * FPS)
-    both = p["hand"] == "both"
-    for s in _arm_sides(p["hand"]):
+    _wave_arms(tl, sl, p["hand"], env)
+    if p["hand"] != "both":
+        tl.torso_roll[sl] += SIDE_SIGN[_arm_sides(p["hand"])[0]] * 0.04 * env
+    tl.t += n
+    tl.add_part("wave", p, start)
+
+
+def _wave_arms(tl: Timeline, sl: slice, hand: str, env: np.ndarray) -> None:
+    """Raise the hand(s) and swing the forearm side to side at 2 Hz, with weight env (n,)."""
+    n = len(env)
+    f = np.arange(n, dtype=float)
+    both = hand == "both"
+    for s in _arm_sides(hand):
         sg = SIDE_SIGN[s]
         phi = 0.15 + 0.45 * np.sin(2 * np.pi * 2.0 * f / FPS) * smoothstep(2 * env - 1)
         upper = _tile([sg * 0.7, 0.75 if both else 0.35, 0.25], n)
         fore = np.stack([sg * np.sin(phi), np.cos(phi), np.full(n, 0.2)], -1)
         tl.blend_arm(s, sl, upper, fore, env)
-    if not both:
-        tl.torso_roll[sl] += SIDE_SIGN[_arm_sides(p["hand"])[0]] * 0.04 * env
-    tl.t += n
-    tl.add_part("wave", p, start)
 
 
 RAISE_POSES = {  # (upper, forearm) for the left arm; x is mirrored for the right
@@ -627,8 +639,9 @@ def sample_params(name: str, rng: np.random.Generator) -> dict:
         return dict(duration=float(u(1.5, 3.0)), phase=float(u(0, 2 * np.pi)))
     if name == "walk":
         speed = str(rng.choice(list(WALK_SPEEDS)))
+        waving = str(rng.choice(["left", "right", "both"])) if speed != "fast" and u() < 0.2 else None
         return dict(speed_label=speed, speed=float(u(*WALK_SPEEDS[speed])), duration=float(u(2.5, 4.5)),
-                    first_foot=int(rng.integers(2)))
+                    first_foot=int(rng.integers(2)), waving=waving)
     if name == "walk_backward":
         speed = str(rng.choice(["slow", "normal"]))
         return dict(speed_label=speed, speed=float(u(0.45, 0.6) if speed == "slow" else u(0.75, 0.95)),

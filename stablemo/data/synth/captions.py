@@ -27,7 +27,7 @@ def phrases(action: str, p: dict, pron: str) -> list[str]:
         return ["stands still", "stands in place", "stands still and waits", "stands without moving",
                 "waits standing in place"]
     if action == "walk":
-        return {
+        out = {
             "slow": ["walks forward slowly", "walks slowly forward", "strolls forward slowly",
                      "slowly walks straight ahead", "takes a slow walk forward"],
             "normal": ["walks forward", "walks straight ahead", "walks forward at a normal pace",
@@ -35,6 +35,14 @@ def phrases(action: str, p: dict, pron: str) -> list[str]:
             "fast": ["walks forward quickly", "walks briskly forward", "walks fast straight ahead",
                      "quickly walks forward", "walks forward at a brisk pace"],
         }[p["speed_label"]]
+        if p.get("waving"):
+            h = p["waving"]
+            hands = "both hands" if h == "both" else f"the {h} hand"
+            hands2 = "both hands" if h == "both" else f"{pron} {h} hand"
+            out = [f"{w} while waving {hands}" for w in out[:3]] + [f"{out[3]}, waving {hands2}",
+                                                                    f"waves {hands2} while walking forward"
+                                                                    + (" slowly" if p["speed_label"] == "slow" else "")]
+        return out
     if action == "walk_backward":
         if p["speed_label"] == "slow":
             return ["walks backward slowly", "slowly walks backwards", "steps backward slowly",
@@ -180,6 +188,7 @@ def part_caption(action: str, p: dict, rng: np.random.Generator) -> str:
 
 _POS = {
     "DET": "a an the both each all",
+    "SCONJ": "while",
     "PRON": "someone he she they it them his_ her_ their_ its_ something",
     "ADP": "in on to with at over above of into from towards toward behind across like",
     "CCONJ": "and or but",
@@ -203,7 +212,8 @@ _LEMMA = {"feet": "foot", "does": "do", "goes": "go", "gets": "get", "takes": "t
           "times": "time", "degrees": "degree", "hops": "hop", "squats": "squat", "jumps": "jump",
           "lifts": "lift", "puts": "put", "straightens": "straighten", "balances": "balance",
           "circles": "circle", "strolls": "stroll", "shuffles": "shuffle", "waves": "wave", "moves": "move",
-          "raises": "raise", "bows": "bow", "waits": "wait", "leaps": "leap", "throws": "throw"}
+          "raises": "raise", "bows": "bow", "waits": "wait", "leaps": "leap", "throws": "throw",
+          "waving": "wave", "walking": "walk"}
 _NOUN_CONTEXT = {"a", "the", "his", "her", "their", "its", "both", "two", "three", "four", "five", "one",
                  "few", "quick", "short", "front", "half", "quarter", "full", "single", "slow", "brisk",
                  "steady", "normal", "moderate", "left", "right", "clockwise", "counterclockwise"}

@@ -57,7 +57,7 @@ class Timeline:
         self.torso_twist = np.zeros(n)
         self.head_pitch = np.zeros(n)
         self.knee_out = np.zeros(n)
-        self.arm_swing = np.zeros(n)  # gain of gait-driven arm swing (rad)
+        self.arm_swing = np.zeros((n, 2))  # gain of gait-driven arm swing per arm [L, R] (rad)
         self.elbow_flex = np.zeros(n)  # extra elbow bend while moving (rad)
         self.upper_arm = [np.tile(body.REST_UPPER_ARM[s], (n, 1)) for s in (LEFT, RIGHT)]
         self.forearm = [np.tile(body.REST_FOREARM[s], (n, 1)) for s in (LEFT, RIGHT)]
@@ -144,12 +144,12 @@ def _limit_height(root: np.ndarray, yaw: np.ndarray, ankles: list[np.ndarray]) -
 def _gait_arm_swing(root, yaw, ankles, gain, flex, upper, fore) -> None:
     """Arms swing opposite to the legs: an arm goes forward while the same-side foot is behind."""
     if not np.any(gain > 0):
-        return
+        return  # gain: (T, 2)
     fwd = body.forward_dir(yaw)
     for s in (LEFT, RIGHT):
         offset = np.sum((ankles[s] - root) * fwd, -1)
         offset = gaussian_filter1d(offset, 1.0, mode="nearest")
-        alpha = -gain * np.tanh(offset / 0.3)  # + = arm forward
+        alpha = -gain[:, s] * np.tanh(offset / 0.3)  # + = arm forward
         bend = flex + 0.3 * np.maximum(alpha, 0.0)
         upper[s] = _unit(body.apply(body.rot_x(-alpha), upper[s]))
         fore[s] = _unit(body.apply(body.rot_x(-(alpha + bend)), fore[s]))
