@@ -38,5 +38,11 @@ class MotionDiffusionModel(nn.Module):
         """texts -> (text (B, L, latent_dim), text_mask (B, L) bool)."""
         return self.text(texts)
 
-    def forward(self, x, t, text, text_mask, motion_mask):
-        return self.denoiser(x, t, text, text_mask, motion_mask)
+    @property
+    def time_feature_dim(self) -> int:
+        """Width of the sinusoidal timestep features that `time_cond` is added to."""
+        return int(self.denoiser.time_embed.dim)
+
+    def forward(self, x, t, text, text_mask, motion_mask, time_cond=None):
+        """time_cond: optional (B, time_feature_dim) added to the timestep features (distillation)."""
+        return self.denoiser(x, t, text, text_mask, motion_mask, time_cond=time_cond)

@@ -28,8 +28,9 @@ from stablemo.diffusion.samplers import SAMPLERS
 from stablemo.diffusion.schedule import NoiseSchedule, check_prediction_type
 from stablemo.errors import StableMoError
 
-# bundle "kind" -> its sampler table; consistency students register theirs here
-SAMPLER_TABLES: dict[str, dict[str, Callable[..., torch.Tensor]]] = {"diffusion": SAMPLERS}
+# bundle "kind" -> its sampler table; a consistency student's table depends on its own config
+# (mode, grid, phase edges) and is built in from_bundle
+SAMPLER_TABLES: dict[str, dict[str, Callable[..., torch.Tensor]]] = {"diffusion": SAMPLERS, "consistency": {}}
 DEFAULT_SAMPLER: dict[str, str] = {"diffusion": "dpmpp_2m_sde"}
 
 DTYPES = {"fp32": torch.float32, "float32": torch.float32, "bf16": torch.bfloat16, "bfloat16": torch.bfloat16,
@@ -128,6 +129,11 @@ class Pipeline:
         self.min_length, self.max_length = int(min_length), int(max_length)
         self.config = config or {}
         self._null: tuple[torch.Tensor, torch.Tensor] | None = None
+        self.samplers = SAMPLER_TABLES[kind]
+        if kind == "consistency":
+            from stablemo.distill.sampling import consistency_samplers
+
+            self.samplers = consistency_samplers(self.config["consistency"], schedule)
 
     # ---- construction -----------------------------------------------------------------------
 
@@ -147,9 +153,16 @@ class Pipeline:
         if kind not in SAMPLER_TABLES:
             raise StableMoError(f"{cfg_file}: bundle kind {kind!r} is not supported by this pipeline "
                                 f"(known: {sorted(SAMPLER_TABLES)})")
-        from stablemo.model import MotionDiffusionModel
+        if kind == "consistency":
+            from stablemo.distill.student import ConsistencyStudent
 
-        model = MotionDiffusionModel(**config["model"])
+            if "consistency" not in config:
+                raise StableMoError(f"{cfg_file}: a consistency bundle needs a 'consistency' section")
+            model = ConsistencyStudent(config["model"], w_dim=config["consistency"].get("w_dim", 256))
+        else:
+            from stablemo.model import MotionDiffusionModel
+
+            model = MotionDiffusionModel(**config["model"])
         if not random_weights:
             try:
                 model.load_state_dict(bundle.state_dict, strict=True)
@@ -251,8 +264,8 @@ class Pipeline:
         to measure the paper's baselines; they change no result.
         """
         texts, lengths = self._check_request(texts, lengths)
-        table = SAMPLER_TABLES[self.kind]
-        sampler = sampler or DEFAULT_SAMPLER[self.kind]
+        table = self.samplers
+        sampler = sampler or DEFAULT_SAMPLER.get(self.kind) or next(iter(table))
         if sampler not in table:
             raise StableMoError(f"sampler: unknown {sampler!r}; choose from {sorted(table)}")
         if isinstance(seed, (int, np.integer)):
@@ -296,8 +309,12 @@ class Pipeline:
         noise = _PerSampleNoise(generators, lengths)
         x_T = noise(torch.empty(B, T, D)).to(self.device)
 
-        def guided_denoiser() -> CFGDenoiser:
+        def guided_denoiser():
             text, text_mask = self.encode(texts)
+            if self.kind == "consistency":  # guidance is embedded in the student: w = cfg - 1
+                from stablemo.distill.student import StudentDenoiser
+
+                return StudentDenoiser(self.model, text, text_mask, mask, w=cfg - 1.0, dtype=net_dtype)
             null_text, null_mask = self.null_condition(B)
             return CFGDenoiser(self.model, text, text_mask, null_text, null_mask, mask, scale=cfg,
                                batched=parallel_cfg, dtype=net_dtype)

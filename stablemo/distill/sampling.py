@@ -77,3 +77,25 @@ def sample_pcm(denoise: Denoise, x: torch.Tensor, schedule: NoiseSchedule, path:
         to = torch.full((batch,), to_int, dtype=torch.long, device=x.device)
         sample = x0 if to_int == CLEAN else ddim_jump(schedule, sample, x0, t, to)
     return sample
+
+
+def consistency_samplers(config: dict, schedule: NoiseSchedule) -> dict[str, Callable[..., torch.Tensor]]:
+    """The sampler table of a student bundle (its `consistency` config), in the pipeline's contract:
+    sampler(denoise, x_T, schedule, steps, noise=, callback=, prediction_type=, progress=) -> x0,
+    where denoise returns the raw network output (converted to x0 here)."""
+    mode = config["mode"]
+    sigma_data, scale = config.get("sigma_data", 0.5), config.get("timestep_scale", 10.0)
+
+    def x0_of(denoise, prediction_type):
+        def predict(x, t):
+            return schedule.predict_x0(denoise(x, t), x, t, prediction_type)
+        return predict
+
+    def lcm(denoise, x, schedule, steps, noise, callback=None, prediction_type="sample", progress=False):
+        timesteps = lcm_timesteps(schedule.num_train_timesteps, config["ddim_steps"], steps)
+        return sample_lcm(x0_of(denoise, prediction_type), x, schedule, timesteps, noise, sigma_data, scale, callback)
+
+    def pcm(denoise, x, schedule, steps, noise=None, callback=None, prediction_type="sample", progress=False):
+        return sample_pcm(x0_of(denoise, prediction_type), x, schedule, pcm_path(config["edges"], steps), callback)
+
+    return {"lcm": lcm} if mode == "lcm" else {"pcm": pcm}

@@ -12,6 +12,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from stablemo.diffusion.guidance import precision_context
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.distill.consistency import ddim_jump, guidance_embedding, lcm_consistency, lower_edge
 from stablemo.errors import StableMoError
@@ -53,3 +54,20 @@ def consistency_fn(mode: str, schedule: NoiseSchedule, edges: list[int] | None, 
             raise StableMoError("pcm: phase edges are required")
         return ddim_jump(schedule, x_t, x0, t, lower_edge(t, edges))
     raise StableMoError(f"mode: expected one of {MODES}, got {mode!r}")
+
+
+class StudentDenoiser:
+    """The pipeline's `denoise(x_t, t)` for a student: one conditional forward with w embedded, no CFG pass.
+
+    w follows LCM's convention (guidance scale 1 + w), so a requested CFG scale s maps to w = s - 1.
+    """
+
+    def __init__(self, student: ConsistencyStudent, text, text_mask, motion_mask, w: float, dtype=None):
+        self.student, self.text, self.text_mask, self.motion_mask = student, text, text_mask, motion_mask
+        self.w, self.dtype = float(w), dtype
+
+    def __call__(self, x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        w = torch.full((x.shape[0],), self.w, device=x.device)
+        with precision_context(x.device, self.dtype):
+            out = self.student(x, t, w, self.text, self.text_mask, self.motion_mask)
+        return out.float()

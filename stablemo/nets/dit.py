@@ -89,10 +89,10 @@ class DiT(nn.Module):
             nn.init.zeros_(layer.weight)
             nn.init.zeros_(layer.bias)
 
-    def forward(self, x, t, text, text_mask, motion_mask):
+    def forward(self, x, t, text, text_mask, motion_mask, time_cond=None):
         check_inputs(x, t, text, text_mask, motion_mask, self.input_dim, self.text_dim, self.length_multiple)
         B, T, _ = x.shape
-        emb = self.time_embed(t)  # (B, C)
+        emb = self.time_embed(t, time_cond)  # (B, C)
         h = self.motion_in(zero_pad_btc(x, motion_mask))
         h = h + sinusoidal_embedding(torch.arange(T, device=x.device), self.latent_dim).to(h.dtype)[None]
         h = zero_pad_btc(h, motion_mask)

@@ -89,8 +89,12 @@ class TimestepEmbedder(nn.Module):
         self.dim = dim
         self.mlp = nn.Sequential(nn.Linear(dim, out_dim), nn.SiLU(), nn.Linear(out_dim, out_dim))
 
-    def forward(self, t: torch.Tensor) -> torch.Tensor:  # t: (B,) -> (B, out_dim)
+    def forward(self, t: torch.Tensor, extra: torch.Tensor | None = None) -> torch.Tensor:
+        """t: (B,) -> (B, out_dim). extra: (B, dim) features added to the sinusoidal encoding before
+        the MLP (a consistency student's guidance-scale embedding, stablemo.distill)."""
         emb = sinusoidal_embedding(t, self.dim)
+        if extra is not None:
+            emb = emb + extra.to(emb.dtype)
         return self.mlp(emb.to(self.mlp[0].weight.dtype))
 
 

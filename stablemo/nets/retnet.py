@@ -141,10 +141,10 @@ class RetNet(nn.Module):
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
 
-    def forward(self, x, t, text, text_mask, motion_mask):
+    def forward(self, x, t, text, text_mask, motion_mask, time_cond=None):
         check_inputs(x, t, text, text_mask, motion_mask, self.input_dim, self.text_dim, self.length_multiple)
         B, T, _ = x.shape
-        tokens = [self.time_embed(t)[:, None]]  # (B, 1, C)
+        tokens = [self.time_embed(t, time_cond)[:, None]]  # (B, 1, C)
         masks = [torch.ones(B, 1, dtype=torch.bool, device=x.device)]
         if not self.cross_attention:  # baseline: text tokens join the sequence, as in MDM
             tokens.append(zero_pad_btc(self.text_in(zero_pad_btc(text, text_mask)), text_mask))

@@ -145,9 +145,9 @@ class CondUNet1D(nn.Module):
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
 
-    def forward(self, x, t, text, text_mask, motion_mask):
+    def forward(self, x, t, text, text_mask, motion_mask, time_cond=None):
         check_inputs(x, t, text, text_mask, motion_mask, self.input_dim, self.text_dim, self.length_multiple)
-        emb = self.time_embed(t) + self.text_embed(masked_mean(text, text_mask))
+        emb = self.time_embed(t, time_cond) + self.text_embed(masked_mean(text, text_mask))
         mask = motion_mask
         h = zero_pad_bct(x.transpose(1, 2), mask)  # (B, D, T)
         skips, masks = [], []
