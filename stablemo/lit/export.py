@@ -27,6 +27,8 @@ def bundle_from_checkpoint(checkpoint: dict, source: str = "", weights: str = "e
         raise StableMoError(f"--weights: expected one of {WEIGHTS}, got {weights!r}")
     hp = checkpoint.get("hyper_parameters")
     extra = checkpoint.get(CHECKPOINT_KEY)
+    if isinstance(extra, dict) and "bundle" in extra:
+        return _precomputed_bundle(checkpoint, extra, source)
     if not isinstance(hp, dict) or "model" not in hp or not isinstance(extra, dict):
         raise StableMoError(f"{source}: not a DiffusionModule checkpoint (no model hyperparameters / EMA section)")
     data = extra.get("data")
@@ -40,9 +42,7 @@ def bundle_from_checkpoint(checkpoint: dict, source: str = "", weights: str = "e
         state = {k[len(prefix):]: v for k, v in checkpoint["state_dict"].items() if k.startswith(prefix)}
     if not state:
         raise StableMoError(f"{source}: no {weights} weights in the checkpoint")
-    bad = [k for k, v in state.items() if v.is_floating_point() and not torch.isfinite(v).all()]
-    if bad:
-        raise StableMoError(f"{source}: {weights} weights contain NaN/Inf (e.g. {bad[0]}); export an earlier checkpoint")
+    _check_finite(state, source, weights)
 
     from stablemo.diffusion.schedule import NoiseSchedule
     from stablemo.text import TextConditioner
@@ -77,6 +77,26 @@ def bundle_from_checkpoint(checkpoint: dict, source: str = "", weights: str = "e
             "lightning_version": checkpoint.get("pytorch-lightning_version"),
         },
     }
+    return config, state
+
+
+def _check_finite(state: dict[str, torch.Tensor], source: str, label: str) -> None:
+    bad = [k for k, v in state.items() if v.is_floating_point() and not torch.isfinite(v).all()]
+    if bad:
+        raise StableMoError(f"{source}: {label} weights contain NaN/Inf (e.g. {bad[0]}); export an earlier checkpoint")
+
+
+def _precomputed_bundle(checkpoint: dict, extra: dict, source: str) -> tuple[dict, dict[str, torch.Tensor]]:
+    """Modules other than DiffusionModule (e.g. ConsistencyDistillation) store their bundle config at
+    save time and name the state-dict prefix of the weights to export (the student's EMA target)."""
+    prefix = extra["weights_prefix"]
+    state = {k[len(prefix):]: v for k, v in checkpoint["state_dict"].items() if k.startswith(prefix)}
+    if not state:
+        raise StableMoError(f"{source}: no weights under {prefix!r} in the checkpoint")
+    _check_finite(state, source, "student")
+    config = dict(extra["bundle"])
+    config["training"] = {**config.get("training", {}), "checkpoint": source,
+                          "global_step": int(checkpoint.get("global_step", 0))}
     return config, state
 
 
