@@ -38,6 +38,7 @@ class CleanupConfig:
     ramp_seconds: float = 0.05   # contact weights ramp over this much at each end of a range (5 frames at 100 Hz)
     min_range: int = 3           # ranges shorter than this get no anchoring
     vgrf_every: int = 5          # refresh the (linearised) vGRF gradient every k iterations: the net dominates cost
+    detect: str = "auto"         # contacts when none are given: "vgrf" (network), "heuristic", "auto" (vgrf if a model is given)
 
 
 @dataclass
@@ -194,8 +195,13 @@ def cleanup(joints: torch.Tensor, parents, feet, lengths: torch.Tensor | None = 
     n_frames = lengths.to(dtype)                                               # per-sample normaliser
     feet_idx = torch.as_tensor(list(feet), device=device)
 
+    if cfg.detect not in ("auto", "vgrf", "heuristic"):
+        raise FootskateError(f"detect: expected auto, vgrf or heuristic, got {cfg.detect!r}")
     if contacts is None:
-        contacts, forces0 = detect_contacts(x0, lengths, list(feet), cfg.fps, cfg.up_axis, vgrf)
+        if cfg.detect == "vgrf" and vgrf is None:
+            raise FootskateError("detect: 'vgrf' contact detection needs a vGRF network")
+        detector = None if cfg.detect == "heuristic" else vgrf
+        contacts, forces0 = detect_contacts(x0, lengths, list(feet), cfg.fps, cfg.up_axis, detector)
     else:
         contacts = torch.as_tensor(contacts, device=device).bool()
         if contacts.shape != (b, t, 4):

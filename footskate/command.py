@@ -32,14 +32,11 @@ class FeatureCodec(Protocol):
     def to_features(self, joints: np.ndarray, lengths: np.ndarray) -> np.ndarray: ...  # (B, T, J, 3) -> (B, T, D)
 
 
-def resolve_vgrf(weights: str | None, topo: Topology, contacts: str) -> VGRFNet | torch.nn.Module | None:
-    """The vGRF model for `topo`: user weights, else the shipped V22 (HumanML3D), else None (heuristic)."""
-    if contacts == "heuristic" and weights is None:
-        return None
+def resolve_vgrf(weights: str | None, topo: Topology) -> VGRFNet | torch.nn.Module | None:
+    """The vGRF model for `topo`: user weights (ours, or a UnderPressure V23 behind the retargeting
+    adapter for HumanML3D), else the shipped V22 for HumanML3D, else None."""
     if weights is None:
         if topo.name != "humanml3d" or not DEFAULT_WEIGHTS.is_file():
-            if contacts == "vgrf":
-                raise FootskateError(f"--weights: no default vGRF network for skeleton {topo.name}")
             return None
         return load_vgrf(DEFAULT_WEIGHTS)
     model = load_vgrf(weights)
@@ -99,8 +96,10 @@ def run(args: argparse.Namespace, codec: FeatureCodec | None) -> dict:
         raise FootskateError(f"{args.input}: need at least 2 frames")
     lengths = lengths_of(batch, is_joints)
     joints = batch if is_joints else codec.to_joints(batch.astype(np.float32))
-    vgrf = resolve_vgrf(args.weights, topo, args.contacts)
-    config = CleanupConfig(iters=args.iters, fps=args.fps or topo.fps, up_axis=topo.up_axis)
+    vgrf = resolve_vgrf(args.weights, topo)
+    if args.contacts == "vgrf" and vgrf is None:
+        raise FootskateError(f"--contacts vgrf: no vGRF network for skeleton {topo.name} (give --weights)")
+    config = CleanupConfig(iters=args.iters, fps=args.fps or topo.fps, up_axis=topo.up_axis, detect=args.contacts)
     res = cleanup(torch.from_numpy(np.ascontiguousarray(joints, dtype=np.float32)), topo.parents, topo.feet,
                   lengths=torch.from_numpy(lengths), vgrf=vgrf, config=config)
     out_joints = res.joints.numpy()
@@ -112,7 +111,8 @@ def run(args: argparse.Namespace, codec: FeatureCodec | None) -> dict:
     if args.joints_out:
         save_npy(Path(args.joints_out), out_joints[0] if single else out_joints)
     info = {"samples": batch.shape[0], "ranges": res.info["ranges"], "anchored": res.info["anchored_ranges"],
-            "seconds": res.info["seconds"], "contacts": "vgrf" if vgrf is not None else "heuristic"}
+            "seconds": res.info["seconds"],
+            "contacts": "heuristic" if vgrf is None or args.contacts == "heuristic" else "vgrf"}
     print(f"footskate: {info['samples']} motion(s), {info['anchored']}/{info['ranges']} contact ranges anchored "
           f"({info['contacts']} contacts), {info['seconds']:.2f}s -> {args.out}")
     return info
@@ -125,8 +125,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--joints-out", default=None, help="also write the corrected joint positions here")
     p.add_argument("--weights", default=None,
                    help="vGRF weights: our .safetensors or your UnderPressure pretrained.tar (default: shipped V22)")
-    p.add_argument("--contacts", choices=["auto", "vgrf", "heuristic"], default="auto",
-                   help="contact detection: the vGRF network (auto when weights exist) or the height/speed rule")
+    p.add_argument("--contacts", choices=["auto", "vgrf", "heuristic"], default=CleanupConfig.detect,
+                   help="contact detection: the vGRF network, the height/speed rule, or auto (the network when "
+                        "there is one); the network's vGRF term is used either way")
     p.add_argument("--iters", type=int, default=CleanupConfig.iters)
     p.add_argument("--skeleton", choices=["humanml3d", "kit"], default="humanml3d")
     p.add_argument("--fps", type=float, default=None, help="frame rate (default: the skeleton's)")

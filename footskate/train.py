@@ -4,7 +4,7 @@ Labels come from kinematics + contact labels (`footskate.forces`), never from Un
 Loss: masked MSLE, as UnderPressure. Augmentations make the network blind to heading, horizontal
 position and ±10% body scale (heights stay floor-relative: this is V22, which sees the floor).
 
-    python -m footskate.train --data DIR --out footskate/weights/v22_synth.safetensors --steps 3000
+    python -m footskate.train --data DIR --out footskate/weights/v22_synth.safetensors --steps 1500
 
 DIR has `new_joints/<id>.npy` (T, 22, 3) and `contacts/<id>.npy` (T, 4) bool
 [L_heel, L_toe, R_heel, R_toe].
@@ -131,7 +131,7 @@ def evaluate(model: VGRFNet, joints, contacts, forces, fps: float) -> dict[str, 
             "contact_f1_labels_roundtrip": f1(label_c, true), "contact_f1_heuristic": f1(heur_c, true)}
 
 
-def train(data_dir: str, out: str, steps: int = 3000, batch: int = 32, window: int = 64, lr: float = 1e-3,
+def train(data_dir: str, out: str, steps: int = 1500, batch: int = 16, window: int = 48, lr: float = 1.5e-4,
           width: str = "half", fps: float = 20.0, seed: int = 0, val_fraction: float = 0.1,
           log=print, label_fn=None, extra_meta: dict | None = None) -> dict:
     torch.manual_seed(seed)
@@ -177,10 +177,10 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m footskate.train", description=__doc__.splitlines()[0])
     p.add_argument("--data", required=True, help="dataset folder with new_joints/ and contacts/")
     p.add_argument("--out", required=True, help="output .safetensors")
-    p.add_argument("--steps", type=int, default=3000)
-    p.add_argument("--batch", type=int, default=32)
-    p.add_argument("--window", type=int, default=64, help="frames per training window")
-    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--steps", type=int, default=1500)
+    p.add_argument("--batch", type=int, default=16)
+    p.add_argument("--window", type=int, default=48, help="frames per training window")
+    p.add_argument("--lr", type=float, default=1.5e-4, help="above ~3e-4 the Softplus output can die (all-zero forces)")
     p.add_argument("--width", choices=sorted(WIDTHS), default="half")
     p.add_argument("--fps", type=float, default=20.0)
     p.add_argument("--seed", type=int, default=0)

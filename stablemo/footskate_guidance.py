@@ -69,7 +69,7 @@ def load_vgrf_model(weights: str | Path | None, skeleton="humanml3d"):
     from footskate.errors import FootskateError
 
     try:
-        return resolve_vgrf(None if weights is None else str(weights), _topology(skeleton), "auto")
+        return resolve_vgrf(None if weights is None else str(weights), _topology(skeleton))
     except FootskateError as err:
         raise StableMoError(str(err)) from None
 
