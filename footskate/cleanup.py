@@ -37,6 +37,7 @@ class CleanupConfig:
     w_clearance: float = 1000.0  # outside contact ranges, feet may rise but not sink below their input height
     ramp_seconds: float = 0.05   # contact weights ramp over this much at each end of a range (5 frames at 100 Hz)
     min_range: int = 3           # ranges shorter than this get no anchoring
+    max_offset: float = 0.25     # m; ranges whose joint strays further from the target are not anchored
     vgrf_every: int = 5          # refresh the (linearised) vGRF gradient every k iterations: the net dominates cost
     detect: str = "auto"         # contacts when none are given: "vgrf" (network), "heuristic", "auto" (vgrf if a model is given)
 
@@ -46,6 +47,7 @@ class CleanupResult:
     joints: torch.Tensor         # (B, T, J, 3) corrected positions (padding copied from the input)
     contacts: torch.Tensor       # (B, T, 4) bool, contact joints used
     targets: torch.Tensor        # (B, T, 4, 3) anchor target per contact frame (NaN elsewhere)
+    weights: torch.Tensor        # (B, T, 4) anchoring weight per frame (0 outside anchored ranges)
     info: dict = field(default_factory=dict)
 
 
@@ -101,7 +103,7 @@ def _fill_padding(x: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
 
 
 def contact_ranges(contacts: torch.Tensor, positions: torch.Tensor, up_axis: int, ramp_frames: int,
-                   min_range: int) -> tuple[torch.Tensor, torch.Tensor, dict]:
+                   min_range: int, max_offset: float = float("inf")) -> tuple[torch.Tensor, torch.Tensor, dict]:
     """Range targets and ramped weights for every contact frame, vectorised with segment ids.
 
     contacts (B, T, K) bool; positions (B, T, K, 3) of the contact joints in the input motion.
@@ -134,10 +136,16 @@ def contact_ranges(contacts: torch.Tensor, positions: torch.Tensor, up_axis: int
     targets[c] = target[seg_c]
     d = torch.minimum(frame[c] - start[seg_c], start[seg_c] + length[seg_c] - 1 - frame[c])
     w = ramp(((d + 1).float() / (ramp_frames + 1)).clamp(max=1.0))
-    w = torch.where(length[seg_c] >= min_range, w, torch.zeros_like(w))
+    # A "contact" whose joint strays more than max_offset (horizontally) from the range target is a
+    # mis-detection (a walking foot, not a skating one): anchoring it would wreck the pose.
+    horiz = [a for a in range(3) if a != up_axis]
+    stray = (pos[c][:, horiz] - target[seg_c][:, horiz]).norm(dim=-1)
+    reach = torch.zeros(num, dtype=positions.dtype, device=c.device).scatter_reduce(0, seg_c, stray, reduce="amax")
+    keep = (length >= min_range) & (reach <= max_offset)
+    w = torch.where(keep[seg_c], w, torch.zeros_like(w))
     weights = torch.zeros(b * k, t, dtype=positions.dtype, device=c.device)
     weights[c] = w.to(positions.dtype)
-    info = {"ranges": num, "anchored_ranges": int((length >= min_range).sum())}
+    info = {"ranges": num, "anchored_ranges": int(keep.sum()), "rejected_ranges": int(((length >= min_range) & ~keep).sum())}
     return (targets.view(b, k, t, 3).permute(0, 2, 1, 3), weights.view(b, k, t).permute(0, 2, 1), info)
 
 
@@ -209,7 +217,8 @@ def cleanup(joints: torch.Tensor, parents, feet, lengths: torch.Tensor | None = 
         contacts = contacts & mask[..., None]
         forces0 = None
     ramp_frames = max(1, int(round(cfg.ramp_seconds * cfg.fps)))
-    targets, weights, info = contact_ranges(contacts, x0[:, :, feet_idx], cfg.up_axis, ramp_frames, cfg.min_range)
+    targets, weights, info = contact_ranges(contacts, x0[:, :, feet_idx], cfg.up_axis, ramp_frames, cfg.min_range,
+                                            cfg.max_offset)
     weights = weights * maskf[..., None]
     targets_filled = torch.nan_to_num(targets)
 
@@ -311,11 +320,13 @@ def cleanup(joints: torch.Tensor, parents, feet, lengths: torch.Tensor | None = 
     info.update({"seconds": time.perf_counter() - started, "iters": cfg.iters if has_anchor else 0,
                  "loss_first": history[0] if history else {}, "loss_last": history[-1] if history else {},
                  "config": asdict(cfg)})
-    return CleanupResult(joints=out.to(joints.dtype), contacts=contacts, targets=targets, info=info)
+    return CleanupResult(joints=out.to(joints.dtype), contacts=contacts, targets=targets, weights=weights, info=info)
 
 
 def anchor_drift(joints: torch.Tensor, result: CleanupResult, feet, up_axis: int = 1) -> torch.Tensor:
-    """Per-frame horizontal distance (B, T, 4) of contact joints from their range targets (NaN off-contact)."""
+    """Per-frame horizontal distance (B, T, 4) of contact joints from their range targets, on the
+    frames of anchored ranges (NaN elsewhere)."""
     pos = joints[:, :, list(feet)]
     horiz = [a for a in range(3) if a != up_axis]
-    return (pos[..., horiz] - result.targets[..., horiz]).norm(dim=-1)
+    dist = (pos[..., horiz] - result.targets[..., horiz]).norm(dim=-1)
+    return torch.where(result.weights > 0, dist, torch.full_like(dist, float("nan")))

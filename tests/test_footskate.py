@@ -211,6 +211,8 @@ def test_contact_ranges_match_python_reference():
     c = torch.rand(3, 40, 4, generator=g) > 0.4
     pos = torch.randn(3, 40, 4, 3, generator=g)
     targets, weights, info = contact_ranges(c, pos, up_axis=1, ramp_frames=1, min_range=3)
+    assert info["anchored_ranges"] == 0 and info["rejected_ranges"] > 0   # random walks of 1 m are no contacts
+    targets, weights, info = contact_ranges(c, pos, up_axis=1, ramp_frames=1, min_range=3, max_offset=float("inf"))
     count = 0
     for b in range(3):
         for k in range(4):
