@@ -210,8 +210,8 @@ def test_contact_ranges_match_python_reference():
     g = torch.Generator().manual_seed(3)
     c = torch.rand(3, 40, 4, generator=g) > 0.4
     pos = torch.randn(3, 40, 4, 3, generator=g)
-    targets, weights, info = contact_ranges(c, pos, up_axis=1, ramp_frames=1, min_range=3)
-    assert info["anchored_ranges"] == 0 and info["rejected_ranges"] > 0   # random walks of 1 m are no contacts
+    _, w_strict, strict = contact_ranges(c, pos, up_axis=1, ramp_frames=1, min_range=3, max_offset=0.25)
+    assert strict["rejected_ranges"] > 0           # joints wandering ~1 m are not planted feet
     targets, weights, info = contact_ranges(c, pos, up_axis=1, ramp_frames=1, min_range=3, max_offset=float("inf"))
     count = 0
     for b in range(3):
@@ -235,6 +235,8 @@ def test_contact_ranges_match_python_reference():
                     assert weights[b, s, k] == 0.5 and weights[b, t - 1, k] == 0.5
                     assert (weights[b, s + 1:t - 1, k] == 1).all()
     assert info["ranges"] == count
+    assert strict["anchored_ranges"] + strict["rejected_ranges"] == info["anchored_ranges"]
+    assert ((w_strict == 0) | (w_strict == weights)).all() and (w_strict > 0).sum() < (weights > 0).sum()
     assert torch.isnan(targets[~c]).all() and (weights[~c] == 0).all()
 
 
