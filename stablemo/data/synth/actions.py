@@ -54,7 +54,6 @@ def _tile(v, n):
 def _place_steps(tl: Timeline, lifts: list[list[float]], swing_frames: float, rest_time: float,
                  half_width: float, gait: dict) -> float:
     """Schedule steps for both feet from lift-off times; returns the last touchdown frame."""
-    last_land = tl.t
     for s in (LEFT, RIGHT):
         if not lifts[s]:
             continue
@@ -75,7 +74,6 @@ def _place_steps(tl: Timeline, lifts: list[list[float]], swing_frames: float, re
                 heel_off=gait["heel_off"] if nxt_lift is not None else 0.0,
                 off_pitch=gait["off_pitch"] if nxt_lift is not None else 0.0,
                 slap=gait["slap"], swing=Swing(clearance=gait["clearance"], land_pitch=gait["land_pitch"])))
-            last_land = max(last_land, land)
         # A closing step that would barely move the foot is not taken.
         plants = tl.plants[s]
         if len(plants) - first_new >= 1:
@@ -83,7 +81,7 @@ def _place_steps(tl: Timeline, lifts: list[list[float]], swing_frames: float, re
             if np.linalg.norm(last.xz - prev.xz) < 0.06 and abs(last.yaw - prev.yaw) < 0.15:
                 plants.pop()
                 prev.end, prev.heel_off, prev.off_pitch = np.inf, 0.0, 0.0
-    return last_land
+    return max([tl.t] + [tl.plants[s][-1].start for s in (LEFT, RIGHT)])
 
 
 GAITS = {
@@ -164,8 +162,10 @@ def _locomote(tl: Timeline, params: dict, gait_name: str, direction: float, curv
     gp["under"] = g.get("under", 0.5)
     gp["heel_off"] = g["heel_off"] * cycle
     gp["slap"] = g["slap"] * cycle
-    _place_steps(tl, lifts, sw, rest_time, half_width, gp)
-    tl.t += n
+    last_land = _place_steps(tl, lifts, sw, rest_time, half_width, gp)
+    # The body is still once travel has ended and the last foot is down (the frames reserved
+    # above keep holding the final root).
+    tl.t += min(n, int(np.ceil(max(last_land, rest_time) - tl.t)) + int(0.25 * FPS))
 
 
 def build_walk(tl: Timeline, p: dict) -> None:

@@ -129,14 +129,17 @@ def render_foot(plants: list[Plant], side: int, T: int):
                 a0, y0, p0 = _liftoff_state(pl, side)
                 a1 = flat_ankle(nxt, side)
                 p1 = FOOT_PITCH + sw.land_pitch
-                tau = (f - pl.end) / (nxt.start - pl.end)
+                dur = nxt.start - pl.end
+                tau = (f - pl.end) / dur
+                # Lift/set-down phases last at least about a frame, also in quick swings.
+                d0, d1 = max(SWING_DELAY[0], min(1.3 / dur, 0.25)), max(SWING_DELAY[1], min(0.8 / dur, 0.2))
                 # The foot rises before it travels and stops travelling before it comes down.
-                s = smoothstep((tau - SWING_DELAY[0]) / (1 - sum(SWING_DELAY)))[:, None]
+                s = smoothstep((tau - d0) / (1 - d0 - d1))[:, None]
                 a = a0 + (a1 - a0) * s
                 a[:, 1] = a0[1] + (a1[1] - a0[1]) * smoothstep(tau) + sw.clearance * np.sin(np.pi * tau**BUMP_SKEW)
-                # Toes stay pointed down through early swing so they clear the floor at once.
-                p = p0 + (p1 - p0) * smoothstep((tau - 0.25) / 0.75)
-                y = y0 + wrap_angle(nxt.yaw - y0) * smoothstep((tau - SWING_DELAY[0]) / (1 - sum(SWING_DELAY)))
+                # The foot flattens as it rises, lifting the toe clear of the floor.
+                p = p0 + (p1 - p0) * smoothstep(tau / 0.8)
+                y = y0 + wrap_angle(nxt.yaw - y0) * smoothstep((tau - d0) / (1 - d0 - d1))
             ankle[m], yaw[m], pitch[m] = a, y, p
             assigned |= m
     if not assigned.all():
