@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import torch
 from lightning.pytorch import Callback, LightningModule, Trainer
+from lightning.pytorch.callbacks import ModelCheckpoint
 
 from stablemo.errors import StableMoError
 
@@ -45,3 +46,17 @@ class NonFiniteGuard(Callback):
             f"the weights were not updated and no checkpoint was written. Last good checkpoint: {ckpt}. "
             "Resume from it with `--ckpt_path last`, e.g. with a lower --model.lr or a finite dataset."
         )
+
+
+class FinalStepCheckpoint(ModelCheckpoint):
+    """ModelCheckpoint that also writes `last.ckpt` when training ends between two saves.
+
+    Plain ModelCheckpoint saves only every `every_n_train_steps`; a run whose `max_steps` is not a
+    multiple would end with `last.ckpt` behind the trained weights, and `--ckpt_path last` would
+    silently redo the tail. Not called on an exception (the NaN guard relies on that).
+    """
+
+    def on_train_end(self, trainer: Trainer, pl_module: LightningModule) -> None:
+        if self.save_last and not self._should_skip_saving_checkpoint(trainer):
+            self._save_last_checkpoint(trainer, self._monitor_candidates(trainer))
+        super().on_train_end(trainer, pl_module)

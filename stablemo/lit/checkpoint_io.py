@@ -9,6 +9,7 @@ is renamed over it (atomic on POSIX), so a checkpoint path always holds a comple
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 from typing import Any, Callable, Optional
 
@@ -16,18 +17,25 @@ import torch
 from lightning.pytorch.plugins.io import TorchCheckpointIO
 
 from stablemo.errors import StableMoError
-from stablemo.io import atomic_path
 
 
 class AtomicCheckpointIO(TorchCheckpointIO):
     def save_checkpoint(self, checkpoint: dict[str, Any], path, storage_options: Optional[Any] = None) -> None:
         if storage_options is not None:
             raise TypeError(f"{type(self).__name__} takes no storage_options, got {storage_options!r}")
-        with atomic_path(path) as tmp:
-            with open(tmp, "wb") as f:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # hidden and not *.ckpt: a temp file left by a hard kill is never taken for a checkpoint
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as f:
                 torch.save(checkpoint, f)
                 f.flush()
                 os.fsync(f.fileno())
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
 
     def load_checkpoint(
         self, path, map_location: Optional[Callable] = lambda storage, loc: storage, weights_only: Optional[bool] = None

@@ -1,7 +1,8 @@
 """`stablemo fit|validate|test --config configs/x.yaml [--trainer.max_steps=...]` via LightningCLI.
 
 Everything is configured in YAML and overridable on the command line. Two callbacks are always
-present and configurable under their own keys: `checkpoint` (ModelCheckpoint, save_last on) and
+present and configurable under their own keys: `checkpoint` (ModelCheckpoint that also saves the
+final step; save_last on) and
 `guard` (NonFiniteGuard). Checkpoints are written atomically and loaded with weights_only=True
 (AtomicCheckpointIO) unless the config names another CheckpointIO plugin.
 A config whose `model:` has a `class_path` trains that LightningModule instead of DiffusionModule
@@ -12,11 +13,11 @@ from __future__ import annotations
 
 import warnings
 
-from lightning.pytorch.callbacks import ModelCheckpoint
+
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.plugins.io import CheckpointIO
 
-from stablemo.lit.callbacks import NonFiniteGuard
+from stablemo.lit.callbacks import FinalStepCheckpoint, NonFiniteGuard
 from stablemo.lit.checkpoint_io import AtomicCheckpointIO
 from stablemo.lit.module import DiffusionModule
 
@@ -29,11 +30,13 @@ class StableMoCLI(LightningCLI):
         super().__init__(*args, **kwargs)
 
     def add_arguments_to_parser(self, parser) -> None:
-        parser.add_lightning_class_args(ModelCheckpoint, "checkpoint")
+        parser.add_lightning_class_args(FinalStepCheckpoint, "checkpoint")
         parser.set_defaults({
             "checkpoint.save_last": True,
             "checkpoint.every_n_train_steps": 500,
             "checkpoint.save_top_k": 1,  # keep the newest step-named file beside last.ckpt
+            # a resumed run (even with other checkpoint settings) keeps writing last.ckpt, not last-v1.ckpt
+            "checkpoint.enable_version_counter": False,
         })
         parser.add_lightning_class_args(NonFiniteGuard, "guard")
 
