@@ -100,9 +100,9 @@ def run(args: argparse.Namespace, codec: FeatureCodec | None) -> dict:
     if args.contacts == "vgrf" and vgrf is None:
         raise FootskateError(f"--contacts vgrf: no vGRF network for skeleton {topo.name} (give --weights)")
     config = CleanupConfig(iters=args.iters, fps=args.fps or topo.fps, up_axis=topo.up_axis, detect=args.contacts)
-    res = cleanup(torch.from_numpy(np.ascontiguousarray(joints, dtype=np.float32)), topo.parents, topo.feet,
-                  lengths=torch.from_numpy(lengths), vgrf=vgrf, config=config)
-    out_joints = res.joints.numpy()
+    metres = torch.from_numpy(np.ascontiguousarray(joints, dtype=np.float32)) * topo.unit
+    res = cleanup(metres, topo.parents, topo.feet, lengths=torch.from_numpy(lengths), vgrf=vgrf, config=config)
+    out_joints = (res.joints / topo.unit).numpy()
     if is_joints:
         out = out_joints.astype(arr.dtype)
     else:

@@ -16,6 +16,7 @@ class Topology:
     feet: tuple[int, int, int, int]
     up_axis: int
     fps: float
+    unit: float = 1.0   # metres per data unit (the cleanup's thresholds are in metres)
 
     @property
     def num_joints(self) -> int:
@@ -30,11 +31,11 @@ HUMANML3D = Topology(
     parents=(-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19),
     feet=(7, 10, 8, 11), up_axis=1, fps=20.0)
 
-# KIT-ML (21 joints), y-up, metres after HumanML3D's processing, 12.5 fps.
+# KIT-ML (21 joints), y-up, ~millimetres after HumanML3D's processing, 12.5 fps.
 KIT = Topology(
     name="kit",
     parents=(-1, 0, 1, 2, 3, 3, 5, 6, 3, 8, 9, 0, 11, 12, 13, 14, 0, 16, 17, 18, 19),
-    feet=(19, 20, 14, 15), up_axis=1, fps=12.5)
+    feet=(19, 20, 14, 15), up_axis=1, fps=12.5, unit=0.001)
 
 # UnderPressure's 23-joint skeleton (facts §1), z-up, 100 Hz. Contact joints: ankle (heel) and
 # "foot" (toe segment origin).

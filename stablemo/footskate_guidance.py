@@ -86,10 +86,10 @@ def clean_features(features: torch.Tensor | np.ndarray, lengths: Sequence[int], 
     joints = features_to_joints(feats, get_skeleton(skeleton)).detach()
     cfg = config or CleanupConfig(fps=get_skeleton(skeleton).fps, up_axis=topo.up_axis)
     try:
-        res = cleanup(joints, topo.parents, topo.feet, lengths=lengths_t, vgrf=vgrf, config=cfg)
+        res = cleanup(joints * topo.unit, topo.parents, topo.feet, lengths=lengths_t, vgrf=vgrf, config=cfg)
     except FootskateError as err:
         raise StableMoError(f"footskate: {err}") from None
-    out_joints = res.joints.numpy()
+    out_joints = (res.joints / topo.unit).numpy()
     mask = (torch.arange(joints.shape[1])[None, :] < lengths_t[:, None]).numpy()
     out_joints = np.where(mask[..., None, None], out_joints, 0.0).astype(np.float32)
     return joints_to_consistent_features(out_joints, lengths, skeleton), out_joints, res.info
