@@ -25,12 +25,12 @@ from stablemo.errors import StableMoError
 
 def zero_pad_btc(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """x: (B, T, C), mask: (B, T) bool -> x with padded rows exactly zero."""
-    return torch.where(mask[:, :, None], x, torch.zeros((), dtype=x.dtype, device=x.device))
+    return torch.where(mask[:, :, None], x, 0.0)  # a Python scalar: no tensor to build, x's dtype kept
 
 
 def zero_pad_bct(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """x: (B, C, T), mask: (B, T) bool -> x with padded columns exactly zero."""
-    return torch.where(mask[:, None, :], x, torch.zeros((), dtype=x.dtype, device=x.device))
+    return torch.where(mask[:, None, :], x, 0.0)
 
 
 def downsample_mask(mask: torch.Tensor) -> torch.Tensor:
