@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import re
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -220,7 +218,7 @@ def _measure(action: str, j: np.ndarray, text: str) -> None:
     elif action == "kick":
         kick = 0 if _side_in(text) == "left" else 1
         assert j[:, 7 + kick, 1].max() > 0.35 and j[:, 8 - kick, 1].max() < 0.1
-        assert (j[:, 7 + kick, [0, 2]] - root[:, [0, 2]]) @ fwd0 is not None
+        assert ((j[:, 7 + kick, [0, 2]] - root[:, [0, 2]]) @ fwd0).max() > 0.4  # kicks forward
     elif action == "squat":
         assert _runs(root[:, 1] < root[0, 1] - 0.2) == _count_in(text)
     elif action == "crouch":
@@ -376,7 +374,8 @@ def test_write_refuses_foreign_folder(tmp_path):
         write_dataset(tmp_path, num=2)
     assert (tmp_path / "mine.txt").read_text() == "keep me"
     with pytest.raises(StableMoError):
-        write_dataset(tmp_path / "x", num=0)
+        write_dataset(tmp_path / "x", num=2)  # too few for train/val/test
+    assert not (tmp_path / "x").exists()
 
 
 def test_cli_synth(tmp_path):

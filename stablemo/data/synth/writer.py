@@ -76,12 +76,10 @@ def _write_chunk(args) -> tuple[np.ndarray, np.ndarray, int, list[str]]:
 
 def _splits(num: int, seed: int) -> dict[str, list[str]]:
     order = np.random.default_rng(np.random.SeedSequence([seed, 7919])).permutation(num)
-    n_val = max(1, round(SPLIT_FRACTIONS[1] * num)) if num >= 3 else 0
-    n_test = max(1, round(SPLIT_FRACTIONS[2] * num)) if num >= 3 else 0
+    n_val = max(1, round(SPLIT_FRACTIONS[1] * num))
+    n_test = max(1, round(SPLIT_FRACTIONS[2] * num))
     ids = [clip_id(i) for i in order]
     test, val, train = ids[:n_test], ids[n_test:n_test + n_val], ids[n_test + n_val:]
-    if num < 3:  # too few to split: every split sees the same clips
-        train = val = test = ids
     out = {"train": sorted(train), "val": sorted(val), "test": sorted(test)}
     out["train_val"] = sorted(set(out["train"]) | set(out["val"]))
     out["all"] = [clip_id(i) for i in range(num)]
@@ -116,8 +114,8 @@ def _commit(tmp: Path, out_dir: Path) -> None:
 
 def write_dataset(out_dir, num: int = 2000, seed: int = 0, workers: int | None = None) -> Path:
     """Generate `num` motions with `seed` into `out_dir` (HumanML3D layout); returns the folder."""
-    if int(num) < 1:
-        raise StableMoError(f"num={num}: must be >= 1")
+    if int(num) < 3:
+        raise StableMoError(f"num={num}: must be >= 3 (train, val and test need a motion each)")
     if int(seed) < 0:
         raise StableMoError(f"seed={seed}: must be >= 0")
     num, seed = int(num), int(seed)
