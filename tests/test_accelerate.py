@@ -56,7 +56,7 @@ def test_autocast_uses_one_cached_low_precision_weight():
     lin = accelerate(nn.Linear(8, 3))
     assert type(lin) is CachedCastLinear
     x = torch.randn(4, 8)
-    with torch.autocast("cpu", dtype=torch.bfloat16):
+    with torch.inference_mode(), torch.autocast("cpu", dtype=torch.bfloat16):
         y1 = lin(x)
         y2 = lin(x)
     assert y1.dtype == torch.bfloat16 and torch.equal(y1, y2)
@@ -83,3 +83,18 @@ def test_accelerated_unet_matches_stock_and_stays_padding_invariant():
     # sample 0 alone, padded only to its own length multiple, gives the same valid frames
     alone = fast(x[:1, :16], t[:1], text[:1], text_mask[:1], mask[:1, :16])
     torch.testing.assert_close(alone[0, :13], out[0, :13], rtol=1e-5, atol=1e-5)
+
+
+def test_training_through_accelerated_layers_gives_the_stock_gradients():
+    torch.manual_seed(0)
+    stock = nn.Sequential(nn.Conv1d(6, 32, 5, padding=2), nn.ConvTranspose1d(32, 8, 4, stride=2, padding=1))
+    head = nn.Linear(8, 3)
+    fast_stock, fast_head = accelerate(copy.deepcopy(stock)), accelerate(copy.deepcopy(head))
+    x = torch.randn(2, 6, 20)
+    with torch.no_grad():  # fills the inference caches first: training must not use them
+        fast_head(fast_stock(x).transpose(1, 2))
+    head(stock(x).transpose(1, 2)).square().sum().backward()
+    fast_head(fast_stock(x).transpose(1, 2)).square().sum().backward()
+    for a, b in zip(list(stock.parameters()) + list(head.parameters()),
+                    list(fast_stock.parameters()) + list(fast_head.parameters())):
+        torch.testing.assert_close(b.grad, a.grad, rtol=1e-4, atol=1e-5)

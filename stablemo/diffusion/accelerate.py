@@ -42,6 +42,8 @@ class _WeightCache:
 
     def _cached(self, name: str, make, dtype: torch.dtype) -> torch.Tensor:
         source = getattr(self, name)
+        if source.requires_grad and torch.is_grad_enabled():  # training: stay differentiable, no cache
+            return make(source).to(dtype)
         cache = self.__dict__.setdefault("_gemm_cache", {})
         key = (name, dtype, source.device, source._version, source.data_ptr())
         hit = cache.get((name, dtype))
@@ -60,7 +62,8 @@ class _WeightCache:
         """
         weight = self._cached(name, make, rows.dtype)
         M = rows.shape[0]
-        if not (_MKL_PACK and rows.dtype == torch.float32 and rows.device.type == "cpu" and M >= _MIN_PACK_ROWS):
+        if not (_MKL_PACK and rows.dtype == torch.float32 and rows.device.type == "cpu" and M >= _MIN_PACK_ROWS
+                and not (torch.is_grad_enabled() and (weight.requires_grad or rows.requires_grad))):  # no autograd there
             return F.linear(rows, weight, bias)
         packs = self.__dict__.setdefault("_mkl_packs", {})
         key = (name, M, id(weight))
@@ -158,8 +161,9 @@ _SWAPS = {nn.Conv1d: GemmConv1d, nn.ConvTranspose1d: GemmConvTranspose1d, nn.Lin
 def accelerate(model: nn.Module) -> nn.Module:
     """Switch every plain Conv1d / ConvTranspose1d / Linear in `model` to its fast forward (in place).
 
-    Meant for inference copies: the caches assume weights change only through in-place updates
-    (which they detect), and the modules stay trainable but gain nothing in training.
+    Meant for inference: the caches assume weights change only through in-place updates (which
+    they detect). With autograd recording, the layers compute from the live parameters (no cache,
+    no packed weight), so an accelerated model still trains correctly.
     """
     for module in model.modules():
         fast = _SWAPS.get(type(module))
