@@ -25,7 +25,8 @@ FOOT_THRESHOLD = 0.10             # body weights, per foot
 PART_THRESHOLD = 0.05             # body weights, per part (front/back) after rescaling
 FRONT_CELLS = slice(8, 16)        # ball/toes -> toe joint
 BACK_CELLS = slice(0, 4)          # heel -> ankle joint
-HEURISTIC_HEIGHT = 0.11423        # metres
+HEURISTIC_HEIGHT = 0.11423        # metres, absolute (UnderPressure's skeleton)
+HEURISTIC_MARGIN = 0.05           # metres above the joint's own lowest point (relative mode)
 HEURISTIC_SPEED = 0.9325          # m/s (0.009325 m per frame at 100 Hz)
 
 
@@ -111,11 +112,15 @@ def contacts_from_forces(forces: torch.Tensor, fps: float, lengths: torch.Tensor
 
 
 def contacts_from_heights(feet: torch.Tensor, fps: float, up_axis: int = 1, lengths: torch.Tensor | None = None,
-                          height: float = HEURISTIC_HEIGHT, speed: float = HEURISTIC_SPEED) -> torch.Tensor:
+                          height: float = HEURISTIC_MARGIN, speed: float = HEURISTIC_SPEED,
+                          relative: bool = True) -> torch.Tensor:
     """Heuristic: feet (..., F, 4, 3) positions -> (..., F, 4) contacts (low and slow).
 
-    The displacement threshold is a speed, so it rescales to any frame rate; frame t uses the
-    displacement t -> t+1 (the last valid frame repeats the previous one).
+    `relative` (default): a joint is low when it is within `height` of its own lowest point in
+    the sequence (a toe touches down at ~1 cm, an ankle at ~5-9 cm, so one absolute threshold
+    either misses heels or keeps swinging toes); otherwise below `height` absolutely (UnderPressure
+    uses 0.114 m with its skeleton). The displacement threshold is a speed, so it holds at any
+    frame rate; frame t uses the displacement t -> t+1 (the last valid frame repeats the previous one).
     """
     x, lead = _flatten(feet.float(), 2)
     nxt = _shifted(x, 1, lengths)
@@ -123,9 +128,15 @@ def contacts_from_heights(feet: torch.Tensor, fps: float, up_axis: int = 1, leng
     prev_disp = (x - _shifted(x, -1, lengths)).norm(dim=-1)
     frames = x.shape[1]
     last = (lengths.to(x.device) - 1) if lengths is not None else torch.full((x.shape[0],), frames - 1, device=x.device)
-    is_last = torch.arange(frames, device=x.device)[None, :] == last[:, None]
+    idx = torch.arange(frames, device=x.device)[None, :]
+    is_last = idx == last[:, None]
     disp = torch.where(is_last[..., None], prev_disp, disp)
-    contacts = (x[..., up_axis] < height) & (disp * fps < speed)
+    h = x[..., up_axis]
+    if relative:
+        valid = (idx <= last[:, None])[..., None]
+        floor = torch.where(valid, h, torch.full_like(h, float("inf"))).amin(1, keepdim=True)
+        h = h - floor
+    contacts = (h < height) & (disp * fps < speed)
     return contacts.reshape(*lead, *contacts.shape[1:])
 
 
