@@ -213,3 +213,14 @@ def test_test_stage_restores_statistics_from_checkpoint(trained):
     assert res["test/r3"] >= 0.3
     with pytest.raises(StableMoError, match="statistics"):
         trainer.test(EvaluatorModule(**kwargs), datamodule=trained["dm"], verbose=False)
+
+
+def test_embed_motions_keeps_input_order(trained):
+    from stablemo.eval.command import OurEvaluator, embed_motions
+
+    evaluator = OurEvaluator(trained["ckpt"])
+    g = torch.Generator().manual_seed(0)
+    feats = [torch.randn(n, 263, generator=g) for n in (80, 41, 120, 60, 44)]
+    batched = embed_motions(evaluator, feats, batch_size=2)
+    single = np.concatenate([evaluator.embed_motion(f[None], torch.tensor([len(f)])) for f in feats])
+    np.testing.assert_allclose(batched, single, atol=1e-5)

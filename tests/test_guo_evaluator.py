@@ -169,3 +169,19 @@ def test_real_published_checkpoint_loads():
     feats = model.mean.expand(2, 64, -1).clone()
     assert model.encode_motion(feats, torch.tensor([64, 48])).shape == (2, 512)
     assert len(WordVectorizer(assets.glove_dir)) > 1000
+
+
+def test_command_adapter_for_the_published_evaluator(tmp_path):
+    from stablemo.eval.command import GuoTextMotionEvaluator, embed_motions, load_text_motion_evaluator
+
+    _, root = _fake_archive(tmp_path)
+    adapter = load_text_motion_evaluator(root / "t2m/text_mot_match/model/finest.tar", "humanml3d", root / "glove")
+    assert isinstance(adapter, GuoTextMotionEvaluator) and adapter.feature_dim == 263
+    text = adapter.embed_text(["a person walks", "jump"], [["a/DET", "person/NOUN", "walk/VERB"], []])
+    assert text.shape == (2, 512)
+    torch.manual_seed(1)
+    feats = [torch.randn(n, 263) for n in (64, 40, 196)]
+    emb = embed_motions(adapter, feats, batch_size=2)
+    # Every motion is padded to 196 frames, as the reference loader does: batching does not matter.
+    single = np.concatenate([adapter.embed_motion(f[None], torch.tensor([len(f)])) for f in feats])
+    np.testing.assert_allclose(emb, single, atol=1e-5)

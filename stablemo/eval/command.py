@@ -65,6 +65,8 @@ class OurEvaluator:
 class GuoTextMotionEvaluator:
     """Adapter over the published Guo et al. evaluator (word/POS tokens + GloVe)."""
 
+    PAD_TO = 196
+
     def __init__(self, root: str | Path, dataset: str, glove: str | Path | None = None):
         from stablemo.eval.guo import find_guo_assets, load_guo_evaluator
         from stablemo.eval.word_vectorizer import WordVectorizer
@@ -87,6 +89,10 @@ class GuoTextMotionEvaluator:
 
     @torch.no_grad()
     def embed_motion(self, features: torch.Tensor, lengths: torch.Tensor) -> np.ndarray:
+        # The reference loader pads every motion to 196 frames, and the movement encoder's
+        # convolutions see a few padded frames past the end: pad the same way for identical embeddings.
+        if features.shape[1] < self.PAD_TO:
+            features = torch.nn.functional.pad(features, (0, 0, 0, self.PAD_TO - features.shape[1]))
         return self.model.encode_motion(features.float(), lengths).double().numpy()
 
 
@@ -139,11 +145,17 @@ def _pad(features: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def embed_motions(evaluator, features: list[torch.Tensor], batch_size: int) -> np.ndarray:
-    out = []
+    """(N, E) embeddings in input order; batches are formed by length so little time goes to padding."""
+    order = np.argsort([len(f) for f in features], kind="stable")
+    out = np.zeros((len(features), 0))
     for s in range(0, len(features), batch_size):
-        x, lengths = _pad(features[s : s + batch_size])
-        out.append(evaluator.embed_motion(x, lengths))
-    return np.concatenate(out)
+        idx = order[s : s + batch_size]
+        x, lengths = _pad([features[i] for i in idx])
+        emb = evaluator.embed_motion(x, lengths)
+        if out.shape[1] == 0:
+            out = np.zeros((len(features), emb.shape[1]))
+        out[idx] = emb
+    return out
 
 
 def embed_texts(evaluator, texts: list[str], tokens: list[list[str]], batch_size: int) -> np.ndarray:
