@@ -18,6 +18,8 @@ steps x FLOPs/step / AITS, and its efficiency is that over this machine's fp32 m
 measured in the same run (a 2048^3 matmul, best of 5, sampled before every row and at the end; the
 median sample is the reference). Both are also reported per CPU-second, which stays meaningful
 when other processes compete for the cores (wall-clock figures then mostly measure the queue).
+On a shared machine run with `--threads 1`, or with OMP_WAIT_POLICY=PASSIVE in the environment,
+so that OpenMP threads waiting for a descheduled sibling do not spin and inflate the CPU time.
 """
 
 from __future__ import annotations
