@@ -38,8 +38,10 @@ class CleanupConfig:
     ramp_seconds: float = 0.05   # contact weights ramp over this much at each end of a range (5 frames at 100 Hz)
     min_range: int = 3           # ranges shorter than this get no anchoring
     max_offset: float = 0.25     # m; ranges whose joint strays further from the target are not anchored
-    vgrf_every: int = 5          # refresh the (linearised) vGRF gradient every k iterations: the net dominates cost
-    detect: str = "auto"         # contacts when none are given: "vgrf" (network), "heuristic", "auto" (vgrf if a model is given)
+    vgrf_every: int = 10         # refresh the (linearised) vGRF gradient every k iterations: the net dominates cost
+    # contacts when none are given: "heuristic" (default: measured better than our synthetic-trained
+    # V22 on held-out synthetic motions, F1 0.969 vs 0.951), "vgrf" (the network), "auto" (vgrf if a model is given)
+    detect: str = "heuristic"
 
 
 @dataclass
