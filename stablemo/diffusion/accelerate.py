@@ -73,26 +73,15 @@ class _WeightCache:
 
 
 def _unfold_frames(frames: torch.Tensor, k: int, s: int, p: int, T_out: int) -> torch.Tensor:
-    """(B, T, C) -> (B, T_out, k, C) with cols[:, o, j] = frames[:, o*s + j - p] (zero outside).
+    """(B, T, C) -> (B, T_out, k*C) with row o = frames[o*s - p : o*s - p + k] flattened (zero outside).
 
-    Written tap by tap into one buffer: no padded copy of the input is made.
+    In a zero-padded (B, T + 2p, C) buffer, the k frames a window reads are one contiguous run of
+    k*C numbers starting at (o*s)*C: the whole im2col matrix is a strided view of it, made
+    contiguous by one copy of long contiguous rows.
     """
     B, T, C = frames.shape
-    cols = frames.new_empty(B, T_out, k, C)
-    for j in range(k):
-        # valid outputs o: 0 <= o*s + j - p <= T - 1
-        lo = max(0, -(-(p - j) // s))
-        hi = min(T_out, (T - 1 + p - j) // s + 1)
-        if hi <= lo:
-            cols[:, :, j] = 0
-            continue
-        start = lo * s + j - p
-        cols[:, lo:hi, j] = frames[:, start : start + (hi - lo - 1) * s + 1 : s]
-        if lo > 0:
-            cols[:, :lo, j] = 0
-        if hi < T_out:
-            cols[:, hi:, j] = 0
-    return cols
+    padded = F.pad(frames, (0, 0, p, p)) if p else frames.contiguous()
+    return padded.as_strided((B, T_out, k * C), (padded.stride(0), s * C, 1)).contiguous()
 
 
 class GemmConv1d(nn.Conv1d, _WeightCache):
