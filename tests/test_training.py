@@ -500,3 +500,23 @@ def test_killed_run_resumes_from_its_last_checkpoint(tiny_data, tmp_path):
     assert resumed["global_step"] == step + 2
     assert resumed["stablemo"]["ema"]["num_updates"] == step + 2
     assert not list(last.parent.glob("last-v*.ckpt"))
+
+
+def test_guard_catches_non_finite_gradients_with_a_finite_loss():
+    class FakeStrategy:
+        @staticmethod
+        def reduce_boolean_decision(decision, all=True):
+            return decision
+
+    class FakeTrainer:
+        strategy, precision_plugin, global_step, checkpoint_callback = FakeStrategy(), object(), 7, None
+
+    module = nn.Linear(2, 2)
+    module.last_train_loss = torch.tensor(0.5)
+    module.weight.grad = torch.zeros(2, 2)
+    module.bias.grad = torch.zeros(2)
+    guard = NonFiniteGuard()
+    guard.on_before_optimizer_step(FakeTrainer(), module, None)  # all finite: no error
+    module.bias.grad[1] = float("inf")
+    with pytest.raises(NonFiniteLossError, match=r"step 7 \(non-finite gradients in 1 tensors \(first: bias\)\)"):
+        guard.on_before_optimizer_step(FakeTrainer(), module, None)

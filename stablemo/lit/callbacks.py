@@ -33,8 +33,10 @@ class NonFiniteGuard(Callback):
         # fp16 loss scaling produces Inf gradients by design and skips those steps itself
         scaled = getattr(trainer.precision_plugin, "scaler", None) is not None
         if self.check_gradients and not scaled:
-            bad = [name for name, p in pl_module.named_parameters() if p.grad is not None and not torch.isfinite(p.grad).all()]
-            if bad:
+            grads = [(name, p.grad) for name, p in pl_module.named_parameters() if p.grad is not None]
+            # one device sync for all tensors; names are looked up only when something is wrong
+            if grads and not bool(torch.stack([g.isfinite().all() for _, g in grads]).all()):
+                bad = [name for name, g in grads if not bool(g.isfinite().all())]
                 problems.append(f"non-finite gradients in {len(bad)} tensors (first: {bad[0]})")
         diverged = trainer.strategy.reduce_boolean_decision(bool(problems), all=False)
         if not diverged:

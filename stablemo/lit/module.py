@@ -60,8 +60,8 @@ class DiffusionModule(LightningModule):
 
     def __init__(
         self,
-        model: dict,
-        schedule: dict | None = None,
+        model: dict[str, Any],
+        schedule: dict[str, Any] | None = None,
         prediction_type: str = "sample",
         cond_drop_prob: float = 0.1,
         ema_decay: float = 0.9999,
