@@ -459,3 +459,13 @@ def test_guidance_hook_cleans_x0_inside_denoising():
     j_plain = features_to_joints(plain.features)
     j_guided = features_to_joints(guided.features)
     assert gmd_skating_ratio(j_guided, lengths) < 0.8 * gmd_skating_ratio(j_plain, lengths)
+
+
+def test_long_travelling_contacts_can_be_split():
+    c = torch.ones(1, 40, 4, dtype=torch.bool)
+    pos = torch.zeros(1, 40, 4, 3)
+    pos[..., 0] = 0.01 * torch.arange(40)[None, :, None]                 # a shuffling foot: 1 cm/frame
+    _, _, whole = contact_ranges(c, pos, up_axis=1, ramp_frames=1, min_range=3)
+    targets, _, split = contact_ranges(c, pos, up_axis=1, ramp_frames=1, min_range=3, split_travel=0.1)
+    assert whole["ranges"] == 4 and split["ranges"] == 16                 # 39 cm of path in 10 cm pieces
+    assert (targets[0, :, 0, 0] - pos[0, :, 0, 0]).abs().max() <= 0.05 + 1e-6
