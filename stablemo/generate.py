@@ -61,6 +61,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="outputs", help="output folder (default ./outputs)")
     p.add_argument("--format", choices=["gif", "mp4"], default="gif", help="animation format (mp4 needs ffmpeg)")
     p.add_argument("--no-render", action="store_true", help="write the .npy files only")
+    p.add_argument("--footskate", action="store_true",
+                   help="remove foot skating inside the last denoising steps (StableMoFusion*, vGRF-guided)")
+    p.add_argument("--footskate-weights", default=None,
+                   help="vGRF weights for --footskate (default: StableMo's own V22; or a V22 distilled by you)")
     p.add_argument("--dtype", default=None, help="network precision: fp32, bf16 (CPU/GPU) or fp16 (GPU); default fp32 on CPU, fp16 on GPU")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     return p
@@ -112,8 +116,14 @@ def main(argv: list[str] | None = None) -> int:
             f"({pipe.min_length / pipe.fps:g}-{pipe.max_length / pipe.fps:g} s at {pipe.fps:g} fps)"
         )
 
-    result = pipe.generate(prompts, [frames] * len(prompts), steps=args.steps, cfg=args.cfg, sampler=args.sampler,
-                           seed=args.seed, progress=True)
+    request = dict(steps=args.steps, cfg=args.cfg, sampler=args.sampler, seed=args.seed, progress=True)
+    if args.footskate:
+        from stablemo.footskate_guidance import generate_with_footskate
+
+        result = generate_with_footskate(pipe, prompts, [frames] * len(prompts), weights=args.footskate_weights,
+                                         **request)
+    else:
+        result = pipe.generate(prompts, [frames] * len(prompts), **request)
 
     from stablemo.io import save_npy
 
