@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# Recipe of the bundled demo model (stablemo/assets/demo_bundle): synthetic data, training with
+# configs/demo.yaml, export, and a copy of the training log into docs/. Resumable: re-running it
+# continues from runs/demo/checkpoints/last.ckpt.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+STABLEMO=${STABLEMO:-.venv/bin/stablemo}
+[ -f data/synth/Mean.npy ] || "$STABLEMO" data synth --out data/synth --num 2000 --seed 0
+resume=()
+[ -f runs/demo/checkpoints/last.ckpt ] && resume=(--ckpt_path last)
+"$STABLEMO" fit --config configs/demo.yaml "${resume[@]}" "$@"
+"$STABLEMO" export runs/demo/checkpoints/last.ckpt --out stablemo/assets/demo_bundle
+.venv/bin/python scripts/merge_logs.py runs/demo/logs docs/demo_training_log.csv
