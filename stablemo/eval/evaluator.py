@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -315,6 +316,12 @@ def export_evaluator(checkpoint: str | Path, out_dir: str | Path) -> Path:
         save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(tmp / WEIGHTS_NAME))
         config = {"format": EVALUATOR_FORMAT, "version": 1, "hparams": dict(_module_kwargs(dict(model.hparams)))}
         (tmp / CONFIG_NAME).write_text(json.dumps(config, indent=2) + "\n")
+        umask = os.umask(0)
+        os.umask(umask)
+        # mkdtemp/safetensors create private files; give them the permissions a plain mkdir/open would
+        os.chmod(tmp, 0o777 & ~umask)
+        for f in (WEIGHTS_NAME, CONFIG_NAME):
+            os.chmod(tmp / f, 0o666 & ~umask)
         if out_dir.exists():
             shutil.rmtree(out_dir)
         tmp.replace(out_dir)
