@@ -17,6 +17,8 @@ from stablemo.errors import StableMoError
 
 DEFAULT_BUNDLE = Path(__file__).resolve().parent / "assets" / "demo_bundle"
 DEFAULT_SECONDS = 6.0
+DEFAULT_STEPS = 10   # the paper: 10 SDE-DPM-Solver++ steps
+DEFAULT_CFG = 2.5
 
 
 def slugify(text: str, max_len: int = 60) -> str:
@@ -53,8 +55,10 @@ def _parser() -> argparse.ArgumentParser:
     length = p.add_mutually_exclusive_group()
     length.add_argument("--seconds", type=float, help=f"motion length in seconds (default {DEFAULT_SECONDS:g}, capped at the model's maximum)")
     length.add_argument("--frames", type=int, help="motion length in frames")
-    p.add_argument("--steps", type=int, default=10, help="sampler steps (default 10)")
-    p.add_argument("--cfg", type=float, default=2.5, help="classifier-free guidance scale (default 2.5; 1 = off)")
+    p.add_argument("--steps", type=int, default=None,
+                   help="sampler steps (default 10; a consistency student's own default, e.g. 1 or 4)")
+    p.add_argument("--cfg", type=float, default=None,
+                   help="classifier-free guidance scale (default 2.5; 1 = off; a student's absorbed scale 1 + w)")
     p.add_argument("--sampler", default=None, help="ddpm, ddim, dpmpp_2m, dpmpp_2m_sde (default: the bundle kind's default)")
     p.add_argument("--seed", type=int, default=0, help="seed; prompt i uses seed + i (default 0)")
     p.add_argument("--bundle", default=None, help=f"bundle folder (default: the packaged demo model, {DEFAULT_BUNDLE})")
@@ -95,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
         prompts += read_prompts(args.prompts)
     if not prompts:
         raise StableMoError("prompt: give a text prompt or --prompts FILE")
-    if args.steps < 1:
+    if args.steps is not None and args.steps < 1:
         raise StableMoError(f"--steps: must be >= 1, got {args.steps}")
     if args.seconds is not None and args.seconds <= 0:
         raise StableMoError(f"--seconds: must be positive, got {args.seconds:g}")
@@ -116,7 +120,10 @@ def main(argv: list[str] | None = None) -> int:
             f"({pipe.min_length / pipe.fps:g}-{pipe.max_length / pipe.fps:g} s at {pipe.fps:g} fps)"
         )
 
-    request = dict(steps=args.steps, cfg=args.cfg, sampler=args.sampler, seed=args.seed, progress=True)
+    student = pipe.config.get("consistency") or {}
+    steps = args.steps if args.steps is not None else student.get("steps", DEFAULT_STEPS)
+    cfg = args.cfg if args.cfg is not None else (1.0 + student["w"] if "w" in student else DEFAULT_CFG)
+    request = dict(steps=steps, cfg=cfg, sampler=args.sampler, seed=args.seed, progress=True)
     if args.footskate:
         from stablemo.footskate_guidance import generate_with_footskate
 
