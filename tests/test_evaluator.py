@@ -192,9 +192,9 @@ def test_evaluate_command_with_a_bundle(trained, capsys):
             "--aits", "2", "--max-items", "40", "--out", str(out), "--no-progress"]
     assert main(argv) == 0
     printed = capsys.readouterr().out
-    assert "bundle (ddim, 2 steps, cfg 2.5)" in printed and "Skate" in printed and "AITS" in printed
+    assert "bundle (ddim, 2 steps, cfg 2.5) + footskate" in printed and "Skate" in printed and "AITS" in printed
     result = json.loads(out.read_text())
-    row = result["rows"]["bundle (ddim, 2 steps, cfg 2.5)"]
+    row = result["rows"]["bundle (ddim, 2 steps, cfg 2.5) + footskate"]
     assert set(row) >= {"r1", "r2", "r3", "fid", "mm_dist", "diversity", "skate_ratio"}
     assert 0.0 <= row["skate_ratio"]["mean"] <= 1.0
     # An untrained model is far from the data; the real motions are not.

@@ -296,7 +296,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=10)
     p.add_argument("--sampler", default=None, help="default: the bundle's default (dpmpp_2m_sde)")
     p.add_argument("--cfg", type=float, default=2.5)
-    p.add_argument("--footskate", action="store_true", help="also report the foot-skating ratio")
+    p.add_argument("--footskate", action="store_true",
+                   help="generate with foot-skate correction inside denoising (StableMoFusion*) and report the skating ratio")
+    p.add_argument("--skate-ratio", action="store_true", help="report the foot-skating ratio (no correction)")
     p.add_argument("--multimodality", action="store_true", help="also report MultiModality (100 captions × 30)")
     p.add_argument("--mm-captions", type=int, default=metrics.MM_CAPTIONS)
     p.add_argument("--mm-generations", type=int, default=metrics.MM_GENERATIONS)
@@ -333,17 +335,25 @@ def main(argv: list[str]) -> int:
     row_name = "model"
     if pipe is not None:
         row_name = f"{Path(args.bundle).name} ({args.sampler or 'default'}, {args.steps} steps, cfg {args.cfg:g})"
+        if args.footskate:
+            row_name += " + footskate"
         lo, hi = pipe.min_length, pipe.max_length
 
         def generate(texts, lengths, seeds):
             # Evaluation crops can be shorter than the model's minimum: generate at the minimum and
             # keep the first `length` frames (the scored length is always the requested one).
             gen_lengths = [min(max(n, lo), hi) for n in lengths]
-            out = pipe.generate(texts, gen_lengths, steps=args.steps, cfg=args.cfg, sampler=args.sampler, seed=seeds)
+            request = dict(steps=args.steps, cfg=args.cfg, sampler=args.sampler, seed=seeds)
+            if args.footskate:  # StableMoFusion*: correction inside the last denoising steps
+                from stablemo.footskate_guidance import generate_with_footskate
+
+                out = generate_with_footskate(pipe, texts, gen_lengths, **request)
+            else:
+                out = pipe.generate(texts, gen_lengths, **request)
             return out.features, out.joints
 
     result = evaluate(data, evaluator, generate, replications=args.replications, seed=args.seed,
-                      batch_size=args.batch_size, max_items=args.max_items, footskate=args.footskate,
+                      batch_size=args.batch_size, max_items=args.max_items, footskate=args.footskate or args.skate_ratio,
                       skeleton=data.spec.skeleton, multimodality=args.multimodality, mm_captions=args.mm_captions,
                       mm_generations=args.mm_generations, row_name=row_name, progress=not args.no_progress)
     aits = None
