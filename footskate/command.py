@@ -8,7 +8,6 @@ comes in as a `codec` (stablemo.footskate_guidance passes it) and this package s
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 from typing import Protocol
@@ -18,6 +17,7 @@ import torch
 
 from footskate.cleanup import CleanupConfig, cleanup
 from footskate.errors import FootskateError
+from footskate.npyio import load_npy, save_npy
 from footskate.skeletons import TOPOLOGIES, Topology
 from footskate.vgrf import DEFAULT_WEIGHTS, VGRFNet, load_vgrf
 
@@ -48,23 +48,8 @@ def resolve_vgrf(weights: str | None, topo: Topology) -> VGRFNet | torch.nn.Modu
     return model
 
 
-def save_npy(path: Path, array: np.ndarray) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp.npy")
-    try:
-        np.save(tmp, array)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 def load_motion(path: Path) -> np.ndarray:
-    if not path.is_file():
-        raise FootskateError(f"{path}: file not found")
-    try:
-        arr = np.load(path, allow_pickle=False)
-    except Exception as err:
-        raise FootskateError(f"{path}: not a readable .npy file ({err})") from None
+    arr = load_npy(path)
     if not np.issubdtype(arr.dtype, np.floating) or not np.isfinite(arr).all():
         raise FootskateError(f"{path}: expected finite floating-point values")
     return arr

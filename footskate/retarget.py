@@ -16,7 +16,6 @@ Distilled weights derive from UnderPressure's and fall under its licence: keep t
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 
@@ -25,6 +24,7 @@ import torch
 from torch import nn
 
 from footskate.errors import FootskateError
+from footskate.npyio import load_npy, save_npy
 from footskate.vgrf import ATTRIBUTION, VGRFNet, load_underpressure
 
 # HumanML3D joint index -> UnderPressure joint index (UP's 4 = spine_4 has no counterpart).
@@ -88,23 +88,8 @@ class UPAdapter(nn.Module):
         return forces[:, :: self.factor]
 
 
-def _save_npy(path: Path, array: np.ndarray) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp.npy")
-    try:
-        np.save(tmp, array)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 def _load_joints(path: Path) -> np.ndarray:
-    if not path.is_file():
-        raise FootskateError(f"{path}: file not found")
-    try:
-        arr = np.load(path, allow_pickle=False)
-    except Exception as err:
-        raise FootskateError(f"{path}: not a readable .npy file ({err})") from None
+    arr = load_npy(path)
     if arr.ndim not in (3, 4) or arr.shape[-2:] != (22, 3) or not np.isfinite(arr).all():
         raise FootskateError(f"{path}: expected finite HumanML3D joints (T, 22, 3) or (B, T, 22, 3), got {arr.shape}")
     return arr.astype(np.float32)
@@ -147,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
             single = joints.ndim == 3
             x = torch.from_numpy(joints[None] if single else joints)
             up, _ = resample(to_up_skeleton(x), int(UP_FPS / HML_FPS))
-            _save_npy(Path(args.out), (up[0] if single else up).numpy())
+            save_npy(Path(args.out), (up[0] if single else up).numpy())
             print(f"wrote {args.out}: {tuple(up.shape[-3:])} UnderPressure joints, z-up, 100 Hz")
         else:
             distill(args.v23, args.data, args.out, args.steps, args.seed, args.width)

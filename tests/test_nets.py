@@ -36,14 +36,6 @@ if importlib.util.find_spec("stablemo.nets.retnet"):
     })
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """These tiny networks run fastest on one thread; many threads thrash on the shared CI cores."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
 
 def make(variant: str, seed: int = 0) -> torch.nn.Module:
     """A tiny denoiser in eval mode whose zero-initialised layers are randomised (else output == 0)."""

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import os
 import subprocess
 import sys
@@ -30,15 +29,6 @@ TINY_MODEL = {
     "text": {"encoder": "minilm", "latent_dim": 32, "num_layers": 1, "num_heads": 2, "ff_dim": 64},
 }
 VERBS = ["walks", "runs", "jumps", "waves", "turns", "kicks"]
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    # The test machine is shared: oversubscribed BLAS threads are far slower than one.
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 def write_random_dataset(root: Path, num: int = 24, dim: int = 263, seed: int = 0,
