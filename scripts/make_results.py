@@ -69,6 +69,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--evaluator", required=True)
     p.add_argument("--student", action="append", default=[], metavar="NAME=DIR", help="consistency student bundle")
     p.add_argument("--replications", type=int, default=20)
+    p.add_argument("--max-items", type=int, default=None, help="items scored per replication (default: the split)")
     p.add_argument("--ddpm-items", type=int, default=96)
     p.add_argument("--ddpm-replications", type=int, default=1)
     p.add_argument("--aits-sentences", type=int, default=10)
@@ -84,7 +85,7 @@ def main(argv: list[str]) -> int:
     evaluator = load_text_motion_evaluator(args.evaluator, teacher.config.get("dataset", "humanml3d"))
     rng = np.random.default_rng(args.seed)
     timing_items = [data[int(i)] for i in rng.choice(len(data), args.aits_sentences, replace=False)]
-    common = dict(replications=args.replications, seed=args.seed, progress=True)
+    common = dict(replications=args.replications, seed=args.seed, max_items=args.max_items, progress=True)
     started = time.time()
 
     runs: list[tuple[str, Pipeline, int, str | None]] = [
@@ -139,7 +140,8 @@ Machine: {platform.machine()}, {torch.get_num_threads()} torch threads, torch {t
 `{args.evaluator}` (StableMo's contrastive text–motion evaluator trained on the same synthetic
 data, `configs/evaluator_synth.yaml`). Test split with the evaluation crops; mean ± 95% interval over
 {args.replications} replications; CFG {args.cfg:g}. AITS: average inference time per sentence, batch 1,
-model loaded, over {args.aits_sentences} test sentences, measured in this run.
+model loaded, over {args.aits_sentences} test sentences, measured in this run. Items scored per
+replication: {args.max_items or 'the whole test split'}.
 
 ## Samplers and consistency students
 
