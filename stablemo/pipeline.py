@@ -258,10 +258,10 @@ class Pipeline:
         """Sample one motion per prompt.
 
         seed: an int (sample i uses seed + i) or one seed per prompt. hook_steps: step indices at
-        which x0_hook runs (negative counts from the end; None = every step). batch_size: split
-        large requests into chunks (results do not depend on it). parallel_cfg=False and
-        text_cache=False (re-encode the prompts at every network call, bypassing every cache) exist
-        to measure the paper's baselines; they change no result.
+        which x0_hook runs (negative counts from the end, indices outside the run are ignored; None =
+        every step). batch_size: split large requests into chunks (results do not depend on it).
+        parallel_cfg=False and text_cache=False (re-encode the prompts at every network call,
+        bypassing every cache) exist to measure the paper's baselines; they change no result.
         """
         texts, lengths = self._check_request(texts, lengths)
         table = self.samplers
@@ -277,7 +277,7 @@ class Pipeline:
         net_dtype = resolve_dtype(dtype, self.device) if dtype is not None else self.dtype
         hook_at = None
         if hook_steps is not None:
-            hook_at = {s % steps if s < 0 else s for s in hook_steps}
+            hook_at = {s + steps if s < 0 else s for s in hook_steps} & set(range(steps))  # -k: k-th from the end
         chunk = batch_size or len(texts)
         parts = []
         for start in range(0, len(texts), chunk):

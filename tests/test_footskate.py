@@ -410,7 +410,7 @@ def test_footskate_command_on_joints(tmp_path):
 @pytest.mark.skipif(not (SAMPLE / "new_joint_vecs/012314.npy").is_file(), reason="HumanML3D sample not present")
 def test_stablemo_footskate_features_are_consistent(tmp_path):
     from stablemo.cli import main
-    from stablemo.motion import features_to_joints
+    from stablemo.motion import canonicalize_joints, features_to_joints
 
     feats = np.load(SAMPLE / "new_joint_vecs/012314.npy")
     out, joints_out = tmp_path / "clean.npy", tmp_path / "joints.npy"
@@ -419,13 +419,39 @@ def test_stablemo_footskate_features_are_consistent(tmp_path):
     cleaned = np.load(out)
     assert cleaned.shape == feats.shape and np.isfinite(cleaned).all()
     # every feature group comes from the corrected positions: recovering joints gives them back
+    # exactly, up to the extraction's rigid placement of frame 0
     recovered = features_to_joints(cleaned)
-    assert np.linalg.norm(recovered - np.load(joints_out), axis=-1).mean() < 0.01
+    placed = canonicalize_joints(np.load(joints_out), "humanml3d", refit=False)
+    assert np.abs(recovered - placed).max() < 1e-4
     lengths = torch.tensor([feats.shape[0]])
     before = gmd_skating_ratio(torch.from_numpy(features_to_joints(feats))[None], lengths)
     after = gmd_skating_ratio(torch.from_numpy(recovered)[None], lengths)
     assert after < before
     assert main(["footskate", str(tmp_path / "missing.npy"), "--out", str(out)]) == 2
+
+
+def test_clean_features_reproduce_the_cleaned_joints():
+    """Features out of clean_features give back exactly the joints it returns (no refit moves the
+    anchored feet), on the standard skeleton, with less skating than the input."""
+    from stablemo.footskate_guidance import clean_features, joints_to_consistent_features
+    from stablemo.motion import canonicalize_joints, features_to_joints
+
+    x = standing_pose().expand(60, 22, 3).clone()              # (60, 22, 3)
+    x[:, :, 2] += 0.1 * torch.sin(torch.arange(60) * torch.pi / 10)[:, None]  # body and feet sway ±10 cm, up to 0.6 m/s
+    batch = torch.stack([x, torch.cat([x[:45], torch.zeros(15, 22, 3)])])       # lengths 60 and 45
+    feats = torch.from_numpy(joints_to_consistent_features(batch.numpy(), [60, 45], refit=True))
+    cleaned, joints, info = clean_features(feats, [60, 45], vgrf=None)
+    assert cleaned.shape == feats.shape and info["anchored_ranges"] > 0
+    assert np.all(cleaned[1, 45:] == 0) and np.all(joints[1, 45:] == 0)
+    for b, n in enumerate((60, 45)):
+        rec = features_to_joints(cleaned[b, :n])
+        assert np.abs(rec - canonicalize_joints(joints[b, :n], "humanml3d", refit=False)).max() < 1e-4
+        lengths = np.linalg.norm(joints[b, :n, 1:] - joints[b, :n][:, PARENTS[1:]], axis=-1)
+        assert np.abs(lengths - np.array(BONES[1:])[None]).max() < 2e-3   # the standard skeleton
+    lengths_t = torch.tensor([60, 45])
+    before = gmd_skating_ratio(torch.from_numpy(features_to_joints(feats.numpy())), lengths_t)
+    after = gmd_skating_ratio(torch.from_numpy(features_to_joints(cleaned)), lengths_t)
+    assert (after < 0.5 * before).all(), (before, after)
 
 
 @pytest.mark.skipif(not (SAMPLE / "new_joints/012314.npy").is_file(), reason="HumanML3D sample not present")

@@ -195,6 +195,30 @@ def test_round_trip_random_motion(seed):
     assert np.allclose(lengths, HUMANML3D.bone_lengths[1:], atol=1e-9)
 
 
+def test_extraction_without_refit_keeps_bone_lengths_and_floor():
+    # a generated motion's own skeleton (bones 10 % longer, wobbling per frame) and a raised floor
+    rng = np.random.default_rng(5)
+    joints = random_motion(rng, num_frames=80)
+    parents = np.array(HUMANML3D.parents)
+    wobble = 1.1 + 0.05 * np.sin(np.arange(80))[:, None, None]
+    bones = (joints[:, 1:] - joints[:, parents[1:]]) * wobble
+    odd = joints.copy()
+    for j in range(1, 22):
+        odd[:, j] = odd[:, parents[j]] + bones[:, j - 1]
+    odd[..., 1] += 0.07
+    rec = features_to_joints(joints_to_features(odd, HUMANML3D, refit=False).astype(np.float64), HUMANML3D)
+    placed = canonicalize_joints(odd, HUMANML3D, refit=False)[:-1]
+    assert np.abs(rec - placed).max() < 1e-4
+    # the placement is rigid: heights, bone lengths and pairwise distances are the motion's own
+    assert np.allclose(placed[..., 1], odd[:-1, :, 1], atol=1e-9)
+    own = np.linalg.norm(odd[:-1, 1:] - odd[:-1, parents[1:]], axis=-1)
+    assert np.allclose(np.linalg.norm(rec[:, 1:] - rec[:, parents[1:]], axis=-1), own, atol=1e-4)
+    # with the default refit the same motion lands on the standard skeleton and floor instead
+    std = canonicalize_joints(odd, HUMANML3D)
+    assert abs(std[..., 1].min()) < 1e-9
+    assert np.allclose(np.linalg.norm(std[:, 1:] - std[:, parents[1:]], axis=-1), HUMANML3D.bone_lengths[1:])
+
+
 def test_round_trip_survives_full_turns_past_180_degrees():
     # spinning on the spot, 3 full turns in 3 s: facing crosses ±180° relative to frame 0 repeatedly
     rng = np.random.default_rng(11)

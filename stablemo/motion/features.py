@@ -130,13 +130,20 @@ def uniform_skeleton(joints: np.ndarray, skeleton: Skeleton | str) -> np.ndarray
     return out
 
 
-def canonicalize_joints(joints: np.ndarray, skeleton: Skeleton | str) -> np.ndarray:
+def canonicalize_joints(joints: np.ndarray, skeleton: Skeleton | str, refit: bool = True) -> np.ndarray:
     """Steps 1–4 of the extraction: uniform skeleton, floor at y = 0, frame-0 root xz at the origin,
     frame-0 facing along +z. joints (T, J, 3) or (B, T, J, 3) -> float64 of the same shape.
-    Recovering joints from the features reproduces exactly these positions."""
+    Recovering joints from the features reproduces exactly these positions.
+
+    refit=False skips steps 1–2 (skeleton and floor) and keeps only the rigid placement: for joints
+    that already live in feature space (recovered from generated features, then edited), whose
+    bone lengths and floor are the motion's own — refitting them would move the feet again.
+    """
     skel = get_skeleton(skeleton)
-    x = uniform_skeleton(_check_joints(joints, skel), skel)
-    x[..., 1] -= x[..., 1].min(axis=(-2, -1))[..., None, None]
+    x = np.array(_check_joints(joints, skel), dtype=np.float64)
+    if refit:
+        x = uniform_skeleton(x, skel)
+        x[..., 1] -= x[..., 1].min(axis=(-2, -1))[..., None, None]
     root0 = x[..., :1, :1, :].copy()  # (..., 1, 1, 3)
     root0[..., 1] = 0.0
     x = x - root0
@@ -193,10 +200,11 @@ def foot_contacts(x: np.ndarray, skeleton: Skeleton | str) -> np.ndarray:
     return (disp2 < skel.contact_threshold).astype(np.float64)
 
 
-def joints_to_features(joints: np.ndarray, skeleton: Skeleton | str = "humanml3d") -> np.ndarray:
-    """Joint positions (T, J, 3) or (B, T, J, 3) -> features (T−1, D) or (B, T−1, D), float32."""
+def joints_to_features(joints: np.ndarray, skeleton: Skeleton | str = "humanml3d", refit: bool = True) -> np.ndarray:
+    """Joint positions (T, J, 3) or (B, T, J, 3) -> features (T−1, D) or (B, T−1, D), float32.
+    refit: put the motion on the standard skeleton and floor first (see canonicalize_joints)."""
     skel = get_skeleton(skeleton)
-    x = canonicalize_joints(joints, skel)  # (..., T, J, 3), global positions
+    x = canonicalize_joints(joints, skel, refit)  # (..., T, J, 3), global positions
     contacts = foot_contacts(x, skel)
 
     r = facing_rotations(x, skel, smooth=True)  # (..., T, 4)
