@@ -9,6 +9,8 @@ Every row is scored by the same evaluator on the same test split with the same r
 AITS (batch 1, model loaded, text cache warm) is measured for every row in this one run. The
 1000-step DDPM row is expensive on a CPU: it runs on `--ddpm-items` items for `--ddpm-replications`
 replication(s), and is compared with the 10-step SDE row scored on exactly the same items.
+The report (markdown and JSON) is rewritten after every row, marked partial until the last one;
+`--resume` continues a stopped run with the same settings.
 """
 
 from __future__ import annotations
@@ -51,7 +53,11 @@ def aits(pipe: Pipeline, items: list[dict], steps: int, sampler: str | None, cfg
 
 
 def cell(row: dict, key: str) -> str:
-    return f"{row[key]['mean']:.3f} ± {row[key]['conf95']:.3f}" if key in row else "–"
+    if key not in row:
+        return "–"
+    if len(row[key]["values"]) < 2:  # one replication has no interval
+        return f"{row[key]['mean']:.3f}"
+    return f"{row[key]['mean']:.3f} ± {row[key]['conf95']:.3f}"
 
 
 def table(rows: list[tuple[str, dict, float | None]]) -> str:
@@ -76,6 +82,8 @@ def main(argv: list[str]) -> int:
     p.add_argument("--cfg", type=float, default=2.5)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="docs/results.md")
+    p.add_argument("--resume", action="store_true",
+                   help="keep the rows already in OUT's .json when it was written with the same settings")
     args = p.parse_args(argv)
 
     torch.manual_seed(args.seed)
@@ -101,63 +109,89 @@ def main(argv: list[str]) -> int:
         for steps in (1, 2, 4):
             runs.append((f"{name} student, {steps} step{'s' if steps > 1 else ''}", student, steps, None))
 
-    main_rows: list[tuple[str, dict, float | None]] = []
-    raw: dict = {"rows": {}, "aits": {}}
-    real = None
+    settings = {"bundle": args.bundle, "data": args.data, "evaluator": args.evaluator, "students": args.student,
+                "replications": args.replications, "max_items": args.max_items, "ddpm_items": args.ddpm_items,
+                "ddpm_replications": args.ddpm_replications, "cfg": args.cfg, "seed": args.seed}
+    raw: dict = {"settings": settings, "rows": {}, "aits": {}, "subset": {}, "complete": False}
+    json_path = Path(args.out).with_suffix(".json")
+    if args.resume and json_path.is_file():
+        previous = json.loads(json_path.read_text())
+        if previous.get("settings") == settings:
+            raw.update({k: previous.get(k, raw[k]) for k in ("rows", "aits", "subset")})
+            print(f"resuming: {len(raw['rows'])} row(s) and {len(raw['subset'])} subset row(s) from {json_path}")
+        else:
+            print(f"not resuming: {json_path} was written with other settings")
+    claim_runs = [("Teacher, DDPM, 1000 steps", 1000, "ddpm"), ("Teacher, SDE-DPM-Solver++ 2M, 10 steps", 10, "dpmpp_2m_sde")]
+    total = len(runs) + (len(claim_runs) if args.ddpm_replications else 0)
+
+    def save() -> None:
+        done = len([n for n, *_ in runs if n in raw["rows"]]) + len(raw["subset"])
+        raw["complete"] = done == total
+        write_text(args.out, render(args, argv, raw, runs, (time.time() - started) / 60, done, total))
+        write_text(json_path, json.dumps(raw, indent=2) + "\n")
+
     for name, pipe, steps, sampler in runs:
+        if name in raw["rows"]:
+            continue
         print(f"== {name}", flush=True)
         result = evaluate(data, evaluator, make_generate(pipe, steps, sampler, args.cfg), row_name=name, **common)
-        real = result["rows"][REAL_ROW]
-        t = aits(pipe, timing_items, steps, sampler, args.cfg)
-        main_rows.append((name, result["rows"][name], t))
-        raw["rows"][name], raw["aits"][name] = result["rows"][name], t
-    raw["rows"][REAL_ROW] = real
+        raw["rows"][REAL_ROW] = result["rows"][REAL_ROW]
+        raw["rows"][name] = result["rows"][name]
+        raw["aits"][name] = aits(pipe, timing_items, steps, sampler, args.cfg)
+        save()
 
     # Table 5's claim on a subset: 1000 DDPM steps vs 10 SDE steps on the same items and seeds
-    subset = dict(replications=args.ddpm_replications, seed=args.seed, max_items=args.ddpm_items, progress=True)
-    claim_rows = []
-    for name, steps, sampler in (("Teacher, DDPM, 1000 steps", 1000, "ddpm"),
-                                 ("Teacher, SDE-DPM-Solver++ 2M, 10 steps", 10, "dpmpp_2m_sde")):
-        print(f"== {name} (subset)", flush=True)
-        result = evaluate(data, evaluator, make_generate(teacher, steps, sampler, args.cfg), row_name=name, **subset)
-        t = aits(teacher, timing_items[:2], steps, sampler, args.cfg)
-        claim_rows.append((name, result["rows"][name], t))
-        raw.setdefault("subset", {})[name] = {"row": result["rows"][name], "aits": t}
-    claim_rows.insert(0, ("Real motion", result["rows"][REAL_ROW], None))
+    if args.ddpm_replications:
+        subset = dict(replications=args.ddpm_replications, seed=args.seed, max_items=args.ddpm_items, progress=True)
+        for name, steps, sampler in claim_runs:
+            if name in raw["subset"]:
+                continue
+            print(f"== {name} (subset)", flush=True)
+            result = evaluate(data, evaluator, make_generate(teacher, steps, sampler, args.cfg), row_name=name, **subset)
+            raw["subset"][name] = {"row": result["rows"][name], "aits": aits(teacher, timing_items[:2], steps, sampler, args.cfg),
+                                   "real": result["rows"][REAL_ROW]}
+            save()
+    save()
+    print(f"wrote {args.out}")
+    return 0
 
-    minutes = (time.time() - started) / 60
+
+def render(args, argv, raw: dict, runs, minutes: float, done: int, total: int) -> str:
     cmd = "python scripts/make_results.py " + " ".join(argv)
-    text = f"""# Results on the synthetic benchmark
+    real = raw["rows"].get(REAL_ROW)
+    main_rows = [(name, raw["rows"][name], raw["aits"][name]) for name, *_ in runs if name in raw["rows"]]
+    claim_rows = [(name, v["row"], v["aits"]) for name, v in raw["subset"].items()]
+    if claim_rows:
+        claim_rows.insert(0, ("Real motion", next(iter(raw["subset"].values()))["real"], None))
+    status = "" if done == total else f"\n**Partial: {done} of {total} rows so far (the run is still going or was stopped).**\n"
+    claim = f"""## Table 5's claim: 10 SDE-DPM-Solver++ steps vs 1000 DDPM steps
+
+The same {args.ddpm_items} test items and seeds, {args.ddpm_replications} replication(s) (1000 steps are
+expensive on a CPU).
+
+{table(claim_rows)}
+""" if claim_rows else ""
+    return f"""# Results on the synthetic benchmark
 
 Generated by `scripts/make_results.py` (do not edit by hand). Command:
 
 ```bash
 {cmd}
 ```
-
-Machine: {platform.machine()}, {torch.get_num_threads()} torch threads, torch {torch.__version__}; the run took
+{status}
+Machine: {platform.machine()}, {torch.get_num_threads()} torch threads, torch {torch.__version__}; this invocation took
 {minutes:.0f} min. Model: `{args.bundle}` (the demo CondUNet1D, see `configs/demo.yaml`). Evaluator:
 `{args.evaluator}` (StableMo's contrastive text–motion evaluator trained on the same synthetic
 data, `configs/evaluator_synth.yaml`). Test split with the evaluation crops; mean ± 95% interval over
 {args.replications} replications; CFG {args.cfg:g}. AITS: average inference time per sentence, batch 1,
-model loaded, over {args.aits_sentences} test sentences, measured in this run. Items scored per
-replication: {args.max_items or 'the whole test split'}.
+model loaded, over {args.aits_sentences} test sentences. Items scored per replication:
+{args.max_items or 'the whole test split'}.
 
 ## Samplers and consistency students
 
-{table([("Real motion", real, None)] + main_rows)}
+{table(([("Real motion", real, None)] if real else []) + main_rows)}
 
-## Table 5's claim: 10 SDE-DPM-Solver++ steps vs 1000 DDPM steps
-
-The same {args.ddpm_items} test items and seeds, {args.ddpm_replications} replication(s) (1000 steps are
-expensive on a CPU); intervals are not meaningful with one replication.
-
-{table(claim_rows)}
-"""
-    write_text(args.out, text)
-    write_text(Path(args.out).with_suffix(".json"), json.dumps(raw, indent=2) + "\n")
-    print(f"wrote {args.out}")
-    return 0
+{claim}"""
 
 
 if __name__ == "__main__":
