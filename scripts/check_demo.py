@@ -14,11 +14,13 @@ from __future__ import annotations
 
 import argparse
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from stablemo.errors import StableMoError
 from stablemo.motion import features_to_joints
 from stablemo.pipeline import Pipeline
 
@@ -85,4 +87,8 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except StableMoError as err:  # one clear line naming the file or argument
+        print(f"{Path(__file__).name}: error: {err}", file=sys.stderr)
+        sys.exit(2)

@@ -16,12 +16,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from stablemo.errors import StableMoError
 from stablemo.eval.physics import foot_skating_ratio, ground_metrics
 from stablemo.footskate_guidance import (_topology, clean_features, generate_with_footskate,
                                          joints_to_consistent_features, load_vgrf_model)
@@ -131,4 +133,8 @@ def _leg_chain(topo) -> set[int]:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except StableMoError as err:  # one clear line naming the file or argument
+        print(f"{Path(__file__).name}: error: {err}", file=sys.stderr)
+        sys.exit(2)
