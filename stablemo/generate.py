@@ -1,6 +1,6 @@
 """`stablemo generate`: prompts -> features .npy, joints .npy and an animation per prompt.
 
-    stablemo generate "a person walks forward and waves" --seconds 6 --out outputs
+    stablemo generate "a person walks forward, then waves their right hand" --seconds 6 --out outputs
     stablemo generate --prompts prompts.txt --frames 120 --steps 10 --cfg 2.5 --format mp4
 
 Every file is written atomically: an interrupted run leaves no half-written output.
