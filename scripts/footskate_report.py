@@ -6,8 +6,9 @@
 One batch of prompts is generated once; the same motions are then cleaned by the stand-alone
 post-process (`stablemo footskate`, features in -> consistent features out) and generated again
 with the correction inside the last denoising steps (`stablemo generate --footskate`). Skating
-ratio (GMD definition) and PhysDiff ground sliding are read from the joints recovered from each
-row's *features*, i.e. what a user of the output files sees. For the post-process the script also
+ratio (GMD definition), PhysDiff ground sliding and the feet's mean acceleration (jitter) are
+read from the joints recovered from each row's *features*, i.e. what a user of the output files
+sees. For the post-process the script also
 reports the issue's targets: anchor drift inside contact ranges, movement of the non-foot joints,
 bone-length change and the cleanup's wall time for the whole batch.
 """
@@ -46,10 +47,20 @@ def bone_lengths(joints: torch.Tensor, parents) -> torch.Tensor:
     return (joints[..., 1:, :] - joints[..., list(parents[1:]), :]).norm(dim=-1)
 
 
+def foot_acceleration(joints: torch.Tensor, lengths: torch.Tensor, fps: float = 20.0) -> float:
+    """Mean |second difference| of the ankle and toe positions, m/s², over valid frames: a
+    correction that plants feet by making them jitter shows up here."""
+    feet = joints[:, :, [7, 8, 10, 11]]                                      # (B, T, 4, 3)
+    acc = (feet[:, 2:] - 2 * feet[:, 1:-1] + feet[:, :-2]).abs() * fps * fps  # (B, T-2, 4, 3)
+    valid = torch.arange(joints.shape[1] - 2)[None] < (lengths - 2)[:, None]
+    return float(acc[valid].mean())
+
+
 def row(joints: torch.Tensor, lengths: torch.Tensor) -> dict:
     ratio = foot_skating_ratio(joints, lengths=lengths)
     ground = ground_metrics(joints, lengths=lengths)
-    return {"skating_ratio": float(ratio.mean()), "sliding_m": float(np.mean(ground["sliding"]))}
+    return {"skating_ratio": float(ratio.mean()), "sliding_m": float(np.mean(ground["sliding"])),
+            "foot_acceleration": foot_acceleration(joints.float(), lengths)}
 
 
 def main(argv=None) -> dict:

@@ -225,3 +225,33 @@ def test_noise_function_overrides_generator():
     # zero noise turns the SDE into a deterministic path different from the ODE
     again = dpmpp_2m_sde(model, x_T(), SCHEDULE, 6, noise=lambda x: torch.zeros_like(x))
     torch.testing.assert_close(out, again, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("sde", [False, True])
+def test_multistep_drops_to_first_order_around_an_edited_x0(sde):
+    # an x0 edit (the foot-skate hook) must not enter the 2M extrapolation x0_i - x0_{i-1}
+    schedule = NoiseSchedule()
+    seen = []  # (x, x0) per step
+
+    def denoise(x, t):  # an x0 estimate that drifts with t, so the second-order term is visible
+        x0 = 0.5 * torch.tanh(x) + t[:, None, None].to(x.dtype) / 1000
+        seen.append((x.clone(), x0.clone()))
+        return x0
+
+    def edit_step_3(step, t, x0):
+        return x0.clone() if step == 3 else None
+
+    sampler = dpmpp_2m_sde if sde else dpmpp_2m
+    x_T = torch.randn(2, 6, 4, generator=torch.Generator().manual_seed(0))
+    sampler(denoise, x_T, schedule, 8, noise=lambda x: torch.zeros_like(x), callback=edit_step_3)
+    _, sigmas = schedule.karras_timesteps(8)
+    sig = sigmas.tolist()
+
+    def first_order(i):
+        c_x, c_d, _ = dpm_coefficients(sig[i], sig[i + 1], sde)
+        return c_x * seen[i][0] + c_d * seen[i][1]
+
+    for i in (3, 4):  # the edited step and the one after it are first order
+        torch.testing.assert_close(seen[i + 1][0], first_order(i), atol=1e-6, rtol=1e-6)
+    for i in (2, 5):  # elsewhere the second-order term is there
+        assert (seen[i + 1][0] - first_order(i)).abs().max() > 1e-3
