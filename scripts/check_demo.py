@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from stablemo.errors import StableMoError
+from stablemo.errors import run_script
 from stablemo.motion import features_to_joints
 from stablemo.pipeline import Pipeline
 
@@ -87,8 +87,4 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    try:
-        main()
-    except StableMoError as err:  # one clear line naming the file or argument
-        print(f"{Path(__file__).name}: error: {err}", file=sys.stderr)
-        sys.exit(2)
+    sys.exit(run_script(main, Path(__file__).name, sys.argv[1:]))

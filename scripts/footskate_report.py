@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from stablemo.errors import StableMoError
+from stablemo.errors import run_script
 from stablemo.eval.physics import foot_skating_ratio, ground_metrics
 from stablemo.footskate_guidance import (_topology, clean_features, generate_with_footskate,
                                          joints_to_consistent_features, load_vgrf_model)
@@ -144,8 +144,4 @@ def _leg_chain(topo) -> set[int]:
 
 
 if __name__ == "__main__":
-    try:
-        main()
-    except StableMoError as err:  # one clear line naming the file or argument
-        print(f"{Path(__file__).name}: error: {err}", file=sys.stderr)
-        sys.exit(2)
+    sys.exit(run_script(main, Path(__file__).name, sys.argv[1:]))

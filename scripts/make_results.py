@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from stablemo.data import MotionDataset
-from stablemo.errors import StableMoError
+from stablemo.errors import run_script
 from stablemo.eval import metrics
 from stablemo.eval.command import REAL_ROW, evaluate, load_text_motion_evaluator
 from stablemo.io import write_text
@@ -221,8 +221,4 @@ def student_ratios(raw: dict, runs) -> str:
 
 
 if __name__ == "__main__":
-    try:
-        sys.exit(main(sys.argv[1:]))
-    except StableMoError as err:  # one clear line naming the file or argument
-        print(f"{Path(__file__).name}: error: {err}", file=sys.stderr)
-        sys.exit(2)
+    sys.exit(run_script(main, Path(__file__).name, sys.argv[1:]))

@@ -117,3 +117,15 @@ def test_footskate_flag_cleans_inside_denoising(bundle, tmp_path):
     assert not np.allclose(clean, plain)  # the hook ran and changed the motion
     # consistent features: contact bits are re-derived, so they are exactly 0 or 1
     assert set(np.unique(clean[:, 259:263])) <= {0.0, 1.0}
+
+
+def test_run_script_turns_bad_input_into_one_line_and_exit_2(capsys):
+    from stablemo.errors import StableMoError, run_script
+
+    def bad(argv):
+        raise StableMoError(f"{argv[0]}: bundle folder not found")
+
+    assert run_script(bad, "script.py", ["/nope"]) == 2
+    assert capsys.readouterr().err.strip() == "script.py: error: /nope: bundle folder not found"
+    assert run_script(lambda argv: {"report": 1}, "script.py") == 0   # a report dict is success
+    assert run_script(lambda argv: 3, "script.py") == 3
