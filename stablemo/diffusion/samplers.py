@@ -151,7 +151,8 @@ def _dpmpp_2m(denoise, x, schedule, steps, draw, callback, prediction_type, prog
     Order: first at step 0 (no history) and at the last step, second otherwise. Also first where
     the callback edited x0 at this step or the previous one: the multistep term extrapolates
     x0_i - x0_{i-1}, and an edit (e.g. the foot-skate correction) is not a smooth function of the
-    noise level, so extrapolating it overshoots (measured: foot jerk x3 with 4 hooked steps).
+    noise level, so extrapolating it overshoots (4 hooked foot-skate steps: the feet's mean
+    acceleration fell from 17.9 to 10.8 m/s² with this rule).
     """
     timesteps, sigmas = schedule.karras_timesteps(steps)
     sig = sigmas.tolist()
