@@ -55,7 +55,7 @@ def load_motion(path: Path) -> np.ndarray:
     return arr
 
 
-def lengths_of(batch: np.ndarray, joints_kind: bool) -> np.ndarray:
+def lengths_of(batch: np.ndarray) -> np.ndarray:
     """Valid length per sample: trailing all-zero frames are padding (as StableMo writes batches)."""
     flat = batch.reshape(batch.shape[0], batch.shape[1], -1)
     nonzero = np.abs(flat).sum(-1) > 0
@@ -79,7 +79,7 @@ def run(args: argparse.Namespace, codec: FeatureCodec | None) -> dict:
     batch = arr[None] if single else arr
     if batch.shape[1] < 2:
         raise FootskateError(f"{args.input}: need at least 2 frames")
-    lengths = lengths_of(batch, is_joints)
+    lengths = lengths_of(batch)
     joints = batch if is_joints else codec.to_joints(batch.astype(np.float32))
     vgrf = resolve_vgrf(args.weights, topo)
     if args.contacts == "vgrf" and vgrf is None:

@@ -26,8 +26,8 @@ import torch
 
 from stablemo.errors import run_script
 from stablemo.eval.physics import foot_skating_ratio, ground_metrics
-from stablemo.footskate_guidance import (_topology, clean_features, generate_with_footskate,
-                                         joints_to_consistent_features, load_vgrf_model)
+from stablemo.footskate_guidance import (_topology, clean_features, generate_with_footskate, load_vgrf_model,
+                                         standard_joints)
 from stablemo.io import write_text
 from stablemo.motion import canonicalize_joints, features_to_joints
 from stablemo.pipeline import Pipeline
@@ -102,8 +102,7 @@ def main(argv=None) -> dict:
 
     # the cleanup starts from the motion on the standard skeleton and floor (clean_features'
     # standardize step); movement and bone lengths are measured against that input
-    standard = features_to_joints(torch.from_numpy(
-        joints_to_consistent_features(joints_plain.numpy(), lengths.tolist(), pipe.skeleton, refit=True)))
+    standard = torch.from_numpy(standard_joints(joints_plain.numpy(), lengths.tolist(), pipe.skeleton))
     feet = set(topo.feet) | {j for j in range(topo.num_joints) if j in _leg_chain(topo)}
     others = [j for j in range(topo.num_joints) if j not in feet]
     moved = (joints_post - standard)[:, :, others].norm(dim=-1)         # (B, T, J')

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from stablemo.errors import StableMoError
-from stablemo.motion import features_to_joints, get_skeleton, joints_to_features
+from stablemo.motion import canonicalize_joints, features_to_joints, get_skeleton, joints_to_features
 
 # Correct x0 at the last four of the sampler's steps. Demo model, 8 prompts x 120 frames, 10 SDE
 # steps: skating ratio 0.285 plain, 0.070 / 0.057 / 0.043 with 2 / 3 / 4 hooked steps, while the
@@ -44,9 +44,24 @@ def joints_to_consistent_features(joints: np.ndarray, lengths: Sequence[int], sk
     joints = np.asarray(joints, dtype=np.float64)
     out = np.zeros(joints.shape[:2] + (skel.feature_dim,), dtype=np.float32)
     for b, n in enumerate(int(n) for n in lengths):  # numpy extraction, outside the optimisation loop
-        j = joints[b, :n]
-        last = j[-1:] + (j[-1:] - j[-2:-1] if n > 1 else 0.0)
-        out[b, :n] = joints_to_features(np.concatenate([j, last], 0), skel, refit=refit)
+        out[b, :n] = joints_to_features(_with_next_frame(joints[b, :n]), skel, refit=refit)
+    return out
+
+
+def _with_next_frame(j: np.ndarray) -> np.ndarray:
+    """(n, J, 3) -> (n + 1, J, 3): one frame more at constant velocity (the extraction eats one)."""
+    return np.concatenate([j, j[-1:] + (j[-1:] - j[-2:-1] if len(j) > 1 else 0.0)], 0)
+
+
+def standard_joints(joints: np.ndarray, lengths: Sequence[int], skeleton="humanml3d") -> np.ndarray:
+    """joints (B, T, J, 3) -> the same motions on the standard skeleton and floor, placed as the
+    extraction places them (exactly what recovering joints from refitted features gives), zero on
+    padding."""
+    skel = get_skeleton(skeleton)
+    joints = np.asarray(joints, dtype=np.float64)
+    out = np.zeros(joints.shape, dtype=np.float32)
+    for b, n in enumerate(int(n) for n in lengths):  # per sample: the floor is each motion's own
+        out[b, :n] = canonicalize_joints(_with_next_frame(joints[b, :n]), skel)[:n]
     return out
 
 
@@ -102,8 +117,7 @@ def clean_features(features: torch.Tensor | np.ndarray, lengths: Sequence[int], 
     lengths_t = torch.as_tensor(list(lengths), dtype=torch.long)
     joints = features_to_joints(feats, skel).detach()                      # (B, T, J, 3)
     if standardize:
-        feats = torch.from_numpy(joints_to_consistent_features(joints.numpy(), lengths, skel, refit=True))
-        joints = features_to_joints(feats, skel).detach()
+        joints = torch.from_numpy(standard_joints(joints.numpy(), lengths, skel))
     cfg = config or CleanupConfig(fps=skel.fps, up_axis=topo.up_axis)
     try:
         res = cleanup(joints * topo.unit, topo.parents, topo.feet, lengths=lengths_t, vgrf=vgrf, config=cfg)

@@ -50,14 +50,14 @@ def _setup(x: torch.Tensor, generator, noise, prediction_type: str) -> tuple[tor
     return x, noise if noise is not None else default_noise(generator)
 
 
-def _predict(denoise, x, t: int, alpha, sigma, prediction_type, callback, step, with_flag: bool = False):
-    """x0 estimate at (x, t), passed through the callback; with_flag: also whether the callback changed it."""
+def _predict(denoise, x, t: int, alpha, sigma, prediction_type, callback, step) -> tuple[torch.Tensor, bool]:
+    """(x0 estimate at (x, t) passed through the callback, whether the callback replaced it)."""
     t_batch = torch.full((x.shape[0],), t, dtype=torch.long, device=x.device)
     x0 = to_x0(denoise(x, t_batch).to(x.dtype), x, alpha, sigma, prediction_type)
     guided = callback(step, t, x0) if callback is not None else None
     if guided is not None:
         x0 = guided.to(x.dtype)
-    return (x0, guided is not None) if with_flag else x0
+    return x0, guided is not None
 
 
 def _vp(sigma: float) -> tuple[float, float]:
@@ -88,7 +88,7 @@ def ddpm(
     for i, t in enumerate(tqdm(schedule.leading_timesteps(steps), disable=not progress, desc="ddpm")):
         a_t = abar[t]
         a_prev = abar[t - ratio] if t - ratio >= 0 else 1.0
-        x0 = _predict(denoise, x, t, math.sqrt(a_t), math.sqrt(1 - a_t), prediction_type, callback, i)
+        x0, _ = _predict(denoise, x, t, math.sqrt(a_t), math.sqrt(1 - a_t), prediction_type, callback, i)
         beta = 1 - a_t / a_prev
         c_x0 = math.sqrt(a_prev) * beta / (1 - a_t)
         c_xt = math.sqrt(a_t / a_prev) * (1 - a_prev) / (1 - a_t)
@@ -119,7 +119,7 @@ def ddim(
         a_t = abar[t]
         a_prev = abar[t - ratio] if t - ratio >= 0 else 1.0
         sa, ss = math.sqrt(a_t), math.sqrt(1 - a_t)
-        x0 = _predict(denoise, x, t, sa, ss, prediction_type, callback, i)
+        x0, _ = _predict(denoise, x, t, sa, ss, prediction_type, callback, i)
         eps = (x - sa * x0) / ss
         std = eta * math.sqrt((1 - a_prev) / (1 - a_t) * (1 - a_t / a_prev))
         x = math.sqrt(a_prev) * x0 + math.sqrt(max(1 - a_prev - std * std, 0.0)) * eps
@@ -161,7 +161,7 @@ def _dpmpp_2m(denoise, x, schedule, steps, draw, callback, prediction_type, prog
     for i, t in enumerate(tqdm(timesteps, disable=not progress, desc=desc)):
         s_s, s_t = sig[i], sig[i + 1]  # VE noise levels
         alpha_s, vp_s = _vp(s_s)
-        x0, guided = _predict(denoise, x, t, alpha_s, vp_s, prediction_type, callback, i, with_flag=True)
+        x0, guided = _predict(denoise, x, t, alpha_s, vp_s, prediction_type, callback, i)
         z = draw(x) if sde else None
         c_x, c_d, c_z = dpm_coefficients(s_s, s_t, sde)
         second_order = prev_x0 is not None and i < steps - 1 and not (guided or prev_guided)

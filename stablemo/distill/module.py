@@ -138,12 +138,9 @@ class ConsistencyDistillation(LightningModule):
 
     # ------------------------------------------------------------------ pieces
 
-    def _x0(self, network, x, t, text, text_mask, motion_mask) -> torch.Tensor:
-        out = network(x, t, text, text_mask, motion_mask)
-        return self.schedule.predict_x0(out, x, t, self.prediction_type)
-
-    def _student_x0(self, network: ConsistencyStudent, x, t, w, text, text_mask, motion_mask) -> torch.Tensor:
-        out = network(x, t, w, text, text_mask, motion_mask)
+    def _x0(self, network, x, t, *conditions) -> torch.Tensor:
+        """x0 estimate of a teacher (text, masks) or student (w, text, masks) network at (x, t)."""
+        out = network(x, t, *conditions)
         return self.schedule.predict_x0(out, x, t, self.prediction_type)
 
     def _f(self, x_t, x0, t) -> torch.Tensor:
@@ -171,7 +168,7 @@ class ConsistencyDistillation(LightningModule):
             x_lo = ddim_jump(self.schedule, x_hi, cfg_x0(x0_cond, x0_uncond, w), t_hi, t_lo)
 
             text_t, mask_t = self.target.encode_text(texts)
-            x0_target = self._student_x0(self.target, x_lo, t_lo, w, text_t, mask_t, mask)
+            x0_target = self._x0(self.target, x_lo, t_lo, w, text_t, mask_t, mask)
             if hp.mode == "lcm":
                 target = self._f(x_lo, x0_target, t_lo)
             else:
@@ -180,11 +177,10 @@ class ConsistencyDistillation(LightningModule):
                 target = torch.where((t_lo == edge)[:, None, None], x_lo, jumped)
 
         text_s, mask_s = self.student.encode_text(texts)
-        x0_student = self._student_x0(self.student, x_hi, t_hi, w, text_s, mask_s, mask)
+        x0_student = self._x0(self.student, x_hi, t_hi, w, text_s, mask_s, mask)
         pred = self._f(x_hi, x0_student, t_hi)
-        out = {"loss": masked_pseudo_huber(pred, target, mask, hp.huber_c), "pred": pred, "t_hi": t_hi,
-               "x0": x0, "mask": mask, "text": (text_cu[:B], mask_cu[:B])}
-        return out
+        return {"loss": masked_pseudo_huber(pred, target, mask, hp.huber_c), "pred": pred, "t_hi": t_hi,
+                "x0": x0, "mask": mask, "text": (text_cu[:B], mask_cu[:B])}
 
     def _adversarial_pair(self, out: dict, generator: torch.Generator):
         """(fake, real, t') at a random level t' in [s_m, s_m + T/M) above each sample's edge."""
