@@ -6,7 +6,7 @@ import pytest
 import torch
 from torch import nn
 
-from stablemo.diffusion.accelerate import CachedCastLinear, GemmConv1d, GemmConvTranspose1d, accelerate
+from stablemo.diffusion.accelerate import CachedCastLinear, FastMish, GemmConv1d, GemmConvTranspose1d, accelerate, fast_mish
 
 
 @pytest.mark.parametrize("k, s, p", [(5, 1, 2), (3, 2, 1), (1, 1, 0), (4, 1, 0), (3, 2, 0), (5, 1, 3), (5, 3, 2), (2, 1, 1), (1, 1, 1)])
@@ -66,7 +66,38 @@ def test_autocast_uses_one_cached_low_precision_weight():
     assert lin(x).dtype == torch.float32  # outside autocast: the float32 weights
 
 
-def test_accelerated_unet_matches_stock_and_stays_padding_invariant():
+def test_fast_mish_matches_mish_to_float_rounding():
+    x = torch.cat([torch.linspace(-110.0, 110.0, 400_001), torch.randn(100_000) * 4,
+                   torch.tensor([0.0, -0.0, 1e-30, -1e-30, 3e38, -3e38])])
+    ref = nn.functional.mish(x.double())
+    out = fast_mish(x)
+    assert out.dtype == torch.float32
+    normal = ref.abs() > 1e-30  # down to x ~ -62, where e^x is still a normal float32
+    rel = (out.double() - ref).abs()[normal] / ref.abs()[normal]
+    assert rel.max() < 2e-6  # a few float32 ulps, also deep in the negative tail
+    assert (out.double() - ref).abs()[~normal].max() < 1e-30  # beyond: float32 underflow, as the stock kernel
+    assert fast_mish(torch.tensor([float("inf")])).item() == float("inf")
+    assert torch.isnan(fast_mish(torch.tensor([float("nan")]))).all()
+    frames_major = torch.randn(2, 30, 16).transpose(1, 2)  # the layout the UNet hands it
+    torch.testing.assert_close(fast_mish(frames_major), nn.functional.mish(frames_major), rtol=2e-6, atol=1e-7)
+
+
+def test_fast_mish_module_falls_back_under_autograd_and_for_low_precision():
+    act = accelerate(nn.Sequential(nn.Mish()))[0]
+    assert type(act) is FastMish
+    x = torch.randn(64, requires_grad=True)
+    act(x).sum().backward()
+    grad = x.grad.clone()
+    x.grad = None
+    nn.functional.mish(x).sum().backward()
+    assert torch.equal(grad, x.grad)  # the stock kernel, so training is unchanged
+    xb = torch.randn(64).bfloat16()
+    with torch.inference_mode():
+        assert torch.equal(act(xb), nn.functional.mish(xb))
+
+
+@pytest.mark.parametrize("context", ["grad", "inference"])
+def test_accelerated_unet_matches_stock_and_stays_padding_invariant(context):
     nets = pytest.importorskip("stablemo.nets")
     torch.manual_seed(0)
     net = nets.build_denoiser("unet", input_dim=11, text_dim=8, base_channels=8, channel_mults=(1, 2, 2),
@@ -77,12 +108,17 @@ def test_accelerated_unet_matches_stock_and_stays_padding_invariant():
     x, t = torch.randn(2, 24, 11), torch.tensor([3, 700])
     text, text_mask = torch.randn(2, 5, 8), torch.tensor([[1, 1, 1, 0, 0], [1, 1, 1, 1, 1]], dtype=torch.bool)
     mask = torch.arange(24)[None] < torch.tensor([[13], [24]])
-    ref = net(x, t, text, text_mask, mask)
-    out = fast(x, t, text, text_mask, mask)
+    x[0, 13:] = float("nan")  # padding content must not matter (in-place zeroing outside autograd)
+    x_before = x.clone()
+    with torch.enable_grad() if context == "grad" else torch.inference_mode():
+        ref = net(x, t, text, text_mask, mask)
+        out = fast(x, t, text, text_mask, mask)
+        # sample 0 alone, padded only to its own length multiple, gives the same valid frames
+        alone = fast(x[:1, :16], t[:1], text[:1], text_mask[:1], mask[:1, :16])
+    assert torch.isfinite(out).all() and (out[~mask] == 0).all()
     torch.testing.assert_close(out, ref, rtol=1e-5, atol=1e-5)
-    # sample 0 alone, padded only to its own length multiple, gives the same valid frames
-    alone = fast(x[:1, :16], t[:1], text[:1], text_mask[:1], mask[:1, :16])
     torch.testing.assert_close(alone[0, :13], out[0, :13], rtol=1e-5, atol=1e-5)
+    assert torch.equal(x.isnan(), x_before.isnan()) and torch.equal(x.nan_to_num(), x_before.nan_to_num())  # input untouched
 
 
 def test_training_through_accelerated_layers_gives_the_stock_gradients():

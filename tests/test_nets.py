@@ -379,3 +379,45 @@ def test_no_gradient_reaches_padding_or_other_items(variant):
     assert (x.grad[0][~mm[0]] == 0).all() and (x.grad[1] == 0).all()
     assert (text.grad[0][~tm[0]] == 0).all() and (text.grad[1] == 0).all()
     assert x.grad[0][mm[0]].abs().sum() > 0 and text.grad[0][tm[0]].abs().sum() > 0
+
+
+def test_in_place_zero_padding_matches_where_and_spares_inputs_under_autograd():
+    from stablemo.nets.layers import zero_pad_bct, zero_pad_bct_
+
+    gen = torch.Generator().manual_seed(0)
+    x = torch.randn(3, 5, 12, generator=gen)
+    x[:, :, 9:] = float("nan")
+    mask = torch.ones(3, 12, dtype=torch.bool)
+    mask[0, 7:] = False
+    mask[1, 9:] = False
+    mask[2, 3] = False  # not a prefix: a hole before the common valid prefix ends is zeroed too
+    expected = zero_pad_bct(x, mask)
+    assert torch.isfinite(expected[:, :, :9]).all()
+    with torch.no_grad():
+        y = x.clone()
+        out = zero_pad_bct_(y, mask)
+    assert out is y
+    torch.testing.assert_close(out, expected, rtol=0, atol=0, equal_nan=True)
+    leaf = x.clone().requires_grad_()
+    with torch.enable_grad():
+        z = leaf * 1.0
+        out = zero_pad_bct_(z, mask)
+    assert out is not z and z.detach()[:, :, 9:].isnan().all()  # the autograd path leaves its input alone
+    torch.testing.assert_close(out.detach(), expected, rtol=0, atol=0, equal_nan=True)
+
+
+@pytest.mark.parametrize("mode", ["frame", "group"])
+def test_group_norm_folds_adagn_modulation(mode):
+    from stablemo.nets.layers import MaskedGroupNorm
+
+    torch.manual_seed(0)
+    norm = MaskedGroupNorm(4, 16, mode)
+    with torch.no_grad():
+        norm.weight.normal_()
+        norm.bias.normal_()
+    x, mask = torch.randn(2, 16, 10), torch.arange(10)[None] < torch.tensor([[10], [6]])
+    scale, shift = torch.randn(2, 16, 1), torch.randn(2, 16, 1)
+    separate = norm(x, mask) * scale + shift
+    folded = norm(x, mask, scale, shift)
+    torch.testing.assert_close(folded[:, :, :6], separate[:, :, :6], rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(folded[1:, :, :6], norm(x[1:, :, :6], mask[1:, :6], scale[1:], shift[1:]), rtol=1e-5, atol=1e-5)

@@ -12,7 +12,9 @@
 - float32 products on the CPU use MKL's packed-weight GEMM (the weight is packed once per layer
   and row count instead of at every call);
 - under autocast (bf16 on CPU, fp16 on CUDA) every layer uses a low-precision copy of its weight
-  that is made once, instead of casting all weights again at every network call.
+  that is made once, instead of casting all weights again at every network call;
+- nn.Mish computes x * n / (n + 2) with n = e^x (e^x + 2) (= x tanh(softplus(x))) in seven
+  vectorised passes: PyTorch's CPU mish kernel is ~5x slower than that at the UNet's sizes.
 
 Parameters, buffers and `state_dict()` keys are untouched: the modules keep their class's
 parameters and only their `forward` changes. Unsupported configurations (groups, dilation,
@@ -144,11 +146,32 @@ class CachedCastLinear(nn.Linear, _WeightCache):
         return self._linear(rows, "weight", lambda w: w, bias).view(*x.shape[:-1], -1)
 
 
-_SWAPS = {nn.Conv1d: GemmConv1d, nn.ConvTranspose1d: GemmConvTranspose1d, nn.Linear: CachedCastLinear}
+def fast_mish(x: torch.Tensor) -> torch.Tensor:
+    """mish(x) = x tanh(softplus(x)) = x n / (n + 2), n = e^x (e^x + 2), to a few float32 ulps.
+
+    n is formed from e^x itself (not (1 + e^x)^2 - 1), so the negative tail keeps its relative
+    accuracy; clamping the exponent at 20 makes n / (n + 2) exactly 1 where mish(x) = x in float32.
+    """
+    e = x.clamp(max=20.0).exp_()
+    n = torch.addcmul(e, e, e).add_(e)  # e^2 + 2e
+    return n.div_(torch.add(n, 2.0, out=e)).mul_(x)
+
+
+class FastMish(nn.Mish):
+    """nn.Mish through fast_mish outside autograd for float32/float64 (elsewhere: the stock kernel)."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if (torch.is_grad_enabled() and x.requires_grad) or x.dtype not in (torch.float32, torch.float64):
+            return super().forward(x)
+        return fast_mish(x)
+
+
+_SWAPS = {nn.Conv1d: GemmConv1d, nn.ConvTranspose1d: GemmConvTranspose1d, nn.Linear: CachedCastLinear,
+          nn.Mish: FastMish}
 
 
 def accelerate(model: nn.Module) -> nn.Module:
-    """Switch every plain Conv1d / ConvTranspose1d / Linear in `model` to its fast forward (in place).
+    """Switch every plain Conv1d / ConvTranspose1d / Linear / Mish in `model` to its fast forward (in place).
 
     Meant for inference: the caches assume weights change only through in-place updates (which
     they detect). With autograd recording, the layers compute from the live parameters (no cache,

@@ -33,6 +33,21 @@ def zero_pad_bct(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return torch.where(mask[:, None, :], x, 0.0)
 
 
+def zero_pad_bct_(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """zero_pad_bct in place, for an intermediate the caller has just computed and owns.
+
+    Outside autograd only the frames past the batch's common valid prefix are written, which in
+    generation (all samples nearly full length) is a few columns instead of a full pass over x.
+    With autograd recording it is zero_pad_bct, so training is unchanged.
+    """
+    if torch.is_grad_enabled():
+        return zero_pad_bct(x, mask)
+    start = int(mask.all(dim=0).cumprod(dim=0).sum())  # frames [0, start) are valid in every sample
+    if start < mask.shape[1]:
+        x[:, :, start:].masked_fill_(~mask[:, None, start:], 0.0)
+    return x
+
+
 def downsample_mask(mask: torch.Tensor) -> torch.Tensor:
     """Mask after a stride-2 down-sampling: output frame j is valid iff input frame 2j is.
 
@@ -122,9 +137,15 @@ class MaskedGroupNorm(nn.Module):
         self.weight = nn.Parameter(torch.ones(channels))
         self.bias = nn.Parameter(torch.zeros(channels))
 
-    def forward(self, x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, mask: torch.Tensor, scale: torch.Tensor | None = None,
+                shift: torch.Tensor | None = None) -> torch.Tensor:
+        """x: (B, C, T); optional AdaGN modulation scale, shift: (B, C, 1) applied after the affine,
+        norm(x) * weight * scale + bias * scale + shift, folded into the affine's single pass."""
         B, C, T = x.shape
         dtype = torch.promote_types(x.dtype, torch.float32)  # at least float32 statistics
+        weight, bias = self.weight.to(dtype)[:, None], self.bias.to(dtype)[:, None]  # (C, 1)
+        if scale is not None:
+            weight, bias = weight * scale, torch.addcmul(shift, bias, scale)  # (B, C, 1)
         if self.mode == "frame":
             # per-frame statistics over a channel group = layer_norm over that group's channels: one
             # fused pass, on a free view when x is frames-major (as stablemo.diffusion.accelerate's
@@ -132,7 +153,7 @@ class MaskedGroupNorm(nn.Module):
             G = self.num_groups
             frames = x.to(dtype).transpose(1, 2).reshape(B, T, G, C // G)
             y = F.layer_norm(frames, (C // G,), eps=self.eps).reshape(B, T, C)
-            y = torch.addcmul(self.bias.to(dtype), y, self.weight.to(dtype))
+            y = torch.addcmul(bias.transpose(-1, -2), y, weight.transpose(-1, -2))
             return y.transpose(1, 2).to(x.dtype)
         g = x.to(dtype).reshape(B, self.num_groups, C // self.num_groups, T)
         m = mask[:, None, None, :]  # (B, 1, 1, T)
@@ -142,8 +163,7 @@ class MaskedGroupNorm(nn.Module):
         centred = torch.where(m, g - mean, torch.zeros((), dtype=dtype, device=x.device))
         var = centred.pow(2).sum(dim=(2, 3), keepdim=True) / count.to(dtype)
         y = ((g - mean) * torch.rsqrt(var + self.eps)).reshape(B, C, T)
-        y = y * self.weight.to(dtype)[None, :, None] + self.bias.to(dtype)[None, :, None]
-        return y.to(x.dtype)
+        return torch.addcmul(bias, y, weight).to(x.dtype)
 
 
 # ----------------------------------------------------------------------------- attention

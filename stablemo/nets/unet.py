@@ -34,6 +34,7 @@ from stablemo.nets.layers import (
     downsample_mask,
     masked_mean,
     zero_pad_bct,
+    zero_pad_bct_,
 )
 
 
@@ -51,14 +52,14 @@ class ResBlock1D(nn.Module):
         self.conv2 = nn.Conv1d(out_ch, out_ch, kernel_size, padding=pad)
         self.norm2 = MaskedGroupNorm(num_groups, out_ch, norm)
         self.skip = nn.Conv1d(in_ch, out_ch, 1) if in_ch != out_ch else nn.Identity()
+        self.act = nn.Mish()  # a module, so stablemo.diffusion.accelerate can swap in its fast Mish
 
     def forward(self, x: torch.Tensor, emb: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        h = self.norm1(self.conv1(x), mask)
         scale, shift = self.emb(emb)[:, :, None].chunk(2, dim=1)  # (B, C_out, 1) each
-        h = F.mish(torch.addcmul(shift, h, 1 + scale))  # h * (1 + scale) + shift in one pass
-        h = zero_pad_bct(self.dropout(h), mask)
-        h = F.mish(self.norm2(self.conv2(h), mask))
-        return zero_pad_bct(h + self.skip(x), mask)
+        h = self.act(self.norm1(self.conv1(x), mask, 1 + scale, shift))  # AdaGN: norm(h) (1 + scale) + shift
+        h = zero_pad_bct_(self.dropout(h), mask)
+        h = self.act(self.norm2(self.conv2(h), mask))
+        return zero_pad_bct_(h + self.skip(x), mask)
 
 
 class CrossAttention1D(nn.Module):
@@ -70,7 +71,7 @@ class CrossAttention1D(nn.Module):
 
     def forward(self, x, text, text_mask, mask):
         y = self.attn(x.transpose(1, 2), text, text_mask).transpose(1, 2)
-        return zero_pad_bct(y, mask)
+        return zero_pad_bct_(y, mask)
 
 
 class Stage(nn.Module):
@@ -141,6 +142,7 @@ class CondUNet1D(nn.Module):
         self.upsample = nn.ModuleList(upsample)
         self.final_conv = nn.Conv1d(ch, ch, kernel_size, padding=kernel_size // 2)
         self.final_norm = MaskedGroupNorm(num_groups, ch, norm)
+        self.final_act = nn.Mish()
         self.out = nn.Conv1d(ch, input_dim, 1)
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
@@ -157,12 +159,12 @@ class CondUNet1D(nn.Module):
             masks.append(mask)
             if i < len(self.downsample):
                 mask = downsample_mask(mask)
-                h = zero_pad_bct(self.downsample[i](h), mask)
+                h = zero_pad_bct_(self.downsample[i](h), mask)
         h = self.mid(h, emb, text, text_mask, mask)
         for j, stage in enumerate(self.up):
             mask = masks.pop()
             h = stage(torch.cat([h, skips.pop()], dim=1), emb, text, text_mask, mask)
             if j < len(self.upsample):
-                h = zero_pad_bct(self.upsample[j](h), masks[-1])
-        h = zero_pad_bct(F.mish(self.final_norm(self.final_conv(h), mask)), mask)
-        return zero_pad_bct(self.out(h), mask).transpose(1, 2)
+                h = zero_pad_bct_(self.upsample[j](h), masks[-1])
+        h = zero_pad_bct_(self.final_act(self.final_norm(self.final_conv(h), mask)), mask)
+        return zero_pad_bct_(self.out(h), mask).transpose(1, 2)
