@@ -47,20 +47,21 @@ def bone_lengths(joints: torch.Tensor, parents) -> torch.Tensor:
     return (joints[..., 1:, :] - joints[..., list(parents[1:]), :]).norm(dim=-1)
 
 
-def foot_acceleration(joints: torch.Tensor, lengths: torch.Tensor, fps: float = 20.0) -> float:
-    """Mean |second difference| of the ankle and toe positions, m/s², over valid frames: a
-    correction that plants feet by making them jitter shows up here."""
-    feet = joints[:, :, [7, 8, 10, 11]]                                      # (B, T, 4, 3)
+def foot_acceleration(joints: torch.Tensor, lengths: torch.Tensor, topo) -> float:
+    """Mean |second difference| of the foot joints' positions (ankles and toes), m/s², over valid
+    frames: a correction that plants feet by making them jitter shows up here."""
+    feet = joints[:, :, list(topo.feet)]                                     # (B, T, 4, 3)
+    fps = topo.fps
     acc = (feet[:, 2:] - 2 * feet[:, 1:-1] + feet[:, :-2]).abs() * fps * fps  # (B, T-2, 4, 3)
     valid = torch.arange(joints.shape[1] - 2)[None] < (lengths - 2)[:, None]
     return float(acc[valid].mean())
 
 
-def row(joints: torch.Tensor, lengths: torch.Tensor) -> dict:
+def row(joints: torch.Tensor, lengths: torch.Tensor, topo) -> dict:
     ratio = foot_skating_ratio(joints, lengths=lengths)
     ground = ground_metrics(joints, lengths=lengths)
     return {"skating_ratio": float(ratio.mean()), "sliding_m": float(np.mean(ground["sliding"])),
-            "foot_acceleration": foot_acceleration(joints.float(), lengths)}
+            "foot_acceleration": foot_acceleration(joints.float(), lengths, topo)}
 
 
 def main(argv=None) -> dict:
@@ -113,16 +114,16 @@ def main(argv=None) -> dict:
     report = {
         "bundle": args.bundle, "num": args.num, "frames": frames, "steps": args.steps, "cfg": args.cfg,
         "seed": args.seed, "threads": args.threads,
-        "plain": row(joints_plain, lengths),
-        "plain_on_standard_skeleton": row(standard, lengths),
-        "post_process": {**row(recovered_post, lengths), "on_corrected_joints": row(joints_post, lengths),
+        "plain": row(joints_plain, lengths, topo),
+        "plain_on_standard_skeleton": row(standard, lengths, topo),
+        "post_process": {**row(recovered_post, lengths, topo), "on_corrected_joints": row(joints_post, lengths, topo),
                          "anchored_ranges": info["anchored_ranges"], "ranges": info["ranges"],
                          "anchor_drift_mean_m": drift["mean"], "anchor_drift_p95_m": drift["p95"],
                          "non_foot_moved_mean_m": float(moved.mean()),
                          "bone_length_change_max_m": float(bones.max()),
                          "features_vs_corrected_joints_max_m": float(feature_error.max()),
                          "seconds_wall": post_seconds},
-        "inside_denoising": {**row(joints_inside, lengths), "seconds_wall_generation": inside_seconds,
+        "inside_denoising": {**row(joints_inside, lengths, topo), "seconds_wall_generation": inside_seconds,
                              "hook_seconds": [c["seconds"] for c in inside.info["footskate"]]},
     }
     base = report["plain"]["skating_ratio"]
