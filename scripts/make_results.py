@@ -50,7 +50,7 @@ def aits(pipe: Pipeline, items: list[dict], steps: int, sampler: str | None, cfg
     lo, hi = pipe.min_length, pipe.max_length
     return metrics.average_inference_time(
         lambda text, n: pipe.generate([text], [min(max(n, lo), hi)], steps=steps, cfg=cfg, sampler=sampler, seed=0),
-        [it["text"] for it in items], [it["length"] for it in items])
+        [it["text"] for it in items], [it["length"] for it in items], reset=pipe.clear_text_caches)
 
 
 def cell(row: dict, key: str) -> str:

@@ -211,11 +211,17 @@ class Pipeline:
         return text.expand(batch, -1, -1), mask.expand(batch, -1)
 
     def clear_text_caches(self) -> None:
-        """Forget cached text encodings (the null prompt's and the frozen encoder's string cache)."""
+        """Forget cached text encodings (the null prompt's and every frozen encoder's string cache).
+
+        The frozen encoders are found wherever the model holds a text conditioner (a consistency
+        student wraps its teacher's), and they are shared across the process, so this also clears
+        what other pipelines cached in the same encoder.
+        """
         self._null = None
-        frozen = getattr(getattr(self.model, "text", None), "frozen", None)
-        if frozen is not None and hasattr(frozen, "clear_cache"):
-            frozen.clear_cache()
+        for module in self.model.modules():
+            frozen = getattr(module, "frozen", None)
+            if hasattr(frozen, "clear_cache"):
+                frozen.clear_cache()
 
     def _check_request(self, texts, lengths) -> tuple[list[str], list[int]]:
         if isinstance(texts, str):

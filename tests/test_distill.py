@@ -183,3 +183,21 @@ def test_student_bundle_samples_through_the_pipeline(teacher_bundle, tmp_path):
             feats = out.feature_list()[0]
             assert feats.shape == (40, D) and np.isfinite(feats).all()
             np.testing.assert_array_equal(feats, again.feature_list()[0])
+
+
+def test_student_pipeline_clears_the_shared_text_cache(teacher_bundle, tmp_path):
+    """AITS times each sentence with cold text caches; a student's pipeline must reach its encoder."""
+    from stablemo.distill.module import ConsistencyDistillation
+    from stablemo.pipeline import Pipeline
+
+    module = ConsistencyDistillation(teacher=str(teacher_bundle), mode="lcm", ddim_steps=50)
+    config, state = module.bundle()
+    pipe = Pipeline.from_bundle(save_bundle(tmp_path / "lcm", config, state))
+    frozen = pipe.model.model.text.frozen
+    pipe.generate(["a person waves twice"], [40], steps=1, seed=0)
+    assert "a person waves twice" in frozen._cache
+    pipe.clear_text_caches()
+    assert len(frozen._cache) == 0
+    misses = frozen.misses
+    pipe.generate(["a person waves twice"], [40], steps=1, seed=0)
+    assert frozen.misses == misses + 1

@@ -102,3 +102,16 @@ def test_aits_excludes_warmup():
     t = metrics.average_inference_time(gen, ["a", "b", "c"], [40, 40, 40], warmup=1)
     assert len(calls) == 4
     assert 0.005 < t < 0.1
+
+
+def test_aits_resets_before_every_timed_sentence_untimed():
+    events = []
+
+    def reset():
+        events.append("reset")
+        time.sleep(0.2)  # not part of any sentence's time
+
+    t = metrics.average_inference_time(lambda text, n: events.append(text), ["a", "b"], [40, 40], warmup=1,
+                                       reset=reset)
+    assert events == ["a", "reset", "a", "reset", "b"]
+    assert t < 0.1

@@ -176,12 +176,15 @@ def replication_interval(values: Sequence[float]) -> Interval:
 
 def average_inference_time(generate_one: Callable[[str, int], object], texts: Sequence[str],
                            lengths: Sequence[int], warmup: int = 1,
-                           synchronize: Callable[[], None] | None = None) -> float:
+                           synchronize: Callable[[], None] | None = None,
+                           reset: Callable[[], None] | None = None) -> float:
     """AITS: mean seconds per sentence, batch size 1, model and data loading excluded.
 
     `generate_one(text, length)` must run the full text→motion path for one sentence. The first
     `warmup` calls (kernel/JIT warm-up, text-encoder load) are not timed. `synchronize` (e.g.
     torch.cuda.synchronize) is called before each clock read so asynchronous GPUs are timed fully.
+    `reset` runs untimed before every timed sentence, e.g. a pipeline's `clear_text_caches`, so that
+    each sentence pays for its own text encoding whatever was timed before it in the process.
     """
     if len(texts) != len(lengths) or not texts:
         raise StableMoError("AITS: texts and lengths must be non-empty and of equal size")
@@ -190,6 +193,8 @@ def average_inference_time(generate_one: Callable[[str, int], object], texts: Se
         generate_one(texts[i], int(lengths[i]))
     total = 0.0
     for text, length in zip(texts, lengths):
+        if reset is not None:
+            reset()
         sync()
         start = time.perf_counter()
         generate_one(text, int(length))
