@@ -43,6 +43,7 @@ class MotionDiffusionModel(nn.Module):
         """Width of the sinusoidal timestep features that `time_cond` is added to."""
         return int(self.denoiser.time_embed.dim)
 
-    def forward(self, x, t, text, text_mask, motion_mask, time_cond=None):
-        """time_cond: optional (B, time_feature_dim) added to the timestep features (distillation)."""
-        return self.denoiser(x, t, text, text_mask, motion_mask, time_cond=time_cond)
+    def forward(self, x, t, text, text_mask, motion_mask, time_cond=None, memo=None):
+        """time_cond: optional (B, time_feature_dim) added to the timestep features (distillation).
+        memo: optional dict the caller keeps while the text stays fixed (text-only work done once)."""
+        return self.denoiser(x, t, text, text_mask, motion_mask, time_cond=time_cond, memo=memo)

@@ -473,7 +473,7 @@ def test_guidance_hook_cleans_x0_inside_denoising():
         def encode_text(self, texts):
             return torch.zeros(len(texts), 1, 4), torch.ones(len(texts), 1, dtype=torch.bool)
 
-        def forward(self, x, t, text, text_mask, motion_mask):
+        def forward(self, x, t, text, text_mask, motion_mask, memo=None):
             return target.expand(x.shape[0], -1, -1)[:, : x.shape[1]].to(x.dtype)
 
     pipe = Pipeline(Fixed(), NoiseSchedule(), mean, std, min_length=8, max_length=64, device="cpu", fast=False)

@@ -421,3 +421,25 @@ def test_group_norm_folds_adagn_modulation(mode):
     folded = norm(x, mask, scale, shift)
     torch.testing.assert_close(folded[:, :, :6], separate[:, :, :6], rtol=1e-5, atol=1e-5)
     torch.testing.assert_close(folded[1:, :, :6], norm(x[1:, :, :6], mask[1:, :6], scale[1:], shift[1:]), rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("variant", sorted(TINY))
+def test_text_memo_reuses_text_work_and_changes_no_result(variant):
+    """A memo kept across sampling steps: bit-identical outputs; nothing is stored under autograd."""
+    model = make(variant)
+    gen = torch.Generator().manual_seed(3)
+    items = sample_items(gen, [24, 17], [5, 3])
+    x, t, text, tm, mm = collate(items, 24, 6, gen)
+    memo: dict = {}
+    with torch.inference_mode():
+        for step, t_step in enumerate([t, t // 2, torch.zeros_like(t)]):
+            x_step = x + step
+            expected = model(x_step, t_step, text, tm, mm)
+            torch.testing.assert_close(model(x_step, t_step, text, tm, mm, memo=memo), expected, rtol=0, atol=0)
+    cross = [m for m in model.modules() if type(m).__name__ == "LinearCrossAttention"]
+    assert all(m in memo for m in cross)
+    if variant.startswith("unet"):
+        assert model in memo  # the pooled text embedding of the AdaGN input
+    trained: dict = {}
+    model(x, t, text, tm, mm, memo=trained).sum().backward()
+    assert trained == {}

@@ -41,7 +41,7 @@ class FakeModel(nn.Module):
             mask[i, : len(s)] = True
         return self.embed(tokens) * mask[..., None], mask
 
-    def forward(self, x, t, text, text_mask, motion_mask):
+    def forward(self, x, t, text, text_mask, motion_mask, memo=None):
         self.forward_batches.append(x.shape[0])
         m = motion_mask[..., None]
         pooled = (text * text_mask[..., None]).sum(1) / text_mask.sum(1, keepdim=True).clamp(min=1)

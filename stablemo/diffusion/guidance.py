@@ -15,7 +15,8 @@ import torch.nn.functional as F
 
 from stablemo.diffusion.schedule import check_prediction_type
 
-# network(x (B,T,D), t (B,), text (B,L,C), text_mask (B,L), motion_mask (B,T)) -> (B,T,D)
+# network(x (B,T,D), t (B,), text (B,L,C), text_mask (B,L), motion_mask (B,T), memo=dict) -> (B,T,D);
+# memo is a dict kept for one fixed text, where the network may store text-only intermediates
 Network = Callable[..., torch.Tensor]
 
 
@@ -47,7 +48,8 @@ class CFGDenoiser:
     Guidance on x0 equals guidance on eps (an affine map whose weights sum to 1), so it is applied
     before any x0 conversion. With `batched=True` the conditional and unconditional halves run as
     one forward of batch 2B (the paper's "parallel CFG"); with `batched=False` as two forwards.
-    The conditioning tensors are concatenated once here, not at every step.
+    The conditioning tensors are concatenated once here, not at every step, and each of them has
+    its own memo, so the network's text-only work (attention contexts) runs once per request.
 
     text/null_text: (B,L,C) / (B,L',C) with masks (B,L)/(B,L') bool; motion_mask: (B,T) bool.
     """
@@ -78,19 +80,20 @@ class CFGDenoiser:
                 torch.cat([self.cond[1], self.uncond[1]]),
                 torch.cat([motion_mask, motion_mask]),
             )
+        self.memos = {"cond": {}, "uncond": {}, "both": {}}
 
-    def _run(self, x, t, text, text_mask, motion_mask) -> torch.Tensor:
+    def _run(self, x, t, text, text_mask, motion_mask, memo: dict) -> torch.Tensor:
         with precision_context(x.device, self.dtype):
-            out = self.network(x, t, text, text_mask, motion_mask)
+            out = self.network(x, t, text, text_mask, motion_mask, memo=memo)
         return out.float()
 
     def __call__(self, x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         if self.scale == 1.0:  # guidance off: the conditional pass alone
-            return self._run(x, t, *self.cond, self.motion_mask)
+            return self._run(x, t, *self.cond, self.motion_mask, self.memos["cond"])
         if self.batched:
-            out = self._run(torch.cat([x, x]), torch.cat([t, t]), *self.both)
+            out = self._run(torch.cat([x, x]), torch.cat([t, t]), *self.both, self.memos["both"])
             cond, uncond = out.chunk(2)
         else:
-            cond = self._run(x, t, *self.cond, self.motion_mask)
-            uncond = self._run(x, t, *self.uncond, self.motion_mask)
+            cond = self._run(x, t, *self.cond, self.motion_mask, self.memos["cond"])
+            uncond = self._run(x, t, *self.uncond, self.motion_mask, self.memos["uncond"])
         return uncond + self.scale * (cond - uncond)

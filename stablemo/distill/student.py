@@ -38,10 +38,11 @@ class ConsistencyStudent(nn.Module):
     def encode_text(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
         return self.model.encode_text(texts)
 
-    def forward(self, x, t, w, text, text_mask, motion_mask) -> torch.Tensor:
-        """x0 estimate. x: (B,T,D), t: (B,) long, w: (B,) guidance (LCM convention, scale 1 + w)."""
+    def forward(self, x, t, w, text, text_mask, motion_mask, memo=None) -> torch.Tensor:
+        """x0 estimate. x: (B,T,D), t: (B,) long, w: (B,) guidance (LCM convention, scale 1 + w).
+        memo: optional dict kept while the text stays fixed (MotionDiffusionModel.forward)."""
         w_feat = self.w_proj(guidance_embedding(w, self.w_dim).to(self.w_proj.weight.dtype))
-        return self.model(x, t, text, text_mask, motion_mask, time_cond=w_feat)
+        return self.model(x, t, text, text_mask, motion_mask, time_cond=w_feat, memo=memo)
 
 
 def consistency_fn(mode: str, schedule: NoiseSchedule, edges: list[int] | None, x_t: torch.Tensor,
@@ -65,9 +66,10 @@ class StudentDenoiser:
     def __init__(self, student: ConsistencyStudent, text, text_mask, motion_mask, w: float, dtype=None):
         self.student, self.text, self.text_mask, self.motion_mask = student, text, text_mask, motion_mask
         self.w, self.dtype = float(w), dtype
+        self.memo: dict = {}  # the text is fixed for this denoiser's lifetime (one request)
 
     def __call__(self, x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         w = torch.full((x.shape[0],), self.w, device=x.device)
         with precision_context(x.device, self.dtype):
-            out = self.student(x, t, w, self.text, self.text_mask, self.motion_mask)
+            out = self.student(x, t, w, self.text, self.text_mask, self.motion_mask, memo=self.memo)
         return out.float()

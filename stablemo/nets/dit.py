@@ -45,12 +45,12 @@ class DiTBlock(nn.Module):
         nn.init.zeros_(self.ada[1].weight)  # adaLN-Zero: every block starts as the identity
         nn.init.zeros_(self.ada[1].bias)
 
-    def forward(self, x, mask, emb, text, text_mask):
+    def forward(self, x, mask, emb, text, text_mask, memo=None):
         shift1, scale1, gate1, shift2, scale2, gate2 = self.ada(emb).chunk(6, dim=-1)
         h = self.attn(modulate(self.norm1(x), shift1, scale1), mask)
         x = zero_pad_btc(x + gate1[:, None] * self.dropout(h), mask)
         if self.cross is not None:
-            x = zero_pad_btc(self.cross(x, text, text_mask), mask)
+            x = zero_pad_btc(self.cross(x, text, text_mask, memo), mask)
         h = self.mlp(modulate(self.norm2(x), shift2, scale2))
         return zero_pad_btc(x + gate2[:, None] * self.dropout(h), mask)
 
@@ -89,7 +89,8 @@ class DiT(nn.Module):
             nn.init.zeros_(layer.weight)
             nn.init.zeros_(layer.bias)
 
-    def forward(self, x, t, text, text_mask, motion_mask, time_cond=None):
+    def forward(self, x, t, text, text_mask, motion_mask, time_cond=None, memo=None):
+        """memo: an optional dict kept by the caller for one fixed text (see layers.memoized)."""
         check_inputs(x, t, text, text_mask, motion_mask, self.input_dim, self.text_dim, self.length_multiple)
         B, T, _ = x.shape
         emb = self.time_embed(t, time_cond)  # (B, C)
@@ -102,7 +103,7 @@ class DiT(nn.Module):
             h = torch.cat([zero_pad_btc(tokens, text_mask), h], dim=1)
             mask = torch.cat([text_mask, motion_mask], dim=1)
         for block in self.blocks:
-            h = block(h, mask, emb, text, text_mask)
+            h = block(h, mask, emb, text, text_mask, memo)
         h = h[:, -T:]
         shift, scale = self.final_ada(emb).chunk(2, dim=-1)
         out = self.out(modulate(self.final_norm(h), shift, scale))

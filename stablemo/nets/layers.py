@@ -81,6 +81,20 @@ def check_inputs(x, t, text, text_mask, motion_mask, input_dim: int, text_dim: i
         raise StableMoError(f"motion_mask: expected bool ({B}, {T}), got {motion_mask.dtype} {tuple(motion_mask.shape)}")
 
 
+def memoized(memo: dict | None, owner: object, make):
+    """make() once per request: `memo` is a dict the caller keeps while the text stays the same.
+
+    Sampling calls the network 10-1000 times with one fixed text; text-only intermediates (attention
+    contexts, pooled text embeddings) are then computed at the first call and reused. With autograd
+    recording nothing is stored, so training never reuses a stale graph.
+    """
+    if memo is None or torch.is_grad_enabled():
+        return make()
+    if owner not in memo:
+        memo[owner] = make()
+    return memo[owner]
+
+
 # ----------------------------------------------------------------------------- timestep embedding
 
 
@@ -178,6 +192,7 @@ class LinearCrossAttention(nn.Module):
     output depends only on that frame and the text -- no leak across time.
 
     x: (B, T, C), text: (B, L, text_dim), text_mask: (B, L) bool -> x + attn(x, text): (B, T, C).
+    The per-head contexts depend on the text alone, so a sampling loop computes them once (`memo`).
     """
 
     def __init__(self, dim: int, text_dim: int, num_heads: int = 8, dropout: float = 0.0):
@@ -193,20 +208,27 @@ class LinearCrossAttention(nn.Module):
         self.out = nn.Linear(dim, dim)
         self.dropout = nn.Dropout(dropout)
 
-    def forward(self, x: torch.Tensor, text: torch.Tensor, text_mask: torch.Tensor) -> torch.Tensor:
-        B, T, C = x.shape
-        H = self.num_heads
+    def context(self, text: torch.Tensor, text_mask: torch.Tensor) -> torch.Tensor:
+        """The text summarised per head: (B, L, text_dim) -> (B, H, d, d)."""
+        B, H = text.shape[0], self.num_heads
+        d = self.out.in_features // H
         text = self.text_norm(zero_pad_btc(text, text_mask))
-        q = self.query(self.norm(x)).reshape(B, T, H, C // H).softmax(dim=-1)
-        k_logits = self.key(text).reshape(B, -1, H, C // H)
+        k_logits = self.key(text).reshape(B, -1, H, d)
         k_logits = k_logits.masked_fill(~text_mask[:, :, None, None], torch.finfo(k_logits.dtype).min)
         k = k_logits.softmax(dim=1)
         valid = text_mask[:, :, None, None]
         k = torch.where(valid, k, torch.zeros((), dtype=k.dtype, device=k.device))  # no valid token -> no context
-        v = self.value(text).reshape(B, -1, H, C // H)
+        v = self.value(text).reshape(B, -1, H, d)
         v = torch.where(valid, v, torch.zeros((), dtype=v.dtype, device=v.device))
-        context = torch.einsum("blhd,blhe->bhde", k, v)  # (B, H, d, d)
-        y = torch.einsum("bthd,bhde->bthe", q, context).reshape(B, T, C)
+        return torch.einsum("blhd,blhe->bhde", k, v)
+
+    def forward(self, x: torch.Tensor, text: torch.Tensor, text_mask: torch.Tensor,
+                memo: dict | None = None) -> torch.Tensor:
+        B, T, C = x.shape
+        H = self.num_heads
+        context = memoized(memo, self, lambda: self.context(text, text_mask))  # (B, H, d, d)
+        q = self.query(self.norm(x)).reshape(B, T, H, C // H).softmax(dim=-1)
+        y = torch.einsum("bthd,bhde->bthe", q, context.to(q.dtype)).reshape(B, T, C)
         return x + self.dropout(self.out(y))
 
 

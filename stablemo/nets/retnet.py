@@ -105,10 +105,10 @@ class RetNetBlock(nn.Module):
         self.ffn = FeedForward(dim, ff_dim, dropout)
         self.dropout = nn.Dropout(dropout)
 
-    def forward(self, x, mask, positions, is_frame, text, text_mask):
+    def forward(self, x, mask, positions, is_frame, text, text_mask, memo=None):
         x = zero_pad_btc(x + self.dropout(self.retention(self.norm1(x), mask, positions, is_frame)), mask)
         if self.cross is not None:
-            x = zero_pad_btc(self.cross(x, text, text_mask), mask)
+            x = zero_pad_btc(self.cross(x, text, text_mask, memo), mask)
         return zero_pad_btc(x + self.dropout(self.ffn(self.norm2(x))), mask)
 
 
@@ -141,7 +141,8 @@ class RetNet(nn.Module):
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
 
-    def forward(self, x, t, text, text_mask, motion_mask, time_cond=None):
+    def forward(self, x, t, text, text_mask, motion_mask, time_cond=None, memo=None):
+        """memo: an optional dict kept by the caller for one fixed text (see layers.memoized)."""
         check_inputs(x, t, text, text_mask, motion_mask, self.input_dim, self.text_dim, self.length_multiple)
         B, T, _ = x.shape
         tokens = [self.time_embed(t, time_cond)[:, None]]  # (B, 1, C)
@@ -156,6 +157,6 @@ class RetNet(nn.Module):
         positions = torch.cat([torch.zeros(n_cond, device=x.device), torch.arange(T, device=x.device).float()])
         is_frame = torch.arange(n_cond + T, device=x.device) >= n_cond
         for block in self.blocks:
-            h = block(h, mask, positions, is_frame, text, text_mask)
+            h = block(h, mask, positions, is_frame, text, text_mask, memo)
         out = self.out(self.final_norm(h[:, n_cond:]))
         return zero_pad_btc(out, motion_mask)

@@ -28,6 +28,7 @@ from stablemo.errors import StableMoError
 from stablemo.nets.layers import (
     LinearCrossAttention,
     MaskedGroupNorm,
+    memoized,
     TimestepEmbedder,
     check_inputs,
     downsample_mask,
@@ -68,8 +69,8 @@ class CrossAttention1D(nn.Module):
         super().__init__()
         self.attn = LinearCrossAttention(channels, text_dim, num_heads, dropout)
 
-    def forward(self, x, text, text_mask, mask):
-        y = self.attn(x.transpose(1, 2), text, text_mask).transpose(1, 2)
+    def forward(self, x, text, text_mask, mask, memo=None):
+        y = self.attn(x.transpose(1, 2), text, text_mask, memo).transpose(1, 2)
         return zero_pad_bct_(y, mask)
 
 
@@ -87,16 +88,19 @@ class Stage(nn.Module):
             [CrossAttention1D(out_ch, text_dim, num_heads, dropout) for _ in range(2)] if cross_attention else []
         )
 
-    def forward(self, x, emb, text, text_mask, mask):
+    def forward(self, x, emb, text, text_mask, mask, memo=None):
         for i, block in enumerate(self.blocks):
             x = block(x, emb, mask)
             if self.attns:
-                x = self.attns[i](x, text, text_mask, mask)
+                x = self.attns[i](x, text, text_mask, mask, memo)
         return x
 
 
 class CondUNet1D(nn.Module):
-    """x: (B, T, input_dim), t: (B,), text: (B, L, text_dim) -> (B, T, input_dim)."""
+    """x: (B, T, input_dim), t: (B,), text: (B, L, text_dim) -> (B, T, input_dim).
+
+    memo: an optional dict kept by the caller for one fixed text (see layers.memoized).
+    """
 
     def __init__(
         self,
@@ -146,23 +150,24 @@ class CondUNet1D(nn.Module):
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
 
-    def forward(self, x, t, text, text_mask, motion_mask, time_cond=None):
+    def forward(self, x, t, text, text_mask, motion_mask, time_cond=None, memo=None):
         check_inputs(x, t, text, text_mask, motion_mask, self.input_dim, self.text_dim, self.length_multiple)
-        emb = self.time_embed(t, time_cond) + self.text_embed(masked_mean(text, text_mask))
+        pooled = memoized(memo, self, lambda: self.text_embed(masked_mean(text, text_mask)))  # (B, time_dim)
+        emb = self.time_embed(t, time_cond) + pooled
         mask = motion_mask
         h = zero_pad_bct(x.transpose(1, 2), mask)  # (B, D, T)
         skips, masks = [], []
         for i, stage in enumerate(self.down):
-            h = stage(h, emb, text, text_mask, mask)
+            h = stage(h, emb, text, text_mask, mask, memo)
             skips.append(h)
             masks.append(mask)
             if i < len(self.downsample):
                 mask = downsample_mask(mask)
                 h = zero_pad_bct_(self.downsample[i](h), mask)
-        h = self.mid(h, emb, text, text_mask, mask)
+        h = self.mid(h, emb, text, text_mask, mask, memo)
         for j, stage in enumerate(self.up):
             mask = masks.pop()
-            h = stage(torch.cat([h, skips.pop()], dim=1), emb, text, text_mask, mask)
+            h = stage(torch.cat([h, skips.pop()], dim=1), emb, text, text_mask, mask, memo)
             if j < len(self.upsample):
                 h = zero_pad_bct_(self.upsample[j](h), masks[-1])
         h = zero_pad_bct_(self.final_act(self.final_norm(self.final_conv(h), mask)), mask)
