@@ -5,8 +5,10 @@
         [--student LCM=bundles/demo_lcm --student PCM=bundles/demo_pcm] [--replications 20] \
         [--ddpm-items 96 --ddpm-replications 1] [--out docs/results.md]
 
-Every row is scored by the same evaluator on the same test split with the same replication seeds;
-AITS (batch 1, model loaded, text cache warm) is measured for every row in this one run. The
+Every row is scored by the same evaluator on the same test split with the same replication seeds.
+AITS (batch 1, model loaded, each sentence encoding its own text) is measured for every row in this
+one run, after the quality rows, round-robin sentence by sentence so the rows' ratios are measured
+side by side (never taken from an earlier run, even with `--resume`). The
 1000-step DDPM row is expensive on a CPU: it runs on `--ddpm-items` items for `--ddpm-replications`
 replication(s), and is compared with the 10-step SDE row scored on exactly the same items.
 The report (markdown and JSON) is rewritten after every row, marked partial until the last one;
@@ -46,11 +48,15 @@ def make_generate(pipe: Pipeline, steps: int, sampler: str | None, cfg: float):
     return generate
 
 
-def aits(pipe: Pipeline, items: list[dict], steps: int, sampler: str | None, cfg: float) -> float:
-    lo, hi = pipe.min_length, pipe.max_length
-    return metrics.average_inference_time(
-        lambda text, n: pipe.generate([text], [min(max(n, lo), hi)], steps=steps, cfg=cfg, sampler=sampler, seed=0),
-        [it["text"] for it in items], [it["length"] for it in items], reset=pipe.clear_text_caches)
+def aits(runs: list[tuple[str, Pipeline, int, str | None]], items: list[dict], cfg: float) -> dict[str, float]:
+    """AITS of every run {name: seconds}, measured side by side with cold text caches."""
+    def method(pipe: Pipeline, steps: int, sampler: str | None):
+        lo, hi = pipe.min_length, pipe.max_length
+        return (lambda text, n: pipe.generate([text], [min(max(n, lo), hi)], steps=steps, cfg=cfg, sampler=sampler,
+                                             seed=0), lambda: pipe.clear_text_caches(keep_null=True))
+
+    methods = {name: method(pipe, steps, sampler) for name, pipe, steps, sampler in runs}
+    return metrics.average_inference_times(methods, [it["text"] for it in items], [it["length"] for it in items])
 
 
 def cell(row: dict, key: str) -> str:
@@ -79,7 +85,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--max-items", type=int, default=None, help="items scored per replication (default: the split)")
     p.add_argument("--ddpm-items", type=int, default=96)
     p.add_argument("--ddpm-replications", type=int, default=1)
-    p.add_argument("--aits-sentences", type=int, default=10)
+    p.add_argument("--aits-sentences", type=int, default=20)
     p.add_argument("--cfg", type=float, default=2.5)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="docs/results.md")
@@ -118,7 +124,7 @@ def main(argv: list[str]) -> int:
     if args.resume and json_path.is_file():
         previous = json.loads(json_path.read_text())
         if previous.get("settings") == settings:
-            raw.update({k: previous.get(k, raw[k]) for k in ("rows", "aits", "subset")})
+            raw.update({k: previous.get(k, raw[k]) for k in ("rows", "subset")})
             print(f"resuming: {len(raw['rows'])} row(s) and {len(raw['subset'])} subset row(s) from {json_path}")
         else:
             print(f"not resuming: {json_path} was written with other settings")
@@ -138,8 +144,10 @@ def main(argv: list[str]) -> int:
         result = evaluate(data, evaluator, make_generate(pipe, steps, sampler, args.cfg), row_name=name, **common)
         raw["rows"][REAL_ROW] = result["rows"][REAL_ROW]
         raw["rows"][name] = result["rows"][name]
-        raw["aits"][name] = aits(pipe, timing_items, steps, sampler, args.cfg)
         save()
+    print(f"== AITS of {len(runs)} rows, side by side over {len(timing_items)} sentences", flush=True)
+    raw["aits"] = aits(runs, timing_items, args.cfg)
+    save()
 
     # Table 5's claim on a subset: 1000 DDPM steps vs 10 SDE steps on the same items and seeds
     if args.ddpm_replications:
@@ -149,8 +157,8 @@ def main(argv: list[str]) -> int:
                 continue
             print(f"== {name} (subset)", flush=True)
             result = evaluate(data, evaluator, make_generate(teacher, steps, sampler, args.cfg), row_name=name, **subset)
-            raw["subset"][name] = {"row": result["rows"][name], "aits": aits(teacher, timing_items[:2], steps, sampler, args.cfg),
-                                   "real": result["rows"][REAL_ROW]}
+            timed = aits([(name, teacher, steps, sampler)], timing_items[:2], args.cfg)[name]
+            raw["subset"][name] = {"row": result["rows"][name], "aits": timed, "real": result["rows"][REAL_ROW]}
             save()
     save()
     print(f"wrote {args.out}")
@@ -160,7 +168,7 @@ def main(argv: list[str]) -> int:
 def render(args, argv, raw: dict, runs, minutes: float, done: int, total: int) -> str:
     cmd = "python scripts/make_results.py " + " ".join(argv)
     real = raw["rows"].get(REAL_ROW)
-    main_rows = [(name, raw["rows"][name], raw["aits"][name]) for name, *_ in runs if name in raw["rows"]]
+    main_rows = [(name, raw["rows"][name], raw["aits"].get(name)) for name, *_ in runs if name in raw["rows"]]
     claim_rows = [(name, v["row"], v["aits"]) for name, v in raw["subset"].items()]
     if claim_rows:
         claim_rows.insert(0, ("Real motion", next(iter(raw["subset"].values()))["real"], None))
@@ -186,7 +194,8 @@ Machine: {platform.machine()}, {torch.get_num_threads()} torch threads, torch {t
 `{args.evaluator}` (StableMo's contrastive text–motion evaluator trained on the same synthetic
 data, `configs/evaluator_synth.yaml`). Test split with the evaluation crops; mean ± 95% interval over
 {args.replications} replications; CFG {args.cfg:g}. AITS: average inference time per sentence, batch 1,
-model loaded, over {args.aits_sentences} test sentences. Items scored per replication:
+model loaded, every sentence encoding its own text (cold caches), over {args.aits_sentences} test sentences
+timed round-robin across the rows. Items scored per replication:
 {args.max_items or 'the whole test split'}.
 
 ## Samplers and consistency students
@@ -202,7 +211,7 @@ TEACHER_ROW = "Teacher, SDE-DPM-Solver++ 2M, 10 steps"
 def student_ratios(raw: dict, runs) -> str:
     """Each student row against the teacher's 10-step SDE row: FID ratio and AITS ratio (the
     distillation targets: 1 step FID <= 1.5x, 4 steps <= 1.1x, 1-step AITS <= 1/8)."""
-    if TEACHER_ROW not in raw["rows"]:
+    if TEACHER_ROW not in raw["rows"] or TEACHER_ROW not in raw["aits"]:
         return ""
     teacher_fid, teacher_aits = raw["rows"][TEACHER_ROW]["fid"]["mean"], raw["aits"][TEACHER_ROW]
     lines = []

@@ -210,14 +210,16 @@ class Pipeline:
         text, mask = self._null
         return text.expand(batch, -1, -1), mask.expand(batch, -1)
 
-    def clear_text_caches(self) -> None:
-        """Forget cached text encodings (the null prompt's and every frozen encoder's string cache).
+    def clear_text_caches(self, keep_null: bool = False) -> None:
+        """Forget cached text encodings (every frozen encoder's string cache, and the null prompt's
+        unless `keep_null`: it is a constant of the model, which AITS counts as loading).
 
         The frozen encoders are found wherever the model holds a text conditioner (a consistency
         student wraps its teacher's), and they are shared across the process, so this also clears
         what other pipelines cached in the same encoder.
         """
-        self._null = None
+        if not keep_null:
+            self._null = None
         for module in self.model.modules():
             frozen = getattr(module, "frozen", None)
             if hasattr(frozen, "clear_cache"):

@@ -115,3 +115,20 @@ def test_aits_resets_before_every_timed_sentence_untimed():
                                        reset=reset)
     assert events == ["a", "reset", "a", "reset", "b"]
     assert t < 0.1
+
+
+def test_aits_of_several_methods_runs_them_round_robin():
+    events = []
+
+    def method(name, seconds):
+        def generate_one(text, n):
+            events.append((name, text))
+            time.sleep(seconds)
+        return generate_one, lambda: events.append((name, "reset"))
+
+    times = metrics.average_inference_times({"slow": method("slow", 0.03), "fast": method("fast", 0.0)},
+                                            ["a", "b"], [40, 40], warmup=1)
+    assert events == [("slow", "a"), ("fast", "a"),
+                      ("slow", "reset"), ("slow", "a"), ("fast", "reset"), ("fast", "a"),
+                      ("slow", "reset"), ("slow", "b"), ("fast", "reset"), ("fast", "b")]
+    assert times["slow"] >= 0.03 > times["fast"]

@@ -238,3 +238,16 @@ def test_from_bundle_errors(tmp_path, tiny_bundle):
     (student / "config.json").write_text(json.dumps(config))
     with pytest.raises(StableMoError, match="bundle kind 'hypothetical' is not supported"):
         Pipeline.from_bundle(student)
+
+
+def test_clearing_text_caches_can_keep_the_null_prompt():
+    pipe = make_pipeline()
+    pipe.generate(["jumps"], [8], steps=2, seed=0)
+    pipe.model.encode_calls.clear()
+    pipe.clear_text_caches(keep_null=True)  # AITS: the prompt is encoded again, the model's null prompt is not
+    pipe.generate(["jumps"], [8], steps=2, seed=0)
+    assert pipe.model.encode_calls == [["jumps"]]
+    pipe.model.encode_calls.clear()
+    pipe.clear_text_caches()
+    pipe.generate(["jumps"], [8], steps=2, seed=0)
+    assert sorted(pipe.model.encode_calls) == [[""], ["jumps"]]

@@ -366,7 +366,7 @@ def main(argv: list[str]) -> int:
             lambda text, n: pipe.generate([text], [min(max(n, pipe.min_length), pipe.max_length)], steps=args.steps,
                                           cfg=args.cfg, sampler=args.sampler, seed=args.seed),
             [it["text"] for it in items], [it["length"] for it in items], synchronize=sync,
-            reset=pipe.clear_text_caches)
+            reset=lambda: pipe.clear_text_caches(keep_null=True))
     result["settings"].update(
         bundle=args.bundle, data=args.data, split=args.split, dataset=dataset_name,
         steps=args.steps if pipe else None, sampler=args.sampler if pipe else None, cfg=args.cfg if pipe else None,

@@ -183,21 +183,36 @@ def average_inference_time(generate_one: Callable[[str, int], object], texts: Se
     `generate_one(text, length)` must run the full text→motion path for one sentence. The first
     `warmup` calls (kernel/JIT warm-up, text-encoder load) are not timed. `synchronize` (e.g.
     torch.cuda.synchronize) is called before each clock read so asynchronous GPUs are timed fully.
-    `reset` runs untimed before every timed sentence, e.g. a pipeline's `clear_text_caches`, so that
-    each sentence pays for its own text encoding whatever was timed before it in the process.
+    `reset` runs untimed before every timed sentence, e.g. a pipeline's `clear_text_caches(keep_null=True)`,
+    so that each sentence pays for its own text encoding whatever was timed before it in the process.
+    """
+    methods = {"": (generate_one, reset)}
+    return average_inference_times(methods, texts, lengths, warmup, synchronize)[""]
+
+
+def average_inference_times(methods: dict[str, tuple[Callable[[str, int], object], Callable[[], None] | None]],
+                            texts: Sequence[str], lengths: Sequence[int], warmup: int = 1,
+                            synchronize: Callable[[], None] | None = None) -> dict[str, float]:
+    """AITS of several methods {name: (generate_one, reset)} measured side by side.
+
+    Sentence by sentence, every method runs in turn (round-robin), so a machine whose speed drifts
+    during the run (shared cores, clocks) slows all of them alike and their ratios stay meaningful.
+    Warm-up, `synchronize` and `reset` as in `average_inference_time`.
     """
     if len(texts) != len(lengths) or not texts:
         raise StableMoError("AITS: texts and lengths must be non-empty and of equal size")
     sync = synchronize or (lambda: None)
-    for i in range(min(warmup, len(texts))):
-        generate_one(texts[i], int(lengths[i]))
-    total = 0.0
+    for generate_one, _ in methods.values():
+        for i in range(min(warmup, len(texts))):
+            generate_one(texts[i], int(lengths[i]))
+    totals = dict.fromkeys(methods, 0.0)
     for text, length in zip(texts, lengths):
-        if reset is not None:
-            reset()
-        sync()
-        start = time.perf_counter()
-        generate_one(text, int(length))
-        sync()
-        total += time.perf_counter() - start
-    return total / len(texts)
+        for name, (generate_one, reset) in methods.items():
+            if reset is not None:
+                reset()
+            sync()
+            start = time.perf_counter()
+            generate_one(text, int(length))
+            sync()
+            totals[name] += time.perf_counter() - start
+    return {name: total / len(texts) for name, total in totals.items()}
