@@ -14,6 +14,10 @@ one:
     + parallel CFG (conditional and unconditional halves in one forward)
     + low precision (bf16 on CPU, fp16 on CUDA; network only)
 
+and, for the distillation speed-up, a 1-step LCM consistency student of the same network (its
+guidance embedded: one forward of batch 1 per sentence, fp32), as `stablemo distill` exports it
+before training (the student starts as a copy of the teacher, so the timing is the trained one's).
+
 The denoiser's FLOPs per step come from torch.utils.flop_counter; achieved GFLOP/s of a row are
 steps x FLOPs/step / AITS, and its efficiency is that over this machine's fp32 matmul throughput,
 measured in the same run (a 2048^3 matmul, best of 5, sampled before every row and at the end; the
@@ -61,6 +65,10 @@ PROMPTS = [
     "a person walks backwards slowly",
     "a man crouches and then stands up",
 ]
+
+
+STUDENT_ROW = "1-step LCM student (fp32)"
+TEACHER_ROW = "+ parallel CFG"
 
 
 @dataclass
@@ -155,8 +163,22 @@ def _build_pipeline(args, fast: bool):
     dim = int(kwargs["denoiser"]["input_dim"])
     pipe = Pipeline(model, NoiseSchedule(), mean=[0.0] * dim, std=[1.0] * dim, prediction_type="sample",
                     skeleton="humanml3d" if dim == 263 else "kit", min_length=1, max_length=10_000,
-                    device=args.device, fast=fast)
+                    device=args.device, fast=fast, config={"model": kwargs})
     return pipe, f"{source}, random weights"
+
+
+def _student_pipeline(pipe, fast: bool):
+    """A 1-step LCM student of `pipe`'s network (stablemo.distill's defaults), with the teacher's weights."""
+    from stablemo.distill.student import ConsistencyStudent
+    from stablemo.pipeline import Pipeline
+
+    student = ConsistencyStudent(pipe.config["model"])
+    student.model.load_state_dict(pipe.model.state_dict())
+    config = {"consistency": {"mode": "lcm", "ddim_steps": 50, "w_dim": 256, "sigma_data": 0.5, "timestep_scale": 10.0}}
+    return Pipeline(student, pipe.schedule, mean=pipe.mean.numpy(), std=pipe.std.numpy(),
+                    prediction_type=pipe.prediction_type, skeleton=pipe.skeleton, fps=pipe.fps,
+                    min_length=pipe.min_length, max_length=pipe.max_length, kind="consistency",
+                    device=pipe.device, config=config, fast=fast)
 
 
 # ---- measurements -------------------------------------------------------------------------------
@@ -263,7 +285,7 @@ def _run_aits(args) -> dict:
         ("DDPM 1000 (baseline)", "ddpm", 1000, False, False, "fp32"),
         (f"+ SDE-DPM-Solver++ 2M, {args.steps} steps", "dpmpp_2m_sde", args.steps, False, False, "fp32"),
         ("+ text cache", "dpmpp_2m_sde", args.steps, True, False, "fp32"),
-        ("+ parallel CFG", "dpmpp_2m_sde", args.steps, True, True, "fp32"),
+        (TEACHER_ROW, "dpmpp_2m_sde", args.steps, True, True, "fp32"),
         (f"+ low precision ({low})", "dpmpp_2m_sde", args.steps, True, True, low),
     ]
     if args.skip_ddpm:
@@ -286,6 +308,17 @@ def _run_aits(args) -> dict:
             cpu_seconds.append(cpu)
         rows.append(Row(name, sampler, steps, cache, parallel, dtype, seconds, cpu_seconds, measured, flops_cfg))
         print(f"  measured {name}: {statistics.mean(seconds):.2f} s over {measured} step(s)", file=sys.stderr)
+    if not args.skip_student:
+        student = _student_pipeline(pipe, fast=not args.stock)
+        flops_one = denoiser_flops(pipe, args.frames, B)  # the same network, batch 1 (no CFG pass)
+        time_generation(student, "warm up", args.frames, "lcm", 1, args.cfg, True, True, "fp32", 0)
+        seconds, cpu_seconds = [], []
+        for r in range(args.repeats):
+            elapsed, cpu, _ = time_generation(student, PROMPTS[r % len(PROMPTS)], args.frames, "lcm", 1, args.cfg,
+                                              True, True, "fp32", args.seed + r)
+            seconds.append(elapsed)
+            cpu_seconds.append(cpu)
+        rows.append(Row(STUDENT_ROW, "lcm", 1, True, False, "fp32", seconds, cpu_seconds, 1, flops_one))
     peaks.append(matmul_gflops())
     low_dtype = torch.bfloat16 if low == "bf16" else torch.float16
     peak_low = matmul_gflops(low_dtype)[0] if pipe.device.type == "cpu" else None
@@ -336,6 +369,10 @@ def format_report(result: dict) -> str:
             notes.append(f"* extrapolated: {row.measured_steps} of {row.steps} steps run, time per step x {row.steps}")
         lines.append(f"{row.name + mark:<38} {row.steps:>5} {row.aits:>9.3f} {row.best:>8.3f} {gflops:>8.1f} "
                      f"{gflops / peak:>9.0%} {row.cpu:>8.2f} {cpu_eff:>9.0%}")
+    by_name = {row.name: row for row in result["rows"]}
+    if STUDENT_ROW in by_name and TEACHER_ROW in by_name:
+        notes.append(f"1-step student AITS / teacher's {by_name[TEACHER_ROW].steps}-step AITS ('{TEACHER_ROW}' row): "
+                     f"{by_name[STUDENT_ROW].aits / by_name[TEACHER_ROW].aits:.3f}")
     lines += [""] + notes + [
         "AITS = mean wall time per sentence (text in -> features and joints out). GFLOP/s counts the denoiser only;",
         "'of matmul' = achieved / measured fp32 matmul throughput (wall clock); 'per CPU-s' = the same ratio with",
@@ -359,6 +396,7 @@ def _aits_parser() -> argparse.ArgumentParser:
     p.add_argument("--ddpm-steps", type=int, default=None,
                    help="run only this many of the 1000 DDPM steps and extrapolate (label shown in the table)")
     p.add_argument("--skip-ddpm", action="store_true", help="leave out the DDPM baseline row")
+    p.add_argument("--skip-student", action="store_true", help="leave out the 1-step consistency student row")
     p.add_argument("--stock", action="store_true", help="stock PyTorch convolutions (no stablemo.diffusion.accelerate)")
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
     p.add_argument("--device", default="cpu")

@@ -30,14 +30,17 @@ def test_aits_table_and_json(tiny_config, tmp_path, capsys):
     assert rc == 0 and torch.get_num_threads() == threads  # thread setting restored
     text = capsys.readouterr().out
     for name in ("DDPM 1000 (baseline) *", "+ SDE-DPM-Solver++ 2M, 3 steps", "+ text cache", "+ parallel CFG",
-                 "+ low precision (bf16)", "extrapolated: 2 of 1000 steps", "measured fp32 matmul"):
+                 "+ low precision (bf16)", "1-step LCM student (fp32)", "extrapolated: 2 of 1000 steps",
+                 "measured fp32 matmul", "1-step student AITS / teacher's 3-step AITS"):
         assert name in text
     data = json.loads(out.read_text())
     rows = data["rows"]
-    assert [r["steps"] for r in rows] == [1000, 3, 3, 3, 3]
+    assert [r["steps"] for r in rows] == [1000, 3, 3, 3, 3, 1]
     assert rows[0]["measured_steps"] == 2 and rows[0]["aits"] == pytest.approx(rows[0]["seconds"][0] * 500)
     assert [(r["text_cache"], r["parallel_cfg"], r["dtype"]) for r in rows[1:]] == [
-        (False, False, "fp32"), (True, False, "fp32"), (True, True, "fp32"), (True, True, "bf16")]
+        (False, False, "fp32"), (True, False, "fp32"), (True, True, "fp32"), (True, True, "bf16"), (True, False, "fp32")]
+    # the student runs its network once on batch 1: half the FLOPs of a CFG step
+    assert rows[-1]["sampler"] == "lcm" and rows[-1]["flops_per_step"] == pytest.approx(rows[1]["flops_per_step"] / 2)
     assert data["matmul_fp32_gflops"] > 0 and data["frames"] == 12
 
 
