@@ -201,3 +201,16 @@ def test_student_pipeline_clears_the_shared_text_cache(teacher_bundle, tmp_path)
     misses = frozen.misses
     pipe.generate(["a person waves twice"], [40], steps=1, seed=0)
     assert frozen.misses == misses + 1
+
+
+def test_guidance_embedding_can_learn_faster(teacher_bundle):
+    from stablemo.distill.module import ConsistencyDistillation
+
+    module = ConsistencyDistillation(teacher=str(teacher_bundle), mode="lcm", ddim_steps=50, lr=1e-4, w_lr_scale=20)
+    (opt,), _ = module.configure_optimizers()
+    rest, w = opt.param_groups
+    assert len(w["params"]) == 1 and w["params"][0] is module.student.w_proj.weight
+    assert w["initial_lr"] == pytest.approx(2e-3) and rest["initial_lr"] == pytest.approx(1e-4)  # before warm-up
+    assert all(p is not module.student.w_proj.weight for p in rest["params"])
+    trainable = [p for p in module.student.parameters() if p.requires_grad]
+    assert len(rest["params"]) + 1 == len(trainable)

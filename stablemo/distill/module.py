@@ -46,6 +46,7 @@ class ConsistencyDistillation(LightningModule):
         huber_c: pseudo-Huber constant (features are z-normalised).
         ema_decay: mu of the target network.
         lr, weight_decay, warmup_steps: AdamW with linear warm-up then constant.
+        w_lr_scale: learning-rate multiplier for the zero-initialised guidance embedding (w_proj).
         adversarial: add the PCM adversarial loss (weight adv_weight; discriminator lr disc_lr).
         sample_steps: default inference steps recorded in the exported bundle.
         seed: seeds every random draw from (seed, step, rank).
@@ -63,6 +64,7 @@ class ConsistencyDistillation(LightningModule):
         huber_c: float = 0.03,
         ema_decay: float = 0.95,
         lr: float = 1e-4,
+        w_lr_scale: float = 1.0,
         weight_decay: float = 0.0,
         warmup_steps: int = 100,
         adversarial: bool = False,
@@ -127,8 +129,12 @@ class ConsistencyDistillation(LightningModule):
 
     def configure_optimizers(self):
         hp = self.hparams
-        params = [p for p in self.student.parameters() if p.requires_grad]
-        opt = torch.optim.AdamW(params, lr=hp.lr, weight_decay=hp.weight_decay)
+        # the guidance embedding starts at zero and is the only new layer: it may learn faster
+        w_params = [p for p in self.student.w_proj.parameters() if p.requires_grad]
+        ids = {id(p) for p in w_params}
+        rest = [p for p in self.student.parameters() if p.requires_grad and id(p) not in ids]
+        opt = torch.optim.AdamW([{"params": rest}, {"params": w_params, "lr": hp.lr * hp.w_lr_scale}],
+                                lr=hp.lr, weight_decay=hp.weight_decay)
         warm = max(int(hp.warmup_steps), 1)
         sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda step: min(1.0, (step + 1) / warm))
         if self.discriminator is None:
