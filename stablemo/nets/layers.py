@@ -48,6 +48,13 @@ def zero_pad_bct_(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return x
 
 
+def cat_channels(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """(B, C1, T), (B, C2, T) -> (B, C1 + C2, T), laid out frames-major: a (B, C, T) view of a
+    (B, T, C) buffer, which stablemo.diffusion.accelerate's GEMM convolutions read without a
+    transposing copy (a plain cat along dim 1 would lay the channels out time-major)."""
+    return torch.cat([a.transpose(1, 2), b.transpose(1, 2)], dim=2).transpose(1, 2)
+
+
 def downsample_mask(mask: torch.Tensor) -> torch.Tensor:
     """Mask after a stride-2 down-sampling: output frame j is valid iff input frame 2j is.
 

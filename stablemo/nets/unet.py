@@ -28,6 +28,7 @@ from stablemo.errors import StableMoError
 from stablemo.nets.layers import (
     LinearCrossAttention,
     MaskedGroupNorm,
+    cat_channels,
     memoized,
     TimestepEmbedder,
     check_inputs,
@@ -167,7 +168,7 @@ class CondUNet1D(nn.Module):
         h = self.mid(h, emb, text, text_mask, mask, memo)
         for j, stage in enumerate(self.up):
             mask = masks.pop()
-            h = stage(torch.cat([h, skips.pop()], dim=1), emb, text, text_mask, mask, memo)
+            h = stage(cat_channels(h, skips.pop()), emb, text, text_mask, mask, memo)
             if j < len(self.upsample):
                 h = zero_pad_bct_(self.upsample[j](h), masks[-1])
         h = zero_pad_bct_(self.final_act(self.final_norm(self.final_conv(h), mask)), mask)
