@@ -130,10 +130,14 @@ def main(argv: list[str]) -> int:
             print(f"not resuming: {json_path} was written with other settings")
     claim_runs = [("Teacher, DDPM, 1000 steps", 1000, "ddpm"), ("Teacher, SDE-DPM-Solver++ 2M, 10 steps", 10, "dpmpp_2m_sde")]
     total = len(runs) + (len(claim_runs) if args.ddpm_replications else 0)
-    kept = len([n for n, *_ in runs if n in raw["rows"]]) + len(raw["subset"])
+
+    def rows_done() -> int:
+        return len([n for n, *_ in runs if n in raw["rows"]]) + len(raw["subset"])
+
+    kept = rows_done()
 
     def save() -> None:
-        done = len([n for n, *_ in runs if n in raw["rows"]]) + len(raw["subset"])
+        done = rows_done()
         raw["complete"] = done == total
         write_text(args.out, render(args, argv, raw, runs, (time.time() - started) / 60, done, total, kept))
         write_text(json_path, json.dumps(raw, indent=2) + "\n")

@@ -174,7 +174,7 @@ def _student_pipeline(pipe, fast: bool):
 
     student = ConsistencyStudent(pipe.config["model"])
     student.model.load_state_dict(pipe.model.state_dict())
-    config = {"consistency": {"mode": "lcm", "ddim_steps": 50, "w_dim": 256, "sigma_data": 0.5, "timestep_scale": 10.0}}
+    config = {"consistency": {"mode": "lcm", "ddim_steps": 50, "sigma_data": 0.5, "timestep_scale": 10.0}}
     return Pipeline(student, pipe.schedule, mean=pipe.mean.numpy(), std=pipe.std.numpy(),
                     prediction_type=pipe.prediction_type, skeleton=pipe.skeleton, fps=pipe.fps,
                     min_length=pipe.min_length, max_length=pipe.max_length, kind="consistency",
@@ -264,6 +264,18 @@ def time_generation(pipe, prompt: str, frames: int, sampler: str, steps: int, cf
     return time.perf_counter() - start, time.process_time() - start_cpu, done[0]
 
 
+def time_sentences(pipe, args, sampler: str, steps: int, text_cache: bool, parallel_cfg: bool, dtype,
+                   max_steps: int | None = None) -> tuple[list[float], list[float], int]:
+    """`args.repeats` timed sentences (wall s, CPU s each) and how many sampler steps each ran."""
+    seconds, cpu_seconds, measured = [], [], steps
+    for r in range(args.repeats):
+        elapsed, cpu, measured = time_generation(pipe, PROMPTS[r % len(PROMPTS)], args.frames, sampler, steps,
+                                                 args.cfg, text_cache, parallel_cfg, dtype, args.seed + r, max_steps)
+        seconds.append(elapsed)
+        cpu_seconds.append(cpu)
+    return seconds, cpu_seconds, measured
+
+
 def run_aits(args) -> dict:
     threads = torch.get_num_threads()
     if args.threads:
@@ -299,25 +311,14 @@ def _run_aits(args) -> dict:
         time_generation(pipe, "warm up", args.frames, sampler, 2, args.cfg, cache, parallel, dtype, 0)
         peaks.append(matmul_gflops())  # the reference is sampled between rows: clocks and neighbours drift
         limit = args.ddpm_steps if sampler == "ddpm" else None
-        seconds, cpu_seconds, measured = [], [], steps
-        for r in range(args.repeats):
-            prompt = PROMPTS[r % len(PROMPTS)]
-            elapsed, cpu, measured = time_generation(pipe, prompt, args.frames, sampler, steps, args.cfg, cache,
-                                                     parallel, dtype, args.seed + r, limit)
-            seconds.append(elapsed)
-            cpu_seconds.append(cpu)
+        seconds, cpu_seconds, measured = time_sentences(pipe, args, sampler, steps, cache, parallel, dtype, limit)
         rows.append(Row(name, sampler, steps, cache, parallel, dtype, seconds, cpu_seconds, measured, flops_cfg))
         print(f"  measured {name}: {statistics.mean(seconds):.2f} s over {measured} step(s)", file=sys.stderr)
     if not args.skip_student:
         student = _student_pipeline(pipe, fast=not args.stock)
         flops_one = denoiser_flops(pipe, args.frames, B)  # the same network, batch 1 (no CFG pass)
         time_generation(student, "warm up", args.frames, "lcm", 1, args.cfg, True, True, "fp32", 0)
-        seconds, cpu_seconds = [], []
-        for r in range(args.repeats):
-            elapsed, cpu, _ = time_generation(student, PROMPTS[r % len(PROMPTS)], args.frames, "lcm", 1, args.cfg,
-                                              True, True, "fp32", args.seed + r)
-            seconds.append(elapsed)
-            cpu_seconds.append(cpu)
+        seconds, cpu_seconds, _ = time_sentences(student, args, "lcm", 1, True, True, "fp32")
         rows.append(Row(STUDENT_ROW, "lcm", 1, True, False, "fp32", seconds, cpu_seconds, 1, flops_one))
     peaks.append(matmul_gflops())
     low_dtype = torch.bfloat16 if low == "bf16" else torch.float16

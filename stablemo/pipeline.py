@@ -129,6 +129,9 @@ class Pipeline:
         self.min_length, self.max_length = int(min_length), int(max_length)
         self.config = config or {}
         self._null: tuple[torch.Tensor, torch.Tensor] | None = None
+        # frozen text encoders wherever the model holds a text conditioner (a student wraps its teacher's)
+        frozen = (getattr(m, "frozen", None) for m in self.model.modules())
+        self._frozen_encoders = list({id(f): f for f in frozen if hasattr(f, "clear_cache")}.values())
         self.samplers = SAMPLER_TABLES[kind]
         if kind == "consistency":
             from stablemo.distill.sampling import consistency_samplers
@@ -214,16 +217,13 @@ class Pipeline:
         """Forget cached text encodings (every frozen encoder's string cache, and the null prompt's
         unless `keep_null`: it is a constant of the model, which AITS counts as loading).
 
-        The frozen encoders are found wherever the model holds a text conditioner (a consistency
-        student wraps its teacher's), and they are shared across the process, so this also clears
-        what other pipelines cached in the same encoder.
+        The frozen encoders are shared across the process, so this also clears what other pipelines
+        cached in the same encoder.
         """
         if not keep_null:
             self._null = None
-        for module in self.model.modules():
-            frozen = getattr(module, "frozen", None)
-            if hasattr(frozen, "clear_cache"):
-                frozen.clear_cache()
+        for frozen in self._frozen_encoders:
+            frozen.clear_cache()
 
     def _check_request(self, texts, lengths) -> tuple[list[str], list[int]]:
         if isinstance(texts, str):
