@@ -69,6 +69,9 @@ PROMPTS = [
 
 STUDENT_ROW = "1-step LCM student (fp32)"
 TEACHER_ROW = "+ parallel CFG"
+# A test set's spread of motion lengths (HumanML3D keeps 40-196 frames): AITS is defined over a
+# test set, where every sentence may bring a length (a row count) the kernels have not seen yet.
+VARIED_LENGTHS = (40, 64, 88, 120, 152, 196)
 
 
 @dataclass
@@ -302,7 +305,7 @@ def _run_aits(args) -> dict:
     ]
     if args.skip_ddpm:
         rows_spec = rows_spec[1:]
-    rows = []
+    rows, varied = [], None
     for name, sampler, steps, cache, parallel, dtype in rows_spec:
         # warm-up (part of loading) with this row's own settings: kernels, low-precision weight copies,
         # and accelerate's packed weights, which are laid out for one row count (batch x frames) at a
@@ -320,10 +323,14 @@ def _run_aits(args) -> dict:
         time_generation(student, "warm up", args.frames, "lcm", 1, args.cfg, True, True, "fp32", 0)
         seconds, cpu_seconds, _ = time_sentences(student, args, "lcm", 1, True, True, "fp32")
         rows.append(Row(STUDENT_ROW, "lcm", 1, True, False, "fp32", seconds, cpu_seconds, 1, flops_one))
+        varied = varied_length_aits(pipe, student, args)
+        print(f"  measured varied lengths: teacher {varied['teacher']:.2f} s, student {varied['student']:.2f} s",
+              file=sys.stderr)
     peaks.append(matmul_gflops())
     low_dtype = torch.bfloat16 if low == "bf16" else torch.float16
     peak_low = matmul_gflops(low_dtype)[0] if pipe.device.type == "cpu" else None
     return {
+        "varied_lengths": varied,
         "model": source,
         "parameters_M": sum(p.numel() for p in pipe.model.parameters()) / 1e6,
         "frames": args.frames,
@@ -339,6 +346,22 @@ def _run_aits(args) -> dict:
         "low_precision": low,
         "rows": rows,
     }
+
+
+def varied_length_aits(pipe, student, args) -> dict:
+    """Teacher ('+ parallel CFG' settings) and 1-step student AITS over sentences of VARIED_LENGTHS,
+    timed side by side (round-robin, cold text caches), as a test set's AITS would see them."""
+    from stablemo.eval import metrics
+
+    def method(p, sampler: str, steps: int):
+        return (lambda text, n: p.generate([text], [n], steps=steps, cfg=args.cfg, sampler=sampler, seed=args.seed),
+                lambda: p.clear_text_caches(keep_null=True))
+
+    lengths = [min(max(n, pipe.min_length), pipe.max_length) for n in VARIED_LENGTHS]
+    texts = [PROMPTS[i % len(PROMPTS)] for i in range(len(lengths))]
+    methods = {TEACHER_ROW: method(pipe, "dpmpp_2m_sde", args.steps), STUDENT_ROW: method(student, "lcm", 1)}
+    times = metrics.average_inference_times(methods, texts, lengths, warmup=0)  # warm already, not at these lengths
+    return {"lengths": lengths, "teacher": times[TEACHER_ROW], "student": times[STUDENT_ROW]}
 
 
 def _span(samples: list[tuple[float, float]]) -> str:
@@ -374,6 +397,11 @@ def format_report(result: dict) -> str:
     if STUDENT_ROW in by_name and TEACHER_ROW in by_name:
         notes.append(f"1-step student AITS / teacher's {by_name[TEACHER_ROW].steps}-step AITS ('{TEACHER_ROW}' row): "
                      f"{by_name[STUDENT_ROW].aits / by_name[TEACHER_ROW].aits:.3f}")
+    varied = result.get("varied_lengths")
+    if varied:
+        notes.append(f"the same two over {len(varied['lengths'])} sentences of varied lengths "
+                     f"({', '.join(map(str, varied['lengths']))} frames), side by side: teacher {varied['teacher']:.3f} s, "
+                     f"student {varied['student']:.3f} s, ratio {varied['student'] / varied['teacher']:.3f}")
     lines += [""] + notes + [
         "AITS = mean wall time per sentence (text in -> features and joints out). GFLOP/s counts the denoiser only;",
         "'of matmul' = achieved / measured fp32 matmul throughput (wall clock); 'per CPU-s' = the same ratio with",

@@ -42,6 +42,10 @@ def test_aits_table_and_json(tiny_config, tmp_path, capsys):
     # the student runs its network once on batch 1: half the FLOPs of a CFG step
     assert rows[-1]["sampler"] == "lcm" and rows[-1]["flops_per_step"] == pytest.approx(rows[1]["flops_per_step"] / 2)
     assert data["matmul_fp32_gflops"] > 0 and data["frames"] == 12
+    # the distillation speed-up again over a test set's varied lengths, side by side
+    varied = data["varied_lengths"]
+    assert varied["lengths"] == list(bench.VARIED_LENGTHS) and varied["teacher"] > 0 and varied["student"] > 0
+    assert f"ratio {varied['student'] / varied['teacher']:.3f}" in text
 
 
 def test_flops_per_step_counts_both_cfg_halves(tiny_config):

@@ -10,7 +10,8 @@
 - a ConvTranspose1d runs as one matrix product (B*T, C_in) x (C_in, k*C_out) followed by the
   k overlap-adds of its taps (col2im), instead of PyTorch's slow generic path;
 - float32 products with large weights (>= 1 M elements) on the CPU use MKL's packed-weight GEMM
-  (the weight is packed once per layer and row count instead of at every call);
+  (the weight is packed once per layer and row count instead of at every call, from the second
+  call with that row count on: a single call does not repay the packing);
 - under autocast (bf16 on CPU, fp16 on CUDA) every layer uses a low-precision copy of its weight
   that is made once, instead of casting all weights again at every network call;
 - nn.Mish computes x * n / (n + 2) with n = e^x (e^x + 2) (= x tanh(softplus(x))) in seven
@@ -64,7 +65,9 @@ class _WeightCache:
 
         MKL re-packs the weight operand at every plain call; for the UNet's (M <= 400, K = 5120)
         products that costs 15-25 %. The packed copy is tied to M, so one is kept per layer for the
-        most recent M (M is constant through a sampling loop).
+        most recent M (M is constant through a sampling loop). It is made at the second call with
+        that M: packing a 20 MB weight costs 0.4-2 plain products, repaid after 5-10 packed calls,
+        so a one-step student serving sentences of varied lengths must not pack for each of them.
         """
         weight = self._cached(name, make, rows.dtype)
         M = rows.shape[0]
@@ -74,9 +77,13 @@ class _WeightCache:
             return F.linear(rows, weight, bias)
         packs = self.__dict__.setdefault("_mkl_packs", {})
         key = (name, M, id(weight))
-        if packs.get(name, (None,))[0] != key:
-            packs[name] = (key, torch.ops.mkl._mkl_reorder_linear_weight(weight, M))
-        return torch.ops.mkl._mkl_linear(rows.contiguous(), packs[name][1], weight, bias, M)
+        entry = packs.get(name)
+        if entry is None or entry[0] != key:  # a new row count: a plain product, packing only if it repeats
+            packs[name] = (key, None)
+            return F.linear(rows, weight, bias)
+        if entry[1] is None:
+            packs[name] = entry = (key, torch.ops.mkl._mkl_reorder_linear_weight(weight, M))
+        return torch.ops.mkl._mkl_linear(rows.contiguous(), entry[1], weight, bias, M)
 
 
 def _unfold_frames(frames: torch.Tensor, k: int, s: int, p: int, T_out: int) -> torch.Tensor:
