@@ -186,6 +186,11 @@ class MaskedGroupNorm(nn.Module):
         y = ((g - mean) * torch.rsqrt(var + self.eps)).reshape(B, C, T)
         return torch.addcmul(bias, y, weight).to(x.dtype)
 
+    def forward_act(self, x: torch.Tensor, mask: torch.Tensor, act: nn.Module, scale: torch.Tensor | None = None,
+                    shift: torch.Tensor | None = None) -> torch.Tensor:
+        """act(norm(x)): one call, so that stablemo.diffusion.accelerate can fuse the pair into one pass."""
+        return act(self(x, mask, scale, shift))
+
 
 # ----------------------------------------------------------------------------- attention
 

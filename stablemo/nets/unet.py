@@ -57,9 +57,9 @@ class ResBlock1D(nn.Module):
 
     def forward(self, x: torch.Tensor, emb: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         scale, shift = self.emb(emb)[:, :, None].chunk(2, dim=1)  # (B, C_out, 1) each
-        h = self.act(self.norm1(self.conv1(x), mask, 1 + scale, shift))  # AdaGN: norm(h) (1 + scale) + shift
+        h = self.norm1.forward_act(self.conv1(x), mask, self.act, 1 + scale, shift)  # AdaGN: norm(h) (1 + scale) + shift
         h = zero_pad_bct_(self.dropout(h), mask)
-        h = self.act(self.norm2(self.conv2(h), mask))
+        h = self.norm2.forward_act(self.conv2(h), mask, self.act)
         return zero_pad_bct_(h + self.skip(x), mask)
 
 
@@ -171,5 +171,5 @@ class CondUNet1D(nn.Module):
             h = stage(cat_channels(h, skips.pop()), emb, text, text_mask, mask, memo)
             if j < len(self.upsample):
                 h = zero_pad_bct_(self.upsample[j](h), masks[-1])
-        h = zero_pad_bct_(self.final_act(self.final_norm(self.final_conv(h), mask)), mask)
+        h = zero_pad_bct_(self.final_norm.forward_act(self.final_conv(h), mask, self.final_act), mask)
         return zero_pad_bct_(self.out(h), mask).transpose(1, 2)

@@ -1,0 +1,63 @@
+"""The fused CPU kernels of `cpu_kernels.cpp`, compiled on first use (torch.utils.cpp_extension).
+
+Compilation needs a C++ compiler and ninja and takes ~30 s once; the library is cached under
+torch's extensions folder (TORCH_EXTENSIONS_DIR), in a folder named for this CPU's instruction set
+since it is built with -march=native. Where it cannot be built, `kernels()` returns None after one
+warning and the callers keep their PyTorch path. STABLEMO_FUSED_KERNELS=0 turns it off (A/B runs).
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import os
+import platform
+import shutil
+import sys
+import warnings
+from pathlib import Path
+
+SOURCE = Path(__file__).with_name("cpu_kernels.cpp")
+FLAGS = ["-O3", "-march=native", "-ffast-math", "-fopenmp"]  # fast-math: glibc's vectorised expf
+
+
+def enabled() -> bool:
+    return os.environ.get("STABLEMO_FUSED_KERNELS", "1") != "0"
+
+
+def _cpu_tag() -> str:
+    """A short hash of the CPU's feature flags: a -march=native build must not run on another CPU."""
+    try:
+        flags = next((line for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("flags")), "")
+    except OSError:
+        flags = ""
+    return hashlib.sha1(f"{platform.machine()} {flags}".encode()).hexdigest()[:10]
+
+
+@functools.lru_cache(maxsize=None)
+def kernels():
+    """The compiled module (with `frame_norm_act`), or None where it cannot be built or is turned off."""
+    if not enabled() or sys.platform != "linux":
+        return None
+    from torch.utils.cpp_extension import load
+
+    if shutil.which("ninja") is None:  # the `ninja` wheel's binary, when its venv is not on PATH
+        try:
+            import ninja
+
+            os.environ["PATH"] = ninja.BIN_DIR + os.pathsep + os.environ.get("PATH", "")
+        except ImportError:
+            pass
+    name = f"stablemo_cpu_kernels_{_cpu_tag()}"
+    try:
+        from torch.utils.cpp_extension import _get_build_directory
+
+        if not (Path(_get_build_directory(name, False)) / f"{name}.so").is_file():
+            print(f"stablemo: compiling the fused CPU kernels (once, ~30 s): {name}", file=sys.stderr)
+    except Exception:  # the notice is a courtesy; the build below reports real problems
+        pass
+    try:
+        return load(name, [str(SOURCE)], extra_cflags=FLAGS, extra_ldflags=["-fopenmp"], verbose=False)
+    except Exception as err:  # no compiler, no ninja, unsupported platform: keep the PyTorch path
+        warnings.warn(f"stablemo: fused CPU kernels unavailable, using PyTorch ops instead ({err})", stacklevel=2)
+        return None
