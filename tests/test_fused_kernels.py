@@ -29,7 +29,8 @@ def _norm(channels: int, groups: int = 8) -> MaskedGroupNorm:
 
 @pytest.mark.parametrize("frames_major", [True, False])
 @pytest.mark.parametrize("adagn", [True, False])
-def test_fused_norm_act_matches_pytorch(kernels, frames_major, adagn):
+@pytest.mark.parametrize("residual", [True, False])
+def test_fused_norm_act_matches_pytorch(kernels, frames_major, adagn, residual):
     norm = _norm(256)
     fast = copy.deepcopy(norm)
     fast.__class__ = FusedFrameNorm
@@ -37,13 +38,17 @@ def test_fused_norm_act_matches_pytorch(kernels, frames_major, adagn):
     x = torch.randn(B, T, C).transpose(1, 2) if frames_major else torch.randn(B, C, T)
     x = x * 4 + 1
     x[0, :, 3] = 60.0  # a constant frame: zero variance, output = the affine's bias alone
+    x[1, :, 12:] = float("nan")  # padding: its content must not matter
     scale = torch.randn(B, C, 1) if adagn else None
     shift = torch.randn(B, C, 1) if adagn else None
-    mask = torch.ones(B, T, dtype=torch.bool)
+    res = torch.randn(B, T, C).transpose(1, 2) if residual else None
+    # a strided mask, as a down-sampled resolution's mask[:, ::2] is: sample 1 has 12 valid frames
+    mask = (torch.arange(2 * T)[None] < torch.tensor([[2 * T], [23], [2 * T]]))[:, ::2]
     with torch.inference_mode():
-        ref = norm.forward_act(x, mask, nn.Mish(), scale, shift)
-        out = fast.forward_act(x, mask, FastMish(), scale, shift)
+        ref = norm.forward_act(x, mask, nn.Mish(), scale, shift, res)
+        out = fast.forward_act(x, mask, FastMish(), scale, shift, res)
     assert out.shape == ref.shape and out.transpose(1, 2).is_contiguous()  # returned frames-major
+    assert (out[1, :, 12:] == 0).all() and torch.isfinite(out).all()
     torch.testing.assert_close(out, ref, rtol=1e-5, atol=2e-5)
     # Mish's tails are in range: large positive inputs pass through, large negative ones vanish
     y = kernels.frame_norm_act(torch.tensor([[[-400.0, 0.0, 400.0, 0.0]]]), torch.tensor([[1.0, 1, 1, 1]]) * 100,

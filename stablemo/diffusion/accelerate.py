@@ -193,19 +193,25 @@ class FusedFrameNorm(MaskedGroupNorm):
     (float32 CPU outside autograd; elsewhere, and for other activations, the PyTorch path)."""
 
     def forward_act(self, x: torch.Tensor, mask: torch.Tensor, act: nn.Module, scale: torch.Tensor | None = None,
-                    shift: torch.Tensor | None = None) -> torch.Tensor:  # x: (B, C, T)
-        kernels = fused.kernels()
+                    shift: torch.Tensor | None = None, residual: torch.Tensor | None = None) -> torch.Tensor:
+        kernels = fused.kernels()  # x: (B, C, T), mask: (B, T), residual: (B, C, T)
         if (kernels is None or self.mode != "frame" or not isinstance(act, nn.Mish) or x.dtype != torch.float32
-                or x.device.type != "cpu" or torch.is_grad_enabled()):
-            return super().forward_act(x, mask, act, scale, shift)
+                or x.device.type != "cpu" or torch.is_grad_enabled()
+                or (residual is not None and residual.dtype != torch.float32)):
+            return super().forward_act(x, mask, act, scale, shift, residual)
         weight, bias = self.weight[None], self.bias[None]  # (1, C)
         if scale is not None:  # AdaGN folded into the affine, per sample: (B, C)
             weight, bias = weight * scale[:, :, 0], torch.addcmul(shift[:, :, 0], bias, scale[:, :, 0])
-        frames = x.transpose(1, 2)  # (B, T, C): a free view when x is frames-major (GemmConv1d's output)
-        if frames.stride(2) != 1:
-            frames = frames.contiguous()
-        y = kernels.frame_norm_act(frames, weight.contiguous(), bias.contiguous(), self.num_groups, self.eps, True)
+        y = kernels.frame_norm_act(_frames(x), weight.contiguous(), bias.contiguous(), self.num_groups, self.eps, True,
+                                   mask, None if residual is None else _frames(residual))
         return y.transpose(1, 2)
+
+
+def _frames(x: torch.Tensor) -> torch.Tensor:
+    """(B, C, T) -> (B, T, C) with unit channel stride: a free view when x is frames-major (as
+    GemmConv1d returns it), a copy otherwise."""
+    frames = x.transpose(1, 2)
+    return frames if frames.stride(2) == 1 else frames.contiguous()
 
 
 _SWAPS = {nn.Conv1d: GemmConv1d, nn.ConvTranspose1d: GemmConvTranspose1d, nn.Linear: CachedCastLinear,

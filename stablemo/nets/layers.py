@@ -187,9 +187,13 @@ class MaskedGroupNorm(nn.Module):
         return torch.addcmul(bias, y, weight).to(x.dtype)
 
     def forward_act(self, x: torch.Tensor, mask: torch.Tensor, act: nn.Module, scale: torch.Tensor | None = None,
-                    shift: torch.Tensor | None = None) -> torch.Tensor:
-        """act(norm(x)): one call, so that stablemo.diffusion.accelerate can fuse the pair into one pass."""
-        return act(self(x, mask, scale, shift))
+                    shift: torch.Tensor | None = None, residual: torch.Tensor | None = None) -> torch.Tensor:
+        """act(norm(x)) (+ residual: (B, C, T)), zero on padded frames: one call, so that
+        stablemo.diffusion.accelerate can fuse it into one pass."""
+        y = act(self(x, mask, scale, shift))
+        if residual is not None:
+            y = y + residual
+        return zero_pad_bct_(y, mask)
 
 
 # ----------------------------------------------------------------------------- attention

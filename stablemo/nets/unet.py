@@ -58,9 +58,8 @@ class ResBlock1D(nn.Module):
     def forward(self, x: torch.Tensor, emb: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         scale, shift = self.emb(emb)[:, :, None].chunk(2, dim=1)  # (B, C_out, 1) each
         h = self.norm1.forward_act(self.conv1(x), mask, self.act, 1 + scale, shift)  # AdaGN: norm(h) (1 + scale) + shift
-        h = zero_pad_bct_(self.dropout(h), mask)
-        h = self.norm2.forward_act(self.conv2(h), mask, self.act)
-        return zero_pad_bct_(h + self.skip(x), mask)
+        # padded frames are zero before the dropout, which keeps them zero
+        return self.norm2.forward_act(self.conv2(self.dropout(h)), mask, self.act, residual=self.skip(x))
 
 
 class CrossAttention1D(nn.Module):
@@ -171,5 +170,5 @@ class CondUNet1D(nn.Module):
             h = stage(cat_channels(h, skips.pop()), emb, text, text_mask, mask, memo)
             if j < len(self.upsample):
                 h = zero_pad_bct_(self.upsample[j](h), masks[-1])
-        h = zero_pad_bct_(self.final_norm.forward_act(self.final_conv(h), mask, self.final_act), mask)
+        h = self.final_norm.forward_act(self.final_conv(h), mask, self.final_act)
         return zero_pad_bct_(self.out(h), mask).transpose(1, 2)
