@@ -443,3 +443,40 @@ def test_text_memo_reuses_text_work_and_changes_no_result(variant):
     trained: dict = {}
     model(x, t, text, tm, mm, memo=trained).sum().backward()
     assert trained == {}
+
+
+def test_planned_request_projects_adagn_once_and_changes_no_result():
+    """With the sampler's timesteps announced (CFGDenoiser.plan), each residual block projects the
+    AdaGN embedding of every step in one product at the first step; results are unchanged, and a
+    new plan on the same denoiser does not reuse the old plan's table."""
+    from stablemo.diffusion import samplers
+    from stablemo.diffusion.guidance import CFGDenoiser
+    from stablemo.diffusion.schedule import NoiseSchedule
+
+    model = make("unet_tweak")
+    gen = torch.Generator().manual_seed(5)
+    items = sample_items(gen, [24, 17], [5, 3])
+    x, _, text, tm, mm = collate(items, 24, 6, None)
+    null, null_mask = torch.zeros(2, 1, C), torch.zeros(2, 1, dtype=torch.bool)
+    rows: list[int] = []
+    blocks = [m for m in model.modules() if type(m).__name__ == "ResBlock1D"]
+    for block in blocks:
+        block.emb.register_forward_hook(lambda mod, args, out: rows.append(args[0][..., 0].numel()))
+
+    def run(steps: int, planned: bool, denoiser=None):
+        denoiser = denoiser or CFGDenoiser(model, text, tm, null, null_mask, mm, scale=2.5)
+        if not planned:
+            denoiser.plan = None  # samplers skip a denoiser without a plan()
+        rows.clear()
+        with torch.inference_mode():
+            out = samplers.dpmpp_2m_sde(denoiser, x, NoiseSchedule(), steps, generator=torch.Generator().manual_seed(0))
+        return out, list(rows), denoiser
+
+    plain, plain_rows, _ = run(5, planned=False)
+    planned, planned_rows, denoiser = run(5, planned=True)
+    assert plain_rows == [4] * 5 * len(blocks)  # every step: a 2-row product per block (CFG batch 2 x 2)
+    assert planned_rows == [5 * 4] * len(blocks)  # once, for all 5 steps
+    torch.testing.assert_close(planned, plain, rtol=1e-5, atol=1e-5)
+    again, again_rows, _ = run(3, planned=True, denoiser=denoiser)  # same denoiser, another schedule
+    assert again_rows == [3 * 4] * len(blocks)
+    torch.testing.assert_close(again, run(3, planned=False)[0], rtol=1e-5, atol=1e-5)

@@ -14,6 +14,7 @@ import torch
 import torch.nn.functional as F
 
 from stablemo.diffusion.schedule import check_prediction_type
+from stablemo.nets.layers import PLANNED_TIMESTEPS
 
 # network(x (B,T,D), t (B,), text (B,L,C), text_mask (B,L), motion_mask (B,T), memo=dict) -> (B,T,D);
 # memo is a dict kept for one fixed text, where the network may store text-only intermediates
@@ -81,6 +82,11 @@ class CFGDenoiser:
                 torch.cat([motion_mask, motion_mask]),
             )
         self.memos = {"cond": {}, "uncond": {}, "both": {}}
+
+    def plan(self, timesteps) -> None:
+        """The sampler's timesteps for this request, in order (the samplers call this first)."""
+        for memo in self.memos.values():
+            memo[PLANNED_TIMESTEPS] = tuple(int(t) for t in timesteps)
 
     def _run(self, x, t, text, text_mask, motion_mask, memo: dict) -> torch.Tensor:
         with precision_context(x.device, self.dtype):

@@ -50,6 +50,13 @@ def _setup(x: torch.Tensor, generator, noise, prediction_type: str) -> tuple[tor
     return x, noise if noise is not None else default_noise(generator)
 
 
+def _plan(denoise, timesteps) -> None:
+    """Tell a denoiser that can use it (CFGDenoiser.plan) which timesteps the loop will visit."""
+    plan = getattr(denoise, "plan", None)
+    if plan is not None:
+        plan([int(t) for t in timesteps])
+
+
 def _predict(denoise, x, t: int, alpha, sigma, prediction_type, callback, step) -> tuple[torch.Tensor, bool]:
     """(x0 estimate at (x, t) passed through the callback, whether the callback replaced it)."""
     t_batch = torch.full((x.shape[0],), t, dtype=torch.long, device=x.device)
@@ -85,6 +92,7 @@ def ddpm(
     x, draw = _setup(x, generator, noise, prediction_type)
     abar = schedule._abar64.tolist()
     ratio = schedule.num_train_timesteps // steps
+    _plan(denoise, schedule.leading_timesteps(steps))
     for i, t in enumerate(tqdm(schedule.leading_timesteps(steps), disable=not progress, desc="ddpm")):
         a_t = abar[t]
         a_prev = abar[t - ratio] if t - ratio >= 0 else 1.0
@@ -115,6 +123,7 @@ def ddim(
     x, draw = _setup(x, generator, noise, prediction_type)
     abar = schedule._abar64.tolist()
     ratio = schedule.num_train_timesteps // steps
+    _plan(denoise, schedule.leading_timesteps(steps))
     for i, t in enumerate(tqdm(schedule.leading_timesteps(steps), disable=not progress, desc="ddim")):
         a_t = abar[t]
         a_prev = abar[t - ratio] if t - ratio >= 0 else 1.0
@@ -155,6 +164,7 @@ def _dpmpp_2m(denoise, x, schedule, steps, draw, callback, prediction_type, prog
     acceleration fell from 17.9 to 10.8 m/s² with this rule).
     """
     timesteps, sigmas = schedule.karras_timesteps(steps)
+    _plan(denoise, timesteps)
     sig = sigmas.tolist()
     prev_x0, prev_guided = None, False
     desc = "dpmpp_2m_sde" if sde else "dpmpp_2m"

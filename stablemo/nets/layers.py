@@ -88,6 +88,12 @@ def check_inputs(x, t, text, text_mask, motion_mask, input_dim: int, text_dim: i
         raise StableMoError(f"motion_mask: expected bool ({B}, {T}), got {motion_mask.dtype} {tuple(motion_mask.shape)}")
 
 
+# memo key under which a guidance wrapper stores the sampler's timesteps for the request, in order
+# (CFGDenoiser.plan): per-timestep work that is not per-sample (AdaGN's projections) can then be
+# done for all steps in one product instead of one small product per step
+PLANNED_TIMESTEPS = "planned timesteps"
+
+
 def memoized(memo: dict | None, owner: object, make):
     """make() once per request: `memo` is a dict the caller keeps while the text stays the same.
 

@@ -26,6 +26,7 @@ from torch import nn
 
 from stablemo.errors import StableMoError
 from stablemo.nets.layers import (
+    PLANNED_TIMESTEPS,
     LinearCrossAttention,
     MaskedGroupNorm,
     cat_channels,
@@ -55,11 +56,22 @@ class ResBlock1D(nn.Module):
         self.skip = nn.Conv1d(in_ch, out_ch, 1) if in_ch != out_ch else nn.Identity()
         self.act = nn.Mish()  # a module, so stablemo.diffusion.accelerate can swap in its fast Mish
 
-    def forward(self, x: torch.Tensor, emb: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        scale, shift = self.emb(emb)[:, :, None].chunk(2, dim=1)  # (B, C_out, 1) each
+    def forward(self, x: torch.Tensor, emb: torch.Tensor, mask: torch.Tensor, memo: dict | None = None) -> torch.Tensor:
+        scale, shift = self.adagn(emb, memo)
         h = self.norm1.forward_act(self.conv1(x), mask, self.act, 1 + scale, shift)  # AdaGN: norm(h) (1 + scale) + shift
         # padded frames are zero before the dropout, which keeps them zero
         return self.norm2.forward_act(self.conv2(self.dropout(h)), mask, self.act, residual=self.skip(x))
+
+    def adagn(self, emb: torch.Tensor, memo: dict | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """AdaGN's (scale, shift), (B, C_out, 1) each. In a planned request (CondUNet1D puts the
+        embeddings of all its steps in the memo) the projection runs once, for every step: its
+        weight is then read from memory once per request instead of once per step."""
+        step = memo.get(ADAGN_STEP) if memo is not None and not torch.is_grad_enabled() else None
+        if step is None:
+            return self.emb(emb)[:, :, None].chunk(2, dim=1)
+        planned, emb_all, index = step  # emb_all: (S, B, emb_dim)
+        table = memoized(memo, (self, planned), lambda: self.emb(emb_all))  # (S, B, 2 C_out)
+        return table[index][:, :, None].chunk(2, dim=1)
 
 
 class CrossAttention1D(nn.Module):
@@ -90,10 +102,15 @@ class Stage(nn.Module):
 
     def forward(self, x, emb, text, text_mask, mask, memo=None):
         for i, block in enumerate(self.blocks):
-            x = block(x, emb, mask)
+            x = block(x, emb, mask, memo)
             if self.attns:
                 x = self.attns[i](x, text, text_mask, mask, memo)
         return x
+
+
+# memo key: (planned timesteps, their AdaGN embeddings (S, B, time_dim), this step's index) or None
+ADAGN_STEP = "adagn step"
+MAX_PLANNED_STEPS = 64  # a table per block of S x B rows: not for 1000-step DDPM
 
 
 class CondUNet1D(nn.Module):
@@ -150,10 +167,27 @@ class CondUNet1D(nn.Module):
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
 
+    def _planned_step(self, memo: dict, t: torch.Tensor, time_cond, pooled: torch.Tensor):
+        """This step's place in the request's planned timesteps (see ResBlock1D.adagn), or None
+        when there is no plan or t is not one of its steps or not shared by the batch."""
+        planned = memo.get(PLANNED_TIMESTEPS)
+        if (planned is None or time_cond is not None or len(planned) > MAX_PLANNED_STEPS
+                or int(t[0]) not in planned or not bool((t == t[0]).all())):
+            return None
+        B = t.shape[0]
+
+        def embed_all():  # (S, B, time_dim): every planned step's embedding, in one pass
+            steps = torch.tensor(planned, dtype=t.dtype, device=t.device).repeat_interleave(B)
+            return self.time_embed(steps).view(len(planned), B, -1) + pooled
+
+        return planned, memoized(memo, (self, planned), embed_all), planned.index(int(t[0]))
+
     def forward(self, x, t, text, text_mask, motion_mask, time_cond=None, memo=None):
         check_inputs(x, t, text, text_mask, motion_mask, self.input_dim, self.text_dim, self.length_multiple)
         pooled = memoized(memo, self, lambda: self.text_embed(masked_mean(text, text_mask)))  # (B, time_dim)
         emb = self.time_embed(t, time_cond) + pooled
+        if memo is not None and not torch.is_grad_enabled():  # (with autograd nothing is memoized)
+            memo[ADAGN_STEP] = self._planned_step(memo, t, time_cond, pooled)
         mask = motion_mask
         h = zero_pad_bct(x.transpose(1, 2), mask)  # (B, D, T)
         skips, masks = [], []
