@@ -185,9 +185,13 @@ class CondUNet1D(nn.Module):
     def forward(self, x, t, text, text_mask, motion_mask, time_cond=None, memo=None):
         check_inputs(x, t, text, text_mask, motion_mask, self.input_dim, self.text_dim, self.length_multiple)
         pooled = memoized(memo, self, lambda: self.text_embed(masked_mean(text, text_mask)))  # (B, time_dim)
-        emb = self.time_embed(t, time_cond) + pooled
+        step = None
         if memo is not None and not torch.is_grad_enabled():  # (with autograd nothing is memoized)
-            memo[ADAGN_STEP] = self._planned_step(memo, t, time_cond, pooled)
+            memo[ADAGN_STEP] = step = self._planned_step(memo, t, time_cond, pooled)
+        if step is not None:  # this step's row of the planned embeddings: no time MLP per step
+            emb = step[1][step[2]]
+        else:
+            emb = self.time_embed(t, time_cond) + pooled  # (B, time_dim)
         mask = motion_mask
         h = zero_pad_bct(x.transpose(1, 2), mask)  # (B, D, T)
         skips, masks = [], []
