@@ -17,9 +17,9 @@
 - nn.Mish computes x * n / (n + 2) with n = e^x (e^x + 2) (= x tanh(softplus(x))) in seven
   vectorised passes: PyTorch's CPU mish kernel is ~5x slower than that at the UNet's sizes.
 - the UNet's per-frame group norms (MaskedGroupNorm, "frame" mode) of 256 channels and more run
-  norm, affine (with AdaGN folded in) and Mish as one pass of a small compiled kernel
-  (stablemo.diffusion.fused), instead of ~10 element-wise passes; where it cannot be built, the
-  PyTorch path stays.
+  norm, affine (with AdaGN folded in), Mish, the residual add and the zeroing of padded frames as
+  one pass of a small compiled kernel (stablemo.diffusion.fused) instead of ~12 element-wise
+  passes; where it cannot be built, the PyTorch path stays.
 
 Parameters, buffers and `state_dict()` keys are untouched: the modules keep their class's
 parameters and only their `forward` changes. Unsupported configurations (groups, dilation,
@@ -189,8 +189,8 @@ class FastMish(nn.Mish):
 
 
 class FusedFrameNorm(MaskedGroupNorm):
-    """MaskedGroupNorm whose forward_act runs norm, affine and Mish in one pass of the fused kernel
-    (float32 CPU outside autograd; elsewhere, and for other activations, the PyTorch path)."""
+    """MaskedGroupNorm whose forward_act (norm, affine, Mish, residual, padding) is one pass of the
+    fused kernel (float32 CPU outside autograd; elsewhere, and for other activations, PyTorch)."""
 
     def forward_act(self, x: torch.Tensor, mask: torch.Tensor, act: nn.Module, scale: torch.Tensor | None = None,
                     shift: torch.Tensor | None = None, residual: torch.Tensor | None = None) -> torch.Tensor:
