@@ -20,6 +20,24 @@ def test_gemm_conv1d_matches_conv1d(k, s, p, frames_major):
     torch.testing.assert_close(fast(x), conv(x), rtol=1e-5, atol=1e-5)
 
 
+@pytest.mark.parametrize("k, p", [(5, 2), (3, 1), (7, 3)])
+@pytest.mark.parametrize("T", [7, 8, 19])
+@pytest.mark.parametrize("layout", ["frames", "channels", "batch_slice"])
+def test_same_convolution_unfolds_without_a_padded_copy_to_the_same_matrix(k, p, T, layout):
+    from stablemo.diffusion.accelerate import _unfold_frames, _unfold_same
+
+    torch.manual_seed(0)
+    base = {"frames": torch.randn(2, T, 6), "channels": torch.randn(2, 6, T).transpose(1, 2),
+            "batch_slice": torch.randn(3, T + 4, 6)[1:, 2 : T + 2]}[layout]
+    if T < k:
+        pytest.skip("short sequences take the padded path")
+    padded = nn.functional.pad(base, (0, 0, p, p))
+    expected = padded.as_strided((2, T, k * 6), (padded.stride(0), 6, 1))
+    assert torch.equal(_unfold_frames(base, k, 1, p, T), expected)
+    if layout != "channels":
+        assert torch.equal(_unfold_same(base, k, p), expected)
+
+
 @pytest.mark.parametrize("k, s, p", [(4, 2, 1), (3, 1, 1), (2, 2, 0), (5, 3, 2)])
 def test_gemm_conv_transpose1d_matches(k, s, p):
     torch.manual_seed(0)

