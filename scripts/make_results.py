@@ -50,12 +50,7 @@ def make_generate(pipe: Pipeline, steps: int, sampler: str | None, cfg: float):
 
 def aits(runs: list[tuple[str, Pipeline, int, str | None]], items: list[dict], cfg: float) -> dict[str, float]:
     """AITS of every run {name: seconds}, measured side by side with cold text caches."""
-    def method(pipe: Pipeline, steps: int, sampler: str | None):
-        lo, hi = pipe.min_length, pipe.max_length
-        return (lambda text, n: pipe.generate([text], [min(max(n, lo), hi)], steps=steps, cfg=cfg, sampler=sampler,
-                                             seed=0), lambda: pipe.clear_text_caches(keep_null=True))
-
-    methods = {name: method(pipe, steps, sampler) for name, pipe, steps, sampler in runs}
+    methods = {name: metrics.pipeline_method(pipe, steps, cfg, sampler) for name, pipe, steps, sampler in runs}
     return metrics.average_inference_times(methods, [it["text"] for it in items], [it["length"] for it in items])
 
 

@@ -353,13 +353,10 @@ def varied_length_aits(pipe, student, args) -> dict:
     timed side by side (round-robin, cold text caches), as a test set's AITS would see them."""
     from stablemo.eval import metrics
 
-    def method(p, sampler: str, steps: int):
-        return (lambda text, n: p.generate([text], [n], steps=steps, cfg=args.cfg, sampler=sampler, seed=args.seed),
-                lambda: p.clear_text_caches(keep_null=True))
-
-    lengths = [min(max(n, pipe.min_length), pipe.max_length) for n in VARIED_LENGTHS]
+    lengths = [min(max(n, pipe.min_length), pipe.max_length) for n in VARIED_LENGTHS]  # as reported
     texts = [PROMPTS[i % len(PROMPTS)] for i in range(len(lengths))]
-    methods = {TEACHER_ROW: method(pipe, "dpmpp_2m_sde", args.steps), STUDENT_ROW: method(student, "lcm", 1)}
+    methods = {TEACHER_ROW: metrics.pipeline_method(pipe, args.steps, args.cfg, "dpmpp_2m_sde", args.seed),
+               STUDENT_ROW: metrics.pipeline_method(student, 1, args.cfg, "lcm", args.seed)}
     times = metrics.average_inference_times(methods, texts, lengths, warmup=0)  # warm already, not at these lengths
     return {"lengths": lengths, "teacher": times[TEACHER_ROW], "student": times[STUDENT_ROW]}
 

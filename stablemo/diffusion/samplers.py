@@ -54,7 +54,7 @@ def _plan(denoise, timesteps) -> None:
     """Tell a denoiser that can use it (CFGDenoiser.plan) which timesteps the loop will visit."""
     plan = getattr(denoise, "plan", None)
     if plan is not None:
-        plan([int(t) for t in timesteps])
+        plan(timesteps)
 
 
 def _predict(denoise, x, t: int, alpha, sigma, prediction_type, callback, step) -> tuple[torch.Tensor, bool]:
@@ -92,8 +92,9 @@ def ddpm(
     x, draw = _setup(x, generator, noise, prediction_type)
     abar = schedule._abar64.tolist()
     ratio = schedule.num_train_timesteps // steps
-    _plan(denoise, schedule.leading_timesteps(steps))
-    for i, t in enumerate(tqdm(schedule.leading_timesteps(steps), disable=not progress, desc="ddpm")):
+    timesteps = schedule.leading_timesteps(steps)
+    _plan(denoise, timesteps)
+    for i, t in enumerate(tqdm(timesteps, disable=not progress, desc="ddpm")):
         a_t = abar[t]
         a_prev = abar[t - ratio] if t - ratio >= 0 else 1.0
         x0, _ = _predict(denoise, x, t, math.sqrt(a_t), math.sqrt(1 - a_t), prediction_type, callback, i)
@@ -123,8 +124,9 @@ def ddim(
     x, draw = _setup(x, generator, noise, prediction_type)
     abar = schedule._abar64.tolist()
     ratio = schedule.num_train_timesteps // steps
-    _plan(denoise, schedule.leading_timesteps(steps))
-    for i, t in enumerate(tqdm(schedule.leading_timesteps(steps), disable=not progress, desc="ddim")):
+    timesteps = schedule.leading_timesteps(steps)
+    _plan(denoise, timesteps)
+    for i, t in enumerate(tqdm(timesteps, disable=not progress, desc="ddim")):
         a_t = abar[t]
         a_prev = abar[t - ratio] if t - ratio >= 0 else 1.0
         sa, ss = math.sqrt(a_t), math.sqrt(1 - a_t)

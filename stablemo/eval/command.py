@@ -362,11 +362,9 @@ def main(argv: list[str]) -> int:
         picks = rng.choice(len(data), min(args.aits, len(data)), replace=False)
         items = [data[int(i)] for i in picks]
         sync = torch.cuda.synchronize if pipe.device.type == "cuda" else None
-        aits = metrics.average_inference_time(
-            lambda text, n: pipe.generate([text], [min(max(n, pipe.min_length), pipe.max_length)], steps=args.steps,
-                                          cfg=args.cfg, sampler=args.sampler, seed=args.seed),
-            [it["text"] for it in items], [it["length"] for it in items], synchronize=sync,
-            reset=lambda: pipe.clear_text_caches(keep_null=True))
+        generate_one, reset = metrics.pipeline_method(pipe, args.steps, args.cfg, args.sampler, args.seed)
+        aits = metrics.average_inference_time(generate_one, [it["text"] for it in items],
+                                              [it["length"] for it in items], synchronize=sync, reset=reset)
     result["settings"].update(
         bundle=args.bundle, data=args.data, split=args.split, dataset=dataset_name,
         steps=args.steps if pipe else None, sampler=args.sampler if pipe else None, cfg=args.cfg if pipe else None,

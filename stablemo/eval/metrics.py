@@ -190,6 +190,17 @@ def average_inference_time(generate_one: Callable[[str, int], object], texts: Se
     return average_inference_times(methods, texts, lengths, warmup, synchronize)[""]
 
 
+def pipeline_method(pipe, steps: int, cfg: float, sampler: str | None = None, seed: int = 0):
+    """(generate_one, reset) of a stablemo Pipeline for average_inference_time(s): one sentence at
+    its length clamped to the bundle's range, and a reset that clears the prompt caches but keeps
+    the null prompt (a property of the model, encoded once per pipeline)."""
+    def generate_one(text: str, length: int):
+        return pipe.generate([text], [min(max(length, pipe.min_length), pipe.max_length)], steps=steps, cfg=cfg,
+                             sampler=sampler, seed=seed)
+
+    return generate_one, lambda: pipe.clear_text_caches(keep_null=True)
+
+
 def average_inference_times(methods: dict[str, tuple[Callable[[str, int], object], Callable[[], None] | None]],
                             texts: Sequence[str], lengths: Sequence[int], warmup: int = 1,
                             synchronize: Callable[[], None] | None = None) -> dict[str, float]:
