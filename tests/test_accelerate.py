@@ -6,7 +6,9 @@ import pytest
 import torch
 from torch import nn
 
+from stablemo.diffusion import accelerate as accel
 from stablemo.diffusion.accelerate import CachedCastLinear, FastMish, GemmConv1d, GemmConvTranspose1d, accelerate, fast_mish
+from stablemo.errors import StableMoError
 
 
 @pytest.mark.parametrize("k, s, p", [(5, 1, 2), (3, 2, 1), (1, 1, 0), (4, 1, 0), (3, 2, 0), (5, 1, 3), (5, 3, 2), (2, 1, 1), (1, 1, 1)])
@@ -48,11 +50,12 @@ def test_gemm_conv_transpose1d_matches(k, s, p):
     torch.testing.assert_close(fast(x), conv(x), rtol=1e-5, atol=1e-5)
 
 
-@pytest.mark.skipif(not torch.backends.mkl.is_available(), reason="MKL's packed GEMM is CPU/MKL only")
-def test_large_weights_are_packed_when_a_row_count_repeats():
-    """Packing pays for large weights only, and only when a row count repeats (a sampling loop):
-    a small layer never packs, and a large one does not pack for a single call at a new length
-    (one-step students serving varied lengths would pack at every sentence)."""
+@pytest.mark.skipif(not accel._MKL_PACK, reason="MKL's packed GEMM is CPU/MKL only")
+def test_mkl_packs_large_weights_when_a_row_count_repeats(monkeypatch):
+    """MKL's packing pays for large weights only, and only when a row count repeats (a sampling
+    loop): a small layer never packs, and a large one does not pack for a single call at a new
+    length (one-step students serving varied lengths would pack at every sentence)."""
+    monkeypatch.setenv("STABLEMO_GEMM", "mkl")
     torch.manual_seed(0)
     small, large = nn.Conv1d(64, 64, 5, padding=2), nn.Conv1d(512, 512, 5, padding=2)  # 20 k / 1.3 M weights
     for conv in (small, large):
@@ -69,6 +72,63 @@ def test_large_weights_are_packed_when_a_row_count_repeats():
                         assert (packed is None) == (call == 0)
                     else:
                         assert packs == {}
+
+
+@pytest.mark.skipif(not accel._ONEDNN_PACK, reason="oneDNN's packed GEMM is CPU/oneDNN only")
+def test_onednn_packs_large_weights_once_for_every_row_count(monkeypatch):
+    monkeypatch.setenv("STABLEMO_GEMM", "onednn")
+    torch.manual_seed(0)
+    small, large = nn.Conv1d(64, 64, 5, padding=2), nn.Conv1d(512, 512, 5, padding=2)
+    for conv in (small, large):
+        fast = accelerate(copy.deepcopy(conv))
+        with torch.inference_mode():
+            seen = set()
+            for frames in (40, 48, 9):  # one pack serves every row count, from the first call
+                x = torch.randn(2, conv.in_channels, frames)
+                torch.testing.assert_close(fast(x), conv(x), rtol=1e-4, atol=1e-4)
+                packs = fast.__dict__.get("_onednn_packs", {})
+                if conv is large:
+                    seen.add(id(packs["weight"][1]))
+                else:
+                    assert packs == {}
+            assert len(seen) == (1 if conv is large else 0)
+            with torch.no_grad():
+                fast.weight.mul_(-0.5)  # an in-place update (load_state_dict) re-packs
+            x = torch.randn(1, conv.in_channels, 30)
+            torch.testing.assert_close(fast(x), nn.functional.conv1d(x, fast.weight, fast.bias, padding=2),
+                                       rtol=1e-4, atol=1e-4)
+
+
+@pytest.mark.parametrize("backend", ["onednn", "mkl", "plain"])
+def test_every_gemm_backend_gives_the_stock_layers_results(monkeypatch, backend):
+    monkeypatch.setenv("STABLEMO_GEMM", backend)
+    assert accel.gemm_backend() in (backend, "plain")  # "plain" where the library is missing
+    torch.manual_seed(0)
+    layers = [nn.Conv1d(300, 700, 5, padding=2), nn.ConvTranspose1d(1100, 1000, 4, stride=2, padding=1),
+              nn.Linear(1024, 1100)]
+    inputs = [torch.randn(2, 300, 25), torch.randn(2, 1100, 13), torch.randn(3, 17, 1024)]
+    for layer, x in zip(layers, inputs):
+        fast = accelerate(copy.deepcopy(layer))
+        with torch.inference_mode():
+            for _ in range(3):  # plain, packing and packed calls
+                torch.testing.assert_close(fast(x), layer(x), rtol=1e-4, atol=1e-4)
+
+
+def test_gemm_backend_rejects_an_unknown_name(monkeypatch):
+    monkeypatch.setenv("STABLEMO_GEMM", "blas")
+    with pytest.raises(StableMoError, match="STABLEMO_GEMM"):
+        accel.gemm_backend()
+
+
+def test_default_gemm_backend_follows_the_cpu_vendor(monkeypatch):
+    monkeypatch.delenv("STABLEMO_GEMM", raising=False)
+    for vendor in ("GenuineIntel", "AuthenticAMD", ""):
+        monkeypatch.setattr(accel, "_cpu_vendor", lambda: vendor)
+        accel._default_backend.cache_clear()
+        expected = ("mkl" if vendor == "GenuineIntel" and accel._MKL_PACK
+                    else "onednn" if accel._ONEDNN_PACK else "mkl" if accel._MKL_PACK else "plain")
+        assert accel.gemm_backend() == expected
+    accel._default_backend.cache_clear()
 
 
 def test_unsupported_configurations_fall_back():

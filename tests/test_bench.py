@@ -61,6 +61,33 @@ def test_flops_per_step_counts_both_cfg_halves(tiny_config):
     assert bench.denoiser_flops(pipe, 11, 1) == one
 
 
+@pytest.mark.parametrize("backend", ["onednn", "mkl", "plain"])
+def test_packed_products_are_counted(monkeypatch, backend):
+    """The FLOP counter does not know the packed linears: without the bench's formulas it would
+    count nothing for them, and every efficiency figure would be wrong."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    from stablemo.diffusion.accelerate import accelerate
+
+    monkeypatch.setenv("STABLEMO_GEMM", backend)
+    layer = accelerate(torch.nn.Linear(1024, 1100))
+    x = torch.randn(40, 1024)
+    with torch.inference_mode():
+        layer(x)  # MKL packs at the second call with a row count
+        layer(x)
+        counter = FlopCounterMode(display=False, custom_mapping=bench._extra_flop_formulas())
+        with counter:
+            layer(x)
+    assert counter.get_total_flops() == 2 * 40 * 1024 * 1100
+
+
+def test_matmul_reference_takes_the_fastest_product():
+    sample = bench.matmul_gflops(n=256, repeats=2)
+    assert "torch.matmul" in sample and all(w > 0 and c > 0 for w, c in sample.values())
+    wall, cpu = bench._fastest(sample)
+    assert wall == max(w for w, _ in sample.values()) and cpu == max(c for _, c in sample.values())
+
+
 def test_model_description_formats(tmp_path):
     denoiser_only = tmp_path / "d.yaml"
     denoiser_only.write_text("name: unet\nbase_channels: 8\ntext_dim: 32\n")

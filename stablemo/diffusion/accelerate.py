@@ -9,9 +9,9 @@
   needs no transpose copy;
 - a ConvTranspose1d runs as one matrix product (B*T, C_in) x (C_in, k*C_out) followed by the
   k overlap-adds of its taps (col2im), instead of PyTorch's slow generic path;
-- float32 products with large weights (>= 1 M elements) on the CPU use MKL's packed-weight GEMM
-  (the weight is packed once per layer and row count instead of at every call, from the second
-  call with that row count on: a single call does not repay the packing);
+- float32 products with large weights (>= 1 M elements) on the CPU use a packed-weight GEMM
+  (`gemm_backend()`): oneDNN's, packed once per layer, or MKL's, packed once per layer and row
+  count (from the second call with that row count on: a single call does not repay the packing);
 - under autocast (bf16 on CPU, fp16 on CUDA) every layer uses a low-precision copy of its weight
   that is made once, instead of casting all weights again at every network call;
 - nn.Mish computes x * n / (n + 2) with n = e^x (e^x + 2) (= x tanh(softplus(x))) in seven
@@ -28,15 +28,21 @@ non-zero padding modes) fall back to the stock forward.
 
 from __future__ import annotations
 
+import functools
+import os
+
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from stablemo.diffusion import fused
+from stablemo.errors import StableMoError
 from stablemo.nets.layers import MaskedGroupNorm
 
 
 _MKL_PACK = torch.backends.mkl.is_available() and hasattr(torch.ops.mkl, "_mkl_linear")
+_ONEDNN_PACK = torch.backends.mkldnn.is_available() and hasattr(torch.ops.mkldnn, "_linear_pointwise")
+GEMM_BACKENDS = ("onednn", "mkl", "plain")
 _MIN_PACK_ROWS = 16
 # Below ~1 M weight elements a packed product is no faster than a plain one (measured for 5-tap
 # convolutions of 32-512 channels), while re-packing for every new row count (a new sequence
@@ -45,6 +51,39 @@ _MIN_PACK_WEIGHT = 1 << 20
 # Below this width a norm is a few microseconds of dispatch either way; small models (the demo)
 # then neither change by a rounding nor wait for the kernels' one-time compilation.
 _MIN_FUSED_CHANNELS = 256
+
+
+def _cpu_vendor() -> str:
+    try:
+        with open("/proc/cpuinfo") as info:
+            return next((line.split(":", 1)[1].strip() for line in info if line.startswith("vendor_id")), "")
+    except OSError:
+        return ""
+
+
+@functools.lru_cache(maxsize=None)
+def _default_backend() -> str:
+    # MKL picks its fastest kernels on Intel CPUs only: on an AMD EPYC (Zen 4) here its packed GEMM
+    # ran the UNet's products at 99-175 GFLOP/s where oneDNN's ran them at 195-216 (K = 1024-10240,
+    # 50-400 rows). On Intel (earlier sessions) MKL's packed GEMM reached ~90 % of the matmul peak.
+    if _cpu_vendor() == "GenuineIntel" and _MKL_PACK:
+        return "mkl"
+    return "onednn" if _ONEDNN_PACK else ("mkl" if _MKL_PACK else "plain")
+
+
+def gemm_backend() -> str:
+    """The packed GEMM for large float32 CPU weights: "onednn", "mkl" or "plain" (F.linear).
+
+    STABLEMO_GEMM picks one (for A/B runs); by default oneDNN, except MKL's on Intel CPUs. The
+    choice is a rule, not a timing, so that the same seed gives the same output on the same machine.
+    """
+    name = os.environ.get("STABLEMO_GEMM", "").strip().lower()
+    if not name:
+        return _default_backend()
+    if name not in GEMM_BACKENDS:
+        raise StableMoError(f"STABLEMO_GEMM: expected one of {', '.join(GEMM_BACKENDS)}, got {name!r}")
+    available = {"onednn": _ONEDNN_PACK, "mkl": _MKL_PACK, "plain": True}[name]
+    return name if available else "plain"
 
 
 def _compute_dtype(x: torch.Tensor) -> torch.dtype:
@@ -71,20 +110,29 @@ class _WeightCache:
         return hit[1]
 
     def _linear(self, rows: torch.Tensor, name: str, make, bias: torch.Tensor | None) -> torch.Tensor:
-        """rows (M, K) @ cached weight (N, K)^T + bias; fp32 CPU products use an MKL-packed weight.
+        """rows (M, K) @ cached weight (N, K)^T + bias; large fp32 CPU products use a packed weight.
 
-        MKL re-packs the weight operand at every plain call; for the UNet's (M <= 400, K = 5120)
-        products that costs 15-25 %. The packed copy is tied to M, so one is kept per layer for the
-        most recent M (M is constant through a sampling loop). It is made at the second call with
-        that M: packing a 20 MB weight costs 0.4-2 plain products, repaid after 5-10 packed calls,
-        so a one-step student serving sentences of varied lengths must not pack for each of them.
+        A plain call re-packs the weight operand every time; for the UNet's (M <= 400, K = 5120)
+        products that costs 15-25 %. oneDNN's packed layout does not depend on M (its row hint
+        changed nothing measurable for 37-400 rows) and a 20 MB weight packs in ~12 ms, so it is
+        packed at the first call. MKL's is tied to M, so one is kept per layer for the most recent
+        M (M is constant through a sampling loop); it is made at the second call with that M:
+        packing a 20 MB weight costs 0.4-2 plain products, repaid after 5-10 packed calls, so a
+        one-step student serving sentences of varied lengths must not pack for each of them.
         """
         weight = self._cached(name, make, rows.dtype)
         M = rows.shape[0]
-        if not (_MKL_PACK and rows.dtype == torch.float32 and rows.device.type == "cpu" and M >= _MIN_PACK_ROWS
+        backend = gemm_backend()
+        if not (backend != "plain" and rows.dtype == torch.float32 and rows.device.type == "cpu" and M >= _MIN_PACK_ROWS
                 and weight.numel() >= _MIN_PACK_WEIGHT
                 and not (torch.is_grad_enabled() and (weight.requires_grad or rows.requires_grad))):  # no autograd there
             return F.linear(rows, weight, bias)
+        if backend == "onednn":
+            packs = self.__dict__.setdefault("_onednn_packs", {})
+            entry = packs.get(name)
+            if entry is None or entry[0] is not weight:  # the cached weight is a new tensor after any update
+                packs[name] = entry = (weight, torch.ops.mkldnn._reorder_linear_weight(weight, M))
+            return torch.ops.mkldnn._linear_pointwise(rows, entry[1], bias, "none", [], "")
         packs = self.__dict__.setdefault("_mkl_packs", {})
         key = (name, M, id(weight))
         entry = packs.get(name)
