@@ -1,4 +1,5 @@
-"""The fused CPU kernel (stablemo.diffusion.fused): norm + affine + Mish in one pass, same results."""
+"""The fused CPU kernels (stablemo.diffusion.fused): norm + affine + Mish in one pass, im2col of a
+'same' convolution, the reading side of linear cross-attention; the same results as PyTorch."""
 
 import copy
 
@@ -7,8 +8,8 @@ import torch
 from torch import nn
 
 from stablemo.diffusion import fused
-from stablemo.diffusion.accelerate import FastMish, FusedFrameNorm, accelerate
-from stablemo.nets.layers import MaskedGroupNorm
+from stablemo.diffusion.accelerate import FastMish, FusedCrossAttention, FusedFrameNorm, _unfold_frames, _unfold_same, accelerate
+from stablemo.nets.layers import LinearCrossAttention, MaskedGroupNorm
 
 
 @pytest.fixture(scope="module")
@@ -102,6 +103,8 @@ def test_wide_accelerated_unet_matches_stock(kernels):
     fast = accelerate(copy.deepcopy(net))
     norms = [m for m in fast.modules() if isinstance(m, MaskedGroupNorm)]
     assert len(norms) == 21 and all(type(m) is FusedFrameNorm for m in norms)  # 5 stages x 2 blocks x 2, final
+    attns = [m for m in fast.modules() if isinstance(m, LinearCrossAttention)]
+    assert len(attns) == 10 and all(type(m) is FusedCrossAttention for m in attns)
     x, t = torch.randn(2, 12, 11), torch.tensor([3, 700])
     text, text_mask = torch.randn(2, 5, 8), torch.tensor([[1, 1, 1, 0, 0], [1, 1, 1, 1, 1]], dtype=torch.bool)
     mask = torch.arange(12)[None] < torch.tensor([[7], [12]])
@@ -109,3 +112,66 @@ def test_wide_accelerated_unet_matches_stock(kernels):
         ref, out = net(x, t, text, text_mask, mask), fast(x, t, text, text_mask, mask)
     assert (out[~mask] == 0).all()
     torch.testing.assert_close(out, ref, rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("T", [200, 25, 7])
+@pytest.mark.parametrize("layout", ["frames", "batch_slice", "channels"])
+@pytest.mark.parametrize("k, p", [(5, 2), (3, 1)])
+def test_unfold_kernel_gives_the_same_matrix(kernels, T, layout, k, p):
+    torch.manual_seed(0)
+    C = 256
+    base = {"frames": torch.randn(2, T, C), "batch_slice": torch.randn(3, T + 4, C)[1:, 2 : T + 2],
+            "channels": torch.randn(2, C, T).transpose(1, 2)}[layout]
+    padded = nn.functional.pad(base, (0, 0, p, p))
+    expected = padded.as_strided((2, T, k * C), (padded.stride(0), C, 1))
+    rows = base if layout != "channels" else base.contiguous()
+    assert torch.equal(kernels.unfold_same(rows, k, p), expected)
+    with torch.inference_mode():
+        assert torch.equal(_unfold_frames(base, k, 1, p, T), expected)  # the kernel path for >= 256 channels
+    assert torch.equal(_unfold_same(rows, k, p), expected)
+    with pytest.raises(RuntimeError, match="k = 2p"):
+        kernels.unfold_same(rows, k + 1, p)
+    with pytest.raises(RuntimeError, match="contiguous rows"):
+        kernels.unfold_same(torch.randn(2, C, T).transpose(1, 2), k, p)
+
+
+def _attention(dim: int, heads: int) -> LinearCrossAttention:
+    torch.manual_seed(0)
+    attn = LinearCrossAttention(dim, 16, heads).eval()
+    for param in attn.parameters():
+        nn.init.normal_(param, std=0.3)
+    return attn
+
+
+@pytest.mark.parametrize("dim, heads", [(1024, 8), (256, 2), (256, 8), (384, 4)])  # d = 128, 128, 32, 96
+@pytest.mark.parametrize("T", [200, 31, 5])
+def test_fused_cross_attention_matches_pytorch(kernels, dim, heads, T):
+    attn = _attention(dim, heads)
+    fast = copy.deepcopy(attn)
+    fast.__class__ = FusedCrossAttention
+    x = torch.randn(3, T, dim) * 3
+    text = torch.randn(3, 6, 16)
+    text_mask = torch.tensor([[1, 1, 1, 1, 1, 1], [1, 1, 0, 0, 0, 0], [0, 0, 0, 0, 0, 0]], dtype=torch.bool)
+    with torch.inference_mode():
+        ref, out = attn(x, text, text_mask), fast(x, text, text_mask)
+        torch.testing.assert_close(out, ref, rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(out[2], x[2] + attn.out.bias)  # no valid token: no context read
+        # the kernel's own softmax keeps large logits finite (max-shifted, as torch.softmax)
+        q, context = torch.randn(2, T, dim) * 300, torch.randn(2, heads, dim // heads, dim // heads)
+        read = kernels.read_context(q, context)
+        assert torch.isfinite(read).all()
+        torch.testing.assert_close(read, LinearCrossAttention.read(attn, q, context), rtol=1e-5, atol=1e-4)
+
+
+def test_fused_cross_attention_falls_back_under_autograd_and_is_only_for_wide_layers(kernels):
+    attn = _attention(256, 2)
+    model = accelerate(nn.ModuleList([copy.deepcopy(attn), _attention(128, 2)]))
+    assert [type(m) for m in model] == [FusedCrossAttention, LinearCrossAttention]
+    x = torch.randn(2, 9, 256, requires_grad=True)
+    text, text_mask = torch.randn(2, 4, 16), torch.ones(2, 4, dtype=torch.bool)
+    out = model[0](x, text, text_mask)
+    out.square().sum().backward()  # the PyTorch path: gradients reach the input and the query weights
+    assert x.grad is not None and model[0].query.weight.grad is not None
+    torch.testing.assert_close(out, attn(x, text, text_mask))
+    with pytest.raises(RuntimeError, match="H\\*d = C"):
+        kernels.read_context(torch.randn(1, 4, 256), torch.randn(1, 2, 64, 64))

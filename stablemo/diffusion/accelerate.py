@@ -37,7 +37,7 @@ from torch import nn
 
 from stablemo.diffusion import fused
 from stablemo.errors import StableMoError
-from stablemo.nets.layers import MaskedGroupNorm
+from stablemo.nets.layers import LinearCrossAttention, MaskedGroupNorm
 
 
 _MKL_PACK = torch.backends.mkl.is_available() and hasattr(torch.ops.mkl, "_mkl_linear")
@@ -153,7 +153,11 @@ def _unfold_frames(frames: torch.Tensor, k: int, s: int, p: int, T_out: int) -> 
     """
     B, T, C = frames.shape
     if s == 1 and p > 0 and k == 2 * p + 1 and T >= k:  # a 'same' convolution: no padded copy
-        return _unfold_same(frames if frames.stride(2) == 1 and frames.stride(1) == C else frames.contiguous(), k, p)
+        frames = frames if frames.stride(2) == 1 and frames.stride(1) == C else frames.contiguous()
+        if (C >= _MIN_FUSED_CHANNELS and frames.dtype == torch.float32 and frames.device.type == "cpu"
+                and not (torch.is_grad_enabled() and frames.requires_grad) and fused.kernels() is not None):
+            return fused.kernels().unfold_same(frames, k, p)  # one pass; paired: ~6 ms less per paper-UNet forward
+        return _unfold_same(frames, k, p)
     padded = F.pad(frames, (0, 0, p, p)) if p else frames.contiguous()
     return padded.as_strided((B, T_out, k * C), (padded.stride(0), s * C, 1)).contiguous()
 
@@ -275,6 +279,18 @@ class FusedFrameNorm(MaskedGroupNorm):
         return y.transpose(1, 2)
 
 
+class FusedCrossAttention(LinearCrossAttention):
+    """LinearCrossAttention whose reading of the text contexts (per-head softmax of the queries and
+    the per-head products) is one pass of the fused kernel (float32 CPU outside autograd)."""
+
+    def read(self, q_logits: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
+        kernels = fused.kernels()
+        if (kernels is None or q_logits.dtype != torch.float32 or q_logits.device.type != "cpu"
+                or torch.is_grad_enabled()):
+            return super().read(q_logits, context)
+        return kernels.read_context(q_logits.contiguous(), context.float().contiguous())
+
+
 def _frames(x: torch.Tensor) -> torch.Tensor:
     """(B, C, T) -> (B, T, C) with unit channel stride: a free view when x is frames-major (as
     GemmConv1d returns it), a copy otherwise."""
@@ -301,4 +317,7 @@ def accelerate(model: nn.Module) -> nn.Module:
         elif (type(module) is MaskedGroupNorm and module.mode == "frame" and module.weight.numel() >= _MIN_FUSED_CHANNELS
               and fused.kernels() is not None):
             module.__class__ = FusedFrameNorm
+        elif (type(module) is LinearCrossAttention and module.out.in_features >= _MIN_FUSED_CHANNELS
+              and fused.kernels() is not None):
+            module.__class__ = FusedCrossAttention
     return model

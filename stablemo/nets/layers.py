@@ -246,12 +246,16 @@ class LinearCrossAttention(nn.Module):
 
     def forward(self, x: torch.Tensor, text: torch.Tensor, text_mask: torch.Tensor,
                 memo: dict | None = None) -> torch.Tensor:
-        B, T, C = x.shape
-        H = self.num_heads
         context = memoized(memo, self, lambda: self.context(text, text_mask))  # (B, H, d, d)
-        q = self.query(self.norm(x)).reshape(B, T, H, C // H).softmax(dim=-1)
-        y = torch.einsum("bthd,bhde->bthe", q, context.to(q.dtype)).reshape(B, T, C)
+        y = self.read(self.query(self.norm(x)), context)
         return x + self.dropout(self.out(y))
+
+    def read(self, q_logits: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
+        """Each frame reads the text: q_logits (B, T, C), context (B, H, d, d) -> (B, T, C), head h
+        of a frame = softmax over that head's query features @ context[h]."""
+        B, T, C = q_logits.shape
+        q = q_logits.reshape(B, T, self.num_heads, C // self.num_heads).softmax(dim=-1)
+        return torch.einsum("bthd,bhde->bthe", q, context.to(q.dtype)).reshape(B, T, C)
 
 
 def key_padding_attention(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, key_mask: torch.Tensor,
