@@ -113,3 +113,24 @@ def test_bad_arguments(tmp_path):
         bench.main(["aits", "--config", str(empty)])
     with pytest.raises(StableMoError, match="unknown benchmark 'speed'"):
         bench.main(["speed"])
+
+
+def test_flops_are_the_same_with_and_without_the_fused_attention_kernel(tiny_config):
+    """The fused cross-attention read is invisible to the FLOP counter; its products are counted
+    from the call shapes, so the count equals the PyTorch path's."""
+    from stablemo.diffusion import fused
+    from stablemo.diffusion.accelerate import FusedCrossAttention
+    from stablemo.diffusion.schedule import NoiseSchedule
+    from stablemo.model import MotionDiffusionModel
+    from stablemo.nets.layers import LinearCrossAttention
+    from stablemo.pipeline import Pipeline
+
+    if fused.kernels() is None:
+        pytest.skip("the fused CPU kernels cannot be built here")
+    kwargs, _ = bench._model_kwargs(str(tiny_config))
+    pipe = Pipeline(MotionDiffusionModel(**kwargs), NoiseSchedule(), [0.0] * 263, [1.0] * 263, device="cpu")
+    attns = [m for m in pipe.model.modules() if isinstance(m, LinearCrossAttention)]
+    stock = bench.denoiser_flops(pipe, 12, 2)
+    for m in attns:  # the tiny model is below the kernels' width: switch its layers by hand
+        m.__class__ = FusedCrossAttention
+    assert bench.denoiser_flops(pipe, 12, 2) == stock
