@@ -156,9 +156,10 @@ def _unfold_frames(frames: torch.Tensor, k: int, s: int, p: int, T_out: int) -> 
     B, T, C = frames.shape
     if s == 1 and p > 0 and k == 2 * p + 1 and T >= k:  # a 'same' convolution: no padded copy
         frames = frames if frames.stride(2) == 1 and frames.stride(1) == C else frames.contiguous()
-        if (C >= _MIN_FUSED_CHANNELS and frames.dtype == torch.float32 and frames.device.type == "cpu"
-                and not (torch.is_grad_enabled() and frames.requires_grad) and fused.kernels() is not None):
-            return fused.kernels().unfold_same(frames, k, p)  # one pass; paired: ~9 ms less per paper-UNet forward
+        kernels = fused.kernels() if C >= _MIN_FUSED_CHANNELS else None  # narrow models never build them
+        if (kernels is not None and frames.dtype == torch.float32 and frames.device.type == "cpu"
+                and not (torch.is_grad_enabled() and frames.requires_grad)):
+            return kernels.unfold_same(frames, k, p)  # one pass; paired: ~9 ms less per paper-UNet forward
         return _unfold_same(frames, k, p)
     padded = F.pad(frames, (0, 0, p, p)) if p else frames.contiguous()
     return padded.as_strided((B, T_out, k * C), (padded.stride(0), s * C, 1)).contiguous()
