@@ -2,16 +2,34 @@
 
 Joint positions in (metres, floor at 0), positions / contacts / forces out. StableMo calls this
 package through `stablemo.footskate_guidance`; this package never imports stablemo.
+
+The public names load lazily (PEP 562): `footskate.atomicio`, the project's one write helper, is
+imported by every StableMo command and must not pull in torch with it.
 """
 
-from footskate.cleanup import CleanupConfig, CleanupResult, anchor_drift, cleanup, detect_contacts
-from footskate.contacts import contacts_from_forces, contacts_from_heights
-from footskate.errors import FootskateError
-from footskate.skeletons import HUMANML3D, KIT, UP23, Topology
-from footskate.vgrf import ATTRIBUTION, VGRFNet, load_underpressure, load_vgrf, save_vgrf
+from __future__ import annotations
 
-__all__ = [
-    "ATTRIBUTION", "CleanupConfig", "CleanupResult", "FootskateError", "HUMANML3D", "KIT", "Topology", "UP23",
-    "VGRFNet", "anchor_drift", "cleanup", "contacts_from_forces", "contacts_from_heights", "detect_contacts",
-    "load_underpressure", "load_vgrf", "save_vgrf",
-]
+import importlib
+
+_EXPORTS = {
+    "footskate.cleanup": ("CleanupConfig", "CleanupResult", "anchor_drift", "cleanup", "detect_contacts"),
+    "footskate.contacts": ("contacts_from_forces", "contacts_from_heights"),
+    "footskate.errors": ("FootskateError",),
+    "footskate.skeletons": ("HUMANML3D", "KIT", "UP23", "Topology"),
+    "footskate.vgrf": ("ATTRIBUTION", "VGRFNet", "load_underpressure", "load_vgrf", "save_vgrf"),
+}
+_WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
+
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str):
+    if name not in _WHERE:
+        raise AttributeError(f"module 'footskate' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_WHERE[name]), name)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_WHERE))

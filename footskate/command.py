@@ -8,6 +8,7 @@ comes in as a `codec` (stablemo.footskate_guidance passes it) and this package s
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 from typing import Protocol
@@ -15,6 +16,7 @@ from typing import Protocol
 import numpy as np
 import torch
 
+from footskate.atomicio import output_file_problem
 from footskate.cleanup import CleanupConfig, cleanup
 from footskate.errors import FootskateError
 from footskate.npyio import load_npy, save_npy
@@ -50,9 +52,36 @@ def resolve_vgrf(weights: str | None, topo: Topology) -> VGRFNet | torch.nn.Modu
 
 def load_motion(path: Path) -> np.ndarray:
     arr = load_npy(path)
-    if not np.issubdtype(arr.dtype, np.floating) or not np.isfinite(arr).all():
-        raise FootskateError(f"{path}: expected finite floating-point values")
+    if not np.issubdtype(arr.dtype, np.floating):
+        raise FootskateError(f"{path}: expected floating-point positions or features, found dtype {arr.dtype}")
+    bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
+    if bad:
+        raise FootskateError(f"{path}: {bad} NaN/Inf value(s) in the motion; nothing to clean")
     return arr
+
+
+def motion_kind(arr: np.ndarray, topo: Topology, source: str, codec: FeatureCodec | None) -> bool:
+    """True for joints, False for features; a wrong shape is named in the skeleton's own terms."""
+    if arr.shape[-1] == 3 and arr.ndim in (3, 4):
+        # (…, J, 3) is joints: no skeleton has 3 feature channels, so a J mismatch is a joint count
+        if arr.shape[-2] != topo.num_joints:
+            raise FootskateError(f"{source}: joints: {arr.shape[-2]} given, {topo.num_joints} expected for "
+                                 f"skeleton {topo.name} (shape {arr.shape}; --skeleton picks the skeleton)")
+        return True
+    if arr.ndim not in (2, 3):
+        raise FootskateError(f"{source}: expected joints (T, {topo.num_joints}, 3) or features (T, D), got {arr.shape}")
+    if codec is None:
+        raise FootskateError(f"{source}: feature input needs StableMo (run `stablemo footskate`)")
+    if arr.shape[-1] != codec.feature_dim:
+        raise FootskateError(f"{source}: {arr.shape[-1]} feature channels, skeleton {topo.name} has {codec.feature_dim}")
+    return False
+
+
+def save_finite(path: Path, array: np.ndarray, flag: str) -> None:
+    """Never write a non-finite motion: a diverged cleanup is an error, not a file."""
+    if not np.isfinite(array).all():
+        raise FootskateError(f"{flag}: the cleanup produced NaN/Inf values; nothing written to {path}")
+    save_npy(path, array)
 
 
 def lengths_of(batch: np.ndarray) -> np.ndarray:
@@ -67,14 +96,7 @@ def run(args: argparse.Namespace, codec: FeatureCodec | None) -> dict:
     torch.manual_seed(args.seed)
     topo = TOPOLOGIES[args.skeleton]
     arr = load_motion(Path(args.input))
-    is_joints = arr.shape[-1] == 3 and arr.ndim in (3, 4) and arr.shape[-2] == topo.num_joints
-    if not is_joints:
-        if arr.ndim not in (2, 3):
-            raise FootskateError(f"{args.input}: expected joints (T, {topo.num_joints}, 3) or features (T, D), got {arr.shape}")
-        if codec is None:
-            raise FootskateError(f"{args.input}: feature input needs StableMo (run `stablemo footskate`)")
-        if arr.shape[-1] != codec.feature_dim:
-            raise FootskateError(f"{args.input}: {arr.shape[-1]} feature channels, skeleton {topo.name} has {codec.feature_dim}")
+    is_joints = motion_kind(arr, topo, args.input, codec)
     single = arr.ndim == (3 if is_joints else 2)
     batch = arr[None] if single else arr
     if batch.shape[1] < 2:
@@ -92,9 +114,9 @@ def run(args: argparse.Namespace, codec: FeatureCodec | None) -> dict:
         out = out_joints.astype(arr.dtype)
     else:
         out = codec.to_features(out_joints, lengths).astype(arr.dtype)
-    save_npy(Path(args.out), out[0] if single else out)
-    if args.joints_out:
-        save_npy(Path(args.joints_out), out_joints[0] if single else out_joints)
+    if args.joints_out:  # both checked before either is written
+        save_finite(Path(args.joints_out), out_joints[0] if single else out_joints, "--joints-out")
+    save_finite(Path(args.out), out[0] if single else out, "--out")
     info = {"samples": batch.shape[0], "ranges": res.info["ranges"], "anchored": res.info["anchored_ranges"],
             "seconds": res.info["seconds"],
             "contacts": "heuristic" if vgrf is None or args.contacts == "heuristic" else "vgrf"}
@@ -122,13 +144,31 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
+# flag -> (low, high) inclusive; argparse's float() accepts "nan" and "inf", so finiteness is checked too
+RANGES = {"iters": (0, 1_000_000), "fps": (1e-3, 10_000.0), "seed": (0, 2**63 - 1), "threads": (0, 4096)}
+
+
+def check_number(flag: str, value, low, high) -> None:
+    if value is None:
+        return
+    if not math.isfinite(value) or not low <= value <= high:
+        raise FootskateError(f"{flag}: must be a finite number in [{low}, {high}], got {value}")
+
+
+def check_arguments(args: argparse.Namespace) -> None:
+    """Numbers in range and outputs writable, before any file is read or any compute starts."""
+    for name, (low, high) in RANGES.items():
+        check_number(f"--{name}", getattr(args, name), low, high)
+    for flag, path in (("--out", args.out), ("--joints-out", args.joints_out)):
+        problem = output_file_problem(path) if path else None
+        if problem:
+            raise FootskateError(f"{flag}: {problem}")
+
+
 def main(argv: list[str] | None = None, codec_factory=None) -> int:
     """Entry point; `codec_factory(skeleton_name) -> FeatureCodec` enables feature files."""
     args = parser().parse_args(argv)
-    if args.iters < 0:
-        raise FootskateError("--iters: must be >= 0")
-    if args.threads < 0:
-        raise FootskateError("--threads: must be >= 0")
+    check_arguments(args)
     if args.threads:
         torch.set_num_threads(args.threads)
     codec = codec_factory(args.skeleton) if codec_factory is not None else None

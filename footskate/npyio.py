@@ -2,30 +2,49 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 
+from footskate.atomicio import atomic_open
 from footskate.errors import FootskateError
+
+NPY_MAGIC = b"\x93NUMPY"
+ZIP_MAGIC = b"PK\x03\x04"  # .npz archives are zip files
 
 
 def save_npy(path: Path, array: np.ndarray) -> None:
-    """Write through a temporary sibling and rename: never a half-written file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp.npy")
+    """Write exactly `path` through an exclusive temp file and a rename: never a half-written file."""
+    with atomic_open(path) as f:
+        np.save(f, np.asarray(array), allow_pickle=False)
+
+
+def _magic(path: Path) -> bytes:
     try:
-        np.save(tmp, array)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+        with open(path, "rb") as f:
+            return f.read(len(NPY_MAGIC))
+    except OSError as err:
+        raise FootskateError(f"{path}: cannot read ({err.strerror})") from None
 
 
 def load_npy(path: Path) -> np.ndarray:
-    """Read a .npy without pickle; errors name the file."""
+    """Read a numeric .npy without pickle; errors name the file and say what it is instead."""
     if not path.is_file():
-        raise FootskateError(f"{path}: file not found")
+        raise FootskateError(f"{path}: {'is a folder, not a .npy file' if path.is_dir() else 'file not found'}")
+    magic = _magic(path)
+    # checked before np.load: on other content numpy tries pickle and suggests allow_pickle=True
+    if magic.startswith(ZIP_MAGIC):
+        raise FootskateError(f"{path}: an .npz archive, not a .npy file; save one array with np.save")
+    if magic != NPY_MAGIC:
+        raise FootskateError(f"{path}: not a .npy file ({'empty' if not magic else 'no NUMPY header'})")
     try:
-        return np.load(path, allow_pickle=False)
-    except Exception as err:
+        array = np.load(path, allow_pickle=False)
+    except ValueError as err:
+        if "allow_pickle" in str(err):  # an object array: numpy's message would hint at enabling pickle
+            raise FootskateError(f"{path}: holds pickled Python objects, not numbers; refused") from None
         raise FootskateError(f"{path}: not a readable .npy file ({err})") from None
+    except (EOFError, OSError) as err:  # truncated or unreadable
+        raise FootskateError(f"{path}: not a readable .npy file ({err})") from None
+    if not np.issubdtype(array.dtype, np.number):
+        raise FootskateError(f"{path}: expected a numeric array, found dtype {array.dtype}")
+    return array

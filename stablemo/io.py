@@ -1,46 +1,65 @@
-"""Atomic file writes and safe loads: nothing half-written, nothing unpickled."""
+"""Atomic file writes, output checks and safe loads: nothing half-written, nothing unpickled.
+
+The write helpers are `footskate.atomicio`'s (the project's single implementation; see its
+docstring for why it lives there), re-exported here so StableMo code imports them from one place:
+
+    atomic_open(path, *, suffix=".tmp", mode=None, durable=False)  # context manager -> binary file
+    atomic_path(path, *, suffix=None)    # context manager -> temp file name, for external programs
+    atomic_dir(path, *, replaceable=None)  # context manager -> temp folder renamed into place
+    write_text(path, text), write_bytes(path, data), save_npy(path, array)
+
+and the checks every command runs on its output arguments before any compute:
+
+    check_output_file(path, flag) -> Path   # raises StableMoError("--out: ...") when unwritable
+    check_output_dir(path, flag) -> Path
+"""
 
 from __future__ import annotations
 
-import contextlib
 import os
-import tempfile
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
+from footskate.atomicio import (  # noqa: F401  (re-exported)
+    atomic_dir,
+    atomic_open,
+    atomic_path,
+    output_dir_problem,
+    output_file_problem,
+    write_bytes,
+    write_text,
+)
 from stablemo.errors import StableMoError
 
 
-@contextlib.contextmanager
-def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside `path`; on success rename it over `path`, else delete it."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp", dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp)
-    try:
-        yield tmp
-        # mkstemp creates the file private (0600); give it the permissions a plain open() would
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 def save_npy(path: str | os.PathLike, array: np.ndarray) -> None:
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            np.save(f, np.asarray(array))
+    """Atomically write a numeric array as .npy (exactly `path`: no suffix is appended)."""
+    with atomic_open(path) as f:
+        np.save(f, np.asarray(array), allow_pickle=False)
 
 
-def write_text(path: str | os.PathLike, text: str) -> None:
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
+def check_output_file(path: str | os.PathLike, flag: str) -> Path:
+    """Return `path` if a file can be written there, else raise StableMoError naming `flag`.
+
+    One line, e.g. "--out: out/x.gif: out is not a folder". Refuses an existing folder, a path
+    under a regular file, and a read-only or unwritable folder; creates nothing. Call it before
+    the compute starts, so a bad argument costs nothing.
+    """
+    problem = output_file_problem(path)
+    if problem:
+        raise StableMoError(f"{flag}: {problem}")
+    return Path(path)
+
+
+def check_output_dir(path: str | os.PathLike, flag: str) -> Path:
+    """Return `path` if files can be written into that folder (existing or not), else raise
+    StableMoError naming `flag`. Refuses an existing non-folder, a path under a regular file, and
+    a read-only or unwritable folder; creates nothing. Call it before the compute starts."""
+    problem = output_dir_problem(path)
+    if problem:
+        raise StableMoError(f"{flag}: {problem}")
+    return Path(path)
 
 
 def load_npy(path: str | os.PathLike, *, mmap: bool = False) -> np.ndarray:
