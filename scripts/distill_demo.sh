@@ -13,4 +13,4 @@ STABLEMO=${STABLEMO:-.venv/bin/stablemo}
 resume=()
 [ -f "runs/distill_${mode}_synth/checkpoints/last.ckpt" ] && resume=(--ckpt_path last)
 "$STABLEMO" fit --config "configs/distill/${mode}_synth.yaml" "${resume[@]}" "$@"
-"$STABLEMO" export "runs/distill_${mode}_synth/checkpoints/last.ckpt" --out "bundles/demo_${mode}"
+"$STABLEMO" export "runs/distill_${mode}_synth/checkpoints/last.ckpt" --out "bundles/demo_${mode}" --overwrite

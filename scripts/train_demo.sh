@@ -9,5 +9,5 @@ STABLEMO=${STABLEMO:-.venv/bin/stablemo}
 resume=()
 [ -f runs/demo/checkpoints/last.ckpt ] && resume=(--ckpt_path last)
 "$STABLEMO" fit --config configs/demo.yaml "${resume[@]}" "$@"
-"$STABLEMO" export runs/demo/checkpoints/last.ckpt --out stablemo/assets/demo_bundle
+"$STABLEMO" export runs/demo/checkpoints/last.ckpt --out stablemo/assets/demo_bundle --overwrite
 .venv/bin/python scripts/merge_logs.py runs/demo/logs docs/demo_training_log.csv

@@ -8,15 +8,15 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
+from safetensors.torch import save as safetensors_bytes
 
 from stablemo.errors import StableMoError
+from stablemo.io import atomic_dir, output_dir_problem, write_bytes, write_text
 
 BUNDLE_FORMAT = "stablemo-bundle"
 BUNDLE_VERSION = 1
@@ -31,26 +31,85 @@ class Bundle:
     state_dict: dict[str, torch.Tensor]
 
 
-def save_bundle(out_dir: str | os.PathLike, config: dict, state_dict: dict[str, torch.Tensor]) -> Path:
-    """Write a bundle atomically: built in a temporary sibling folder, then renamed into place."""
-    out_dir = Path(out_dir)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    config = {"format": BUNDLE_FORMAT, "version": BUNDLE_VERSION, **config}
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+BUNDLE_FILES = frozenset({CONFIG_NAME, WEIGHTS_NAME})
+
+
+def is_bundle(path: Path) -> bool:
+    """A real folder whose config.json says it is a StableMo bundle (other files are not checked here)."""
+    if path.is_symlink() or not path.is_dir():
+        return False
     try:
-        tensors = {k: v.detach().to("cpu").contiguous() for k, v in state_dict.items()}
-        save_file(tensors, str(tmp / WEIGHTS_NAME))
-        (tmp / CONFIG_NAME).write_text(json.dumps(config, indent=2) + "\n")
-        if out_dir.exists():
-            old = out_dir.with_name(f".{out_dir.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            os.replace(out_dir, old)
-            os.replace(tmp, out_dir)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, out_dir)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        config = json.loads((path / CONFIG_NAME).read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(config, dict) and config.get("format") == BUNDLE_FORMAT
+
+
+def _foreign_entries(path: Path) -> list[str]:
+    return sorted(p.name for p in path.iterdir() if p.name not in BUNDLE_FILES)
+
+
+def _is_cwd_or_above(path: Path) -> bool:
+    if path.name in ("", ".", ".."):
+        return True
+    cwd, target = Path.cwd().resolve(), path.resolve()
+    return target == cwd or target in cwd.parents
+
+
+def check_bundle_target(path: str | os.PathLike, overwrite: bool = False, flag: str | None = None) -> Path:
+    """Refuse, before anything is computed, a bundle target that writing would destroy or cannot reach.
+
+    Allowed: a new path, an empty folder, or (with `overwrite`) an existing bundle holding nothing but
+    bundle files. Everything else (a regular file, a folder with other content, the current folder or
+    one above it, a symlink, an unwritable place) raises one StableMoError line naming `flag`/the path.
+    """
+    path = Path(path)
+    prefix = f"{flag}: " if flag else ""
+    hint = "pass --overwrite" if flag else "pass overwrite=True"
+
+    def refuse(reason: str):
+        raise StableMoError(f"{prefix}{path}: {reason}")
+
+    if _is_cwd_or_above(path):
+        refuse("is the current folder (or contains it); give a new folder name for the bundle")
+    if path.is_symlink():
+        refuse("is a symbolic link; give the bundle folder itself")
+    if path.exists() and not path.is_dir():
+        refuse("exists and is not a folder; nothing was written")
+    if path.is_dir() and any(path.iterdir()):
+        if not is_bundle(path):
+            refuse("folder is not empty and is not a StableMo bundle; nothing was written (choose a new folder)")
+        if not overwrite:
+            refuse(f"holds a bundle already; {hint} to replace it")
+        foreign = _foreign_entries(path)
+        if foreign:
+            refuse(f"holds files that are not part of a bundle ({', '.join(foreign[:3])}); not replaced")
+    problem = output_dir_problem(path.parent)
+    if problem:
+        raise StableMoError(f"{prefix}{path}: cannot write the bundle beside it ({problem})")
+    return path
+
+
+def save_bundle(out_dir: str | os.PathLike, config: dict, state_dict: dict[str, torch.Tensor],
+                overwrite: bool = False) -> Path:
+    """Write a bundle atomically: built in a temporary sibling folder, then renamed into place.
+
+    Refuses (StableMoError) any target `check_bundle_target` refuses; with `overwrite` an existing
+    bundle (and nothing else) is replaced. Nothing is ever removed that a bundle write did not make.
+    """
+    out_dir = check_bundle_target(out_dir, overwrite)
+    config = {"format": BUNDLE_FORMAT, "version": BUNDLE_VERSION, **config}
+    tensors = {k: v.detach().to("cpu").contiguous() for k, v in state_dict.items()}
+
+    def replaceable(path: Path) -> bool:  # re-checked at the rename: the folder may have changed
+        return overwrite and is_bundle(path) and not _foreign_entries(path)
+
+    try:
+        with atomic_dir(out_dir, replaceable=replaceable) as tmp:
+            write_bytes(tmp / WEIGHTS_NAME, safetensors_bytes(tensors))
+            write_text(tmp / CONFIG_NAME, json.dumps(config, indent=2) + "\n")
+    except FileExistsError:
+        raise StableMoError(f"{out_dir}: changed while the bundle was written; nothing replaced") from None
     return out_dir
 
 

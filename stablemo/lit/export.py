@@ -13,7 +13,7 @@ from pathlib import Path
 
 import torch
 
-from stablemo.bundle import save_bundle
+from stablemo.bundle import check_bundle_target, save_bundle
 from stablemo.errors import StableMoError
 from stablemo.lit.checkpoint_io import load_checkpoint_file
 from stablemo.lit.module import CHECKPOINT_KEY
@@ -100,18 +100,25 @@ def _precomputed_bundle(checkpoint: dict, extra: dict, source: str) -> tuple[dic
     return config, state
 
 
-def export(ckpt: str | Path, out: str | Path, weights: str = "ema") -> Path:
+def export(ckpt: str | Path, out: str | Path, weights: str = "ema", overwrite: bool = False) -> Path:
+    """Write the bundle of checkpoint `ckpt` to folder `out`; an existing bundle there is replaced
+    only with `overwrite`, anything else at `out` is refused (checked before the checkpoint loads)."""
+    check_bundle_target(out, overwrite)
     checkpoint = load_checkpoint_file(ckpt)
     config, state = bundle_from_checkpoint(checkpoint, source=str(ckpt), weights=weights)
-    return save_bundle(out, config, state)
+    return save_bundle(out, config, state, overwrite=overwrite)
 
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="stablemo export", description=__doc__.splitlines()[0])
     parser.add_argument("ckpt", help="Lightning checkpoint (.ckpt) written by `stablemo fit`")
-    parser.add_argument("--out", required=True, help="bundle folder to write (replaced atomically)")
+    parser.add_argument("--out", required=True,
+                        help="bundle folder to write: a new or empty folder (written atomically)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an existing bundle at --out (never anything that is not a bundle)")
     parser.add_argument("--weights", choices=WEIGHTS, default="ema", help="EMA weights (default) or the raw weights")
     args = parser.parse_args(argv)
-    path = export(args.ckpt, args.out, weights=args.weights)
+    check_bundle_target(args.out, args.overwrite, flag="--out")  # before the checkpoint is even read
+    path = export(args.ckpt, args.out, weights=args.weights, overwrite=args.overwrite)
     print(f"wrote {path}")
     return 0
