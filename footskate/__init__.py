@@ -10,6 +10,8 @@ imported by every StableMo command and must not pull in torch with it.
 from __future__ import annotations
 
 import importlib
+import sys
+import types
 
 _EXPORTS = {
     "footskate.cleanup": ("CleanupConfig", "CleanupResult", "anchor_drift", "cleanup", "detect_contacts"),
@@ -33,3 +35,15 @@ def __getattr__(name: str):
 
 def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_WHERE))
+
+
+class _Package(types.ModuleType):
+    def __setattr__(self, name: str, value) -> None:
+        # Importing submodule footskate.cleanup binds the module here; the package's `cleanup` is
+        # the function of that name (as with the former eager `from footskate.cleanup import cleanup`).
+        if isinstance(value, types.ModuleType) and _WHERE.get(name) == value.__name__:
+            value = getattr(value, name)
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package

@@ -153,18 +153,13 @@ def _load_up_keys(model: VGRFNet, state: dict, path) -> None:
 
 def save_vgrf(model: VGRFNet, path: str | os.PathLike, metadata: dict | None = None) -> None:
     """Write weights as safetensors (UP key names) with the architecture config in the header; atomic."""
-    from safetensors.torch import save_file
+    from safetensors.torch import save as safetensors_bytes
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    from footskate.atomicio import write_bytes
+
     meta = {"config": json.dumps(model.config), **{k: json.dumps(v) for k, v in (metadata or {}).items()}}
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        save_file({k: v.detach().float().contiguous().cpu() for k, v in model.state_dict_up().items()},
-                  str(tmp), metadata=meta)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    tensors = {k: v.detach().float().contiguous().cpu() for k, v in model.state_dict_up().items()}
+    write_bytes(path, safetensors_bytes(tensors, metadata=meta))
 
 
 def load_vgrf(path: str | os.PathLike | None = None, map_location: str = "cpu", quiet: bool = False) -> VGRFNet:

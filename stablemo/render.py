@@ -13,6 +13,7 @@ accepts features (T, D) or joints (T, J, 3).
 from __future__ import annotations
 
 import argparse
+import math
 import shutil
 import subprocess
 from pathlib import Path
@@ -21,7 +22,7 @@ from typing import Iterator, Sequence
 import numpy as np
 
 from stablemo.errors import StableMoError
-from stablemo.io import atomic_path, load_npy
+from stablemo.io import atomic_open, atomic_path, check_output_file, load_npy
 from stablemo.motion import Skeleton, features_to_joints, get_skeleton, skeleton_for_shape
 
 COLOURS = {"left": "#1f6fd1", "right": "#d62f2f", "center": "#444444"}
@@ -192,8 +193,8 @@ def _write_gif(frames: Iterator[np.ndarray], path: Path, fps: float) -> None:
     palette = _gif_palette()
     images = [Image.fromarray(f).quantize(palette=palette, dither=Image.Dither.NONE) for f in frames]
     duration = max(int(round(1000.0 / fps)), 10)  # GIF time unit is 10 ms
-    with atomic_path(path) as tmp:
-        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=duration, loop=0, optimize=False)
+    with atomic_open(path) as f:
+        images[0].save(f, format="GIF", save_all=True, append_images=images[1:], duration=duration, loop=0, optimize=False)
 
 
 def _write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float) -> None:
@@ -202,7 +203,7 @@ def _write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float) -> None:
         raise StableMoError(f"{path}: writing .mp4 needs ffmpeg on PATH (not found); write a .gif instead")
     frames = list(frames)
     h, w = frames[0].shape[:2]
-    with atomic_path(path) as tmp:
+    with atomic_path(path) as tmp:  # ffmpeg needs a file name: an exclusive temp file's
         cmd = [
             ffmpeg, "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}",
             "-r", f"{fps}", "-i", "-", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-pix_fmt", "yuv420p",
@@ -226,8 +227,8 @@ def render_animation(
     path = Path(path)
     arr = _check_joints(joints, skel)
     fps = float(fps or skel.fps)
-    if fps <= 0:
-        raise StableMoError(f"fps: must be positive, got {fps}")
+    if not math.isfinite(fps) or fps <= 0:
+        raise StableMoError(f"fps: must be a finite positive number, got {fps}")
     suffix = path.suffix.lower()
     if suffix not in (".gif", ".mp4"):
         raise StableMoError(f"{path}: unsupported animation format {suffix or '(none)'}; use .gif or .mp4")
@@ -244,8 +245,8 @@ def _frame_indices(num: int, count: int) -> list[int]:
 
 
 def _save_png(fig, path: Path) -> None:
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=DPI)
+    with atomic_open(path) as f:
+        fig.savefig(f, format="png", dpi=DPI)
 
 
 def render_strip(
@@ -367,12 +368,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--title", default=None)
     parser.add_argument("--index", type=int, default=None, help="item to render when FILE holds a batch (N, T, D) or (N, T, J, 3)")
     args = parser.parse_args(argv)
+    out = check_output_file(args.out, "--out")  # before the motion is read or a frame drawn
+    strip = out.with_name(out.stem + "_frames.png")
+    if args.frames:
+        check_output_file(strip, "--frames")
+        if args.num_frames < 1:
+            raise StableMoError(f"--num-frames: must be >= 1, got {args.num_frames}")
     joints, skel = load_motion(args.file, args.skeleton, args.index)
     title = args.title if args.title is not None else Path(args.file).stem
-    out = render_animation(joints, args.out, skel, fps=args.fps, title=title)
+    out = render_animation(joints, out, skel, fps=args.fps, title=title)
     print(f"wrote {out} ({len(joints)} frames, skeleton {skel.name})")
     if args.frames:
-        strip = out.with_name(out.stem + "_frames.png")
         render_strip(joints, strip, skel, num_frames=args.num_frames, title=title)
         print(f"wrote {strip}")
     return 0

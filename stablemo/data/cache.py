@@ -39,7 +39,7 @@ from stablemo.data.layout import (
     text_path,
 )
 from stablemo.errors import StableMoError
-from stablemo.io import atomic_path
+from stablemo.io import atomic_open, write_text
 
 CACHE_VERSION = 1
 CACHE_DIRNAME = ".stablemo_cache"
@@ -275,9 +275,9 @@ def _build(root: Path, split: str, ids: list[str], spec: DatasetSpec, skip_bad: 
         try:
             cache_dir.mkdir(parents=True, exist_ok=True)
             data_name = f"{split}.{spec.name}.{secrets.token_hex(6)}.f32"
-            with atomic_path(cache_dir / data_name) as tmp, open(tmp, "wb") as f:
+            # mode 0o644: a shared dataset folder, other users may read the cache
+            with atomic_open(cache_dir / data_name, mode=0o644) as f:
                 reader(ids, lambda a: f.write(a.astype(CACHE_DTYPE, copy=False).tobytes()))
-                os.chmod(tmp, 0o644)  # a shared dataset folder: other users may read the cache
             total = int(sum(reader.lengths))
             features = _open_features(cache_dir / data_name, total, spec.feature_dim)
             index = {
@@ -293,9 +293,7 @@ def _build(root: Path, split: str, ids: list[str], spec: DatasetSpec, skip_bad: 
                 "problems": reader.problems,
             }
             index_path = _index_path(cache_dir, split, spec)
-            with atomic_path(index_path) as tmp:
-                tmp.write_text(json.dumps(index))
-                os.chmod(tmp, 0o644)
+            write_text(index_path, json.dumps(index), mode=0o644)
             _remove_stale(cache_dir, split, spec, keep=data_name)
         except OSError as err:
             warnings.warn(f"{cache_dir}: cannot write the dataset cache ({err}); reading without it", stacklevel=3)

@@ -303,28 +303,42 @@ def load_evaluator(path: str | Path) -> EvaluatorModule:
 
 def export_evaluator(checkpoint: str | Path, out_dir: str | Path) -> Path:
     """Write an evaluator folder (config.json + model.safetensors) from a training checkpoint, atomically."""
-    import shutil
-    import tempfile
+    from safetensors.torch import save as safetensors_bytes
 
-    from safetensors.torch import save_file
+    from stablemo.io import atomic_dir, write_bytes, write_text
 
+    out_dir = _check_evaluator_target(Path(out_dir))  # before the checkpoint loads
     model = load_evaluator(checkpoint)
-    out_dir = Path(out_dir)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    config = {"format": EVALUATOR_FORMAT, "version": 1, "hparams": dict(_module_kwargs(dict(model.hparams)))}
+    tensors = {k: v.contiguous() for k, v in model.state_dict().items()}
     try:
-        save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(tmp / WEIGHTS_NAME))
-        config = {"format": EVALUATOR_FORMAT, "version": 1, "hparams": dict(_module_kwargs(dict(model.hparams)))}
-        (tmp / CONFIG_NAME).write_text(json.dumps(config, indent=2) + "\n")
-        umask = os.umask(0)
-        os.umask(umask)
-        # mkdtemp/safetensors create private files; give them the permissions a plain mkdir/open would
-        os.chmod(tmp, 0o777 & ~umask)
-        for f in (WEIGHTS_NAME, CONFIG_NAME):
-            os.chmod(tmp / f, 0o666 & ~umask)
-        if out_dir.exists():
-            shutil.rmtree(out_dir)
-        tmp.replace(out_dir)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        with atomic_dir(out_dir, replaceable=_is_evaluator_folder) as tmp:
+            write_bytes(tmp / WEIGHTS_NAME, safetensors_bytes(tensors))
+            write_text(tmp / CONFIG_NAME, json.dumps(config, indent=2) + "\n")
+    except FileExistsError:
+        raise StableMoError(f"{out_dir}: changed while the evaluator was written; nothing replaced") from None
+    return out_dir
+
+
+def _is_evaluator_folder(path: Path) -> bool:
+    """An evaluator folder we wrote: its config says so and it holds nothing else (safe to replace)."""
+    try:
+        config = json.loads((path / CONFIG_NAME).read_text())
+    except (OSError, ValueError):
+        return False
+    extra = {p.name for p in path.iterdir()} - {CONFIG_NAME, WEIGHTS_NAME}
+    return isinstance(config, dict) and config.get("format") == EVALUATOR_FORMAT and not extra
+
+
+def _check_evaluator_target(out_dir: Path) -> Path:
+    """Replace only a previous evaluator folder: never a file or a folder of anything else."""
+    from stablemo.io import output_dir_problem
+
+    if out_dir.is_symlink() or (out_dir.exists() and not out_dir.is_dir()):
+        raise StableMoError(f"{out_dir}: exists and is not a folder; nothing was written")
+    if out_dir.is_dir() and any(out_dir.iterdir()) and not _is_evaluator_folder(out_dir):
+        raise StableMoError(f"{out_dir}: folder is not empty and is not an evaluator folder; nothing was written")
+    problem = output_dir_problem(out_dir.parent)
+    if problem:
+        raise StableMoError(f"{out_dir}: cannot write beside it ({problem})")
     return out_dir

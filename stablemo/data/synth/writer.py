@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import multiprocessing as mp
 import os
-import shutil
 from collections import Counter
 from pathlib import Path
 
@@ -31,7 +30,7 @@ from tqdm import tqdm
 from stablemo.data.stats import feature_groups
 from stablemo.data.synth.compose import generate_motion, text_file
 from stablemo.errors import StableMoError
-from stablemo.io import save_npy, write_text
+from stablemo.io import atomic_dir, output_dir_problem, save_npy, write_text
 
 VERSION = 1
 FEATURE_DIM = 263
@@ -86,30 +85,59 @@ def _splits(num: int, seed: int) -> dict[str, list[str]]:
     return out
 
 
-def _prepare(out_dir: Path) -> Path:
-    """A fresh sibling temp folder; refuse to replace a non-empty folder we did not write."""
-    if out_dir.exists():
-        if not out_dir.is_dir():
-            raise StableMoError(f"{out_dir}: exists and is not a folder")
-        if any(out_dir.iterdir()) and not (out_dir / MARKER).is_file():
-            raise StableMoError(f"{out_dir}: folder is not empty and is not a synthetic dataset; "
-                                "choose another --out")
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_dir.parent / f".{out_dir.name}.tmp-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    for sub in ("new_joint_vecs", "new_joints", "contacts", "texts"):
-        (tmp / sub).mkdir(parents=True)
-    return tmp
+def _is_synth(path: Path) -> bool:
+    return (path / MARKER).is_file()
 
 
-def _commit(tmp: Path, out_dir: Path) -> None:
-    old = None
-    if out_dir.exists():
-        old = out_dir.parent / f".{out_dir.name}.old-{os.getpid()}"
-        os.replace(out_dir, old)
-    os.replace(tmp, out_dir)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
+def _check_target(out_dir: Path) -> None:
+    """Refuse, before generating anything, a target that is not ours to replace."""
+    if out_dir.is_symlink() or (out_dir.exists() and not out_dir.is_dir()):
+        raise StableMoError(f"{out_dir}: exists and is not a folder")
+    if out_dir.is_dir() and any(out_dir.iterdir()) and not _is_synth(out_dir):
+        raise StableMoError(f"{out_dir}: folder is not empty and is not a synthetic dataset; choose another --out")
+    problem = output_dir_problem(out_dir.parent)
+    if problem:
+        raise StableMoError(f"{out_dir}: cannot write beside it ({problem})")
+
+
+def _generate(tmp: Path, num: int, seed: int, workers: int) -> list[tuple]:
+    """Write the clips into `tmp` in chunks; returns each chunk's statistics and action names."""
+    jobs = [(str(tmp), seed, range(a, min(a + CHUNK, num))) for a in range(0, num, CHUNK)]
+    bar = tqdm(total=num, desc="synth", unit="motion", disable=None)
+    results = []
+    if workers == 1 or len(jobs) == 1:
+        for job in jobs:
+            results.append(_write_chunk(job))
+            bar.update(len(job[2]))
+    else:
+        ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+        with ctx.Pool(workers) as pool:
+            for res in pool.imap(_write_chunk, jobs):  # ordered: fixed summation order
+                results.append(res)
+                bar.update(len(res[3]))
+    bar.close()
+    return results
+
+
+def _write_summary(tmp: Path, results: list[tuple], num: int, seed: int) -> None:
+    """Mean/Std, the split lists and the marker file, from the chunks' statistics."""
+    total = sum(r[0] for r in results)
+    total_sq = sum(r[1] for r in results)
+    count = sum(r[2] for r in results)
+    mean = total / count
+    std = np.sqrt(np.maximum(total_sq / count - mean * mean, 0.0))
+    for group in feature_groups(FEATURE_DIM):
+        std[group] = std[group].mean()
+    std = np.maximum(std, 1e-6)  # a constant group (never expected) must not divide by zero
+    save_npy(tmp / "Mean.npy", mean.astype(np.float32))
+    save_npy(tmp / "Std.npy", std.astype(np.float32))
+    for name, ids in _splits(num, seed).items():
+        write_text(tmp / f"{name}.txt", "\n".join(ids) + "\n")
+    kinds = Counter(a for r in results for names in r[3] for a in names.split("+"))
+    meta = dict(generator="stablemo.data.synth", version=VERSION, seed=seed, num=num, fps=20,
+                skeleton="humanml3d", frames=int(count), action_counts=dict(sorted(kinds.items())),
+                parts=dict(sorted(Counter(len(n.split("+")) for r in results for n in r[3]).items())))
+    write_text(tmp / MARKER, json.dumps(meta, indent=2) + "\n")
 
 
 def write_dataset(out_dir, num: int = 2000, seed: int = 0, workers: int | None = None) -> Path:
@@ -123,40 +151,13 @@ def write_dataset(out_dir, num: int = 2000, seed: int = 0, workers: int | None =
     workers = min(os.cpu_count() or 1, 2) if workers is None else int(workers)
     if workers < 1:
         raise StableMoError(f"workers={workers}: must be >= 1")
-    tmp = _prepare(out_dir)
+    _check_target(out_dir)
     try:
-        jobs = [(str(tmp), seed, range(a, min(a + CHUNK, num))) for a in range(0, num, CHUNK)]
-        bar = tqdm(total=num, desc="synth", unit="motion", disable=None)
-        results = []
-        if workers == 1 or len(jobs) == 1:
-            for job in jobs:
-                results.append(_write_chunk(job))
-                bar.update(len(job[2]))
-        else:
-            ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-            with ctx.Pool(workers) as pool:
-                for res in pool.imap(_write_chunk, jobs):  # ordered: fixed summation order
-                    results.append(res)
-                    bar.update(len(res[3]))
-        bar.close()
-        total = sum(r[0] for r in results)
-        total_sq = sum(r[1] for r in results)
-        count = sum(r[2] for r in results)
-        mean = total / count
-        std = np.sqrt(np.maximum(total_sq / count - mean * mean, 0.0))
-        for group in feature_groups(FEATURE_DIM):
-            std[group] = std[group].mean()
-        std = np.maximum(std, 1e-6)  # a constant group (never expected) must not divide by zero
-        save_npy(tmp / "Mean.npy", mean.astype(np.float32))
-        save_npy(tmp / "Std.npy", std.astype(np.float32))
-        for name, ids in _splits(num, seed).items():
-            write_text(tmp / f"{name}.txt", "\n".join(ids) + "\n")
-        kinds = Counter(a for r in results for names in r[3] for a in names.split("+"))
-        meta = dict(generator="stablemo.data.synth", version=VERSION, seed=seed, num=num, fps=20,
-                    skeleton="humanml3d", frames=int(count), action_counts=dict(sorted(kinds.items())),
-                    parts=dict(sorted(Counter(len(n.split("+")) for r in results for n in r[3]).items())))
-        write_text(tmp / MARKER, json.dumps(meta, indent=2) + "\n")
-        _commit(tmp, out_dir)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        # built in a fresh hidden sibling folder, renamed into place: a replaced dataset is ours (MARKER)
+        with atomic_dir(out_dir, replaceable=_is_synth) as tmp:
+            for sub in ("new_joint_vecs", "new_joints", "contacts", "texts"):
+                (tmp / sub).mkdir()
+            _write_summary(tmp, _generate(tmp, num, seed, workers), num, seed)
+    except FileExistsError:
+        raise StableMoError(f"{out_dir}: changed while the dataset was written; nothing replaced") from None
     return out_dir
