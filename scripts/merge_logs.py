@@ -6,8 +6,11 @@
 from __future__ import annotations
 
 import csv
+import io
 import sys
 from pathlib import Path
+
+from stablemo.io import write_text
 
 
 def merge(log_dir: Path) -> tuple[list[str], list[dict]]:
@@ -31,10 +34,11 @@ def main(argv: list[str]) -> int:
     if not rows:
         print(f"{argv[0]}: no metrics.csv found", file=sys.stderr)
         return 1
-    with open(argv[1], "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=columns)
-        writer.writeheader()
-        writer.writerows(rows)
+    buffer = io.StringIO(newline="")
+    writer = csv.DictWriter(buffer, fieldnames=columns)
+    writer.writeheader()
+    writer.writerows(rows)
+    write_text(argv[1], buffer.getvalue())  # atomic: a failed merge never truncates the old CSV
     print(f"wrote {argv[1]} ({len(rows)} steps)")
     return 0
 
