@@ -26,7 +26,8 @@ import torch
 
 from stablemo.errors import run_script
 from stablemo.eval.physics import foot_skating_ratio, ground_metrics
-from stablemo.footskate_guidance import (_topology, clean_features, generate_with_footskate, load_vgrf_model,
+from stablemo.hooks import make_hooks
+from stablemo.footskate_guidance import (_topology, clean_features, load_vgrf_model,
                                          standard_joints)
 from stablemo.io import write_text
 from stablemo.motion import canonicalize_joints, features_to_joints
@@ -97,7 +98,7 @@ def main(argv=None) -> dict:
     joints_post = torch.from_numpy(joints_post)
 
     started = time.perf_counter()
-    inside = generate_with_footskate(pipe, texts, lengths.tolist(), **gen)
+    inside = pipe.generate(texts, lengths.tolist(), hooks=make_hooks(pipe, footskate=True), **gen)
     inside_seconds = time.perf_counter() - started
     joints_inside = features_to_joints(inside.features)
 

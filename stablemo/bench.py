@@ -35,12 +35,16 @@ import json
 import statistics
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import torch
 
-from stablemo.diffusion import accelerate
+from stablemo.fast import flops as fast_flops
+from stablemo.fast import gemm
+from stablemo.hooks import AtSteps, StepState
+from stablemo.inference_config import InferenceConfig, check_finite, check_positive_int
+from stablemo.pipeline import Request
 from stablemo.errors import StableMoError
 
 # the StableMoFusion network as the nets package describes it (denoiser-only YAML)
@@ -166,8 +170,8 @@ def _build_pipeline(args, fast: bool):
     model = MotionDiffusionModel(**kwargs)
     dim = int(kwargs["denoiser"]["input_dim"])
     pipe = Pipeline(model, NoiseSchedule(), mean=[0.0] * dim, std=[1.0] * dim, prediction_type="sample",
-                    skeleton="humanml3d" if dim == 263 else "kit", min_length=1, max_length=10_000,
-                    device=args.device, fast=fast, config={"model": kwargs})
+                    skeleton="humanml3d" if dim == 263 else "kit", device=args.device, fast=fast, config={"model": kwargs},
+                    inference=InferenceConfig(max_length=10_000))
     return pipe, f"{source}, random weights"
 
 
@@ -179,10 +183,10 @@ def _student_pipeline(pipe, fast: bool):
     student = ConsistencyStudent(pipe.config["model"])
     student.model.load_state_dict(pipe.model.state_dict())
     config = {"consistency": {"mode": "lcm", "ddim_steps": 50, "sigma_data": 0.5, "timestep_scale": 10.0}}
+    inference = replace(pipe.inference, sampler="lcm", steps=1, cfg=1.0)
     return Pipeline(student, pipe.schedule, mean=pipe.mean.numpy(), std=pipe.std.numpy(),
-                    prediction_type=pipe.prediction_type, skeleton=pipe.skeleton, fps=pipe.fps,
-                    min_length=pipe.min_length, max_length=pipe.max_length, kind="consistency",
-                    device=pipe.device, config=config, fast=fast)
+                    prediction_type=pipe.prediction_type, skeleton=pipe.skeleton, kind="consistency",
+                    device=pipe.device, config=config, inference=inference, fast=fast)
 
 
 # ---- measurements -------------------------------------------------------------------------------
@@ -191,12 +195,12 @@ def _student_pipeline(pipe, fast: bool):
 def matmul_gflops(dtype: torch.dtype = torch.float32, n: int = 2048, repeats: int = 5) -> dict[str, tuple[float, float]]:
     """Best-of-`repeats` throughput of an n x n x n matmul, GFLOP/s per wall second and per CPU second,
     for each GEMM that StableMo's kernels can call: torch.matmul and, for float32 on a CPU with
-    oneDNN, oneDNN's packed-weight product (stablemo.diffusion.accelerate's default on non-Intel
+    oneDNN, oneDNN's packed-weight product (stablemo.fast's default on non-Intel
     CPUs, where it beats MKL's). An efficiency is taken against the fastest of them."""
     a = torch.randn(n, n).to(dtype)
     b = torch.randn(n, n).to(dtype)
     products = {"torch.matmul": lambda: a @ b}
-    if dtype == torch.float32 and accelerate._ONEDNN_PACK:
+    if dtype == torch.float32 and gemm._ONEDNN_PACK:
         packed = torch.ops.mkldnn._reorder_linear_weight(b.t().contiguous(), n)  # (out, in) = b^T
         products["oneDNN packed"] = lambda: torch.ops.mkldnn._linear_pointwise(a, packed, None, "none", [], "")
     flops = 2 * n**3
@@ -219,31 +223,11 @@ def _fastest(sample: dict[str, tuple[float, float]]) -> tuple[float, float]:
     return max(w for w, _ in sample.values()), max(c for _, c in sample.values())
 
 
-def _extra_flop_formulas() -> dict:
-    """FLOP formulas for ops the counter does not know: the packed-weight linears of accelerate
-    (MKL's and oneDNN's), keyed by overload packet."""
-
-    def packed_linear(x_shape, w_shape, n_out):
-        rows = 1
-        for n in x_shape[:-1]:
-            rows *= n
-        return 2 * rows * x_shape[-1] * n_out
-
-    formulas = {}
-    if hasattr(torch.ops.mkl, "_mkl_linear"):
-        formulas[torch.ops.mkl._mkl_linear] = (
-            lambda x_shape, packed_shape, w_shape, *args, out_shape=None, **kwargs: packed_linear(x_shape, w_shape, w_shape[0]))
-    if accelerate._ONEDNN_PACK:  # the packed weight keeps the (out, in) shape of the plain one
-        formulas[torch.ops.mkldnn._linear_pointwise] = (
-            lambda x_shape, w_shape, *args, out_shape=None, **kwargs: packed_linear(x_shape, w_shape, w_shape[0]))
-    return formulas
-
-
 def denoiser_flops(pipe, frames: int, batch: int) -> float:
     """FLOPs of one network call on `batch` sequences of `frames` frames (padded as generation pads).
 
-    Counted as a sampling step runs them: the text-only work that the first step memoizes for the
-    whole request (attention contexts, pooled text) is done before counting, not counted per step.
+    Counted as a sampling step runs them: the per-request work (attention contexts, pooled text)
+    is prepared before counting, not counted per step.
     """
     from torch.utils.flop_counter import FlopCounterMode
 
@@ -253,26 +237,12 @@ def denoiser_flops(pipe, frames: int, batch: int) -> float:
     x = torch.zeros(batch, T, pipe.mean.shape[0], device=pipe.device)
     t = torch.full((batch,), 500, dtype=torch.long, device=pipe.device)
     mask = (torch.arange(T, device=pipe.device)[None] < frames).expand(batch, T)
-    counter = FlopCounterMode(display=False, custom_mapping=_extra_flop_formulas())
-    memo: dict = {}
-    unseen = [0]  # the fused cross-attention read is a C++ call the counter cannot see: count its
-    # per-head products (q (T x d) @ context (d x d) per sample and head) from each call's shape
-
-    def count_read(module, inputs):
-        B, T_, C = inputs[0].shape
-        unseen[0] += 2 * B * T_ * C * (C // module.num_heads)
-
-    hooks = [m.register_forward_pre_hook(count_read) for m in pipe.model.modules()
-             if isinstance(m, accelerate.FusedCrossAttention)]
-    try:
-        with torch.inference_mode():
-            pipe.model(x, t, text, text_mask, mask, memo=memo)
-            unseen[0] = 0
-            with counter:
-                pipe.model(x, t, text, text_mask, mask, memo=memo)
-    finally:
-        for hook in hooks:
-            hook.remove()
+    counter = FlopCounterMode(display=False, custom_mapping=fast_flops.counter_formulas())
+    with torch.inference_mode():
+        ctx = pipe.model.prepare(text, text_mask, mask)
+        pipe.model.denoise(x, t, ctx)  # warm: packed weights exist before counting
+        with fast_flops.fused_read_flops(pipe.model) as unseen, counter:
+            pipe.model.denoise(x, t, ctx)
     return float(counter.get_total_flops() + unseen[0])
 
 
@@ -280,27 +250,61 @@ class _Stop(Exception):
     pass
 
 
+class _StepCounter(AtSteps):
+    """A hook that counts the sampler's steps and stops the loop after `max_steps` (time per step
+    is then extrapolated)."""
+
+    def __init__(self, max_steps: int):
+        super().__init__(None)
+        self.max_steps, self.done = max_steps, 0
+
+    def __call__(self, state: StepState) -> None:
+        self.done = state.step + 1
+        if self.done >= self.max_steps:
+            raise _Stop
+
+
+def baseline_denoiser(text_cache: bool, parallel_cfg: bool):
+    """The paper's baselines as a DenoiserFactory (None: the pipeline's own, both tricks on):
+    text_cache=False encodes the prompts and prepares the network's conditioning again at every
+    network call, bypassing every cache; parallel_cfg=False runs CFG's halves as two forwards."""
+    if text_cache and parallel_cfg:
+        return None
+    from stablemo.diffusion.guidance import CFGDenoiser
+
+    def factory(pipe, texts, motion_mask, cfg, dtype, timesteps):
+        def build():
+            text, text_mask = pipe.encode(texts)
+            null_text, null_mask = pipe.null_condition(len(texts))
+            return CFGDenoiser(pipe.model, text, text_mask, null_text, null_mask, motion_mask, scale=cfg,
+                               batched=parallel_cfg, dtype=dtype, timesteps=timesteps)
+
+        if text_cache:
+            return build()
+
+        def uncached(x, t):
+            pipe.clear_text_caches()
+            return build()(x, t)
+
+        return uncached
+
+    return factory
+
+
 def time_generation(pipe, prompt: str, frames: int, sampler: str, steps: int, cfg: float, text_cache: bool,
                     parallel_cfg: bool, dtype, seed: int, max_steps: int | None = None) -> tuple[float, float, int]:
     """Wall and CPU time of one generate() call, and how many sampler steps it ran (max_steps stops early)."""
-    done = [0]
-    hook = None
-    if max_steps is not None and max_steps < steps:
-        def hook(step, t, x0, mask):  # counts steps; aborts after max_steps (time per step is extrapolated)
-            done[0] = step + 1
-            if step + 1 >= max_steps:
-                raise _Stop
-            return None
-
+    counter = _StepCounter(max_steps) if max_steps is not None and max_steps < steps else None
+    request = Request([prompt], [frames], seed=seed, sampler=sampler, steps=steps, cfg=cfg, dtype=dtype,
+                      hooks=[counter] if counter else [])
     pipe.clear_text_caches(keep_null=True)  # every timed sentence encodes its text; the null prompt is the model's
     start, start_cpu = time.perf_counter(), time.process_time()
     try:
-        pipe.generate([prompt], [frames], steps=steps, cfg=cfg, sampler=sampler, seed=seed, dtype=dtype,
-                      x0_hook=hook, text_cache=text_cache, parallel_cfg=parallel_cfg)
-        done[0] = steps
+        pipe.generate(request, denoiser=baseline_denoiser(text_cache, parallel_cfg))
+        done = steps
     except _Stop:
-        pass
-    return time.perf_counter() - start, time.process_time() - start_cpu, done[0]
+        done = counter.done
+    return time.perf_counter() - start, time.process_time() - start_cpu, done
 
 
 def time_sentences(pipe, args, sampler: str, steps: int, text_cache: bool, parallel_cfg: bool, dtype,
@@ -375,7 +379,7 @@ def _run_aits(args) -> dict:
         "threads": torch.get_num_threads(),
         "device": str(pipe.device),
         "kernels": "stock PyTorch" if args.stock else
-                   f"stablemo.diffusion.accelerate (GEMM convolutions, {accelerate.gemm_backend()} packed GEMM)",
+                   f"stablemo.fast (GEMM convolutions, {gemm.gemm_backend()} packed GEMM)",
         "flops_per_step": flops_cfg,
         "matmul_fp32_gflops": statistics.median(w for w, _ in references),
         "matmul_fp32_gflops_per_cpu_s": statistics.median(c for _, c in references),
@@ -463,7 +467,7 @@ def _aits_parser() -> argparse.ArgumentParser:
                    help="run only this many of the 1000 DDPM steps and extrapolate (label shown in the table)")
     p.add_argument("--skip-ddpm", action="store_true", help="leave out the DDPM baseline row")
     p.add_argument("--skip-student", action="store_true", help="leave out the 1-step consistency student row")
-    p.add_argument("--stock", action="store_true", help="stock PyTorch convolutions (no stablemo.diffusion.accelerate)")
+    p.add_argument("--stock", action="store_true", help="stock PyTorch convolutions (no stablemo.fast)")
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
     p.add_argument("--device", default="cpu")
     p.add_argument("--seed", type=int, default=0)
@@ -479,6 +483,14 @@ def main_aits(argv: list[str]) -> int:
         raise StableMoError(f"--repeats: must be >= 1, got {args.repeats}")
     if args.ddpm_steps is not None and not 1 <= args.ddpm_steps <= 1000:
         raise StableMoError(f"--ddpm-steps: must be in [1, 1000], got {args.ddpm_steps}")
+    check_positive_int("--steps", args.steps)
+    check_finite("--cfg", args.cfg, low=0.0, high=100.0)
+    if args.threads is not None:
+        check_positive_int("--threads", args.threads)
+    if args.json:
+        from stablemo.io import check_output_file
+
+        check_output_file(args.json, "--json")
     result = run_aits(args)
     print(format_report(result))
     if args.json:

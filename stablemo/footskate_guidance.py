@@ -1,12 +1,10 @@
-"""StableMo side of foot-skate cleanup: consistent features, the denoising hook, the command.
+"""StableMo side of foot-skate cleanup: consistent features from cleaned joints, the command.
 
 `footskate` works on joint positions and never imports stablemo; this module converts between
 features and joints (stablemo.motion), so that a cleaned motion's features are *all* re-derived
 from the corrected positions (root, rotations, velocities, contact bits), not patched.
 
-StableMoFusion*: `FootskateGuidance` is an x0 hook for `Pipeline.generate(x0_hook=...,
-hook_steps=...)`: at the last denoising steps it cleans the predicted x0 and hands the consistent
-features back to the sampler, so the remaining steps (the diffusion prior) smooth the correction.
+The correction inside denoising (StableMoFusion*) is a sample hook: stablemo.hooks.footskate.
 """
 
 from __future__ import annotations
@@ -19,13 +17,6 @@ import torch
 
 from stablemo.errors import StableMoError
 from stablemo.motion import canonicalize_joints, features_to_joints, get_skeleton, joints_to_features
-
-# Correct x0 at the last four of the sampler's steps. Demo model, 8 prompts x 120 frames, 10 SDE
-# steps: skating ratio 0.285 plain, 0.070 / 0.057 / 0.043 with 2 / 3 / 4 hooked steps, while the
-# feet's mean acceleration rises 6.1 -> 8.6 / 9.0 / 10.8 m/s² (docs/footskate.md); each hooked step
-# costs one batched cleanup.
-DEFAULT_HOOK_STEPS = (-4, -3, -2, -1)
-
 
 def joints_to_consistent_features(joints: np.ndarray, lengths: Sequence[int], skeleton="humanml3d",
                                   refit: bool = False) -> np.ndarray:
@@ -131,44 +122,6 @@ def clean_features(features: torch.Tensor | np.ndarray, lengths: Sequence[int], 
     mask = (torch.arange(joints.shape[1])[None, :] < lengths_t[:, None]).numpy()
     out_joints = np.where(mask[..., None, None], out_joints, 0.0).astype(np.float32)
     return joints_to_consistent_features(out_joints, lengths, skeleton), out_joints, res.info
-
-
-class FootskateGuidance:
-    """x0 hook (StableMoFusion*): clean the predicted motion at the chosen denoising steps.
-
-    hook(step, t, x0 normalised (B,T,D), mask (B,T)) -> x0 with consistent cleaned features.
-    `calls` keeps the cleanup info of every call (timings, anchored ranges).
-    """
-
-    def __init__(self, pipeline, weights: str | Path | None = None, iters: int | None = None, vgrf="auto"):
-        from footskate.cleanup import CleanupConfig
-
-        self.pipeline = pipeline
-        self.skeleton = pipeline.skeleton
-        self.vgrf = load_vgrf_model(weights, self.skeleton) if vgrf == "auto" else vgrf
-        topo = _topology(self.skeleton)
-        self.config = CleanupConfig(fps=pipeline.fps, up_axis=topo.up_axis)
-        if iters is not None:
-            self.config.iters = int(iters)
-        self.calls: list[dict] = []
-
-    def __call__(self, step: int, t, x0: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        lengths = mask.sum(1).tolist()
-        feats = self.pipeline.denormalize(x0.float().cpu())
-        cleaned, _, info = clean_features(feats, lengths, self.skeleton, self.vgrf, self.config)
-        x = self.pipeline.normalize(torch.from_numpy(cleaned))
-        x = torch.where(mask.cpu()[..., None], x, torch.zeros((), dtype=x.dtype))
-        self.calls.append({"step": int(step), **{k: info[k] for k in ("seconds", "ranges", "anchored_ranges")}})
-        return x.to(device=x0.device, dtype=x0.dtype)
-
-
-def generate_with_footskate(pipeline, texts, lengths, weights=None, iters=None,
-                            hook_steps: Sequence[int] = DEFAULT_HOOK_STEPS, **kwargs):
-    """`pipeline.generate(...)` with foot-skate correction inside the last denoising steps."""
-    hook = FootskateGuidance(pipeline, weights=weights, iters=iters)
-    gen = pipeline.generate(texts, lengths, x0_hook=hook, hook_steps=hook_steps, **kwargs)
-    gen.info["footskate"] = hook.calls
-    return gen
 
 
 def main(argv: list[str]) -> int:

@@ -14,11 +14,11 @@ import sys
 from pathlib import Path
 
 from stablemo.errors import StableMoError
+from stablemo.inference_config import check_finite, check_positive_int
+from stablemo.io import check_output_dir, check_output_file
 
 DEFAULT_BUNDLE = Path(__file__).resolve().parent / "assets" / "demo_bundle"
 DEFAULT_SECONDS = 6.0
-DEFAULT_STEPS = 10   # the paper: 10 SDE-DPM-Solver++ steps
-DEFAULT_CFG = 2.5
 
 
 def slugify(text: str, max_len: int = 60) -> str:
@@ -41,7 +41,13 @@ def read_prompts(path: str) -> list[str]:
     file = Path(path)
     if not file.is_file():
         raise StableMoError(f"{file}: prompts file not found")
-    prompts = [line.strip() for line in file.read_text().splitlines()]
+    try:
+        content = file.read_text(encoding="utf-8")
+    except UnicodeDecodeError as err:
+        raise StableMoError(f"{file}: not UTF-8 text (byte {err.start}); save the prompts file as UTF-8") from None
+    except OSError as err:
+        raise StableMoError(f"{file}: cannot read ({err.strerror})") from None
+    prompts = [line.strip() for line in content.splitlines()]
     prompts = [p for p in prompts if p and not p.startswith("#")]
     if not prompts:
         raise StableMoError(f"{file}: no prompts in the file")
@@ -56,9 +62,9 @@ def _parser() -> argparse.ArgumentParser:
     length.add_argument("--seconds", type=float, help=f"motion length in seconds (default {DEFAULT_SECONDS:g}, capped at the model's maximum)")
     length.add_argument("--frames", type=int, help="motion length in frames")
     p.add_argument("--steps", type=int, default=None,
-                   help="sampler steps (default 10; a consistency student's own default, e.g. 1 or 4)")
+                   help="sampler steps (default: the bundle's inference config: 10, or a student's 1-4)")
     p.add_argument("--cfg", type=float, default=None,
-                   help="classifier-free guidance scale (default 2.5; 1 = off; a student's absorbed scale 1 + w)")
+                   help="classifier-free guidance scale (default: the bundle's, 2.5 for the paper; 1 = off; a student's absorbed 1 + w)")
     p.add_argument("--sampler", default=None, help="ddpm, ddim, dpmpp_2m, dpmpp_2m_sde (default: the bundle kind's default)")
     p.add_argument("--seed", type=int, default=0, help="seed; prompt i uses seed + i (default 0)")
     p.add_argument("--bundle", default=None, help=f"bundle folder (default: the packaged demo model, {DEFAULT_BUNDLE})")
@@ -99,13 +105,17 @@ def main(argv: list[str] | None = None) -> int:
         prompts += read_prompts(args.prompts)
     if not prompts:
         raise StableMoError("prompt: give a text prompt or --prompts FILE")
-    if args.steps is not None and args.steps < 1:
-        raise StableMoError(f"--steps: must be >= 1, got {args.steps}")
-    if args.seconds is not None and args.seconds <= 0:
-        raise StableMoError(f"--seconds: must be positive, got {args.seconds:g}")
+    _check_numbers(args)
     bundle = _bundle_path(args.bundle)
+    out = check_output_dir(args.out, "--out")
+    slugs = unique_slugs(prompts)
+    suffixes = ["features.npy", "joints.npy"] + ([] if args.no_render else [args.format])
+    for slug in slugs:  # every file is checked before the compute, so a bad --out costs nothing
+        for suffix in suffixes:
+            check_output_file(out / f"{slug}.{suffix}", "--out")
 
-    from stablemo.pipeline import Pipeline
+    from stablemo.hooks import make_hooks
+    from stablemo.pipeline import Pipeline, Request
 
     pipe = Pipeline.from_bundle(bundle, device=args.device, dtype=args.dtype)
     if args.frames is not None:
@@ -119,23 +129,15 @@ def main(argv: list[str] | None = None) -> int:
             f"{flag}: {frames} frames is outside this model's range [{pipe.min_length}, {pipe.max_length}] frames "
             f"({pipe.min_length / pipe.fps:g}-{pipe.max_length / pipe.fps:g} s at {pipe.fps:g} fps)"
         )
-
-    student = pipe.config.get("consistency") or {}
-    steps = args.steps if args.steps is not None else student.get("steps", DEFAULT_STEPS)
-    cfg = args.cfg if args.cfg is not None else (1.0 + student["w"] if "w" in student else DEFAULT_CFG)
-    request = dict(steps=steps, cfg=cfg, sampler=args.sampler, seed=args.seed, progress=True)
-    if args.footskate:
-        from stablemo.footskate_guidance import generate_with_footskate
-
-        result = generate_with_footskate(pipe, prompts, [frames] * len(prompts), weights=args.footskate_weights,
-                                         **request)
-    else:
-        result = pipe.generate(prompts, [frames] * len(prompts), **request)
+    hooks = make_hooks(pipe, footskate=args.footskate, footskate_weights=args.footskate_weights)
+    request = Request(prompts, frames, seed=args.seed, sampler=args.sampler, steps=args.steps, cfg=args.cfg,
+                      hooks=hooks, progress=True)
+    pipe.resolve(request)  # every setting checked before the first network call
+    result = pipe.generate(request)  # raises, writing nothing, if any motion is not finite
 
     from stablemo.io import save_npy
 
-    out = Path(args.out)
-    for text, slug, feats, joints in zip(prompts, unique_slugs(prompts), result.feature_list(), result.joint_list()):
+    for text, slug, feats, joints in zip(prompts, slugs, result.feature_list(), result.joint_list()):
         save_npy(out / f"{slug}.features.npy", feats)
         save_npy(out / f"{slug}.joints.npy", joints)
         written = [f"{slug}.features.npy", f"{slug}.joints.npy"]
@@ -146,6 +148,18 @@ def main(argv: list[str] | None = None) -> int:
             written.append(f"{slug}.{args.format}")
         print(f"{text!r}: {frames} frames -> {out}/{{{', '.join(written)}}}")
     return 0
+
+
+def _check_numbers(args) -> None:
+    """Numeric flags: finite and in range, before anything is loaded."""
+    if args.steps is not None:
+        check_positive_int("--steps", args.steps)
+    if args.cfg is not None:
+        check_finite("--cfg", args.cfg, low=0.0, high=100.0)
+    if args.seconds is not None:
+        check_finite("--seconds", args.seconds, low=0.0, strict=True)
+    if args.frames is not None:
+        check_positive_int("--frames", args.frames)
 
 
 if __name__ == "__main__":

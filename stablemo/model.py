@@ -43,7 +43,16 @@ class MotionDiffusionModel(nn.Module):
         """Width of the sinusoidal timestep features that `time_cond` is added to."""
         return int(self.denoiser.time_embed.dim)
 
-    def forward(self, x, t, text, text_mask, motion_mask, time_cond=None, memo=None):
-        """time_cond: optional (B, time_feature_dim) added to the timestep features (distillation).
-        memo: optional dict the caller keeps while the text stays fixed (text-only work done once)."""
-        return self.denoiser(x, t, text, text_mask, motion_mask, time_cond=time_cond, memo=memo)
+    def prepare(self, text, text_mask, motion_mask, time_cond=None, timesteps=()):
+        """The denoiser's per-request conditioning (stablemo.nets.conditioning): text (B, L, C) and
+        text_mask (B, L) from `encode_text`, motion_mask (B, T); timesteps: the sampler's plan."""
+        return self.denoiser.prepare(text, text_mask, motion_mask, time_cond=time_cond, timesteps=timesteps)
+
+    def denoise(self, x, t, ctx):
+        """One step: x (B, T, D), t (B,), ctx from `prepare` -> (B, T, D)."""
+        return self.denoiser(x, t, ctx)
+
+    def forward(self, x, t, text, text_mask, motion_mask, time_cond=None):
+        """One call with its own conditioning (training): time_cond, optional (B, time_feature_dim),
+        is added to the timestep features (distillation)."""
+        return self.denoiser(x, t, self.prepare(text, text_mask, motion_mask, time_cond))

@@ -8,36 +8,58 @@
   multiple with a mask, and draws its start noise and per-step noise from its own generator at its
   own length, so a sample's result does not depend on what else is in the batch (the denoisers are
   exactly padding invariant),
-- a guidance hook may rewrite the predicted x0 at chosen steps (used by foot-skate cleanup).
+- sample hooks (stablemo.hooks) may rewrite the predicted x0 at chosen steps (foot-skate
+  cleanup, and in the same interface any other editing of a sample while it is denoised).
+
+A request is a `Request` (texts, lengths, seeds, sampler, steps, guidance, hooks); what a bundle's
+kind contributes (network, samplers, denoiser) comes from stablemo.kinds, and the defaults from the
+bundle's inference config (stablemo.inference_config).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import torch
 from torch import nn
 
-from stablemo.diffusion.accelerate import accelerate
-from stablemo.diffusion.guidance import CFGDenoiser
-from stablemo.diffusion.samplers import SAMPLERS
 from stablemo.diffusion.schedule import NoiseSchedule, check_prediction_type
 from stablemo.errors import StableMoError
-
-# bundle "kind" -> its sampler table; a consistency student's table depends on its own config
-# (mode, grid, phase edges) and is built in from_bundle
-SAMPLER_TABLES: dict[str, dict[str, Callable[..., torch.Tensor]]] = {"diffusion": SAMPLERS, "consistency": {}}
-DEFAULT_SAMPLER: dict[str, str] = {"diffusion": "dpmpp_2m_sde"}
+from stablemo.fast import accelerate
+from stablemo.hooks import SampleHook, StepState, apply_hooks
+from stablemo.inference_config import InferenceConfig, check_finite, check_positive_int
+from stablemo.kinds import Denoise, ModelKind, model_kind
 
 DTYPES = {"fp32": torch.float32, "float32": torch.float32, "bf16": torch.bfloat16, "bfloat16": torch.bfloat16,
           "fp16": torch.float16, "float16": torch.float16}
 
-# hook(step_index, t, x0 (B,T,D) normalised float32, motion_mask (B,T) bool) -> new x0 or None
-X0Hook = Callable[[int, int, torch.Tensor, torch.Tensor], "torch.Tensor | None"]
+# (pipeline, texts, motion_mask (B, T), cfg, network dtype, planned timesteps) -> denoise(x_t, t).
+# The default encodes the texts once and asks the bundle's kind; the benchmarks pass their
+# baselines (no text cache, serial CFG) this way.
+DenoiserFactory = Callable[["Pipeline", list, torch.Tensor, float, "torch.dtype | None", list], Denoise]
+
+
+@dataclass
+class Request:
+    """One generation request. seed: an int (sample i uses seed + i) or one per text; sampler,
+    steps, cfg: None = the bundle's inference config; dtype: network precision (None = the
+    pipeline's); hooks: sample hooks, applied in this order; batch_size: split large requests into
+    chunks (results do not depend on it)."""
+
+    texts: Sequence[str]
+    lengths: int | Sequence[int]
+    seed: int | Sequence[int] = 0
+    sampler: str | None = None
+    steps: int | None = None
+    cfg: float | None = None
+    dtype: str | torch.dtype | None = None
+    hooks: Sequence[SampleHook] = ()
+    batch_size: int | None = None
+    progress: bool = False
 
 
 def resolve_dtype(dtype, device: torch.device) -> torch.dtype:
@@ -93,7 +115,7 @@ class _PerSampleNoise:
 
 
 class Pipeline:
-    """A trained MotionDiffusionModel plus what generation needs around it (schedule, stats, skeleton)."""
+    """A trained model plus what generation needs around it (schedule, stats, skeleton, inference config)."""
 
     def __init__(
         self,
@@ -103,40 +125,37 @@ class Pipeline:
         std: Sequence[float] | np.ndarray,
         prediction_type: str = "sample",
         skeleton: str = "humanml3d",
-        fps: float = 20.0,
-        min_length: int = 1,
-        max_length: int = 196,
         kind: str = "diffusion",
         device: str | torch.device | None = None,
         dtype=None,
         config: dict | None = None,
+        inference: InferenceConfig | None = None,
         fast: bool = True,
     ) -> None:
         check_prediction_type(prediction_type)
-        if kind not in SAMPLER_TABLES:
-            raise StableMoError(f"kind: no samplers for bundle kind {kind!r}; known: {sorted(SAMPLER_TABLES)}")
-        self.device = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+        self.config = config or {}
+        self.kind_name = kind
+        self.kind: ModelKind = model_kind(kind)
+        self.device = resolve_device(device)
         self.dtype = resolve_dtype(dtype, self.device)
         self.model = model.eval().requires_grad_(False).to(self.device)
-        if fast:  # GEMM convolutions, cached low-precision weights (stablemo.diffusion.accelerate)
-            accelerate(self.model)
-        self.schedule, self.prediction_type, self.kind = schedule, prediction_type, kind
+        if fast:  # GEMM convolutions, fused blocks, cached low-precision weights (stablemo.fast)
+            self.model = accelerate(self.model)
+        self.schedule, self.prediction_type = schedule, prediction_type
         self.mean = torch.as_tensor(np.asarray(mean, dtype=np.float32))
         self.std = torch.as_tensor(np.asarray(std, dtype=np.float32))
         if self.mean.shape != self.std.shape or self.mean.dim() != 1:
             raise StableMoError(f"mean/std: expected two (D,) vectors, got {tuple(self.mean.shape)} and {tuple(self.std.shape)}")
-        self.skeleton, self.fps = skeleton, float(fps)
-        self.min_length, self.max_length = int(min_length), int(max_length)
-        self.config = config or {}
+        self.skeleton = skeleton
+        self.inference = inference or InferenceConfig.from_bundle(self.config)
         self._null: tuple[torch.Tensor, torch.Tensor] | None = None
         # frozen text encoders wherever the model holds a text conditioner (a student wraps its teacher's)
         frozen = (getattr(m, "frozen", None) for m in self.model.modules())
         self._frozen_encoders = list({id(f): f for f in frozen if hasattr(f, "clear_cache")}.values())
-        self.samplers = SAMPLER_TABLES[kind]
-        if kind == "consistency":
-            from stablemo.distill.sampling import consistency_samplers
-
-            self.samplers = consistency_samplers(self.config["consistency"], schedule)
+        self.samplers = self.kind.samplers(self.config, schedule)
+        if self.inference.sampler not in self.samplers:
+            raise StableMoError(f"inference.sampler: {self.inference.sampler!r} is not a sampler of this model "
+                                f"(choose from {sorted(self.samplers)})")
 
     # ---- construction -----------------------------------------------------------------------
 
@@ -146,31 +165,30 @@ class Pipeline:
         """Load a bundle; `random_weights` keeps the network's fresh initialisation (benchmarks)."""
         from stablemo.bundle import load_bundle
 
+        device = resolve_device(device)  # a wrong device is reported before any loading
         bundle = load_bundle(path)
         config = bundle.config
-        cfg_file = Path(path) / "config.json"
+        cfg_file = str(Path(path) / "config.json")
         for key in ("model", "mean", "std"):
             if key not in config:
                 raise StableMoError(f"{cfg_file}: missing key {key!r}")
-        kind = config.get("kind", "diffusion")
-        if kind not in SAMPLER_TABLES:
-            raise StableMoError(f"{cfg_file}: bundle kind {kind!r} is not supported by this pipeline "
-                                f"(known: {sorted(SAMPLER_TABLES)})")
-        if kind == "consistency":
-            from stablemo.distill.student import ConsistencyStudent
-
-            if "consistency" not in config:
-                raise StableMoError(f"{cfg_file}: a consistency bundle needs a 'consistency' section")
-            model = ConsistencyStudent(config["model"], w_dim=config["consistency"].get("w_dim", 256))
-        else:
-            from stablemo.model import MotionDiffusionModel
-
-            model = MotionDiffusionModel(**config["model"])
+        kind_name = config.get("kind", "diffusion")
+        kind = model_kind(kind_name, cfg_file)
+        try:
+            model = kind.build_model(config, cfg_file)
+        except TypeError as err:
+            raise StableMoError(f"{cfg_file}: 'model' does not describe a network ({err})") from None
+        _check_stats(config, cfg_file, model)
         if not random_weights:
+            weights_file = Path(path) / "model.safetensors"
+            bad = [k for k, v in bundle.state_dict.items() if v.is_floating_point() and not torch.isfinite(v).all()]
+            if bad:
+                raise StableMoError(f"{weights_file}: {len(bad)} weight tensor(s) hold NaN/Inf (e.g. {bad[0]}); "
+                                    "the bundle is broken, export it again from a good checkpoint")
             try:
                 model.load_state_dict(bundle.state_dict, strict=True)
             except RuntimeError as err:
-                raise StableMoError(f"{Path(path) / 'model.safetensors'}: weights do not fit the config ({err})") from None
+                raise StableMoError(f"{weights_file}: weights do not fit the config ({err})") from None
         return cls(
             model,
             NoiseSchedule(**config.get("schedule", {})),
@@ -178,17 +196,27 @@ class Pipeline:
             config["std"],
             prediction_type=config.get("prediction_type", "sample"),
             skeleton=config.get("skeleton") or config.get("dataset", "humanml3d"),
-            fps=config.get("fps", 20.0),
-            min_length=config.get("min_length", 1),
-            max_length=config.get("max_length", 196),
-            kind=kind,
+            kind=kind_name,
             device=device,
             dtype=dtype,
             config=config,
+            inference=InferenceConfig.from_bundle(config, cfg_file),
             fast=fast,
         )
 
     # ---- helpers ----------------------------------------------------------------------------
+
+    @property
+    def fps(self) -> float:
+        return self.inference.fps
+
+    @property
+    def min_length(self) -> int:
+        return self.inference.min_length
+
+    @property
+    def max_length(self) -> int:
+        return self.inference.max_length
 
     @property
     def length_multiple(self) -> int:
@@ -225,80 +253,85 @@ class Pipeline:
         for frozen in self._frozen_encoders:
             frozen.clear_cache()
 
-    def _check_request(self, texts, lengths) -> tuple[list[str], list[int]]:
-        if isinstance(texts, str):
-            texts = [texts]
-        texts = list(texts)
+    def make_denoiser(self, texts: list[str], motion_mask: torch.Tensor, cfg: float, dtype, timesteps) -> Denoise:
+        """The default DenoiserFactory: texts encoded once, the bundle kind's denoiser."""
+        text, text_mask = self.encode(texts)
+        return self.kind.make_denoiser(self, text, text_mask, motion_mask, cfg, dtype, timesteps)
+
+    def resolve(self, request: Request) -> Request:
+        """The request with every default filled in from the inference config, checked: one clear
+        error naming the field for anything a sampler could not run or would turn into NaN."""
+        texts = [request.texts] if isinstance(request.texts, str) else list(request.texts)
         if not texts:
             raise StableMoError("texts: no prompts given")
         for i, text in enumerate(texts):
             if not isinstance(text, str) or not text.strip():
                 raise StableMoError(f"texts[{i}]: empty prompt")
-        if isinstance(lengths, (int, np.integer)):
-            lengths = [int(lengths)] * len(texts)
-        lengths = [int(n) for n in lengths]
+        lengths = request.lengths
+        lengths = [lengths] * len(texts) if isinstance(lengths, (int, np.integer)) else list(lengths)
         if len(lengths) != len(texts):
             raise StableMoError(f"lengths: {len(lengths)} lengths for {len(texts)} prompts")
+        lengths = [check_positive_int(f"lengths[{i}]", n) for i, n in enumerate(lengths)]
         for i, n in enumerate(lengths):
             if not self.min_length <= n <= self.max_length:
                 raise StableMoError(f"lengths[{i}]: {n} frames is outside this model's range "
                                     f"[{self.min_length}, {self.max_length}] ({self.fps:g} fps)")
-        return texts, lengths
+        if isinstance(request.seed, (int, np.integer)):
+            seeds = [int(request.seed) + i for i in range(len(texts))]
+        else:
+            seeds = [int(s) for s in request.seed]
+            if len(seeds) != len(texts):
+                raise StableMoError(f"seed: {len(seeds)} seeds for {len(texts)} prompts")
+        sampler = request.sampler or self.inference.sampler
+        if sampler not in self.samplers:
+            raise StableMoError(f"sampler: unknown {sampler!r}; choose from {sorted(self.samplers)}")
+        steps = check_positive_int("steps", self.inference.steps if request.steps is None else request.steps)
+        cfg = check_finite("cfg", self.inference.cfg if request.cfg is None else request.cfg, low=0.0, high=100.0)
+        self.samplers[sampler].timesteps(self.schedule, steps)  # the sampler's own check of steps
+        if request.batch_size is not None:
+            check_positive_int("batch_size", request.batch_size)
+        dtype = self.dtype if request.dtype is None else resolve_dtype(request.dtype, self.device)
+        return replace(request, texts=texts, lengths=lengths, seed=seeds, sampler=sampler, steps=steps, cfg=cfg,
+                       dtype=dtype, hooks=list(request.hooks))
 
     # ---- generation -------------------------------------------------------------------------
 
-    def generate(
-        self,
-        texts: str | Sequence[str],
-        lengths: int | Sequence[int],
-        steps: int = 10,
-        cfg: float = 2.5,
-        sampler: str | None = None,
-        seed: int | Sequence[int] = 0,
-        dtype=None,
-        x0_hook: X0Hook | None = None,
-        hook_steps: Iterable[int] | None = None,
-        batch_size: int | None = None,
-        parallel_cfg: bool = True,
-        text_cache: bool = True,
-        progress: bool = False,
-    ) -> Generation:
-        """Sample one motion per prompt.
+    def generate(self, request: Request | str | Sequence[str], lengths: int | Sequence[int] | None = None,
+                 denoiser: DenoiserFactory | None = None, **fields) -> Generation:
+        """Sample one motion per prompt: `generate(Request(...))` or `generate(texts, lengths, steps=...)`
+        with the fields of `Request`. denoiser: a DenoiserFactory replacing the kind's (benchmarks).
 
-        seed: an int (sample i uses seed + i) or one seed per prompt. hook_steps: step indices at
-        which x0_hook runs (negative counts from the end, indices outside the run are ignored; None =
-        every step). batch_size: split large requests into chunks (results do not depend on it).
-        parallel_cfg=False and text_cache=False (re-encode the prompts at every network call,
-        bypassing every cache) exist to measure the paper's baselines; they change no result.
+        A result that is not finite everywhere (diverged weights, a hook gone wrong) is an error
+        naming the prompt, never a returned motion.
         """
-        texts, lengths = self._check_request(texts, lengths)
-        table = self.samplers
-        sampler = sampler or DEFAULT_SAMPLER.get(self.kind) or next(iter(table))
-        if sampler not in table:
-            raise StableMoError(f"sampler: unknown {sampler!r}; choose from {sorted(table)}")
-        if isinstance(seed, (int, np.integer)):
-            seeds = [int(seed) + i for i in range(len(texts))]
-        else:
-            seeds = [int(s) for s in seed]
-            if len(seeds) != len(texts):
-                raise StableMoError(f"seed: {len(seeds)} seeds for {len(texts)} prompts")
-        net_dtype = resolve_dtype(dtype, self.device) if dtype is not None else self.dtype
-        hook_at = None
-        if hook_steps is not None:
-            hook_at = {s + steps if s < 0 else s for s in hook_steps} & set(range(steps))  # -k: k-th from the end
-        chunk = batch_size or len(texts)
+        if not isinstance(request, Request):
+            if lengths is None:
+                raise StableMoError("lengths: give the motion lengths in frames")
+            try:
+                request = Request(request, lengths, **fields)
+            except TypeError as err:
+                raise StableMoError(f"generate: {err}") from None
+        elif lengths is not None or fields:
+            raise StableMoError("generate: pass either a Request or texts, lengths and options, not both")
+        req = self.resolve(request)
+        factory = denoiser or Pipeline.make_denoiser
+        chunk = req.batch_size or len(req.texts)
         parts = []
-        for start in range(0, len(texts), chunk):
+        for start in range(0, len(req.texts), chunk):
             sl = slice(start, start + chunk)
-            parts.append(self._generate_batch(texts[sl], lengths[sl], seeds[sl], steps, float(cfg), table[sampler],
-                                              net_dtype, x0_hook, hook_at, parallel_cfg, text_cache, progress))
+            parts.append(self._generate_batch(req.texts[sl], req.lengths[sl], req.seed[sl], req, factory))
         T = max(p.shape[1] for p in parts)
         normalized = torch.cat([torch.nn.functional.pad(p, (0, 0, 0, T - p.shape[1])) for p in parts])
-        mask = torch.arange(T)[None, :] < torch.tensor(lengths)[:, None]
+        mask = torch.arange(T)[None, :] < torch.tensor(req.lengths)[:, None]
         features = torch.where(mask[..., None], self.denormalize(normalized), torch.zeros(()))
         joints = self.to_joints(features, mask)
-        info = {"steps": steps, "cfg": float(cfg), "sampler": sampler, "dtype": str(net_dtype).replace("torch.", "")}
-        return Generation(texts, lengths, seeds, features, joints, normalized, mask, info)
+        for i, text in enumerate(req.texts):
+            if not (torch.isfinite(features[i]).all() and torch.isfinite(joints[i]).all()):
+                raise StableMoError(f"prompt {i + 1} ({text!r}): the model produced non-finite values "
+                                    f"(check the bundle's weights and the sampler settings); nothing was written")
+        info = {"steps": req.steps, "cfg": req.cfg, "sampler": req.sampler,
+                "dtype": str(req.dtype).replace("torch.", "")}
+        return Generation(req.texts, req.lengths, req.seed, features, joints, normalized, mask, info)
 
     def to_joints(self, features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """De-normalised features (B,T,D) -> joints (B,T,J,3), zero on padding (root integration is causal)."""
@@ -307,8 +340,7 @@ class Pipeline:
         joints = features_to_joints(features, self.skeleton)
         return torch.where(mask[:, :, None, None], joints, torch.zeros((), dtype=joints.dtype))
 
-    def _generate_batch(self, texts, lengths, seeds, steps, cfg, sampler_fn, net_dtype, x0_hook, hook_at,
-                        parallel_cfg, text_cache, progress) -> torch.Tensor:
+    def _generate_batch(self, texts, lengths, seeds, req: Request, factory: DenoiserFactory) -> torch.Tensor:
         B, D = len(texts), self.mean.shape[0]
         mult = self.length_multiple
         T = int(math.ceil(max(lengths) / mult) * mult)
@@ -316,36 +348,57 @@ class Pipeline:
         generators = [torch.Generator().manual_seed(s) for s in seeds]
         noise = _PerSampleNoise(generators, lengths)
         x_T = noise(torch.empty(B, T, D)).to(self.device)
-
-        def guided_denoiser():
-            text, text_mask = self.encode(texts)
-            if self.kind == "consistency":  # guidance is embedded in the student: w = cfg - 1
-                from stablemo.distill.student import StudentDenoiser
-
-                return StudentDenoiser(self.model, text, text_mask, mask, w=cfg - 1.0, dtype=net_dtype)
-            null_text, null_mask = self.null_condition(B)
-            return CFGDenoiser(self.model, text, text_mask, null_text, null_mask, mask, scale=cfg,
-                               batched=parallel_cfg, dtype=net_dtype)
-
-        if text_cache:
-            denoise = guided_denoiser()  # text encoded once per request
-        else:
-            def denoise(x, t):
-                self.clear_text_caches()
-                return guided_denoiser()(x, t)
+        sampler = self.samplers[req.sampler]
+        timesteps = sampler.timesteps(self.schedule, req.steps)
+        denoise = factory(self, list(texts), mask, req.cfg, req.dtype, timesteps)
 
         callback = None
-        if x0_hook is not None:
+        if req.hooks:
             def callback(i, t, x0):
-                if hook_at is None or i in hook_at:
-                    with torch.enable_grad():  # hooks may optimise (e.g. foot-skate cleanup)
-                        return x0_hook(i, t, x0.clone(), mask)
-                return None
+                return apply_hooks(req.hooks, StepState(i, req.steps, int(t), x0, mask, list(lengths)))
 
-        # inference_mode is the fastest context, but its tensors cannot enter autograd: with a hook
-        # the loop runs under no_grad so the hook may differentiate through its own computations
-        with torch.no_grad() if x0_hook is not None else torch.inference_mode():
-            x0 = sampler_fn(denoise, x_T, self.schedule, steps, noise=noise, callback=callback,
-                            prediction_type=self.prediction_type, progress=progress)
+        # inference_mode is the fastest context, but its tensors cannot enter autograd: with hooks
+        # the loop runs under no_grad so a hook may differentiate through its own computations
+        with torch.no_grad() if req.hooks else torch.inference_mode():
+            x0 = sampler.run(denoise, x_T, self.schedule, req.steps, noise=noise, callback=callback,
+                             prediction_type=self.prediction_type, progress=req.progress)
         x0 = torch.where(mask[..., None], x0.float(), torch.zeros((), device=x0.device))
         return x0.cpu()
+
+
+def _check_stats(config: dict, source: str, model: nn.Module) -> None:
+    """Mean/Std: finite vectors of the network's feature width, Std > 0 (it divides)."""
+    width = getattr(getattr(model, "denoiser", None), "input_dim", None)
+    if width is None:  # a student wraps its teacher's network
+        width = getattr(getattr(getattr(model, "model", None), "denoiser", None), "input_dim", None)
+    for key in ("mean", "std"):
+        try:
+            values = np.asarray(config[key], dtype=np.float64) if isinstance(config[key], list) else None
+        except (TypeError, ValueError):
+            values = None
+        if values is None or values.ndim != 1:
+            raise StableMoError(f"{source}: {key!r} must be a list of numbers")
+        if width is not None and len(values) != width:
+            raise StableMoError(f"{source}: {key!r} has {len(values)} values, the network's features have {width}")
+        if not np.isfinite(values).all():
+            raise StableMoError(f"{source}: {key!r} holds NaN/Inf")
+    if (np.asarray(config["std"], dtype=np.float64) <= 0).any():
+        raise StableMoError(f"{source}: 'std' holds values <= 0")
+
+
+def resolve_device(device) -> torch.device:
+    """The device to run on (default: cuda if available); one clear error for one that is not here."""
+    if device is None:
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError):
+        raise StableMoError(f"device: unknown device {device!r}; use cpu or cuda") from None
+    available = ["cpu"] + (["cuda"] if torch.cuda.is_available() else []) + \
+        (["mps"] if getattr(torch.backends, "mps", None) and torch.backends.mps.is_available() else [])
+    if dev.type not in available:
+        raise StableMoError(f"device: {dev.type} is not available in this torch build "
+                            f"(available: {', '.join(available)})")
+    if dev.type == "cuda" and dev.index is not None and dev.index >= torch.cuda.device_count():
+        raise StableMoError(f"device: {device} does not exist ({torch.cuda.device_count()} CUDA device(s))")
+    return dev

@@ -6,8 +6,10 @@ import pytest
 import torch
 from torch import nn
 
-from stablemo.diffusion import accelerate as accel
-from stablemo.diffusion.accelerate import CachedCastLinear, FastMish, GemmConv1d, GemmConvTranspose1d, accelerate, fast_mish
+from stablemo.fast import accelerate
+from stablemo.fast import gemm as accel
+from stablemo.fast.blocks import FastMish, fast_mish
+from stablemo.fast.gemm import CachedCastLinear, GemmConv1d, GemmConvTranspose1d
 from stablemo.errors import StableMoError
 
 
@@ -26,7 +28,7 @@ def test_gemm_conv1d_matches_conv1d(k, s, p, frames_major):
 @pytest.mark.parametrize("T", [7, 8, 19])
 @pytest.mark.parametrize("layout", ["frames", "channels", "batch_slice"])
 def test_same_convolution_unfolds_without_a_padded_copy_to_the_same_matrix(k, p, T, layout):
-    from stablemo.diffusion.accelerate import _unfold_frames, _unfold_same
+    from stablemo.fast.gemm import _unfold_frames, _unfold_same
 
     torch.manual_seed(0)
     base = {"frames": torch.randn(2, T, 6), "channels": torch.randn(2, 6, T).transpose(1, 2),
@@ -213,10 +215,10 @@ def test_accelerated_unet_matches_stock_and_stays_padding_invariant(context):
     x[0, 13:] = float("nan")  # padding content must not matter (in-place zeroing outside autograd)
     x_before = x.clone()
     with torch.enable_grad() if context == "grad" else torch.inference_mode():
-        ref = net(x, t, text, text_mask, mask)
-        out = fast(x, t, text, text_mask, mask)
+        ref = net(x, t, net.prepare(text, text_mask, mask))
+        out = fast(x, t, fast.prepare(text, text_mask, mask))
         # sample 0 alone, padded only to its own length multiple, gives the same valid frames
-        alone = fast(x[:1, :16], t[:1], text[:1], text_mask[:1], mask[:1, :16])
+        alone = fast(x[:1, :16], t[:1], fast.prepare(text[:1], text_mask[:1], mask[:1, :16]))
     assert torch.isfinite(out).all() and (out[~mask] == 0).all()
     torch.testing.assert_close(out, ref, rtol=1e-5, atol=1e-5)
     torch.testing.assert_close(alone[0, :13], out[0, :13], rtol=1e-5, atol=1e-5)

@@ -67,7 +67,8 @@ def test_packed_products_are_counted(monkeypatch, backend):
     count nothing for them, and every efficiency figure would be wrong."""
     from torch.utils.flop_counter import FlopCounterMode
 
-    from stablemo.diffusion.accelerate import accelerate
+    from stablemo.fast import accelerate
+    from stablemo.fast.flops import counter_formulas
 
     monkeypatch.setenv("STABLEMO_GEMM", backend)
     layer = accelerate(torch.nn.Linear(1024, 1100))
@@ -75,7 +76,7 @@ def test_packed_products_are_counted(monkeypatch, backend):
     with torch.inference_mode():
         layer(x)  # MKL packs at the second call with a row count
         layer(x)
-        counter = FlopCounterMode(display=False, custom_mapping=bench._extra_flop_formulas())
+        counter = FlopCounterMode(display=False, custom_mapping=counter_formulas())
         with counter:
             layer(x)
     assert counter.get_total_flops() == 2 * 40 * 1024 * 1100
@@ -118,19 +119,19 @@ def test_bad_arguments(tmp_path):
 def test_flops_are_the_same_with_and_without_the_fused_attention_kernel(tiny_config):
     """The fused cross-attention read is invisible to the FLOP counter; its products are counted
     from the call shapes, so the count equals the PyTorch path's."""
-    from stablemo.diffusion import fused
-    from stablemo.diffusion.accelerate import FusedCrossAttention
+    from stablemo.fast import kernels as fused
+    from stablemo.fast.blocks import FusedLinearCrossAttention
     from stablemo.diffusion.schedule import NoiseSchedule
     from stablemo.model import MotionDiffusionModel
-    from stablemo.nets.layers import LinearCrossAttention
     from stablemo.pipeline import Pipeline
 
     if fused.kernels() is None:
         pytest.skip("the fused CPU kernels cannot be built here")
     kwargs, _ = bench._model_kwargs(str(tiny_config))
     pipe = Pipeline(MotionDiffusionModel(**kwargs), NoiseSchedule(), [0.0] * 263, [1.0] * 263, device="cpu")
-    attns = [m for m in pipe.model.modules() if isinstance(m, LinearCrossAttention)]
     stock = bench.denoiser_flops(pipe, 12, 2)
-    for m in attns:  # the tiny model is below the kernels' width: switch its layers by hand
-        m.__class__ = FusedCrossAttention
+    for stage in pipe.model.denoiser.stages():  # the tiny model is below the kernels' width: switch by hand
+        for attn in stage.attns:
+            attn.attn = FusedLinearCrossAttention(attn.attn)
+    assert any(isinstance(m, FusedLinearCrossAttention) for m in pipe.model.modules())
     assert bench.denoiser_flops(pipe, 12, 2) == stock

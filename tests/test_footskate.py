@@ -457,7 +457,9 @@ def test_clean_features_reproduce_the_cleaned_joints():
 @pytest.mark.skipif(not (SAMPLE / "new_joints/012314.npy").is_file(), reason="HumanML3D sample not present")
 def test_guidance_hook_cleans_x0_inside_denoising():
     from stablemo.diffusion.schedule import NoiseSchedule
-    from stablemo.footskate_guidance import FootskateGuidance, joints_to_consistent_features
+    from stablemo.footskate_guidance import joints_to_consistent_features
+    from stablemo.hooks.footskate import FootskateHook
+    from stablemo.inference_config import InferenceConfig
     from stablemo.motion import features_to_joints
     from stablemo.pipeline import Pipeline
 
@@ -473,13 +475,17 @@ def test_guidance_hook_cleans_x0_inside_denoising():
         def encode_text(self, texts):
             return torch.zeros(len(texts), 1, 4), torch.ones(len(texts), 1, dtype=torch.bool)
 
-        def forward(self, x, t, text, text_mask, motion_mask, memo=None):
+        def prepare(self, text, text_mask, motion_mask, time_cond=None, timesteps=()):
+            return None
+
+        def denoise(self, x, t, ctx):
             return target.expand(x.shape[0], -1, -1)[:, : x.shape[1]].to(x.dtype)
 
-    pipe = Pipeline(Fixed(), NoiseSchedule(), mean, std, min_length=8, max_length=64, device="cpu", fast=False)
-    hook = FootskateGuidance(pipe, vgrf=None, iters=60)
+    pipe = Pipeline(Fixed(), NoiseSchedule(), mean, std, inference=InferenceConfig(min_length=8, max_length=64),
+                    device="cpu", fast=False)
+    hook = FootskateHook(pipe, vgrf=None, iters=60, steps=[-1])
     plain = pipe.generate(["walk"], [64], steps=3, seed=0)
-    guided = pipe.generate(["walk"], [64], steps=3, seed=0, x0_hook=hook, hook_steps=[-1])
+    guided = pipe.generate(["walk"], [64], steps=3, seed=0, hooks=[hook])
     assert [c["step"] for c in hook.calls] == [2]
     lengths = torch.tensor([64])
     j_plain = features_to_joints(plain.features)

@@ -78,7 +78,7 @@ def test_seed_reproducible_and_seconds_flag(bundle, tmp_path):
         ([], "give a text prompt or --prompts FILE"),
         (["walk", "--frames", "100"], r"--frames 100: 100 frames is outside this model's range \[8, 40\]"),
         (["walk", "--seconds", "0.2"], r"--seconds 0.2: 4 frames is outside"),
-        (["walk", "--seconds", "-1"], "--seconds: must be positive"),
+        (["walk", "--seconds", "-1"], "--seconds: must be > 0"),
         (["walk", "--steps", "0"], "--steps: must be >= 1"),
         (["walk", "--prompts", "/nonexistent/prompts.txt"], "prompts file not found"),
         (["walk", "--sampler", "euler", "--frames", "16"], "sampler: unknown 'euler'"),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib.util
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 import torch
@@ -37,7 +38,19 @@ if importlib.util.find_spec("stablemo.nets.retnet"):
 
 
 
-def make(variant: str, seed: int = 0) -> torch.nn.Module:
+class OneCall(torch.nn.Module):
+    """A denoiser called as training calls it: its conditioning prepared afresh at every call."""
+
+    def __init__(self, net: torch.nn.Module):
+        super().__init__()
+        self.net = net
+        self.length_multiple = net.length_multiple
+
+    def forward(self, x, t, text, text_mask, motion_mask, time_cond=None):
+        return self.net(x, t, self.net.prepare(text, text_mask, motion_mask, time_cond))
+
+
+def make(variant: str, seed: int = 0) -> OneCall:
     """A tiny denoiser in eval mode whose zero-initialised layers are randomised (else output == 0)."""
     torch.manual_seed(seed)
     name, kwargs = TINY[variant]
@@ -46,7 +59,7 @@ def make(variant: str, seed: int = 0) -> torch.nn.Module:
         for p in model.parameters():
             if torch.count_nonzero(p) == 0:
                 p.normal_(0, 0.2)
-    return model
+    return OneCall(model)
 
 
 def round_up(n: int, k: int) -> int:
@@ -198,7 +211,7 @@ def test_training_steps_reduce_loss(variant):
     """A few AdamW steps on a fixed masked batch lower the masked x0 loss (gradients flow)."""
     torch.manual_seed(0)
     name, kwargs = TINY[variant]
-    model = build_denoiser(name, input_dim=D, text_dim=C, **kwargs).train()
+    model = OneCall(build_denoiser(name, input_dim=D, text_dim=C, **kwargs).train())
     gen = torch.Generator().manual_seed(4)
     items = sample_items(gen, [16, 11, 5], [3, 4, 2])
     x, t, text, tm, mm = collate(items, round_up(16, model.length_multiple), 4, None)
@@ -220,7 +233,7 @@ def test_training_steps_reduce_loss(variant):
 def test_zero_initialised_output():
     """Fresh denoisers predict exactly zero (zero-initialised output layer)."""
     for variant, (name, kwargs) in TINY.items():
-        model = build_denoiser(name, input_dim=D, text_dim=C, **kwargs).eval()
+        model = OneCall(build_denoiser(name, input_dim=D, text_dim=C, **kwargs).eval())
         k = model.length_multiple
         x, t, text, tm, mm = collate(sample_items(torch.Generator().manual_seed(0), [k], [3]), k, 3, None)
         assert (model(x, t, text, tm, mm) == 0).all(), variant
@@ -381,31 +394,6 @@ def test_no_gradient_reaches_padding_or_other_items(variant):
     assert x.grad[0][mm[0]].abs().sum() > 0 and text.grad[0][tm[0]].abs().sum() > 0
 
 
-def test_in_place_zero_padding_matches_where_and_spares_inputs_under_autograd():
-    from stablemo.nets.layers import zero_pad_bct, zero_pad_bct_
-
-    gen = torch.Generator().manual_seed(0)
-    x = torch.randn(3, 5, 12, generator=gen)
-    x[:, :, 9:] = float("nan")
-    mask = torch.ones(3, 12, dtype=torch.bool)
-    mask[0, 7:] = False
-    mask[1, 9:] = False
-    mask[2, 3] = False  # not a prefix: a hole before the common valid prefix ends is zeroed too
-    expected = zero_pad_bct(x, mask)
-    assert torch.isfinite(expected[:, :, :9]).all()
-    with torch.no_grad():
-        y = x.clone()
-        out = zero_pad_bct_(y, mask)
-    assert out is y
-    torch.testing.assert_close(out, expected, rtol=0, atol=0, equal_nan=True)
-    leaf = x.clone().requires_grad_()
-    with torch.enable_grad():
-        z = leaf * 1.0
-        out = zero_pad_bct_(z, mask)
-    assert out is not z and z.detach()[:, :, 9:].isnan().all()  # the autograd path leaves its input alone
-    torch.testing.assert_close(out.detach(), expected, rtol=0, atol=0, equal_nan=True)
-
-
 @pytest.mark.parametrize("mode", ["frame", "group"])
 def test_group_norm_folds_adagn_modulation(mode):
     from stablemo.nets.layers import MaskedGroupNorm
@@ -424,36 +412,33 @@ def test_group_norm_folds_adagn_modulation(mode):
 
 
 @pytest.mark.parametrize("variant", sorted(TINY))
-def test_text_memo_reuses_text_work_and_changes_no_result(variant):
-    """A memo kept across sampling steps: bit-identical outputs; nothing is stored under autograd."""
-    model = make(variant)
+def test_prepared_conditioning_is_reused_across_steps_and_changes_no_result(variant):
+    """One `prepare` per request, read at every step: bit-identical to preparing at every call;
+    under autograd the prepared tensors carry gradients to the text (training prepares per batch)."""
+    model = make(variant).net
     gen = torch.Generator().manual_seed(3)
     items = sample_items(gen, [24, 17], [5, 3])
     x, t, text, tm, mm = collate(items, 24, 6, gen)
-    memo: dict = {}
     with torch.inference_mode():
+        ctx = model.prepare(text, tm, mm)
         for step, t_step in enumerate([t, t // 2, torch.zeros_like(t)]):
             x_step = x + step
-            expected = model(x_step, t_step, text, tm, mm)
-            torch.testing.assert_close(model(x_step, t_step, text, tm, mm, memo=memo), expected, rtol=0, atol=0)
-    cross = [m for m in model.modules() if type(m).__name__ == "LinearCrossAttention"]
-    assert all(m in memo for m in cross)
-    if variant.startswith("unet"):
-        assert model in memo  # the pooled text embedding of the AdaGN input
-    trained: dict = {}
-    model(x, t, text, tm, mm, memo=trained).sum().backward()
-    assert trained == {}
+            expected = model(x_step, t_step, model.prepare(text, tm, mm))
+            torch.testing.assert_close(model(x_step, t_step, ctx), expected, rtol=0, atol=0)
+    text = text.clone().requires_grad_(True)
+    model(x, t, model.prepare(text, tm, mm)).sum().backward()
+    assert text.grad is not None and text.grad[tm].abs().sum() > 0
 
 
 def test_planned_request_projects_adagn_once_and_changes_no_result():
-    """With the sampler's timesteps announced (CFGDenoiser.plan), each residual block projects the
-    AdaGN embedding of every step in one product at the first step; results are unchanged, and a
-    new plan on the same denoiser does not reuse the old plan's table."""
-    from stablemo.diffusion import samplers
+    """With the sampler's timesteps known before the loop (Sampler.timesteps), each residual block
+    projects the AdaGN embedding of every step in one product when the conditioning is prepared;
+    the results are those of embedding each step as it comes."""
     from stablemo.diffusion.guidance import CFGDenoiser
+    from stablemo.diffusion.samplers import SAMPLER_TABLE
     from stablemo.diffusion.schedule import NoiseSchedule
 
-    model = make("unet_tweak")
+    model = make("unet_tweak").net
     gen = torch.Generator().manual_seed(5)
     items = sample_items(gen, [24, 17], [5, 3])
     x, _, text, tm, mm = collate(items, 24, 6, None)
@@ -462,21 +447,41 @@ def test_planned_request_projects_adagn_once_and_changes_no_result():
     blocks = [m for m in model.modules() if type(m).__name__ == "ResBlock1D"]
     for block in blocks:
         block.emb.register_forward_hook(lambda mod, args, out: rows.append(args[0][..., 0].numel()))
+    sampler, schedule = SAMPLER_TABLE["dpmpp_2m_sde"], NoiseSchedule()
 
-    def run(steps: int, planned: bool, denoiser=None):
-        denoiser = denoiser or CFGDenoiser(model, text, tm, null, null_mask, mm, scale=2.5)
-        if not planned:
-            denoiser.plan = None  # samplers skip a denoiser without a plan()
+    def run(steps: int, planned: bool):
         rows.clear()
         with torch.inference_mode():
-            out = samplers.dpmpp_2m_sde(denoiser, x, NoiseSchedule(), steps, generator=torch.Generator().manual_seed(0))
-        return out, list(rows), denoiser
+            timesteps = sampler.timesteps(schedule, steps) if planned else ()
+            network = SimpleNamespace(prepare=model.prepare, denoise=model)  # the guidance.Network contract
+            denoiser = CFGDenoiser(network, text, tm, null, null_mask, mm, scale=2.5, timesteps=timesteps)
+            out = sampler.run(denoiser, x, schedule, steps, generator=torch.Generator().manual_seed(0))
+        return out, list(rows)
 
-    plain, plain_rows, _ = run(5, planned=False)
-    planned, planned_rows, denoiser = run(5, planned=True)
+    plain, plain_rows = run(5, planned=False)
+    planned, planned_rows = run(5, planned=True)
     assert plain_rows == [4] * 5 * len(blocks)  # every step: a 2-row product per block (CFG batch 2 x 2)
     assert planned_rows == [5 * 4] * len(blocks)  # once, for all 5 steps
     torch.testing.assert_close(planned, plain, rtol=1e-5, atol=1e-5)
-    again, again_rows, _ = run(3, planned=True, denoiser=denoiser)  # same denoiser, another schedule
+    again, again_rows = run(3, planned=True)
     assert again_rows == [3 * 4] * len(blocks)
     torch.testing.assert_close(again, run(3, planned=False)[0], rtol=1e-5, atol=1e-5)
+
+
+def test_samplers_visit_exactly_their_announced_timesteps():
+    """Sampler.timesteps is what the loop asks the denoiser for, step by step (else the planned
+    AdaGN tables would silently miss)."""
+    from stablemo.diffusion.samplers import SAMPLER_TABLE
+    from stablemo.diffusion.schedule import NoiseSchedule
+
+    schedule = NoiseSchedule()
+    for name, sampler in SAMPLER_TABLE.items():
+        for steps in (1, 4, 10):
+            seen: list[int] = []
+
+            def denoise(x, t):
+                seen.append(int(t[0]))
+                return torch.zeros_like(x)
+
+            sampler.run(denoise, torch.randn(1, 4, 3), schedule, steps, generator=torch.Generator().manual_seed(0))
+            assert seen == list(sampler.timesteps(schedule, steps)), (name, steps)

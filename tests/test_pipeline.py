@@ -8,6 +8,9 @@ from torch import nn
 from stablemo.diffusion.guidance import CFGDenoiser
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.errors import StableMoError
+from stablemo.bench import baseline_denoiser
+from stablemo.hooks import AtSteps
+from stablemo.inference_config import InferenceConfig
 from stablemo.pipeline import Pipeline
 
 D = 263  # HumanML3D features, so joints can be recovered
@@ -41,7 +44,13 @@ class FakeModel(nn.Module):
             mask[i, : len(s)] = True
         return self.embed(tokens) * mask[..., None], mask
 
-    def forward(self, x, t, text, text_mask, motion_mask, memo=None):
+    def prepare(self, text, text_mask, motion_mask, time_cond=None, timesteps=()):
+        return (text, text_mask, motion_mask)
+
+    def denoise(self, x, t, ctx):
+        return self(x, t, *ctx)
+
+    def forward(self, x, t, text, text_mask, motion_mask):
         self.forward_batches.append(x.shape[0])
         m = motion_mask[..., None]
         pooled = (text * text_mask[..., None]).sum(1) / text_mask.sum(1, keepdim=True).clamp(min=1)
@@ -57,7 +66,7 @@ class FakeModel(nn.Module):
 def make_pipeline(**kw):
     rng = np.random.default_rng(0)
     return Pipeline(FakeModel(), NoiseSchedule(), mean=rng.normal(size=D) * 0.1, std=rng.uniform(0.5, 1.5, size=D),
-                    min_length=4, max_length=64, device="cpu", **kw)
+                    inference=InferenceConfig(min_length=4, max_length=64), device="cpu", **kw)
 
 
 PROMPTS = ["a person walks forward", "jumps", "someone waves with the left hand"]
@@ -103,10 +112,11 @@ def test_seed_determinism():
 def test_parallel_cfg_equals_two_separate_passes():
     pipe = make_pipeline()
     pipe.model.forward_batches.clear()
-    fused = pipe.generate(PROMPTS, LENGTHS, steps=4, cfg=2.5, seed=0, parallel_cfg=True)
+    fused = pipe.generate(PROMPTS, LENGTHS, steps=4, cfg=2.5, seed=0)
     assert pipe.model.forward_batches == [6] * 4  # one forward of 2B per step
     pipe.model.forward_batches.clear()
-    split = pipe.generate(PROMPTS, LENGTHS, steps=4, cfg=2.5, seed=0, parallel_cfg=False)
+    serial = baseline_denoiser(text_cache=True, parallel_cfg=False)  # the paper's baseline, as the bench runs it
+    split = pipe.generate(PROMPTS, LENGTHS, steps=4, cfg=2.5, seed=0, denoiser=serial)
     assert pipe.model.forward_batches == [3] * 8
     torch.testing.assert_close(fused.features, split.features, rtol=1e-5, atol=1e-5)
     # guidance changes the result; cfg = 1 runs the conditional half only
@@ -147,21 +157,42 @@ def test_bf16_runs_network_only_in_low_precision():
     assert (low.normalized - ref.normalized).abs().max() < 0.1  # same sample, bf16 rounding only
 
 
-def test_x0_hook_runs_at_chosen_steps_and_edits_x0():
-    pipe = make_pipeline()
-    calls = []
+class Recorder(AtSteps):
+    """A hook that records what it sees and returns `value` (or leaves x0 when None)."""
 
-    def hook(step, t, x0, mask):
-        calls.append((step, t, tuple(x0.shape), tuple(mask.shape)))
+    def __init__(self, steps, value=None, calls=None):
+        super().__init__(steps)
+        self.value, self.calls = value, calls if calls is not None else []
+
+    def __call__(self, state):
         assert torch.is_grad_enabled()
-        return torch.zeros_like(x0)
+        self.calls.append((self, state.step, state.t, tuple(state.x0.shape), tuple(state.mask.shape),
+                           list(state.lengths), state.x0.clone()))
+        return None if self.value is None else torch.full_like(state.x0, self.value)
 
-    out = pipe.generate(PROMPTS, LENGTHS, steps=5, seed=0, x0_hook=hook, hook_steps=[-1])
+
+def test_hook_runs_at_chosen_steps_and_edits_x0():
+    pipe = make_pipeline()
+    hook = Recorder([-1], value=0.0)
+    out = pipe.generate(PROMPTS, LENGTHS, steps=5, seed=0, hooks=[hook])
+    calls = [c[1:6] for c in hook.calls]
     assert [c[0] for c in calls] == [4] and calls[0][1] == 0
-    assert calls[0][2:] == ((3, 40, D), (3, 40))
+    assert calls[0][2:] == ((3, 40, D), (3, 40), LENGTHS)
     # the last step returns the (edited) x0 estimate: zero in model space, the mean in feature space
     assert out.normalized.abs().max() == 0
     torch.testing.assert_close(out.features[0, :20], pipe.mean.expand(20, D))
+
+
+def test_hooks_compose_in_the_requested_order():
+    """Each active hook sees the previous one's x0; inactive ones are skipped."""
+    pipe = make_pipeline()
+    calls: list = []
+    first, second, idle = Recorder(None, value=1.0, calls=calls), Recorder([-1], value=None, calls=calls), Recorder([], 5.0, calls)
+    out = pipe.generate(PROMPTS, LENGTHS, steps=3, seed=0, hooks=[first, second, idle])
+    order = [(c[0], c[1]) for c in calls]
+    assert order == [(first, 0), (first, 1), (first, 2), (second, 2)]
+    assert (calls[-1][6] == 1.0).all()  # the second hook saw the first one's edit
+    assert torch.allclose(out.normalized[0, :20], torch.ones(20, D))
 
 
 def test_bad_requests_raise_clear_errors():

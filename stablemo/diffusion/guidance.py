@@ -8,17 +8,20 @@ lives here, not inside the solvers.
 from __future__ import annotations
 
 import contextlib
-from typing import Callable
+from typing import Protocol
 
 import torch
 import torch.nn.functional as F
 
 from stablemo.diffusion.schedule import check_prediction_type
-from stablemo.nets.layers import PLANNED_TIMESTEPS
 
-# network(x (B,T,D), t (B,), text (B,L,C), text_mask (B,L), motion_mask (B,T), memo=dict) -> (B,T,D);
-# memo is a dict kept for one fixed text, where the network may store text-only intermediates
-Network = Callable[..., torch.Tensor]
+
+class Network(Protocol):
+    """What guidance needs of a network (MotionDiffusionModel): per-request conditioning, then steps."""
+
+    def prepare(self, text, text_mask, motion_mask, time_cond=None, timesteps=()): ...
+
+    def denoise(self, x: torch.Tensor, t: torch.Tensor, ctx) -> torch.Tensor: ...
 
 
 def to_x0(output: torch.Tensor, x: torch.Tensor, alpha: float, sigma: float, prediction_type: str) -> torch.Tensor:
@@ -49,8 +52,8 @@ class CFGDenoiser:
     Guidance on x0 equals guidance on eps (an affine map whose weights sum to 1), so it is applied
     before any x0 conversion. With `batched=True` the conditional and unconditional halves run as
     one forward of batch 2B (the paper's "parallel CFG"); with `batched=False` as two forwards.
-    The conditioning tensors are concatenated once here, not at every step, and each of them has
-    its own memo, so the network's text-only work (attention contexts) runs once per request.
+    The network's per-request conditioning (text contexts, AdaGN tables for the planned
+    `timesteps`) is prepared once here, in the network's precision, not at every step.
 
     text/null_text: (B,L,C) / (B,L',C) with masks (B,L)/(B,L') bool; motion_mask: (B,T) bool.
     """
@@ -66,40 +69,36 @@ class CFGDenoiser:
         scale: float = 2.5,
         batched: bool = True,
         dtype: torch.dtype | None = None,
+        timesteps=(),
     ) -> None:
         self.network = network
         self.scale = float(scale)
         self.batched = batched
         self.dtype = dtype
-        self.motion_mask = motion_mask
         length = max(text.shape[1], null_text.shape[1])
-        self.cond = _pad_tokens(text, text_mask, length)
-        self.uncond = _pad_tokens(null_text, null_mask, length)
-        if batched and self.scale != 1.0:
-            self.both = (
-                torch.cat([self.cond[0], self.uncond[0]]),
-                torch.cat([self.cond[1], self.uncond[1]]),
-                torch.cat([motion_mask, motion_mask]),
-            )
-        self.memos = {"cond": {}, "uncond": {}, "both": {}}
+        cond = _pad_tokens(text, text_mask, length)
+        uncond = _pad_tokens(null_text, null_mask, length)
+        with precision_context(motion_mask.device, dtype):
+            if self.scale == 1.0:  # guidance off: the conditional pass alone
+                self.ctx = {"cond": network.prepare(*cond, motion_mask, timesteps=timesteps)}
+            elif batched:
+                both = torch.cat([cond[0], uncond[0]]), torch.cat([cond[1], uncond[1]])
+                self.ctx = {"both": network.prepare(*both, torch.cat([motion_mask, motion_mask]), timesteps=timesteps)}
+            else:
+                self.ctx = {"cond": network.prepare(*cond, motion_mask, timesteps=timesteps),
+                            "uncond": network.prepare(*uncond, motion_mask, timesteps=timesteps)}
 
-    def plan(self, timesteps) -> None:
-        """The sampler's timesteps for this request, in order (the samplers call this first)."""
-        for memo in self.memos.values():
-            memo[PLANNED_TIMESTEPS] = tuple(int(t) for t in timesteps)
-
-    def _run(self, x, t, text, text_mask, motion_mask, memo: dict) -> torch.Tensor:
+    def _run(self, x, t, ctx) -> torch.Tensor:
         with precision_context(x.device, self.dtype):
-            out = self.network(x, t, text, text_mask, motion_mask, memo=memo)
+            out = self.network.denoise(x, t, ctx)
         return out.float()
 
     def __call__(self, x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-        if self.scale == 1.0:  # guidance off: the conditional pass alone
-            return self._run(x, t, *self.cond, self.motion_mask, self.memos["cond"])
+        if self.scale == 1.0:
+            return self._run(x, t, self.ctx["cond"])
         if self.batched:
-            out = self._run(torch.cat([x, x]), torch.cat([t, t]), *self.both, self.memos["both"])
-            cond, uncond = out.chunk(2)
+            cond, uncond = self._run(torch.cat([x, x]), torch.cat([t, t]), self.ctx["both"]).chunk(2)
         else:
-            cond = self._run(x, t, *self.cond, self.motion_mask, self.memos["cond"])
-            uncond = self._run(x, t, *self.uncond, self.motion_mask, self.memos["uncond"])
+            cond = self._run(x, t, self.ctx["cond"])
+            uncond = self._run(x, t, self.ctx["uncond"])
         return uncond + self.scale * (cond - uncond)

@@ -19,6 +19,7 @@ is Lu et al. 2022 (arXiv:2211.01095) Alg. 2 (2M) and its SDE variant §4 / eq. (
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Callable
 
 import torch
@@ -48,13 +49,6 @@ def _setup(x: torch.Tensor, generator, noise, prediction_type: str) -> tuple[tor
     # float32 state (float64 if given: tests use it as the exact reference), never half precision
     x = x.to(torch.promote_types(x.dtype, torch.float32))
     return x, noise if noise is not None else default_noise(generator)
-
-
-def _plan(denoise, timesteps) -> None:
-    """Tell a denoiser that can use it (CFGDenoiser.plan) which timesteps the loop will visit."""
-    plan = getattr(denoise, "plan", None)
-    if plan is not None:
-        plan(timesteps)
 
 
 def _predict(denoise, x, t: int, alpha, sigma, prediction_type, callback, step) -> tuple[torch.Tensor, bool]:
@@ -93,7 +87,6 @@ def ddpm(
     abar = schedule._abar64.tolist()
     ratio = schedule.num_train_timesteps // steps
     timesteps = schedule.leading_timesteps(steps)
-    _plan(denoise, timesteps)
     for i, t in enumerate(tqdm(timesteps, disable=not progress, desc="ddpm")):
         a_t = abar[t]
         a_prev = abar[t - ratio] if t - ratio >= 0 else 1.0
@@ -125,7 +118,6 @@ def ddim(
     abar = schedule._abar64.tolist()
     ratio = schedule.num_train_timesteps // steps
     timesteps = schedule.leading_timesteps(steps)
-    _plan(denoise, timesteps)
     for i, t in enumerate(tqdm(timesteps, disable=not progress, desc="ddim")):
         a_t = abar[t]
         a_prev = abar[t - ratio] if t - ratio >= 0 else 1.0
@@ -166,7 +158,6 @@ def _dpmpp_2m(denoise, x, schedule, steps, draw, callback, prediction_type, prog
     acceleration fell from 17.9 to 10.8 m/s² with this rule).
     """
     timesteps, sigmas = schedule.karras_timesteps(steps)
-    _plan(denoise, timesteps)
     sig = sigmas.tolist()
     prev_x0, prev_guided = None, False
     desc = "dpmpp_2m_sde" if sde else "dpmpp_2m"
@@ -230,4 +221,32 @@ SAMPLERS: dict[str, Callable[..., torch.Tensor]] = {
     "ddim": ddim,
     "dpmpp_2m": dpmpp_2m,
     "dpmpp_2m_sde": dpmpp_2m_sde,
+}
+
+
+@dataclass(frozen=True)
+class Sampler:
+    """A sampler function and the timesteps it will visit for a number of steps, in order.
+
+    Knowing the timesteps before the loop lets a network prepare per-step work for all of them at
+    once (stablemo.nets.conditioning); the loop itself only ever calls `denoise(x, t)`.
+    """
+
+    run: Callable[..., torch.Tensor]
+    timesteps: Callable[[NoiseSchedule, int], list[int]]
+
+
+def _leading(schedule: NoiseSchedule, steps: int) -> list[int]:
+    return [int(t) for t in schedule.leading_timesteps(steps)]
+
+
+def _karras(schedule: NoiseSchedule, steps: int) -> list[int]:
+    return [int(t) for t in schedule.karras_timesteps(steps)[0]]
+
+
+SAMPLER_TABLE: dict[str, Sampler] = {
+    "ddpm": Sampler(ddpm, _leading),
+    "ddim": Sampler(ddim, _leading),
+    "dpmpp_2m": Sampler(dpmpp_2m, _karras),
+    "dpmpp_2m_sde": Sampler(dpmpp_2m_sde, _karras),
 }

@@ -12,6 +12,7 @@ from typing import Callable
 import numpy as np
 import torch
 
+from stablemo.diffusion.samplers import Sampler
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.distill.consistency import CLEAN, ddim_jump, ddim_grid, lcm_consistency, renoise
 from stablemo.errors import StableMoError
@@ -79,7 +80,7 @@ def sample_pcm(denoise: Denoise, x: torch.Tensor, schedule: NoiseSchedule, path:
     return sample
 
 
-def consistency_samplers(config: dict, schedule: NoiseSchedule) -> dict[str, Callable[..., torch.Tensor]]:
+def consistency_samplers(config: dict, schedule: NoiseSchedule) -> dict[str, Sampler]:
     """The sampler table of a student bundle (its `consistency` config), in the pipeline's contract:
     sampler(denoise, x_T, schedule, steps, noise=, callback=, prediction_type=, progress=) -> x0,
     where denoise returns the raw network output (converted to x0 here)."""
@@ -98,4 +99,6 @@ def consistency_samplers(config: dict, schedule: NoiseSchedule) -> dict[str, Cal
     def pcm(denoise, x, schedule, steps, noise=None, callback=None, prediction_type="sample", progress=False):
         return sample_pcm(x0_of(denoise, prediction_type), x, schedule, pcm_path(config["edges"], steps), callback)
 
-    return {"lcm": lcm} if mode == "lcm" else {"pcm": pcm}
+    if mode == "lcm":
+        return {"lcm": Sampler(lcm, lambda sched, steps: lcm_timesteps(sched.num_train_timesteps, config["ddim_steps"], steps))}
+    return {"pcm": Sampler(pcm, lambda sched, steps: pcm_path(config["edges"], steps)[:-1])}

@@ -38,11 +38,20 @@ class ConsistencyStudent(nn.Module):
     def encode_text(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
         return self.model.encode_text(texts)
 
-    def forward(self, x, t, w, text, text_mask, motion_mask, memo=None) -> torch.Tensor:
-        """x0 estimate. x: (B,T,D), t: (B,) long, w: (B,) guidance (LCM convention, scale 1 + w).
-        memo: optional dict kept while the text stays fixed (MotionDiffusionModel.forward)."""
-        w_feat = self.w_proj(guidance_embedding(w, self.w_dim).to(self.w_proj.weight.dtype))
-        return self.model(x, t, text, text_mask, motion_mask, time_cond=w_feat, memo=memo)
+    def guidance_features(self, w: torch.Tensor) -> torch.Tensor:
+        """w: (B,) guidance (LCM convention, scale 1 + w) -> (B, time_feature_dim) time_cond."""
+        return self.w_proj(guidance_embedding(w, self.w_dim).to(self.w_proj.weight.dtype))
+
+    def prepare(self, text, text_mask, motion_mask, w: torch.Tensor, timesteps=()):
+        """The teacher network's per-request conditioning with w absorbed (see `forward`)."""
+        return self.model.prepare(text, text_mask, motion_mask, self.guidance_features(w), timesteps)
+
+    def denoise(self, x, t, ctx):
+        return self.model.denoise(x, t, ctx)
+
+    def forward(self, x, t, w, text, text_mask, motion_mask) -> torch.Tensor:
+        """x0 estimate. x: (B,T,D), t: (B,) long, w: (B,) guidance (LCM convention, scale 1 + w)."""
+        return self.model(x, t, text, text_mask, motion_mask, time_cond=self.guidance_features(w))
 
 
 def consistency_fn(mode: str, schedule: NoiseSchedule, edges: list[int] | None, x_t: torch.Tensor,
@@ -61,15 +70,17 @@ class StudentDenoiser:
     """The pipeline's `denoise(x_t, t)` for a student: one conditional forward with w embedded, no CFG pass.
 
     w follows LCM's convention (guidance scale 1 + w), so a requested CFG scale s maps to w = s - 1.
+    The conditioning is prepared once, in the network's precision, for this denoiser's request.
     """
 
-    def __init__(self, student: ConsistencyStudent, text, text_mask, motion_mask, w: float, dtype=None):
-        self.student, self.text, self.text_mask, self.motion_mask = student, text, text_mask, motion_mask
-        self.w, self.dtype = float(w), dtype
-        self.memo: dict = {}  # the text is fixed for this denoiser's lifetime (one request)
+    def __init__(self, student: ConsistencyStudent, text, text_mask, motion_mask, w: float, dtype=None,
+                 timesteps=()):
+        self.student, self.dtype = student, dtype
+        w_batch = torch.full((text.shape[0],), float(w), device=text.device)
+        with precision_context(text.device, dtype):
+            self.ctx = student.prepare(text, text_mask, motion_mask, w_batch, timesteps)
 
     def __call__(self, x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-        w = torch.full((x.shape[0],), self.w, device=x.device)
         with precision_context(x.device, self.dtype):
-            out = self.student(x, t, w, self.text, self.text_mask, self.motion_mask, memo=self.memo)
+            out = self.student.denoise(x, t, self.ctx)
         return out.float()

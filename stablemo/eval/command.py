@@ -27,6 +27,7 @@ import torch
 from tqdm import tqdm
 
 from stablemo.errors import StableMoError
+from stablemo.inference_config import check_finite, check_positive_int
 from stablemo.eval import metrics
 from stablemo.eval.physics import foot_skating_ratio
 
@@ -293,9 +294,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--dataset", choices=["humanml3d", "kit"], help="default: the bundle's, else humanml3d")
     p.add_argument("--split", default="test")
     p.add_argument("--replications", type=int, default=20)
-    p.add_argument("--steps", type=int, default=10)
-    p.add_argument("--sampler", default=None, help="default: the bundle's default (dpmpp_2m_sde)")
-    p.add_argument("--cfg", type=float, default=2.5)
+    p.add_argument("--steps", type=int, default=None, help="default: the bundle's inference config (10)")
+    p.add_argument("--sampler", default=None, help="default: the bundle's inference config (dpmpp_2m_sde)")
+    p.add_argument("--cfg", type=float, default=None, help="default: the bundle's inference config (2.5)")
     p.add_argument("--footskate", action="store_true",
                    help="generate with foot-skate correction inside denoising (StableMoFusion*) and report the skating ratio")
     p.add_argument("--skate-ratio", action="store_true", help="report the foot-skating ratio (no correction)")
@@ -313,8 +314,29 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _check_numbers(args) -> None:
+    """Numeric flags: finite and in range, before anything is loaded."""
+    for flag, value in (("--replications", args.replications), ("--mm-captions", args.mm_captions),
+                        ("--mm-generations", args.mm_generations), ("--batch-size", args.batch_size)):
+        check_positive_int(flag, value)
+    if args.steps is not None:
+        check_positive_int("--steps", args.steps)
+    if args.max_items is not None:
+        check_positive_int("--max-items", args.max_items)
+    if args.aits < 0:
+        raise StableMoError(f"--aits: must be >= 0, got {args.aits}")
+    if args.cfg is not None:
+        check_finite("--cfg", args.cfg, low=0.0, high=100.0)
+    check_finite("--feat-bias", args.feat_bias, low=0.0, strict=True)
+
+
 def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
+    _check_numbers(args)
+    if args.out:
+        from stablemo.io import check_output_file
+
+        check_output_file(args.out, "--out")
     from stablemo.data import MotionDataset
 
     torch.manual_seed(args.seed)
@@ -334,22 +356,25 @@ def main(argv: list[str]) -> int:
     generate = None
     row_name = "model"
     if pipe is not None:
-        row_name = f"{Path(args.bundle).name} ({args.sampler or 'default'}, {args.steps} steps, cfg {args.cfg:g})"
+        from stablemo.hooks import make_hooks
+        from stablemo.pipeline import Request
+
+        inference = pipe.inference
+        steps = args.steps or inference.steps
+        cfg = inference.cfg if args.cfg is None else args.cfg
+        sampler = args.sampler or inference.sampler
+        row_name = f"{Path(args.bundle).name} ({sampler}, {steps} steps, cfg {cfg:g})"
         if args.footskate:
             row_name += " + footskate"
         lo, hi = pipe.min_length, pipe.max_length
+        hooks = make_hooks(pipe, footskate=args.footskate)  # StableMoFusion*: correction inside denoising
 
         def generate(texts, lengths, seeds):
             # Evaluation crops can be shorter than the model's minimum: generate at the minimum and
             # keep the first `length` frames (the scored length is always the requested one).
             gen_lengths = [min(max(n, lo), hi) for n in lengths]
-            request = dict(steps=args.steps, cfg=args.cfg, sampler=args.sampler, seed=seeds)
-            if args.footskate:  # StableMoFusion*: correction inside the last denoising steps
-                from stablemo.footskate_guidance import generate_with_footskate
-
-                out = generate_with_footskate(pipe, texts, gen_lengths, **request)
-            else:
-                out = pipe.generate(texts, gen_lengths, **request)
+            out = pipe.generate(Request(texts, gen_lengths, seed=seeds, sampler=sampler, steps=steps, cfg=cfg,
+                                        hooks=hooks))
             return out.features, out.joints
 
     result = evaluate(data, evaluator, generate, replications=args.replications, seed=args.seed,
@@ -362,12 +387,12 @@ def main(argv: list[str]) -> int:
         picks = rng.choice(len(data), min(args.aits, len(data)), replace=False)
         items = [data[int(i)] for i in picks]
         sync = torch.cuda.synchronize if pipe.device.type == "cuda" else None
-        generate_one, reset = metrics.pipeline_method(pipe, args.steps, args.cfg, args.sampler, args.seed)
+        generate_one, reset = metrics.pipeline_method(pipe, steps, cfg, sampler, args.seed)
         aits = metrics.average_inference_time(generate_one, [it["text"] for it in items],
                                               [it["length"] for it in items], synchronize=sync, reset=reset)
     result["settings"].update(
         bundle=args.bundle, data=args.data, split=args.split, dataset=dataset_name,
-        steps=args.steps if pipe else None, sampler=args.sampler if pipe else None, cfg=args.cfg if pipe else None,
+        steps=steps if pipe else None, sampler=sampler if pipe else None, cfg=cfg if pipe else None,
         device=str(pipe.device) if pipe else None, aits_sentences=args.aits if pipe else 0,
     )
     result["aits"] = aits

@@ -14,16 +14,18 @@ padding invariant. ``length_multiple`` is 1.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 from torch import nn
 
 from stablemo.errors import StableMoError
+from stablemo.nets.conditioning import Conditioning, check_conditioning, check_step
 from stablemo.nets.layers import (
     FeedForward,
     LinearCrossAttention,
     SelfAttention,
     TimestepEmbedder,
-    check_inputs,
     modulate,
     sinusoidal_embedding,
     zero_pad_btc,
@@ -45,12 +47,13 @@ class DiTBlock(nn.Module):
         nn.init.zeros_(self.ada[1].weight)  # adaLN-Zero: every block starts as the identity
         nn.init.zeros_(self.ada[1].bias)
 
-    def forward(self, x, mask, emb, text, text_mask, memo=None):
+    def forward(self, x, mask, emb, context):
+        """context: the cross-attention's (B, H, d, d) text summary (None without cross-attention)."""
         shift1, scale1, gate1, shift2, scale2, gate2 = self.ada(emb).chunk(6, dim=-1)
         h = self.attn(modulate(self.norm1(x), shift1, scale1), mask)
         x = zero_pad_btc(x + gate1[:, None] * self.dropout(h), mask)
         if self.cross is not None:
-            x = zero_pad_btc(self.cross(x, text, text_mask, memo), mask)
+            x = zero_pad_btc(self.cross(x, context), mask)
         h = self.mlp(modulate(self.norm2(x), shift2, scale2))
         return zero_pad_btc(x + gate2[:, None] * self.dropout(h), mask)
 
@@ -89,22 +92,40 @@ class DiT(nn.Module):
             nn.init.zeros_(layer.weight)
             nn.init.zeros_(layer.bias)
 
-    def forward(self, x, t, text, text_mask, motion_mask, time_cond=None, memo=None):
-        """memo: an optional dict kept by the caller for one fixed text (see layers.memoized)."""
-        check_inputs(x, t, text, text_mask, motion_mask, self.input_dim, self.text_dim, self.length_multiple)
+    def prepare(self, text, text_mask, motion_mask, time_cond=None, timesteps=()) -> "DiTConditioning":
+        """Per-request work: each block's text context, or the projected text tokens (baseline)."""
+        check_conditioning(text, text_mask, motion_mask, self.text_dim)
+        contexts, tokens, mask = [None] * len(self.blocks), None, motion_mask
+        if self.cross_attention:
+            contexts = [block.cross.context(text, text_mask) for block in self.blocks]
+        else:  # baseline: [text tokens | motion tokens]
+            tokens = zero_pad_btc(self.text_in(zero_pad_btc(text, text_mask)) + self.text_type, text_mask)
+            mask = torch.cat([text_mask, motion_mask], dim=1)
+        return DiTConditioning(motion_mask, time_cond, (), contexts, tokens, mask)
+
+    def forward(self, x, t, ctx: "DiTConditioning"):
+        check_step(x, t, ctx, self.input_dim, self.length_multiple)
+        motion_mask = ctx.motion_mask
         B, T, _ = x.shape
-        emb = self.time_embed(t, time_cond)  # (B, C)
+        emb = self.time_embed(t, ctx.time_cond)  # (B, C)
         h = self.motion_in(zero_pad_btc(x, motion_mask))
         h = h + sinusoidal_embedding(torch.arange(T, device=x.device), self.latent_dim).to(h.dtype)[None]
         h = zero_pad_btc(h, motion_mask)
-        mask = motion_mask
-        if not self.cross_attention:  # baseline: [text tokens | motion tokens]
-            tokens = self.text_in(zero_pad_btc(text, text_mask)) + self.text_type
-            h = torch.cat([zero_pad_btc(tokens, text_mask), h], dim=1)
-            mask = torch.cat([text_mask, motion_mask], dim=1)
-        for block in self.blocks:
-            h = block(h, mask, emb, text, text_mask, memo)
+        if ctx.text_tokens is not None:
+            h = torch.cat([ctx.text_tokens.to(h.dtype), h], dim=1)
+        for block, context in zip(self.blocks, ctx.text_contexts):
+            h = block(h, ctx.sequence_mask, emb, context)
         h = h[:, -T:]
         shift, scale = self.final_ada(emb).chunk(2, dim=-1)
         out = self.out(modulate(self.final_norm(h), shift, scale))
         return zero_pad_btc(out, motion_mask)
+
+
+@dataclass
+class DiTConditioning(Conditioning):
+    """text_contexts: per block, (B, H, d, d) or None; text_tokens: (B, L, C) projected text
+    tokens of the baseline (None with cross-attention); sequence_mask: (B, L + T) or (B, T)."""
+
+    text_contexts: list
+    text_tokens: torch.Tensor | None
+    sequence_mask: torch.Tensor

@@ -33,28 +33,6 @@ def zero_pad_bct(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return torch.where(mask[:, None, :], x, 0.0)
 
 
-def zero_pad_bct_(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """zero_pad_bct in place, for an intermediate the caller has just computed and owns.
-
-    Outside autograd only the frames past the batch's common valid prefix are written, which in
-    generation (all samples nearly full length) is a few columns instead of a full pass over x.
-    With autograd recording it is zero_pad_bct, so training is unchanged.
-    """
-    if torch.is_grad_enabled():
-        return zero_pad_bct(x, mask)
-    start = int(mask.all(dim=0).cumprod(dim=0).sum())  # frames [0, start) are valid in every sample
-    if start < mask.shape[1]:
-        x[:, :, start:].masked_fill_(~mask[:, None, start:], 0.0)
-    return x
-
-
-def cat_channels(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """(B, C1, T), (B, C2, T) -> (B, C1 + C2, T), laid out frames-major: a (B, C, T) view of a
-    (B, T, C) buffer, which stablemo.diffusion.accelerate's GEMM convolutions read without a
-    transposing copy (a plain cat along dim 1 would lay the channels out time-major)."""
-    return torch.cat([a.transpose(1, 2), b.transpose(1, 2)], dim=2).transpose(1, 2)
-
-
 def downsample_mask(mask: torch.Tensor) -> torch.Tensor:
     """Mask after a stride-2 down-sampling: output frame j is valid iff input frame 2j is.
 
@@ -69,43 +47,6 @@ def masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     x = zero_pad_btc(x, mask)
     count = mask.sum(dim=1, keepdim=True).clamp(min=1).to(x.dtype)
     return x.sum(dim=1) / count
-
-
-def check_inputs(x, t, text, text_mask, motion_mask, input_dim: int, text_dim: int, length_multiple: int):
-    """One clear error for the shape mistakes every denoiser would otherwise report obscurely."""
-    if x.dim() != 3 or x.shape[-1] != input_dim:
-        raise StableMoError(f"x: expected shape (B, T, {input_dim}), got {tuple(x.shape)}")
-    B, T, _ = x.shape
-    if T % length_multiple != 0:
-        raise StableMoError(f"x: length {T} is not a multiple of {length_multiple}; pad the batch")
-    if t.shape != (B,):
-        raise StableMoError(f"t: expected shape ({B},), got {tuple(t.shape)}")
-    if text.dim() != 3 or text.shape[0] != B or text.shape[-1] != text_dim:
-        raise StableMoError(f"text: expected shape ({B}, L, {text_dim}), got {tuple(text.shape)}")
-    if text_mask.shape != text.shape[:2] or text_mask.dtype != torch.bool:
-        raise StableMoError(f"text_mask: expected bool {tuple(text.shape[:2])}, got {text_mask.dtype} {tuple(text_mask.shape)}")
-    if motion_mask.shape != (B, T) or motion_mask.dtype != torch.bool:
-        raise StableMoError(f"motion_mask: expected bool ({B}, {T}), got {motion_mask.dtype} {tuple(motion_mask.shape)}")
-
-
-# memo key under which a guidance wrapper stores the sampler's timesteps for the request, in order
-# (CFGDenoiser.plan): per-timestep work that is not per-sample (AdaGN's projections) can then be
-# done for all steps in one product instead of one small product per step
-PLANNED_TIMESTEPS = "planned timesteps"
-
-
-def memoized(memo: dict | None, owner: object, make):
-    """make() once per request: `memo` is a dict the caller keeps while the text stays the same.
-
-    Sampling calls the network 10-1000 times with one fixed text; text-only intermediates (attention
-    contexts, pooled text embeddings) are then computed at the first call and reused. With autograd
-    recording nothing is stored, so training never reuses a stale graph.
-    """
-    if memo is None or torch.is_grad_enabled():
-        return make()
-    if owner not in memo:
-        memo[owner] = make()
-    return memo[owner]
 
 
 # ----------------------------------------------------------------------------- timestep embedding
@@ -175,8 +116,7 @@ class MaskedGroupNorm(nn.Module):
             weight, bias = weight * scale, torch.addcmul(shift, bias, scale)  # (B, C, 1)
         if self.mode == "frame":
             # per-frame statistics over a channel group = layer_norm over that group's channels: one
-            # fused pass, on a free view when x is frames-major (as stablemo.diffusion.accelerate's
-            # GEMM convolutions return it); the result is returned frames-major as well
+            # fused pass over (B, T, G, C/G) frames
             G = self.num_groups
             frames = x.to(dtype).transpose(1, 2).reshape(B, T, G, C // G)
             y = F.layer_norm(frames, (C // G,), eps=self.eps).reshape(B, T, C)
@@ -192,15 +132,6 @@ class MaskedGroupNorm(nn.Module):
         y = ((g - mean) * torch.rsqrt(var + self.eps)).reshape(B, C, T)
         return torch.addcmul(bias, y, weight).to(x.dtype)
 
-    def forward_act(self, x: torch.Tensor, mask: torch.Tensor, act: nn.Module, scale: torch.Tensor | None = None,
-                    shift: torch.Tensor | None = None, residual: torch.Tensor | None = None) -> torch.Tensor:
-        """act(norm(x)) (+ residual: (B, C, T)), zero on padded frames: one call, so that
-        stablemo.diffusion.accelerate can fuse it into one pass."""
-        y = act(self(x, mask, scale, shift))
-        if residual is not None:
-            y = y + residual
-        return zero_pad_bct_(y, mask)
-
 
 # ----------------------------------------------------------------------------- attention
 
@@ -213,8 +144,9 @@ class LinearCrossAttention(nn.Module):
     context per head and each frame reads it with its own query: cost O(T + L), and every frame's
     output depends only on that frame and the text -- no leak across time.
 
-    x: (B, T, C), text: (B, L, text_dim), text_mask: (B, L) bool -> x + attn(x, text): (B, T, C).
-    The per-head contexts depend on the text alone, so a sampling loop computes them once (`memo`).
+    The per-head contexts depend on the text alone: `context(text, text_mask)` makes them, once per
+    request when sampling (the denoisers' `prepare`), and `forward(x, context)` reads them:
+    x: (B, T, C), context: (B, H, d, d) -> x + attn(x, text): (B, T, C).
     """
 
     def __init__(self, dim: int, text_dim: int, num_heads: int = 8, dropout: float = 0.0):
@@ -244,9 +176,7 @@ class LinearCrossAttention(nn.Module):
         v = torch.where(valid, v, torch.zeros((), dtype=v.dtype, device=v.device))
         return torch.einsum("blhd,blhe->bhde", k, v)
 
-    def forward(self, x: torch.Tensor, text: torch.Tensor, text_mask: torch.Tensor,
-                memo: dict | None = None) -> torch.Tensor:
-        context = memoized(memo, self, lambda: self.context(text, text_mask))  # (B, H, d, d)
+    def forward(self, x: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
         y = self.read(self.query(self.norm(x)), context)
         return x + self.dropout(self.out(y))
 

@@ -26,17 +26,18 @@ are zeroed after every sublayer: valid outputs are exactly padding invariant. ``
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from stablemo.errors import StableMoError
+from stablemo.nets.conditioning import Conditioning, check_conditioning, check_step
 from stablemo.nets.layers import (
     FeedForward,
     LinearCrossAttention,
     TimestepEmbedder,
-    check_inputs,
     zero_pad_btc,
 )
 
@@ -105,10 +106,10 @@ class RetNetBlock(nn.Module):
         self.ffn = FeedForward(dim, ff_dim, dropout)
         self.dropout = nn.Dropout(dropout)
 
-    def forward(self, x, mask, positions, is_frame, text, text_mask, memo=None):
+    def forward(self, x, mask, positions, is_frame, context):
         x = zero_pad_btc(x + self.dropout(self.retention(self.norm1(x), mask, positions, is_frame)), mask)
         if self.cross is not None:
-            x = zero_pad_btc(self.cross(x, text, text_mask, memo), mask)
+            x = zero_pad_btc(self.cross(x, context), mask)
         return zero_pad_btc(x + self.dropout(self.ffn(self.norm2(x))), mask)
 
 
@@ -141,22 +142,42 @@ class RetNet(nn.Module):
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
 
-    def forward(self, x, t, text, text_mask, motion_mask, time_cond=None, memo=None):
-        """memo: an optional dict kept by the caller for one fixed text (see layers.memoized)."""
-        check_inputs(x, t, text, text_mask, motion_mask, self.input_dim, self.text_dim, self.length_multiple)
+    def prepare(self, text, text_mask, motion_mask, time_cond=None, timesteps=()) -> "RetNetConditioning":
+        """Per-request work: each block's text context, or the projected text tokens (baseline)."""
+        check_conditioning(text, text_mask, motion_mask, self.text_dim)
+        contexts, tokens = [None] * len(self.blocks), None
+        if self.cross_attention:
+            contexts = [block.cross.context(text, text_mask) for block in self.blocks]
+        else:  # baseline: text tokens join the sequence, as in MDM
+            tokens = zero_pad_btc(self.text_in(zero_pad_btc(text, text_mask)), text_mask)
+        return RetNetConditioning(motion_mask, time_cond, (), contexts, tokens, text_mask)
+
+    def forward(self, x, t, ctx: "RetNetConditioning"):
+        check_step(x, t, ctx, self.input_dim, self.length_multiple)
+        motion_mask = ctx.motion_mask
         B, T, _ = x.shape
-        tokens = [self.time_embed(t, time_cond)[:, None]]  # (B, 1, C)
+        tokens = [self.time_embed(t, ctx.time_cond)[:, None]]  # (B, 1, C)
         masks = [torch.ones(B, 1, dtype=torch.bool, device=x.device)]
-        if not self.cross_attention:  # baseline: text tokens join the sequence, as in MDM
-            tokens.append(zero_pad_btc(self.text_in(zero_pad_btc(text, text_mask)), text_mask))
-            masks.append(text_mask)
+        if ctx.text_tokens is not None:
+            tokens.append(ctx.text_tokens.to(tokens[0].dtype))
+            masks.append(ctx.text_mask)
         n_cond = sum(tok.shape[1] for tok in tokens)
         tokens.append(zero_pad_btc(self.motion_in(zero_pad_btc(x, motion_mask)), motion_mask))
         masks.append(motion_mask)
         h, mask = torch.cat(tokens, dim=1), torch.cat(masks, dim=1)
         positions = torch.cat([torch.zeros(n_cond, device=x.device), torch.arange(T, device=x.device).float()])
         is_frame = torch.arange(n_cond + T, device=x.device) >= n_cond
-        for block in self.blocks:
-            h = block(h, mask, positions, is_frame, text, text_mask, memo)
+        for block, context in zip(self.blocks, ctx.text_contexts):
+            h = block(h, mask, positions, is_frame, context)
         out = self.out(self.final_norm(h[:, n_cond:]))
         return zero_pad_btc(out, motion_mask)
+
+
+@dataclass
+class RetNetConditioning(Conditioning):
+    """text_contexts: per block, (B, H, d, d) or None; text_tokens: (B, L, C) projected text
+    tokens of the baseline (None with cross-attention); text_mask: (B, L)."""
+
+    text_contexts: list
+    text_tokens: torch.Tensor | None
+    text_mask: torch.Tensor

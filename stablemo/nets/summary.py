@@ -79,7 +79,7 @@ def summarize(model: torch.nn.Module, length: int, text_length: int = 20, batch:
     t = torch.full((batch,), 500)
     model.eval()
     with torch.no_grad(), FlopCounterMode(display=False, depth=None) as counter:
-        model(x, t, text, tm, mm)
+        model(x, t, model.prepare(text, tm, mm))  # per-request work counted with the step, as in training
     flops = {name: sum(ops.values()) for name, ops in counter.get_flop_counts().items()}
     root = type(model).__name__
 

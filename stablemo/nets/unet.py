@@ -19,25 +19,27 @@ frames only (the published baseline does not, which is the leak the tweak fixes 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Sequence
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from stablemo.errors import StableMoError
+from stablemo.nets.conditioning import Conditioning, check_conditioning, check_step
 from stablemo.nets.layers import (
-    PLANNED_TIMESTEPS,
     LinearCrossAttention,
     MaskedGroupNorm,
-    cat_channels,
-    memoized,
     TimestepEmbedder,
-    check_inputs,
     downsample_mask,
     masked_mean,
     zero_pad_bct,
-    zero_pad_bct_,
 )
+
+# Planned AdaGN tables hold S x B rows per residual block: for the 10-50 steps of the fast
+# samplers, not for 1000-step DDPM (which then embeds each step as it comes).
+MAX_PLANNED_STEPS = 64
 
 
 class ResBlock1D(nn.Module):
@@ -54,36 +56,28 @@ class ResBlock1D(nn.Module):
         self.conv2 = nn.Conv1d(out_ch, out_ch, kernel_size, padding=pad)
         self.norm2 = MaskedGroupNorm(num_groups, out_ch, norm)
         self.skip = nn.Conv1d(in_ch, out_ch, 1) if in_ch != out_ch else nn.Identity()
-        self.act = nn.Mish()  # a module, so stablemo.diffusion.accelerate can swap in its fast Mish
 
-    def forward(self, x: torch.Tensor, emb: torch.Tensor, mask: torch.Tensor, memo: dict | None = None) -> torch.Tensor:
-        scale, shift = self.adagn(emb, memo)
-        h = self.norm1.forward_act(self.conv1(x), mask, self.act, 1 + scale, shift)  # AdaGN: norm(h) (1 + scale) + shift
-        # padded frames are zero before the dropout, which keeps them zero
-        return self.norm2.forward_act(self.conv2(self.dropout(h)), mask, self.act, residual=self.skip(x))
+    def adagn(self, emb: torch.Tensor) -> torch.Tensor:
+        """AdaGN's projection of the embedding: (..., emb_dim) -> (..., 2 C_out) = [scale | shift]."""
+        return self.emb(emb)
 
-    def adagn(self, emb: torch.Tensor, memo: dict | None) -> tuple[torch.Tensor, torch.Tensor]:
-        """AdaGN's (scale, shift), (B, C_out, 1) each. In a planned request (CondUNet1D puts the
-        embeddings of all its steps in the memo) the projection runs once, for every step: its
-        weight is then read from memory once per request instead of once per step."""
-        step = memo.get(ADAGN_STEP) if memo is not None and not torch.is_grad_enabled() else None
-        if step is None:
-            return self.emb(emb)[:, :, None].chunk(2, dim=1)
-        planned, emb_all, index = step  # emb_all: (S, B, emb_dim)
-        table = memoized(memo, (self, planned), lambda: self.emb(emb_all))  # (S, B, 2 C_out)
-        return table[index][:, :, None].chunk(2, dim=1)
+    def forward(self, x: torch.Tensor, adagn: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """x: (B, C_in, T); adagn: (B, 2 C_out) from `adagn(emb)`; mask: (B, T)."""
+        scale, shift = adagn[:, :, None].chunk(2, dim=1)  # (B, C_out, 1) each
+        h = F.mish(self.norm1(self.conv1(x), mask, 1 + scale, shift))  # AdaGN: norm(h) (1 + scale) + shift
+        h = zero_pad_bct(h, mask)  # padded frames zero before the dropout and conv2
+        return zero_pad_bct(F.mish(self.norm2(self.conv2(self.dropout(h)), mask)) + self.skip(x), mask)
 
 
 class CrossAttention1D(nn.Module):
-    """LinearCrossAttention applied to (B, C, T) feature maps."""
+    """LinearCrossAttention applied to (B, C, T) feature maps; context: (B, H, d, d)."""
 
     def __init__(self, channels: int, text_dim: int, num_heads: int, dropout: float):
         super().__init__()
         self.attn = LinearCrossAttention(channels, text_dim, num_heads, dropout)
 
-    def forward(self, x, text, text_mask, mask, memo=None):
-        y = self.attn(x.transpose(1, 2), text, text_mask, memo).transpose(1, 2)
-        return zero_pad_bct_(y, mask)
+    def forward(self, x: torch.Tensor, context: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        return zero_pad_bct(self.attn(x.transpose(1, 2), context).transpose(1, 2), mask)
 
 
 class Stage(nn.Module):
@@ -100,24 +94,30 @@ class Stage(nn.Module):
             [CrossAttention1D(out_ch, text_dim, num_heads, dropout) for _ in range(2)] if cross_attention else []
         )
 
-    def forward(self, x, emb, text, text_mask, mask, memo=None):
+    def forward(self, x, adagn: Sequence[torch.Tensor], contexts: Sequence[torch.Tensor], mask):
+        """adagn: each block's (B, 2 C_out); contexts: each attention's (B, H, d, d)."""
         for i, block in enumerate(self.blocks):
-            x = block(x, emb, mask, memo)
+            x = block(x, adagn[i], mask)
             if self.attns:
-                x = self.attns[i](x, text, text_mask, mask, memo)
+                x = self.attns[i](x, contexts[i], mask)
         return x
 
 
-# memo key: (planned timesteps, their AdaGN embeddings (S, B, time_dim), this step's index) or None
-ADAGN_STEP = "adagn step"
-MAX_PLANNED_STEPS = 64  # a table per block of S x B rows: not for 1000-step DDPM
+@dataclass
+class UNetConditioning(Conditioning):
+    """CondUNet1D's per-request inputs. masks: the motion mask at each resolution (B, T / 2^i);
+    pooled: (B, time_dim) text embedding added to the timestep's; text_contexts: (B, H, d, d) per
+    cross-attention layer of each stage, in `CondUNet1D.stages()` order; adagn: per stage, per
+    block, the (S, B, 2 C) AdaGN projections of the S planned timesteps (None: not planned)."""
+
+    masks: list[torch.Tensor]
+    pooled: torch.Tensor
+    text_contexts: list[list[torch.Tensor]]
+    adagn: list[list[torch.Tensor]] | None
 
 
 class CondUNet1D(nn.Module):
-    """x: (B, T, input_dim), t: (B,), text: (B, L, text_dim) -> (B, T, input_dim).
-
-    memo: an optional dict kept by the caller for one fixed text (see layers.memoized).
-    """
+    """x: (B, T, input_dim), t: (B,), ctx from `prepare(text (B, L, text_dim), ...)` -> (B, T, input_dim)."""
 
     def __init__(
         self,
@@ -162,51 +162,64 @@ class CondUNet1D(nn.Module):
         self.upsample = nn.ModuleList(upsample)
         self.final_conv = nn.Conv1d(ch, ch, kernel_size, padding=kernel_size // 2)
         self.final_norm = MaskedGroupNorm(num_groups, ch, norm)
-        self.final_act = nn.Mish()
         self.out = nn.Conv1d(ch, input_dim, 1)
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
 
-    def _planned_step(self, memo: dict, t: torch.Tensor, time_cond, pooled: torch.Tensor):
-        """This step's place in the request's planned timesteps (see ResBlock1D.adagn), or None
-        when there is no plan or t is not one of its steps or not shared by the batch."""
-        planned = memo.get(PLANNED_TIMESTEPS)
-        if (planned is None or time_cond is not None or len(planned) > MAX_PLANNED_STEPS
-                or int(t[0]) not in planned or not bool((t == t[0]).all())):
-            return None
-        B = t.shape[0]
+    def stages(self) -> list[Stage]:
+        """The stages in the order forward runs them (down, middle, up)."""
+        return [*self.down, self.mid, *self.up]
 
-        def embed_all():  # (S, B, time_dim): every planned step's embedding, in one pass
-            steps = torch.tensor(planned, dtype=t.dtype, device=t.device).repeat_interleave(B)
-            return self.time_embed(steps).view(len(planned), B, -1) + pooled
-
-        return planned, memoized(memo, (self, planned), embed_all), planned.index(int(t[0]))
-
-    def forward(self, x, t, text, text_mask, motion_mask, time_cond=None, memo=None):
-        check_inputs(x, t, text, text_mask, motion_mask, self.input_dim, self.text_dim, self.length_multiple)
-        pooled = memoized(memo, self, lambda: self.text_embed(masked_mean(text, text_mask)))  # (B, time_dim)
-        step = None
-        if memo is not None and not torch.is_grad_enabled():  # (with autograd nothing is memoized)
-            memo[ADAGN_STEP] = step = self._planned_step(memo, t, time_cond, pooled)
-        if step is not None:  # this step's row of the planned embeddings: no time MLP per step
-            emb = step[1][step[2]]
+    def prepare(self, text, text_mask, motion_mask, time_cond=None, timesteps=()) -> UNetConditioning:
+        """Per-request work: masks per resolution, pooled text, attention contexts and, for planned
+        timesteps, every step's AdaGN projections in one product per block (its weight is then read
+        from memory once per request instead of once per step)."""
+        check_conditioning(text, text_mask, motion_mask, self.text_dim)
+        masks = [motion_mask]
+        for _ in self.downsample:
+            masks.append(downsample_mask(masks[-1]))
+        pooled = self.text_embed(masked_mean(text, text_mask))  # (B, time_dim)
+        contexts = [[attn.attn.context(text, text_mask) for attn in stage.attns] for stage in self.stages()]
+        timesteps = tuple(int(s) for s in timesteps)
+        adagn = None
+        if timesteps and time_cond is None and len(timesteps) <= MAX_PLANNED_STEPS:
+            B = motion_mask.shape[0]
+            steps = torch.tensor(timesteps, device=motion_mask.device).repeat_interleave(B)
+            emb_all = self.time_embed(steps).view(len(timesteps), B, -1) + pooled  # (S, B, time_dim)
+            adagn = [[block.adagn(emb_all) for block in stage.blocks] for stage in self.stages()]
         else:
-            emb = self.time_embed(t, time_cond) + pooled  # (B, time_dim)
-        mask = motion_mask
-        h = zero_pad_bct(x.transpose(1, 2), mask)  # (B, D, T)
-        skips, masks = [], []
+            timesteps = ()
+        return UNetConditioning(motion_mask, time_cond, timesteps, masks, pooled, contexts, adagn)
+
+    def step_adagn(self, t: torch.Tensor, ctx: UNetConditioning) -> list[list[torch.Tensor]]:
+        """Every block's (B, 2 C) AdaGN input at this step: a row of the planned tables, or computed."""
+        index = ctx.planned_index(t) if ctx.adagn is not None else None
+        if index is not None:
+            return [[table[index] for table in stage] for stage in ctx.adagn]
+        emb = self.time_embed(t, ctx.time_cond) + ctx.pooled  # (B, time_dim)
+        return [[block.adagn(emb) for block in stage.blocks] for stage in self.stages()]
+
+    def forward(self, x: torch.Tensor, t: torch.Tensor, ctx: UNetConditioning) -> torch.Tensor:
+        check_step(x, t, ctx, self.input_dim, self.length_multiple)
+        adagn = self.step_adagn(t, ctx)
+        n = len(self.down)
+        h = zero_pad_bct(x.transpose(1, 2), ctx.masks[0])  # (B, D, T)
+        skips = []
         for i, stage in enumerate(self.down):
-            h = stage(h, emb, text, text_mask, mask, memo)
+            h = stage(h, adagn[i], ctx.text_contexts[i], ctx.masks[i])
             skips.append(h)
-            masks.append(mask)
             if i < len(self.downsample):
-                mask = downsample_mask(mask)
-                h = zero_pad_bct_(self.downsample[i](h), mask)
-        h = self.mid(h, emb, text, text_mask, mask, memo)
+                h = zero_pad_bct(self.downsample[i](h), ctx.masks[i + 1])
+        h = self.mid(h, adagn[n], ctx.text_contexts[n], ctx.masks[-1])
         for j, stage in enumerate(self.up):
-            mask = masks.pop()
-            h = stage(cat_channels(h, skips.pop()), emb, text, text_mask, mask, memo)
+            level = n - 1 - j  # the resolution of down stage `level`
+            h = stage(torch.cat([h, skips.pop()], dim=1), adagn[n + 1 + j], ctx.text_contexts[n + 1 + j],
+                      ctx.masks[level])
             if j < len(self.upsample):
-                h = zero_pad_bct_(self.upsample[j](h), masks[-1])
-        h = self.final_norm.forward_act(self.final_conv(h), mask, self.final_act)
-        return zero_pad_bct_(self.out(h), mask).transpose(1, 2)
+                h = zero_pad_bct(self.upsample[j](h), ctx.masks[level - 1])
+        return self.head(h, ctx.masks[0]).transpose(1, 2)
+
+    def head(self, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """The output head: conv -> norm -> Mish -> zero-initialised 1x1 conv. (B, C, T) -> (B, D, T)."""
+        h = zero_pad_bct(F.mish(self.final_norm(self.final_conv(h), mask)), mask)
+        return zero_pad_bct(self.out(h), mask)

@@ -1,4 +1,4 @@
-"""The fused CPU kernels of `cpu_kernels.cpp`, compiled on first use (torch.utils.cpp_extension).
+"""The compiled CPU kernels of `cpu_kernels.cpp`, compiled on first use (torch.utils.cpp_extension).
 
 Compilation needs a C++ compiler and ninja and takes ~30 s once; the library is cached under
 torch's extensions folder (TORCH_EXTENSIONS_DIR), in a folder named for this CPU's instruction set

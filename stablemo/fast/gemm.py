@@ -1,6 +1,5 @@
-"""Inference speed-ups for the denoisers that change no result beyond float rounding.
-
-`accelerate(model)` re-types, in place, the model's 1-D convolutions and linear layers so that:
+"""GEMM layers: drop-in replacements for nn.Conv1d, nn.ConvTranspose1d and nn.Linear that change
+no result beyond float rounding (stablemo.fast maps the stock layers to these).
 
 - a Conv1d runs as ONE matrix product over unfolded frames, frames-major: (B*T_out, k*C_in) x
   (k*C_in, C_out). CPU conv1d kernels are tuned for images; at the UNet's shapes (C = 1024,
@@ -14,18 +13,12 @@
   count (from the second call with that row count on: a single call does not repay the packing);
 - under autocast (bf16 on CPU, fp16 on CUDA) every layer uses a low-precision copy of its weight
   that is made once, instead of casting all weights again at every network call;
-- nn.Mish computes x * n / (n + 2) with n = e^x (e^x + 2) (= x tanh(softplus(x))) in seven
-  vectorised passes: PyTorch's CPU mish kernel is ~5x slower than that at the UNet's sizes.
-- the UNet's per-frame group norms (MaskedGroupNorm, "frame" mode) of 256 channels and more run
-  norm, affine (with AdaGN folded in), Mish, the residual add and the zeroing of padded frames as
-  one pass of a small compiled kernel (stablemo.diffusion.fused) instead of ~12 element-wise
-  passes; the same library unfolds 'same' convolutions of >= 256 channels in one pass and does
-  the reading side of wide linear cross-attention (per-head softmax of the queries times the
-  text contexts) in one pass; where it cannot be built, the PyTorch paths stay.
+- 'same' convolutions with >= 256 input and output channels unfold their frames in one pass of
+  the compiled kernels (stablemo.fast.kernels); narrower ones never build them.
 
-Parameters, buffers and `state_dict()` keys are untouched: the modules keep their class's
-parameters and only their `forward` changes. Unsupported configurations (groups, dilation,
-non-zero padding modes) fall back to the stock forward.
+Each layer is made from the stock one by `from_stock`, holding the very same Parameter objects
+under the same names, so `state_dict()` keys and values are unchanged. Unsupported configurations
+(groups, dilation, non-zero padding modes) fall back to the stock forward.
 """
 
 from __future__ import annotations
@@ -37,9 +30,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from stablemo.diffusion import fused
+from stablemo.fast import kernels as fused
 from stablemo.errors import StableMoError
-from stablemo.nets.layers import LinearCrossAttention, MaskedGroupNorm
 
 
 _MKL_PACK = torch.backends.mkl.is_available() and hasattr(torch.ops.mkl, "_mkl_linear")
@@ -50,9 +42,11 @@ _MIN_PACK_ROWS = 16
 # convolutions of 32-512 channels), while re-packing for every new row count (a new sequence
 # length) costs 2-3 plain products: a small model serving varied lengths would pay it at every call.
 _MIN_PACK_WEIGHT = 1 << 20
-# Below this width a norm is a few microseconds of dispatch either way; small models (the demo)
-# then neither change by a rounding nor wait for the kernels' one-time compilation.
-_MIN_FUSED_CHANNELS = 256
+# Below this width a layer's elementwise work is a few microseconds of dispatch either way; small
+# models (the demo) then neither change by a rounding nor wait for the kernels' one-time
+# compilation. A layer qualifies only if all its widths reach it: the demo's first convolution reads
+# the 263 HumanML3D features but writes 32 channels, and must not build the kernels for that.
+MIN_FUSED_CHANNELS = 256
 
 
 def _cpu_vendor() -> str:
@@ -146,17 +140,17 @@ class _WeightCache:
         return torch.ops.mkl._mkl_linear(rows.contiguous(), entry[1], weight, bias, M)
 
 
-def _unfold_frames(frames: torch.Tensor, k: int, s: int, p: int, T_out: int) -> torch.Tensor:
+def _unfold_frames(frames: torch.Tensor, k: int, s: int, p: int, T_out: int, fused_ok: bool = False) -> torch.Tensor:
     """(B, T, C) -> (B, T_out, k*C) with row o = frames[o*s - p : o*s - p + k] flattened (zero outside).
 
     In a zero-padded (B, T + 2p, C) buffer, the k frames a window reads are one contiguous run of
     k*C numbers starting at (o*s)*C: the whole im2col matrix is a strided view of it, made
-    contiguous by one copy of long contiguous rows.
+    contiguous by one copy of long contiguous rows. fused_ok: the layer may use the compiled kernels.
     """
     B, T, C = frames.shape
     if s == 1 and p > 0 and k == 2 * p + 1 and T >= k:  # a 'same' convolution: no padded copy
         frames = frames if frames.stride(2) == 1 and frames.stride(1) == C else frames.contiguous()
-        kernels = fused.kernels() if C >= _MIN_FUSED_CHANNELS else None  # narrow models never build them
+        kernels = fused.kernels() if fused_ok else None  # narrow layers never build them
         if (kernels is not None and frames.dtype == torch.float32 and frames.device.type == "cpu"
                 and not (torch.is_grad_enabled() and frames.requires_grad)):
             return kernels.unfold_same(frames, k, p)  # one pass; paired: ~9 ms less per paper-UNet forward
@@ -183,8 +177,22 @@ def _unfold_same(frames: torch.Tensor, k: int, p: int) -> torch.Tensor:
     return cols
 
 
+def _take_parameters(fast: nn.Module, stock: nn.Module) -> nn.Module:
+    """fast (built on the meta device with stock's settings) takes stock's Parameter objects."""
+    fast.weight = stock.weight
+    fast.bias = stock.bias
+    return fast.train(stock.training)
+
+
 class GemmConv1d(nn.Conv1d, _WeightCache):
     """nn.Conv1d computed as one GEMM over unfolded frames (see module docstring)."""
+
+    @classmethod
+    def from_stock(cls, conv: nn.Conv1d) -> "GemmConv1d":
+        fast = cls(conv.in_channels, conv.out_channels, conv.kernel_size, conv.stride, conv.padding, conv.dilation,
+                   conv.groups, conv.bias is not None, conv.padding_mode, device="meta")
+        fast.fused_ok = min(conv.in_channels, conv.out_channels) >= MIN_FUSED_CHANNELS
+        return _take_parameters(fast, conv)
 
     def _supported(self) -> bool:
         return (self.groups == 1 and self.dilation == (1,) and self.padding_mode == "zeros"
@@ -201,7 +209,7 @@ class GemmConv1d(nn.Conv1d, _WeightCache):
         if k == 1 and s == 1 and p == 0:
             cols = frames.reshape(B * T_out, C)
         else:
-            cols = _unfold_frames(frames, k, s, p, T_out).view(B * T_out, k * C)
+            cols = _unfold_frames(frames, k, s, p, T_out, self.fused_ok).view(B * T_out, k * C)
         bias = self._cached("bias", lambda b: b, dtype) if self.bias is not None else None
         y = self._linear(cols, "weight", lambda w: w.permute(0, 2, 1).reshape(w.shape[0], -1), bias)  # (B*T_out, C_out)
         return y.view(B, T_out, -1).transpose(1, 2)
@@ -209,6 +217,13 @@ class GemmConv1d(nn.Conv1d, _WeightCache):
 
 class GemmConvTranspose1d(nn.ConvTranspose1d, _WeightCache):
     """nn.ConvTranspose1d as one GEMM plus the overlap-add of its k taps (col2im)."""
+
+    @classmethod
+    def from_stock(cls, conv: nn.ConvTranspose1d) -> "GemmConvTranspose1d":
+        fast = cls(conv.in_channels, conv.out_channels, conv.kernel_size, conv.stride, conv.padding,
+                   conv.output_padding, conv.groups, conv.bias is not None, conv.dilation, conv.padding_mode,
+                   device="meta")
+        return _take_parameters(fast, conv)
 
     def _supported(self) -> bool:
         return (self.groups == 1 and self.dilation == (1,) and self.padding_mode == "zeros"
@@ -236,91 +251,13 @@ class GemmConvTranspose1d(nn.ConvTranspose1d, _WeightCache):
 class CachedCastLinear(nn.Linear, _WeightCache):
     """nn.Linear with the packed-weight product; under autocast, one cached low-precision weight."""
 
+    @classmethod
+    def from_stock(cls, linear: nn.Linear) -> "CachedCastLinear":
+        fast = cls(linear.in_features, linear.out_features, linear.bias is not None, device="meta")
+        return _take_parameters(fast, linear)
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         dtype = _compute_dtype(x)
         bias = self._cached("bias", lambda b: b, dtype) if self.bias is not None else None
         rows = x.to(dtype).reshape(-1, x.shape[-1])
         return self._linear(rows, "weight", lambda w: w, bias).view(*x.shape[:-1], -1)
-
-
-def fast_mish(x: torch.Tensor) -> torch.Tensor:
-    """mish(x) = x tanh(softplus(x)) = x n / (n + 2), n = e^x (e^x + 2), to a few float32 ulps.
-
-    n is formed from e^x itself (not (1 + e^x)^2 - 1), so the negative tail keeps its relative
-    accuracy; clamping the exponent at 20 makes n / (n + 2) exactly 1 where mish(x) = x in float32.
-    """
-    e = x.clamp(max=20.0).exp_()
-    n = torch.addcmul(e, e, e).add_(e)  # e^2 + 2e
-    return n.div_(torch.add(n, 2.0, out=e)).mul_(x)
-
-
-class FastMish(nn.Mish):
-    """nn.Mish through fast_mish outside autograd for float32/float64 (elsewhere: the stock kernel)."""
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if (torch.is_grad_enabled() and x.requires_grad) or x.dtype not in (torch.float32, torch.float64):
-            return super().forward(x)
-        return fast_mish(x)
-
-
-class FusedFrameNorm(MaskedGroupNorm):
-    """MaskedGroupNorm whose forward_act (norm, affine, Mish, residual, padding) is one pass of the
-    fused kernel (float32 CPU outside autograd; elsewhere, and for other activations, PyTorch)."""
-
-    def forward_act(self, x: torch.Tensor, mask: torch.Tensor, act: nn.Module, scale: torch.Tensor | None = None,
-                    shift: torch.Tensor | None = None, residual: torch.Tensor | None = None) -> torch.Tensor:
-        kernels = fused.kernels()  # x: (B, C, T), mask: (B, T), residual: (B, C, T)
-        if (kernels is None or self.mode != "frame" or not isinstance(act, nn.Mish) or x.dtype != torch.float32
-                or x.device.type != "cpu" or torch.is_grad_enabled()
-                or (residual is not None and residual.dtype != torch.float32)):
-            return super().forward_act(x, mask, act, scale, shift, residual)
-        weight, bias = self.weight[None], self.bias[None]  # (1, C)
-        if scale is not None:  # AdaGN folded into the affine, per sample: (B, C)
-            weight, bias = weight * scale[:, :, 0], torch.addcmul(shift[:, :, 0], bias, scale[:, :, 0])
-        y = kernels.frame_norm_act(_frames(x), weight.contiguous(), bias.contiguous(), self.num_groups, self.eps, True,
-                                   mask, None if residual is None else _frames(residual))
-        return y.transpose(1, 2)
-
-
-class FusedCrossAttention(LinearCrossAttention):
-    """LinearCrossAttention whose reading of the text contexts (per-head softmax of the queries and
-    the per-head products) is one pass of the fused kernel (float32 CPU outside autograd)."""
-
-    def read(self, q_logits: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
-        kernels = fused.kernels()
-        if (kernels is None or q_logits.dtype != torch.float32 or q_logits.device.type != "cpu"
-                or torch.is_grad_enabled()):
-            return super().read(q_logits, context)
-        return kernels.read_context(q_logits.contiguous(), context.float().contiguous())
-
-
-def _frames(x: torch.Tensor) -> torch.Tensor:
-    """(B, C, T) -> (B, T, C) with unit channel stride: a free view when x is frames-major (as
-    GemmConv1d returns it), a copy otherwise."""
-    frames = x.transpose(1, 2)
-    return frames if frames.stride(2) == 1 else frames.contiguous()
-
-
-_SWAPS = {nn.Conv1d: GemmConv1d, nn.ConvTranspose1d: GemmConvTranspose1d, nn.Linear: CachedCastLinear,
-          nn.Mish: FastMish}
-
-
-def accelerate(model: nn.Module) -> nn.Module:
-    """Switch every plain Conv1d / ConvTranspose1d / Linear / Mish, and every wide per-frame group norm, in
-    `model` to its fast forward (in place).
-
-    Meant for inference: the caches assume weights change only through in-place updates (which
-    they detect). With autograd recording, the layers compute from the live parameters (no cache,
-    no packed weight), so an accelerated model still trains correctly.
-    """
-    for module in model.modules():
-        fast = _SWAPS.get(type(module))
-        if fast is not None:
-            module.__class__ = fast
-        elif (type(module) is MaskedGroupNorm and module.mode == "frame" and module.weight.numel() >= _MIN_FUSED_CHANNELS
-              and fused.kernels() is not None):
-            module.__class__ = FusedFrameNorm
-        elif (type(module) is LinearCrossAttention and module.out.in_features >= _MIN_FUSED_CHANNELS
-              and fused.kernels() is not None):
-            module.__class__ = FusedCrossAttention
-    return model

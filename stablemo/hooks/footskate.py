@@ -1,0 +1,51 @@
+"""Foot-skate correction inside sampling (StableMoFusion*): a sample hook.
+
+At the last denoising steps the predicted x0 is cleaned (stablemo.footskate_guidance.clean_features:
+vGRF contacts, anchored feet, features re-derived from the corrected joints) and handed back to
+the sampler, so the remaining steps (the diffusion prior) smooth the correction.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import torch
+
+from stablemo.hooks import AtSteps, StepState
+
+# Correct x0 at the last four of the sampler's steps. Demo model, 8 prompts x 120 frames, 10 SDE
+# steps: skating ratio 0.285 plain, 0.070 / 0.057 / 0.043 with 2 / 3 / 4 hooked steps, while the
+# feet's mean acceleration rises 6.1 -> 8.6 / 9.0 / 10.8 m/s² (docs/footskate.md); each hooked step
+# costs one batched cleanup.
+DEFAULT_HOOK_STEPS = (-4, -3, -2, -1)
+
+
+class FootskateHook(AtSteps):
+    """Clean the predicted motion at the chosen steps. `calls` keeps each call's cleanup info
+    (timings, anchored ranges); `vgrf="auto"` loads `weights` or the shipped V22."""
+
+    def __init__(self, pipeline, weights: str | Path | None = None, iters: int | None = None, vgrf="auto",
+                 steps: Sequence[int] | None = DEFAULT_HOOK_STEPS):
+        super().__init__(steps)
+        from footskate.cleanup import CleanupConfig
+        from stablemo.footskate_guidance import _topology, load_vgrf_model
+
+        self.pipeline = pipeline
+        self.skeleton = pipeline.skeleton
+        self.vgrf = load_vgrf_model(weights, self.skeleton) if vgrf == "auto" else vgrf
+        self.config = CleanupConfig(fps=pipeline.fps, up_axis=_topology(self.skeleton).up_axis)
+        if iters is not None:
+            self.config.iters = int(iters)
+        self.calls: list[dict] = []
+
+    def __call__(self, state: StepState) -> torch.Tensor:
+        from stablemo.footskate_guidance import clean_features
+
+        x0, mask = state.x0, state.mask
+        feats = self.pipeline.denormalize(x0.float().cpu())
+        cleaned, _, info = clean_features(feats, state.lengths, self.skeleton, self.vgrf, self.config)
+        x = self.pipeline.normalize(torch.from_numpy(cleaned))
+        x = torch.where(mask.cpu()[..., None], x, torch.zeros((), dtype=x.dtype))
+        self.calls.append({"step": state.step, **{k: info[k] for k in ("seconds", "ranges", "anchored_ranges")}})
+        return x.to(device=x0.device, dtype=x0.dtype)

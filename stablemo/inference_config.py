@@ -1,0 +1,86 @@
+"""The one inference configuration: sampler, steps, guidance, length range and frame rate.
+
+Every bundle carries it (`config.json` -> "inference"), written at export; generation, evaluation
+and the benchmarks read it from here, so the paper's defaults (10 SDE-DPM-Solver++ steps, CFG 2.5,
+motions of up to 196 frames at 20 fps) are stated once. Bundles written before it existed get it
+derived from their other keys (a consistency student's own steps and absorbed guidance).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import asdict, dataclass, replace
+
+from stablemo.errors import StableMoError
+
+# StableMoFusion §4.3: SDE variant of DPM-Solver++(2M) with Karras sigmas, 10 steps, CFG 2.5;
+# HumanML3D's motions are 20 fps and at most 196 frames (9.8 s).
+PAPER_SAMPLER, PAPER_STEPS, PAPER_CFG = "dpmpp_2m_sde", 10, 2.5
+MAX_FRAMES, FPS = 196, 20.0
+
+
+@dataclass(frozen=True)
+class InferenceConfig:
+    sampler: str = PAPER_SAMPLER
+    steps: int = PAPER_STEPS
+    cfg: float = PAPER_CFG
+    min_length: int = 1
+    max_length: int = MAX_FRAMES
+    fps: float = FPS
+
+    def __post_init__(self):
+        check_positive_int("steps", self.steps)
+        check_finite("cfg", self.cfg, low=0.0)
+        check_positive_int("min_length", self.min_length)
+        check_positive_int("max_length", self.max_length)
+        if self.min_length > self.max_length:
+            raise StableMoError(f"min_length: {self.min_length} exceeds max_length {self.max_length}")
+        check_finite("fps", self.fps, low=0.0, strict=True)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_bundle(cls, config: dict, source: str = "config.json") -> "InferenceConfig":
+        """The bundle's "inference" section, or one derived from its older keys."""
+        section = config.get("inference")
+        if section is not None:
+            if not isinstance(section, dict) or set(section) - set(cls.__dataclass_fields__):
+                raise StableMoError(f"{source}: 'inference' must be an object with keys "
+                                    f"{sorted(cls.__dataclass_fields__)}")
+            try:
+                return cls(**section)
+            except (TypeError, StableMoError) as err:
+                raise StableMoError(f"{source}: inference: {err}") from None
+        base = cls(min_length=int(config.get("min_length", 1)), max_length=int(config.get("max_length", MAX_FRAMES)),
+                   fps=float(config.get("fps", FPS)))
+        student = config.get("consistency")
+        if config.get("kind") == "consistency" and isinstance(student, dict):
+            return replace(base, sampler=student["mode"], steps=int(student.get("steps", 1)),
+                           cfg=1.0 + float(student.get("w", 0.0)))
+        return base
+
+
+def check_finite(name: str, value, low: float | None = None, high: float | None = None, strict: bool = False) -> float:
+    """A finite number within [low, high] (low excluded when strict), else one clear error."""
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise StableMoError(f"{name}: expected a number, got {value!r}") from None
+    if not math.isfinite(value):
+        raise StableMoError(f"{name}: must be a finite number, got {value}")
+    if low is not None and (value < low or (strict and value == low)):
+        raise StableMoError(f"{name}: must be {'>' if strict else '>='} {low:g}, got {value:g}")
+    if high is not None and value > high:
+        raise StableMoError(f"{name}: must be <= {high:g}, got {value:g}")
+    return value
+
+
+def check_positive_int(name: str, value) -> int:
+    if isinstance(value, bool) or not (isinstance(value, numbers.Integral)
+                                       or (isinstance(value, float) and value.is_integer())):
+        raise StableMoError(f"{name}: expected a whole number, got {value!r}")
+    if int(value) < 1:
+        raise StableMoError(f"{name}: must be >= 1, got {value}")
+    return int(value)
