@@ -21,7 +21,7 @@ from footskate.cleanup import CleanupConfig, cleanup
 from footskate.errors import FootskateError
 from footskate.npyio import load_npy, save_npy
 from footskate.skeletons import TOPOLOGIES, Topology
-from footskate.vgrf import DEFAULT_WEIGHTS, VGRFNet, load_vgrf
+from footskate.vgrf import resolve_vgrf
 
 
 class FeatureCodec(Protocol):
@@ -32,22 +32,6 @@ class FeatureCodec(Protocol):
     def to_joints(self, features: np.ndarray) -> np.ndarray: ...             # (B, T, D) -> (B, T, J, 3)
 
     def to_features(self, joints: np.ndarray, lengths: np.ndarray) -> np.ndarray: ...  # (B, T, J, 3) -> (B, T, D)
-
-
-def resolve_vgrf(weights: str | None, topo: Topology) -> VGRFNet | torch.nn.Module | None:
-    """The vGRF model for `topo`: user weights (ours, or a UnderPressure V23 behind the retargeting
-    adapter for HumanML3D), else the shipped V22 for HumanML3D, else None."""
-    if weights is None:
-        if topo.name != "humanml3d" or not DEFAULT_WEIGHTS.is_file():
-            return None
-        return load_vgrf(DEFAULT_WEIGHTS)
-    model = load_vgrf(weights)
-    if model.num_joints == 23 and topo.num_joints == 22:
-        from footskate.retarget import UPAdapter
-        return UPAdapter(model).eval()
-    if model.num_joints != topo.num_joints:
-        raise FootskateError(f"{weights}: vGRF network for {model.num_joints} joints, motion has {topo.num_joints}")
-    return model
 
 
 def load_motion(path: Path) -> np.ndarray:

@@ -13,11 +13,15 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import torch
 from torch import nn
 
 from footskate.errors import FootskateError
+
+if TYPE_CHECKING:
+    from footskate.skeletons import Topology
 
 ATTRIBUTION = (
     "UnderPressure is an InterDigital product. Its weights are used under InterDigital's "
@@ -182,3 +186,19 @@ def load_vgrf(path: str | os.PathLike | None = None, map_location: str = "cpu", 
     _load_up_keys(model, state, path)
     model.metadata = {k: json.loads(v) for k, v in meta.items() if k != "config"}
     return model.eval()
+
+
+def resolve_vgrf(weights: str | None, topo: "Topology") -> VGRFNet | torch.nn.Module | None:
+    """The vGRF model for `topo`: user weights (ours, or a UnderPressure V23 behind the retargeting
+    adapter for HumanML3D), else the shipped V22 for HumanML3D, else None."""
+    if weights is None:
+        if topo.name != "humanml3d" or not DEFAULT_WEIGHTS.is_file():
+            return None
+        return load_vgrf(DEFAULT_WEIGHTS)
+    model = load_vgrf(weights)
+    if model.num_joints == 23 and topo.num_joints == 22:
+        from footskate.retarget import UPAdapter
+        return UPAdapter(model).eval()
+    if model.num_joints != topo.num_joints:
+        raise FootskateError(f"{weights}: vGRF network for {model.num_joints} joints, motion has {topo.num_joints}")
+    return model

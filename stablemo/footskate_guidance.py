@@ -81,7 +81,7 @@ def _topology(skeleton):
 
 def load_vgrf_model(weights: str | Path | None, skeleton="humanml3d"):
     """vGRF model for a skeleton: `weights` (ours or a user's UnderPressure .tar), else the shipped V22, else None."""
-    from footskate.command import resolve_vgrf
+    from footskate.vgrf import resolve_vgrf
     from footskate.errors import FootskateError
 
     try:

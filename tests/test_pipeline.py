@@ -282,3 +282,26 @@ def test_clearing_text_caches_can_keep_the_null_prompt():
     pipe.clear_text_caches()
     pipe.generate(["jumps"], [8], steps=2, seed=0)
     assert sorted(pipe.model.encode_calls) == [[""], ["jumps"]]
+
+
+def test_inference_config_comes_from_the_bundle_or_its_older_keys():
+    from stablemo.errors import StableMoError
+
+    stated = {"inference": {"sampler": "ddim", "steps": 20, "cfg": 3.0, "min_length": 8, "max_length": 64, "fps": 20.0}}
+    assert InferenceConfig.from_bundle(stated) == InferenceConfig("ddim", 20, 3.0, 8, 64, 20.0)
+    legacy_student = {"kind": "consistency", "min_length": 40, "max_length": 196, "fps": 20,
+                      "consistency": {"mode": "pcm", "steps": 4, "w": 1.5}}
+    assert InferenceConfig.from_bundle(legacy_student) == InferenceConfig("pcm", 4, 2.5, 40, 196, 20.0)
+    assert InferenceConfig.from_bundle({}) == InferenceConfig()  # the paper's: SDE-DPM-Solver++, 10 steps, CFG 2.5
+    for bad in ({"steps": 0}, {"cfg": float("nan")}, {"min_length": 50, "max_length": 40}, {"bogus": 1}):
+        with pytest.raises(StableMoError, match="config.json: '?inference"):
+            InferenceConfig.from_bundle({"inference": bad})
+
+
+def test_shipped_demo_bundle_states_its_inference_config():
+    from stablemo.generate import DEFAULT_BUNDLE
+    import json
+
+    config = json.loads((DEFAULT_BUNDLE / "config.json").read_text())
+    assert InferenceConfig.from_bundle(config) == InferenceConfig("dpmpp_2m_sde", 10, 2.5, 40, 196, 20.0)
+    assert config["inference"] == InferenceConfig.from_bundle({k: v for k, v in config.items() if k != "inference"}).to_dict()

@@ -15,6 +15,7 @@ import torch
 
 from stablemo.bundle import check_bundle_target, save_bundle
 from stablemo.errors import StableMoError
+from stablemo.inference_config import InferenceConfig
 from stablemo.lit.checkpoint_io import load_checkpoint_file
 from stablemo.lit.module import CHECKPOINT_KEY
 
@@ -106,6 +107,8 @@ def export(ckpt: str | Path, out: str | Path, weights: str = "ema", overwrite: b
     check_bundle_target(out, overwrite)
     checkpoint = load_checkpoint_file(ckpt)
     config, state = bundle_from_checkpoint(checkpoint, source=str(ckpt), weights=weights)
+    # the one inference config (sampler, steps, cfg, length range, fps), stated in every bundle
+    config.setdefault("inference", InferenceConfig.from_bundle(config, str(ckpt)).to_dict())
     return save_bundle(out, config, state, overwrite=overwrite)
 
 
