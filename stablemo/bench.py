@@ -46,19 +46,14 @@ from stablemo.hooks import AtSteps, StepState
 from stablemo.inference_config import InferenceConfig, check_finite, check_positive_int
 from stablemo.pipeline import Request
 from stablemo.errors import StableMoError
+from stablemo.nets.config import load_model_config
 
-# the StableMoFusion network as the nets package describes it (denoiser-only YAML)
-PAPER_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "nets" / "unet_tweak.yaml"
-
-# StableMoFusion's network (paper §4.1.1, §5.1): Conv1D UNet, base 512, multipliers [2, 2, 2, 2],
-# time embedding 512, text latent 256 with 4 transformer layers. The paper's frozen encoder is
-# CLIP ViT-B/32; the packaged MiniLM stands in for it (it runs once per request, not per step).
-BUILTIN_PAPER_MODEL = {
-    "denoiser": {"name": "unet", "input_dim": 263, "base_channels": 512, "channel_mults": [2, 2, 2, 2],
-                 "time_dim": 512, "kernel_size": 5, "num_groups": 8, "num_heads": 8, "dropout": 0.1,
-                 "cross_attention": True, "norm": "frame"},
-    "text": {"encoder": "minilm", "latent_dim": 256, "num_layers": 4, "num_heads": 4, "ff_dim": 2048, "dropout": 0.1},
-}
+# StableMoFusion's network as the HumanML3D training config describes it (paper §4.1.1, §5.1):
+# Conv1D UNet, base 512, multipliers [2, 2, 2, 2], time embedding 512, text latent 256 with 4
+# transformer layers. The paper's frozen encoder is CLIP ViT-B/32; the packaged MiniLM stands in
+# for it here unless --text-encoder says otherwise (it runs once per request, not per step).
+PAPER_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "humanml3d.yaml"
+STAND_IN_ENCODER = "minilm"
 
 PROMPTS = [
     "a person walks forward and waves with the right hand",
@@ -111,47 +106,19 @@ class Row:
 
 
 def _model_kwargs(config_path: str | None) -> tuple[dict, str]:
-    """MotionDiffusionModel kwargs from YAML: a denoiser-only file (configs/nets/*.yaml), {denoiser, text}
-    at any level (e.g. a LightningCLI training config)."""
-    if config_path is None and PAPER_CONFIG.is_file():
-        config_path = str(PAPER_CONFIG)
+    """MotionDiffusionModel kwargs from YAML (stablemo.nets.config): by default the paper network of
+    configs/humanml3d.yaml with the packaged text encoder; a denoiser-only file gets that config's
+    text conditioner."""
+    if not PAPER_CONFIG.is_file():
+        raise StableMoError(f"{PAPER_CONFIG}: the paper's config is missing (a source checkout has it); pass --config")
+    paper = load_model_config(PAPER_CONFIG)
+    paper["text"]["encoder"] = STAND_IN_ENCODER
     if config_path is None:
-        return copy.deepcopy(BUILTIN_PAPER_MODEL), "built-in paper UNet (configs/nets/unet_tweak.yaml absent)"
-    import yaml
-
-    file = Path(config_path)
-    if not file.is_file():
-        raise StableMoError(f"--config: {file}: file not found")
-    try:
-        data = yaml.safe_load(file.read_text())
-    except yaml.YAMLError as err:
-        raise StableMoError(f"{file}: not valid YAML ({err})") from None
-
-    def find(node):
-        if isinstance(node, dict):
-            if "denoiser" in node and isinstance(node["denoiser"], dict):
-                return node
-            for value in node.values():
-                found = find(value)
-                if found is not None:
-                    return found
-        return None
-
-    found = find(data)
-    if found is None and isinstance(data, dict) and "name" in data:  # denoiser-only file
-        text = dict(BUILTIN_PAPER_MODEL["text"])
-        if "text_dim" in data:
-            text["latent_dim"] = data["text_dim"]
-        found = {"denoiser": data, "text": text}
-    if found is None:
-        raise StableMoError(f"{file}: no model description found (expected a 'denoiser' mapping, "
-                            "optionally with 'text', at any level)")
-    kwargs = {"denoiser": dict(found["denoiser"]), "text": dict(found.get("text") or {})}
+        return paper, f"paper UNet ({PAPER_CONFIG.name}, {STAND_IN_ENCODER} text encoder)"
+    kwargs = load_model_config(config_path, "--config", text_defaults=paper["text"])
     kwargs["denoiser"].setdefault("input_dim", 263)
     kwargs["text"].setdefault("latent_dim", kwargs["denoiser"].get("text_dim", 256))
-    if "name" not in kwargs["denoiser"]:
-        raise StableMoError(f"{file}: denoiser needs a 'name' (unet, dit, retnet)")
-    return kwargs, str(file)
+    return kwargs, str(config_path)
 
 
 def _build_pipeline(args, fast: bool):
@@ -454,8 +421,8 @@ def format_report(result: dict) -> str:
 def _aits_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="stablemo bench aits", description=__doc__.split("\n\n")[0])
     src = p.add_mutually_exclusive_group()
-    src.add_argument("--config", help="YAML with the model description (default: configs/nets/unet_paper.yaml, "
-                                      "else the built-in paper UNet)")
+    src.add_argument("--config", help="YAML with the model description (default: the paper network of "
+                                      "configs/humanml3d.yaml with the packaged text encoder)")
     src.add_argument("--bundle", help="an inference bundle folder")
     p.add_argument("--random-weights", action="store_true", help="with --bundle: do not load its weights")
     p.add_argument("--text-encoder", help="override the config's frozen text encoder (e.g. minilm when CLIP is not available)")

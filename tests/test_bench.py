@@ -98,7 +98,7 @@ def test_model_description_formats(tmp_path):
     lightning = tmp_path / "l.yaml"
     lightning.write_text("model:\n  model:\n    denoiser: {name: dit, input_dim: 251}\n    text: {latent_dim: 64}\n")
     kwargs, _ = bench._model_kwargs(str(lightning))
-    assert kwargs["denoiser"] == {"name": "dit", "input_dim": 251} and kwargs["text"]["latent_dim"] == 64
+    assert kwargs["denoiser"] == {"name": "dit", "input_dim": 251, "text_dim": 64} and kwargs["text"]["latent_dim"] == 64
     kwargs, source = bench._model_kwargs(None)  # the paper network by default
     assert kwargs["denoiser"]["base_channels"] == 512 and list(kwargs["denoiser"]["channel_mults"]) == [2, 2, 2, 2]
 

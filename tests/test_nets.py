@@ -326,7 +326,7 @@ def test_summary_cli_prints_params_and_flops(tmp_path, capsys):
         summary_main(["summary", "--config", str(tmp_path / "missing.yaml")])
     bad = tmp_path / "bad.yaml"
     bad.write_text("foo: 1\n")
-    with pytest.raises(StableMoError, match="no denoiser config"):
+    with pytest.raises(StableMoError, match="no model description found"):
         summary_main(["summary", "--config", str(bad)])
 
 

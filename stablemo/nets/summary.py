@@ -17,44 +17,7 @@ import yaml
 
 from stablemo.errors import StableMoError
 from stablemo.nets import build_denoiser
-
-
-def load_denoiser_config(path: str | Path) -> dict:
-    """Denoiser dict {"name": ..., **kwargs} from a nets YAML or a training YAML."""
-    path = Path(path)
-    if not path.is_file():
-        raise StableMoError(f"{path}: file not found")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as err:
-        raise StableMoError(f"{path}: not valid YAML ({err})") from None
-    if isinstance(data, dict) and isinstance(data.get("name"), str):
-        return dict(data)
-    found = _find_denoiser(data)
-    if found is not None:
-        return dict(found)
-    raise StableMoError(f"{path}: no denoiser config (a mapping with 'name') at the top or under a 'denoiser' key")
-
-
-def _find_denoiser(node):
-    """First mapping stored under a `denoiser` key that has a `name` (any nesting: LightningCLI configs)."""
-    if isinstance(node, dict):
-        cand = node.get("denoiser")
-        if isinstance(cand, dict) and isinstance(cand.get("name"), str):
-            text = node.get("text")
-            if isinstance(text, dict) and "latent_dim" in text and "text_dim" not in cand:
-                cand = {**cand, "text_dim": text["latent_dim"]}  # the conditioner beside it sets the width
-            return cand
-        children = node.values()
-    elif isinstance(node, list):
-        children = node
-    else:
-        return None
-    for child in children:
-        found = _find_denoiser(child)
-        if found is not None:
-            return found
-    return None
+from stablemo.nets.config import load_denoiser_config
 
 
 def count_parameters(module: torch.nn.Module) -> int:
