@@ -10,10 +10,8 @@ multiply-add; element-wise operations (norms, activations) are not counted.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import torch
-import yaml
 
 from stablemo.errors import StableMoError
 from stablemo.nets import build_denoiser
