@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import re
 import warnings
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -15,12 +16,31 @@ import numpy as np
 
 from stablemo.data.cache import SplitData, load_split, read_clips
 from stablemo.data.dataset import build_items
-from stablemo.data.layout import DATASETS, FEATURE_DIR, JOINT_DIR, SPLITS, Caption, DatasetSpec, check_root, get_spec, read_split
+from stablemo.data.layout import (
+    DATASETS,
+    FEATURE_DIR,
+    JOINT_DIR,
+    SPLITS,
+    Caption,
+    DatasetSpec,
+    check_root,
+    feature_path,
+    get_spec,
+    read_split,
+)
 from stablemo.data.stats import load_stat
 from stablemo.errors import StableMoError
 from stablemo.io import load_npy
 
 REQUIRED_SPLITS = ("train", "val", "test")
+# Sane ranges. Motion features are positions (m), velocities (m/frame), 6D rotations and contacts:
+# |x| of a few units. 1e4 is far beyond any real motion, yet finite values as large as 3e38 pass
+# the NaN/Inf check and then overflow float32 once normalised, and training diverges.
+MAX_ABS_VALUE = 1e4
+# Normalising divides by Std (after feat_bias): below this even float32 rounding of a feature
+# (~1e-7 of its size) is amplified past 1, and a constant feature needs no tiny Std (see stats_problems).
+MIN_STD = 1e-8
+_ROWS_PER_CHUNK = 1 << 16
 DISJOINT = (("train", "val"), ("train", "test"), ("val", "test"))
 _WORD = re.compile(r"[a-z0-9']+")
 
@@ -65,6 +85,7 @@ def check_dataset(root: str | Path, dataset: str = "humanml3d", *, cache: bool =
             report.problems.append(str(err))
     if report.problems:
         _guess_dataset(report)
+    report.problems += stats_problems(root, spec)
 
     # Each clip is read once: train/val/test through their caches (which training reuses), the
     # clips only listed in train_val/all (normally none) directly.
@@ -116,13 +137,80 @@ def check_dataset(root: str | Path, dataset: str = "humanml3d", *, cache: bool =
     return report
 
 
+def stats_problems(root: Path, spec: DatasetSpec) -> list[str]:
+    """Mean.npy / Std.npy entries outside the sane range (finite and shape problems are load_stat's).
+
+    A Std entry is tiny only for a (nearly) constant feature; dividing by it turns rounding noise into
+    large normalised values, and generation multiplies by it. Such a dimension should get Std 1 (its
+    normalised value is then x - mean, i.e. 0 for a constant feature), which is what HumanML3D's
+    group-averaged Std does in effect: no group of real motion data has a tiny spread.
+    """
+    problems = []
+    for name in ("Mean.npy", "Std.npy"):
+        try:
+            values = load_stat(root, name, spec)
+        except StableMoError:
+            continue  # reported by the caller
+        big = np.abs(values) > MAX_ABS_VALUE
+        if big.any():
+            dim = int(np.argmax(big))
+            problems.append(f"{root / name}: {int(big.sum())} value(s) with |x| > {MAX_ABS_VALUE:g} (dim {dim} is "
+                            f"{values[dim]:g}): outside the range of motion features")
+        if name == "Std.npy":
+            tiny = values < MIN_STD
+            if tiny.any():
+                dim = int(np.argmax(tiny))
+                problems.append(f"{root / name}: {int(tiny.sum())} value(s) below {MIN_STD:g} (dim {dim} is "
+                                f"{values[dim]:g}): normalising divides by Std and would blow up; use 1 for a "
+                                "constant feature")
+    return problems
+
+
+def range_problems(data: SplitData) -> dict[int, str]:
+    """Clips (row in `data`) holding finite feature values with |x| > MAX_ABS_VALUE -> problem line.
+
+    One pass over the split's (memory-mapped) features in chunks, per-row max/min only, so a large
+    split costs one sequential read and no big temporaries.
+    """
+    features, offsets = data.features, np.asarray(data.offsets)
+    bad_rows = []
+    for lo in range(0, len(features), _ROWS_PER_CHUNK):
+        block = np.asarray(features[lo : lo + _ROWS_PER_CHUNK])
+        rows = np.flatnonzero((block.max(axis=1) > MAX_ABS_VALUE) | (block.min(axis=1) < -MAX_ABS_VALUE))
+        bad_rows.append(rows + lo)
+    rows = np.concatenate(bad_rows) if bad_rows else np.zeros(0, np.int64)
+    problems = {}
+    for clip in np.unique(np.searchsorted(offsets, rows, side="right") - 1).tolist():
+        big = np.abs(data.motion(clip)) > MAX_ABS_VALUE
+        frame = int(np.argmax(big.any(axis=1)))
+        largest = float(np.abs(data.motion(clip)).max())
+        problems[clip] = (f"{feature_path(data.root, data.ids[clip])}: {int(big.sum())} value(s) with |x| > "
+                          f"{MAX_ABS_VALUE:g} (largest {largest:.3g}), first in frame {frame}: outside the range of "
+                          "motion features (they overflow once normalised)")
+    return problems
+
+
+def without_clips(data: SplitData, rows: Iterable[int], problems: list[str]) -> SplitData:
+    """`data` without the clips at `rows` (same feature array), their problems appended."""
+    drop = set(rows)
+    keep = [i for i in range(len(data)) if i not in drop]
+    return SplitData(data.root, data.split, [data.ids[i] for i in keep], data.lengths[keep], data.offsets[keep],
+                     data.features, [data.captions[i] for i in keep], list(data.problems) + list(problems),
+                     data.from_cache)
+
+
 def _record(results: dict, ids: list[str], data: SplitData) -> None:
-    """Store each id's (frames, captions), or its problem: the reader keeps problems in id order."""
+    """Store each id's (frames, captions), or its problem: the reader keeps problems in id order;
+    readable clips with out-of-range values are problems too."""
     good = dict(zip(data.ids, zip(data.lengths.tolist(), data.captions)))
+    out_of_range = {data.ids[row]: problem for row, problem in range_problems(data).items()}
     bad = iter(data.problems)
     for clip_id in ids:
         if clip_id not in results:
-            results[clip_id] = good[clip_id] if clip_id in good else next(bad)
+            if clip_id in out_of_range:
+                results[clip_id] = out_of_range[clip_id]
+            else:
+                results[clip_id] = good[clip_id] if clip_id in good else next(bad)
 
 
 def _summarise(root: Path, split: str, ids: list[str], results: dict, spec: DatasetSpec) -> SplitSummary:

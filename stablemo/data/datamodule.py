@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import random
+import warnings
 from typing import Literal
 
 import lightning as L
@@ -10,10 +11,11 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
-from stablemo.data.cache import load_split
+from stablemo.data.cache import SplitData, load_split
+from stablemo.data.check import range_problems, stats_problems, without_clips
 from stablemo.data.collate import Collate
 from stablemo.data.dataset import CROPS, MotionDataset
-from stablemo.data.layout import check_root, get_spec
+from stablemo.data.layout import check_root, get_spec, split_path
 from stablemo.data.resumable import ResumableLoader
 from stablemo.data.sampler import EpochSampler
 from stablemo.data.stats import load_model_stats
@@ -85,6 +87,8 @@ class MotionDataModule(L.LightningDataModule):
         self.splits = {"train": train_split, "val": val_split, "test": test_split}
         self.eval_crop, self.cache, self.cache_dir, self.drop_last = eval_crop, cache, cache_dir, drop_last
         self.datasets: dict[str, MotionDataset] = {}
+        self._splits: dict[str, SplitData] = {}  # by split name: read (and warned about) once
+        self._range_checked: set[str] = set()
         self._stats: tuple[np.ndarray, np.ndarray] | None = None
         self._skeleton = None
 
@@ -103,7 +107,12 @@ class MotionDataModule(L.LightningDataModule):
 
     def _load_stats(self) -> tuple[np.ndarray, np.ndarray]:
         if self._stats is None:
-            self._stats = load_model_stats(check_root(self.data_dir), self.spec, self.feat_bias)
+            root = check_root(self.data_dir)
+            stats = load_model_stats(root, self.spec, self.feat_bias)
+            problems = stats_problems(root, self.spec)  # finite but absurd: training would diverge
+            if problems:
+                raise StableMoError(problems[0])
+            self._stats = stats
         return self._stats
 
     @property
@@ -131,14 +140,39 @@ class MotionDataModule(L.LightningDataModule):
         if self.cache:
             for split in dict.fromkeys(self.splits.values()):
                 if (check_root(self.data_dir) / f"{split}.txt").is_file():
-                    load_split(self.data_dir, split, self.spec, skip_bad=self.skip_bad, cache=True,
-                               cache_dir=self.cache_dir)
+                    self._read_split(split)
+
+    def _read_split(self, split: str) -> SplitData:
+        """A split's clips, read once per data module: prepare_data and setup used to read it twice,
+        and with skip_bad every skipped clip was announced twice."""
+        if split not in self._splits:
+            self._splits[split] = load_split(self.data_dir, split, self.spec, skip_bad=self.skip_bad,
+                                             cache=self.cache, cache_dir=self.cache_dir)
+        return self._splits[split]
+
+    def _checked_split(self, split: str) -> SplitData:
+        """The split without clips whose values are out of range (|x| > 1e4): refused like the other
+        corruptions, or with skip_bad skipped with one counted warning."""
+        data = self._read_split(split)
+        if split in self._range_checked:
+            return data
+        problems = range_problems(data)
+        if problems:
+            if not self.skip_bad:
+                raise StableMoError(next(iter(problems.values())))
+            lines = list(problems.values())
+            shown = "\n  ".join(lines[:5]) + ("\n  ..." if len(lines) > 5 else "")
+            warnings.warn(f"{split_path(check_root(self.data_dir), split)}: skipped {len(lines)} clip(s) with "
+                          f"out-of-range values:\n  {shown}", stacklevel=2)
+            data = without_clips(data, problems, lines)
+        self._range_checked.add(split)
+        self._splits[split] = data
+        return data
 
     def _dataset(self, role: str) -> MotionDataset:
         if role not in self.datasets:
             mean, std = self._load_stats()
-            data = load_split(self.data_dir, self.splits[role], self.spec, skip_bad=self.skip_bad,
-                              cache=self.cache, cache_dir=self.cache_dir)
+            data = self._checked_split(self.splits[role])
             ds = MotionDataset(data, self.spec, mean, std, max_length=self.max_length,
                                crop="train" if role == "train" else self.eval_crop, seed=self.seed)
             if len(ds) == 0:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import torch
 from lightning.pytorch import Callback, LightningModule, Trainer
 from lightning.pytorch.callbacks import ModelCheckpoint
@@ -41,7 +43,7 @@ class NonFiniteGuard(Callback):
         diverged = trainer.strategy.reduce_boolean_decision(bool(problems), all=False)
         if not diverged:
             return
-        ckpt = getattr(trainer.checkpoint_callback, "last_model_path", "") or "none written yet"
+        ckpt = last_good_checkpoint(trainer)
         detail = "; ".join(problems) or "on another rank"
         raise NonFiniteLossError(
             f"training diverged at step {trainer.global_step} ({detail}). Stopped before the optimiser step: "
@@ -50,13 +52,40 @@ class NonFiniteGuard(Callback):
         )
 
 
+def last_good_checkpoint(trainer: Trainer) -> str:
+    """The newest checkpoint this run wrote, else the one it resumed from, else "none written yet".
+
+    Right after a resume, before the next save, ModelCheckpoint knows no path of its own (or a stale one
+    restored from another folder), but the checkpoint the run started from is a good one.
+    """
+    written = getattr(trainer.checkpoint_callback, "last_model_path", "") or ""
+    if written and os.path.isfile(written):
+        return written
+    resumed = getattr(trainer, "ckpt_path", None)
+    if resumed:
+        return f"{resumed} (the checkpoint this run resumed from)"
+    return "none written yet"
+
+
 class FinalStepCheckpoint(ModelCheckpoint):
     """ModelCheckpoint that also writes `last.ckpt` when training ends between two saves.
 
     Plain ModelCheckpoint saves only every `every_n_train_steps`; a run whose `max_steps` is not a
     multiple would end with `last.ckpt` behind the trained weights, and `--ckpt_path last` would
     silently redo the tail. Not called on an exception (the NaN guard relies on that).
+
+    The final step of a `max_steps` run is saved in `on_train_batch_end`, where the periodic saves
+    happen. Saved later, in `on_train_end`, the checkpoint's loop state already counts the epoch as
+    finished, so a run resumed from it started the next epoch (another data order) instead of the rest
+    of this one: not an exact resume. `on_train_end` remains for runs that end otherwise (max_epochs,
+    where the epoch is finished anyway).
     """
+
+    def on_train_batch_end(self, trainer: Trainer, pl_module: LightningModule, outputs, batch, batch_idx: int) -> None:
+        super().on_train_batch_end(trainer, pl_module, outputs, batch, batch_idx)
+        final = 0 < trainer.max_steps <= trainer.global_step
+        if final and self.save_last and not self._should_skip_saving_checkpoint(trainer):
+            self._save_last_checkpoint(trainer, self._monitor_candidates(trainer))
 
     def on_train_end(self, trainer: Trainer, pl_module: LightningModule) -> None:
         if self.save_last and not self._should_skip_saving_checkpoint(trainer):

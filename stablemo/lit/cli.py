@@ -11,14 +11,17 @@ A config whose `model:` has a `class_path` trains that LightningModule instead o
 
 from __future__ import annotations
 
+import re
+import sys
 import warnings
-
+from pathlib import Path
 
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.plugins.io import CheckpointIO
 
+from stablemo.errors import StableMoError
 from stablemo.lit.callbacks import FinalStepCheckpoint, NonFiniteGuard
-from stablemo.lit.checkpoint_io import AtomicCheckpointIO
+from stablemo.lit.checkpoint_io import AtomicCheckpointIO, load_checkpoint_file
 from stablemo.lit.module import DiffusionModule
 
 
@@ -28,6 +31,35 @@ class StableMoCLI(LightningCLI):
         # re-launch of the same command, so the "args and sys.argv both given" warning is noise here.
         warnings.filterwarnings("ignore", message="LightningCLI's args parameter is intended")
         super().__init__(*args, **kwargs)
+
+    def _parse_ckpt_path(self) -> None:
+        """Merge the hyperparameters stored in `--ckpt_path` into the config, as LightningCLI does.
+
+        LightningCLI reads the file here with a bare torch.load, before the Trainer and its
+        CheckpointIO exist: a truncated file or a pickle that weights_only refuses ended in a raw
+        traceback. The file is read with load_checkpoint_file instead (one error line naming it);
+        the merge below is LightningCLI's own.
+        """
+        subcommand = self.config.get("subcommand")
+        if not subcommand:
+            return
+        ckpt_path = self.config[subcommand].get("ckpt_path")
+        if not (ckpt_path and Path(ckpt_path).is_file()):
+            return  # "last", "best", URLs and missing files are resolved (and reported) by the Trainer
+        hparams = load_checkpoint_file(ckpt_path).get("hyper_parameters") or {}
+        if not isinstance(hparams, dict):
+            return
+        hparams = dict(hparams)
+        hparams.pop("_instantiator", None)
+        if not hparams:
+            return
+        if "_class_path" in hparams:
+            hparams = {"class_path": hparams.pop("_class_path"), "dict_kwargs": hparams}
+        try:
+            self.config = self.parser.parse_object({subcommand: {"model": hparams}}, self.config)
+        except SystemExit:
+            sys.stderr.write("Parsing of ckpt_path hyperparameters failed!\n")
+            raise
 
     def add_arguments_to_parser(self, parser) -> None:
         parser.add_lightning_class_args(FinalStepCheckpoint, "checkpoint")
@@ -47,6 +79,31 @@ class StableMoCLI(LightningCLI):
             plugins.append(AtomicCheckpointIO())
         kwargs.setdefault("plugins", plugins)
         return super().instantiate_trainer(**kwargs)
+
+
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
+def one_line(message: str) -> str:
+    """An error message as one line (the CLI prints errors as one line, naming the file).
+
+    torch's weights_only refusal spans many lines with terminal escapes and advises re-loading with
+    weights_only=False, which is exactly what must not be done with a file that needs it: only its
+    reason is kept.
+    """
+    text = _ANSI.sub("", message)
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    if len(lines) <= 1:
+        return lines[0] if lines else text
+    reason = next((line.split("WeightsUnpickler error:", 1)[1].strip() for line in lines
+                   if "WeightsUnpickler error:" in line), None)
+    if reason is None:
+        return " ".join(lines)
+    head = lines[0]
+    cut = head.find(" (UnpicklingError")
+    head = head[:cut] if cut > 0 else head
+    reason = reason.split(" was not an allowed global")[0].split(". ")[0].rstrip(".")
+    return f"{head} (it holds pickled objects that safe loading (weights_only) refuses: {reason})"
 
 
 def _names_model_class(argv: list[str]) -> bool:
@@ -75,15 +132,19 @@ def _run(subcommand: str, argv: list[str]) -> int:
     from stablemo.data import MotionDataModule
 
     subclass = _names_model_class(argv)
-    StableMoCLI(
-        LightningModule if subclass else DiffusionModule,
-        MotionDataModule,
-        subclass_mode_model=subclass,
-        args=[subcommand, *argv],
-        # the same config file may be reused for a resumed run in the same folder
-        save_config_kwargs={"overwrite": True},
-        auto_configure_optimizers=False,
-    )
+    try:
+        StableMoCLI(
+            LightningModule if subclass else DiffusionModule,
+            MotionDataModule,
+            subclass_mode_model=subclass,
+            args=[subcommand, *argv],
+            # the same config file may be reused for a resumed run in the same folder
+            save_config_kwargs={"overwrite": True},
+            auto_configure_optimizers=False,
+        )
+    except StableMoError as err:
+        err.args = (one_line(str(err)),)  # same exception type (NonFiniteLossError, ...), one line
+        raise
     return 0
 
 

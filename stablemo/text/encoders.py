@@ -7,12 +7,15 @@
 
 The encoder is frozen: it runs under ``torch.no_grad()`` in eval mode, its outputs are cached on
 the CPU as float32, and it is shared between modules (``get_encoder`` returns one instance per id,
-and deep copies, e.g. an EMA copy of a model, keep pointing at the same instance).
+and deep copies, e.g. an EMA copy of a model, keep pointing at the same instance). Each text is
+encoded on its own, without padding, so its features are the same bits whatever it is batched with
+and whether or not they come from the cache (exact resume depends on this).
 """
 
 from __future__ import annotations
 
 import os
+import pickle
 import threading
 from collections import OrderedDict
 from pathlib import Path
@@ -64,11 +67,12 @@ class FrozenTextEncoder:
             if config.model_type == "clip":
                 from transformers import CLIPTextModel
 
-                self.model = CLIPTextModel.from_pretrained(source, local_files_only=local)
+                # weights_only spelled out: a pickled weights file is read as tensors or refused, never unpickled
+                self.model = CLIPTextModel.from_pretrained(source, local_files_only=local, weights_only=True)
             else:
-                self.model = AutoModel.from_pretrained(source, local_files_only=local)
-        except (OSError, ValueError) as err:
-            raise StableMoError(f"text encoder {name!r}: cannot load ({err})") from None
+                self.model = AutoModel.from_pretrained(source, local_files_only=local, weights_only=True)
+        except Exception as err:  # foreign files fail in many ways (OSError, UnpicklingError, safetensors, ...)
+            raise StableMoError(_load_error(name, source, local, err)) from None
         finally:
             if local:
                 if offline_before is None:
@@ -106,11 +110,18 @@ class FrozenTextEncoder:
 
     @torch.no_grad()
     def _encode_uncached(self, texts: list[str]) -> list[torch.Tensor]:
-        tokens = self.tokenizer(texts, padding=True, truncation=True, max_length=self.max_tokens, return_tensors="pt")
+        # One text per forward pass, unpadded, on purpose. In a padded batch a text's features change
+        # in the last bits with the batch (BLAS picks kernels and reduction orders by shape: ~1e-6 for
+        # MiniLM on CPU), and the cache keeps whatever batch saw a string first. That made the
+        # features depend on the process' history: a run resumed from a checkpoint (empty cache)
+        # trained on slightly other text features than the uninterrupted run. Alone, a text's
+        # features are a function of the text only, cached or not, in any batch.
+        return [self._encode_one(text) for text in texts]
+
+    def _encode_one(self, text: str) -> torch.Tensor:
+        tokens = self.tokenizer([text], truncation=True, max_length=self.max_tokens, return_tensors="pt")
         tokens = {k: v.to(self.device) for k, v in tokens.items()}
-        hidden = self.model(**tokens).last_hidden_state.float().cpu()  # (N, L, dim)
-        lengths = tokens["attention_mask"].sum(dim=1).tolist()
-        return [hidden[i, : int(n)].clone() for i, n in enumerate(lengths)]
+        return self.model(**tokens).last_hidden_state[0].float().cpu()  # (l, dim), no padding
 
     def encode(self, texts: list[str]) -> list[torch.Tensor]:
         """Token features (l_i, dim) float32 on CPU for each text; cached by exact string."""
@@ -134,6 +145,17 @@ class FrozenTextEncoder:
                 while len(self._cache) > self.cache_size:
                     self._cache.popitem(last=False)
         return [found[s] for s in texts]
+
+
+def _load_error(name: str, source: str, local: bool, err: Exception) -> str:
+    """One line naming the encoder (and the refused file): transformers' messages span many lines."""
+    if isinstance(err, pickle.UnpicklingError) or "Weights only load failed" in str(err):
+        # torch's own text advises loading with weights_only=False: not repeated for a file that needs it
+        pickled = sorted(Path(source).glob("*.bin")) if local else []
+        where = str(pickled[0]) if pickled else source
+        return (f"text encoder {name!r}: {where}: refused, a pickled weights file holding objects that safe loading "
+                "(weights_only) does not read; use the model's model.safetensors")
+    return f"text encoder {name!r}: cannot load from {source} ({type(err).__name__}: {' '.join(str(err).split())})"
 
 
 _ENCODERS: dict[tuple[str, int], FrozenTextEncoder] = {}
