@@ -155,7 +155,8 @@ def _rgb(fig) -> np.ndarray:
     return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
 
 
-def _animation_frames(joints: np.ndarray, skeleton: Skeleton, fps: float, title: str | None) -> Iterator[np.ndarray]:
+def _animation_figure(joints: np.ndarray, skeleton: Skeleton, fps: float, title: str | None):
+    """(figure, show(t)): one figure whose panel is redrawn for frame t."""
     view = _View(joints, skeleton)
     head = 0.35 if title else 0.0  # inches reserved for the title
     fig = _figure(5.6, 5.6 * view.aspect + head)
@@ -163,8 +164,13 @@ def _animation_frames(joints: np.ndarray, skeleton: Skeleton, fps: float, title:
     panel = _Panel(ax, joints, view, None, True, fps)
     if title:
         fig.suptitle(title, fontsize=10, y=0.985)
+    return fig, panel.show
+
+
+def _animation_frames(joints: np.ndarray, skeleton: Skeleton, fps: float, title: str | None) -> Iterator[np.ndarray]:
+    fig, show = _animation_figure(joints, skeleton, fps, title)
     for t in range(len(joints)):
-        panel.show(t)
+        show(t)
         yield _rgb(fig)
 
 
@@ -197,21 +203,21 @@ def _write_gif(frames: Iterator[np.ndarray], path: Path, fps: float) -> None:
         images[0].save(f, format="GIF", save_all=True, append_images=images[1:], duration=duration, loop=0, optimize=False)
 
 
-def _write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float) -> None:
-    ffmpeg = shutil.which("ffmpeg")
-    if ffmpeg is None:
-        raise StableMoError(f"{path}: writing .mp4 needs ffmpeg on PATH (not found); write a .gif instead")
-    frames = list(frames)
-    h, w = frames[0].shape[:2]
+def _write_mp4(joints: np.ndarray, skeleton: Skeleton, fps: float, title: str | None, path: Path) -> None:
+    """H.264 through matplotlib's FFMpegWriter (it pipes the figure's frames to ffmpeg and keeps the
+    frame size even, as yuv420p needs)."""
+    from matplotlib.animation import FFMpegWriter
+
+    fig, show = _animation_figure(joints, skeleton, fps, title)
+    writer = FFMpegWriter(fps=fps, codec="h264", extra_args=["-pix_fmt", "yuv420p", "-loglevel", "error"])
     with atomic_path(path) as tmp:  # ffmpeg needs a file name: an exclusive temp file's
-        cmd = [
-            ffmpeg, "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{w}x{h}",
-            "-r", f"{fps}", "-i", "-", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-pix_fmt", "yuv420p",
-            "-vcodec", "libx264", "-f", "mp4", str(tmp),
-        ]
-        proc = subprocess.run(cmd, input=b"".join(f.tobytes() for f in frames), capture_output=True)
-        if proc.returncode != 0:
-            raise StableMoError(f"{path}: ffmpeg failed: {proc.stderr.decode(errors='replace').strip()}")
+        try:
+            with writer.saving(fig, str(tmp), dpi=fig.dpi):
+                for t in range(len(joints)):
+                    show(t)
+                    writer.grab_frame()
+        except (OSError, subprocess.CalledProcessError) as err:
+            raise StableMoError(f"{path}: ffmpeg failed ({err})") from None
 
 
 def render_animation(
@@ -234,8 +240,10 @@ def render_animation(
         raise StableMoError(f"{path}: unsupported animation format {suffix or '(none)'}; use .gif or .mp4")
     if suffix == ".mp4" and shutil.which("ffmpeg") is None:
         raise StableMoError(f"{path}: writing .mp4 needs ffmpeg on PATH (not found); write a .gif instead")
-    frames = _animation_frames(arr, skel, fps, title)
-    (_write_gif if suffix == ".gif" else _write_mp4)(frames, path, fps)
+    if suffix == ".gif":
+        _write_gif(_animation_frames(arr, skel, fps, title), path, fps)
+    else:
+        _write_mp4(arr, skel, fps, title, path)
     return path
 
 

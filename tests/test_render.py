@@ -96,9 +96,17 @@ def test_mp4_needs_ffmpeg(tmp_path):
         with pytest.raises(StableMoError, match="ffmpeg"):
             render.render_animation(joints, tmp_path / "a.mp4", HUMANML3D)
         assert not (tmp_path / "a.mp4").exists()
-    else:
-        out = render.render_animation(joints, tmp_path / "a.mp4", HUMANML3D)
-        assert out.stat().st_size > 1000
+    else:  # through matplotlib's FFMpegWriter: every frame, at the motion's rate, H.264 in yuv420p
+        out = render.render_animation(joints, tmp_path / "a.mp4", HUMANML3D, title="a title makes an odd height")
+        assert out.stat().st_size > 1000 and sorted(p.name for p in tmp_path.iterdir()) == ["a.mp4"]
+        if shutil.which("ffprobe"):
+            import subprocess
+
+            probe = subprocess.run(["ffprobe", "-v", "error", "-count_frames", "-show_entries",
+                                    "stream=nb_read_frames,r_frame_rate,codec_name,pix_fmt", "-of", "default=nw=1",
+                                    str(out)], capture_output=True, text=True, check=True).stdout
+            assert "nb_read_frames=8" in probe and "r_frame_rate=20/1" in probe
+            assert "codec_name=h264" in probe and "pix_fmt=yuv420p" in probe
 
 
 def test_bad_inputs_leave_no_file(tmp_path):
