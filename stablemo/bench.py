@@ -46,7 +46,7 @@ from stablemo.bench_measure import (  # noqa: F401 (re-exported: tests and scrip
     time_generation,
 )
 from stablemo.fast import gemm
-from stablemo.inference_config import InferenceConfig, check_finite, check_positive_int
+from stablemo.inference_config import MAX_FRAMES, InferenceConfig, check_finite, check_positive_int
 from stablemo.errors import StableMoError
 from stablemo.nets.config import load_model_config
 
@@ -73,7 +73,7 @@ STUDENT_ROW = "1-step LCM student (fp32)"
 TEACHER_ROW = "+ parallel CFG"
 # A test set's spread of motion lengths (HumanML3D keeps 40-196 frames): AITS is defined over a
 # test set, where every sentence may bring a length (a row count) the kernels have not seen yet.
-VARIED_LENGTHS = (40, 64, 88, 120, 152, 196)
+VARIED_LENGTHS = (40, 64, 88, 120, 152, MAX_FRAMES)
 
 
 @dataclass
@@ -310,7 +310,7 @@ def _aits_parser() -> argparse.ArgumentParser:
     src.add_argument("--bundle", help="an inference bundle folder")
     p.add_argument("--random-weights", action="store_true", help="with --bundle: do not load its weights")
     p.add_argument("--text-encoder", help="override the config's frozen text encoder (e.g. minilm when CLIP is not available)")
-    p.add_argument("--frames", type=int, default=196, help="motion length (default 196)")
+    p.add_argument("--frames", type=int, default=MAX_FRAMES, help=f"motion length (default {MAX_FRAMES})")
     p.add_argument("--repeats", type=int, default=3, help="timed sentences per row (default 3)")
     p.add_argument("--steps", type=int, default=10, help="steps of the fast sampler (default 10)")
     p.add_argument("--cfg", type=float, default=2.5)

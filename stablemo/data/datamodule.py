@@ -15,6 +15,7 @@ from stablemo.data.cache import SplitData, load_split
 from stablemo.data.check import range_problems, stats_problems, without_clips
 from stablemo.data.collate import Collate
 from stablemo.data.dataset import CROPS, MotionDataset
+from stablemo.inference_config import MAX_FRAMES
 from stablemo.data.layout import check_root, get_spec, split_path
 from stablemo.data.resumable import ResumableLoader
 from stablemo.data.sampler import EpochSampler
@@ -56,7 +57,7 @@ class MotionDataModule(L.LightningDataModule):
         batch_size: int = 64,
         num_workers: int = 0,
         pad_multiple: int = 16,
-        max_length: int = 196,
+        max_length: int = MAX_FRAMES,
         feat_bias: float = 5.0,
         seed: int = 0,
         skip_bad: bool = False,

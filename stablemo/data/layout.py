@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from stablemo.errors import StableMoError
+from stablemo.inference_config import MAX_FRAMES
 
 FEATURE_DIR = "new_joint_vecs"
 JOINT_DIR = "new_joints"
@@ -33,7 +34,7 @@ class DatasetSpec:
     feature_dim: int
     min_length: int  # clips (and sub-captioned windows) shorter than this are dropped
     max_clip_length: int = 200  # clips this long or longer are dropped
-    max_length: int = 196  # training crop / padding length
+    max_length: int = MAX_FRAMES  # training crop / padding length
     unit_length: int = 4  # evaluation crops are multiples of this
 
     @property

@@ -18,6 +18,7 @@ import torch
 from lightning.pytorch import LightningModule
 
 from stablemo.errors import StableMoError
+from stablemo.inference_config import MAX_FRAMES
 from stablemo.lit.ema import EMA
 
 PREDICTION_TYPES = ("sample", "epsilon")
@@ -241,5 +242,5 @@ def data_info_from(datamodule) -> dict:
         "mean": mean,
         "std": std,
         "min_length": int(getattr(datamodule, "min_length", MIN_LENGTH.get(dataset, 1))),
-        "max_length": int(getattr(datamodule, "max_length", datamodule.hparams.get("max_length", 196))),
+        "max_length": int(getattr(datamodule, "max_length", datamodule.hparams.get("max_length", MAX_FRAMES))),
     }

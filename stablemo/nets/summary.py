@@ -14,6 +14,7 @@ import argparse
 import torch
 
 from stablemo.errors import StableMoError
+from stablemo.inference_config import MAX_FRAMES
 from stablemo.nets import build_denoiser
 from stablemo.nets.config import load_denoiser_config
 
@@ -72,7 +73,7 @@ def main(argv: list[str]) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("summary", help="parameters and FLOPs per module")
     p.add_argument("--config", required=True, help="denoiser YAML (name + kwargs) or training YAML")
-    p.add_argument("--length", type=int, default=196, help="motion frames (padded up to the length multiple)")
+    p.add_argument("--length", type=int, default=MAX_FRAMES, help=f"motion frames (padded up to the length multiple; default {MAX_FRAMES})")
     p.add_argument("--text-length", type=int, default=20, help="text tokens")
     p.add_argument("--input-dim", type=int, default=None, help="feature width if the config has none (263)")
     p.add_argument("--text-dim", type=int, default=None, help="text latent width if the config has none (256)")
