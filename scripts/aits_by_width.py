@@ -23,6 +23,7 @@ from stablemo import bench
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.model import MotionDiffusionModel
 from stablemo.pipeline import Pipeline
+from stablemo.inference_config import PAPER_CFG, PAPER_STEPS
 
 DEMO_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "demo.yaml"
 
@@ -30,8 +31,8 @@ DEMO_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "demo.yaml"
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--widths", type=int, nargs="+", default=[32, 64, 128, 192])
-    p.add_argument("--steps", type=int, default=10)
-    p.add_argument("--cfg", type=float, default=2.5)
+    p.add_argument("--steps", type=int, default=PAPER_STEPS)
+    p.add_argument("--cfg", type=float, default=PAPER_CFG)
     p.add_argument("--threads", type=int, default=None)
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args()

@@ -78,7 +78,7 @@ def main(argv=None) -> None:
             print(f"| {prompt} | 0 | | | | |")
             continue
         frames = int(np.clip(np.median([len(c) for c in clips]), pipe.min_length, pipe.max_length))
-        gen = pipe.generate([prompt] * args.samples, [frames] * args.samples, steps=10, cfg=2.5,
+        gen = pipe.generate([prompt] * args.samples, [frames] * args.samples,  # the bundle's sampler settings
                             seed=list(range(args.samples)))
         model = mean_stats([gen.features[i, :frames].numpy() for i in range(args.samples)])
         real = mean_stats(clips)

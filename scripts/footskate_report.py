@@ -32,6 +32,7 @@ from stablemo.footskate_guidance import (_topology, clean_features, load_vgrf_mo
 from stablemo.io import write_text
 from stablemo.motion import canonicalize_joints, features_to_joints
 from stablemo.pipeline import Pipeline
+from stablemo.inference_config import PAPER_CFG, PAPER_STEPS
 
 PROMPTS = [
     "a person walks forward", "a person walks forward slowly", "a person jogs forward",
@@ -70,8 +71,8 @@ def main(argv=None) -> dict:
     p.add_argument("--bundle", default="stablemo/assets/demo_bundle")
     p.add_argument("--num", type=int, default=32)
     p.add_argument("--frames", type=int, default=196)
-    p.add_argument("--steps", type=int, default=10)
-    p.add_argument("--cfg", type=float, default=2.5)
+    p.add_argument("--steps", type=int, default=PAPER_STEPS)
+    p.add_argument("--cfg", type=float, default=PAPER_CFG)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--json", default=None, help="also write the numbers here")
@@ -94,8 +95,7 @@ def main(argv=None) -> dict:
     started = time.perf_counter()
     feats_post, joints_post, info = clean_features(plain.features, lengths.tolist(), pipe.skeleton, vgrf)
     post_seconds = time.perf_counter() - started
-    recovered_post = features_to_joints(torch.from_numpy(feats_post))
-    joints_post = torch.from_numpy(joints_post)
+    recovered_post = features_to_joints(feats_post)  # tensors in, tensors out (batched torch path)
 
     started = time.perf_counter()
     inside = pipe.generate(texts, lengths.tolist(), hooks=make_hooks(pipe, footskate=True), **gen)
@@ -104,7 +104,7 @@ def main(argv=None) -> dict:
 
     # the cleanup starts from the motion on the standard skeleton and floor (clean_features'
     # standardize step); movement and bone lengths are measured against that input
-    standard = torch.from_numpy(standard_joints(joints_plain.numpy(), lengths.tolist(), pipe.skeleton))
+    standard = standard_joints(joints_plain, lengths, pipe.skeleton)
     feet = set(topo.feet) | {j for j in range(topo.num_joints) if j in _leg_chain(topo)}
     others = [j for j in range(topo.num_joints) if j not in feet]
     moved = (joints_post - standard)[:, :, others].norm(dim=-1)         # (B, T, J')

@@ -33,6 +33,7 @@ from stablemo.eval import metrics
 from stablemo.eval.command import REAL_ROW, evaluate, load_text_motion_evaluator
 from stablemo.io import write_text
 from stablemo.pipeline import Pipeline
+from stablemo.inference_config import PAPER_CFG
 
 COLUMNS = [("r1", "R@1 ↑"), ("r3", "R@3 ↑"), ("fid", "FID ↓"), ("mm_dist", "MM-Dist ↓"), ("diversity", "Diversity →")]
 
@@ -81,7 +82,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--ddpm-items", type=int, default=96)
     p.add_argument("--ddpm-replications", type=int, default=1)
     p.add_argument("--aits-sentences", type=int, default=20)
-    p.add_argument("--cfg", type=float, default=2.5)
+    p.add_argument("--cfg", type=float, default=PAPER_CFG)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="docs/results.md")
     p.add_argument("--resume", action="store_true",

@@ -46,7 +46,7 @@ from stablemo.bench_measure import (  # noqa: F401 (re-exported: tests and scrip
     time_generation,
 )
 from stablemo.fast import gemm
-from stablemo.inference_config import MAX_FRAMES, InferenceConfig, check_finite, check_positive_int
+from stablemo.inference_config import MAX_FRAMES, PAPER_CFG, PAPER_STEPS, InferenceConfig, check_finite, check_positive_int
 from stablemo.errors import StableMoError
 from stablemo.nets.config import load_model_config
 
@@ -312,8 +312,8 @@ def _aits_parser() -> argparse.ArgumentParser:
     p.add_argument("--text-encoder", help="override the config's frozen text encoder (e.g. minilm when CLIP is not available)")
     p.add_argument("--frames", type=int, default=MAX_FRAMES, help=f"motion length (default {MAX_FRAMES})")
     p.add_argument("--repeats", type=int, default=3, help="timed sentences per row (default 3)")
-    p.add_argument("--steps", type=int, default=10, help="steps of the fast sampler (default 10)")
-    p.add_argument("--cfg", type=float, default=2.5)
+    p.add_argument("--steps", type=int, default=PAPER_STEPS, help=f"steps of the fast sampler (default {PAPER_STEPS})")
+    p.add_argument("--cfg", type=float, default=PAPER_CFG, help=f"guidance scale (default {PAPER_CFG})")
     p.add_argument("--ddpm-steps", type=int, default=None,
                    help="run only this many of the 1000 DDPM steps and extrapolate (label shown in the table)")
     p.add_argument("--skip-ddpm", action="store_true", help="leave out the DDPM baseline row")
