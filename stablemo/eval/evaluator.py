@@ -302,21 +302,13 @@ def load_evaluator(path: str | Path) -> EvaluatorModule:
 
 def export_evaluator(checkpoint: str | Path, out_dir: str | Path) -> Path:
     """Write an evaluator folder (config.json + model.safetensors) from a training checkpoint, atomically."""
-    from safetensors.torch import save as safetensors_bytes
-
-    from stablemo.io import atomic_dir, write_bytes, write_text
+    from stablemo.bundle import write_weights_folder
 
     out_dir = _check_evaluator_target(Path(out_dir))  # before the checkpoint loads
     model = load_evaluator(checkpoint)
     config = {"format": EVALUATOR_FORMAT, "version": 1, "hparams": dict(_module_kwargs(dict(model.hparams)))}
     tensors = {k: v.contiguous() for k, v in model.state_dict().items()}
-    try:
-        with atomic_dir(out_dir, replaceable=_is_evaluator_folder) as tmp:
-            write_bytes(tmp / WEIGHTS_NAME, safetensors_bytes(tensors))
-            write_text(tmp / CONFIG_NAME, json.dumps(config, indent=2) + "\n")
-    except FileExistsError:
-        raise StableMoError(f"{out_dir}: changed while the evaluator was written; nothing replaced") from None
-    return out_dir
+    return write_weights_folder(out_dir, config, tensors, _is_evaluator_folder, "evaluator")
 
 
 def _is_evaluator_folder(path: Path) -> bool:
