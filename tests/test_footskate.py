@@ -440,7 +440,10 @@ def test_clean_features_reproduce_the_cleaned_joints():
     x[:, :, 2] += 0.1 * torch.sin(torch.arange(60) * torch.pi / 10)[:, None]  # body and feet sway ±10 cm, up to 0.6 m/s
     batch = torch.stack([x, torch.cat([x[:45], torch.zeros(15, 22, 3)])])       # lengths 60 and 45
     feats = torch.from_numpy(joints_to_consistent_features(batch.numpy(), [60, 45], refit=True))
-    cleaned, joints, info = clean_features(feats, [60, 45], vgrf=None)
+    cleaned, joints, info = clean_features(feats, [60, 45], vgrf=None)   # tensors in, tensors out
+    assert torch.is_tensor(cleaned) and torch.is_tensor(joints)
+    cleaned, joints = cleaned.numpy(), joints.numpy()
+    np.testing.assert_array_equal(clean_features(feats.numpy(), [60, 45], vgrf=None)[0], cleaned)  # numpy in, out
     assert cleaned.shape == feats.shape and info["anchored_ranges"] > 0
     assert np.all(cleaned[1, 45:] == 0) and np.all(joints[1, 45:] == 0)
     for b, n in enumerate((60, 45)):

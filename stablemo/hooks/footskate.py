@@ -2,7 +2,9 @@
 
 At the last denoising steps the predicted x0 is cleaned (stablemo.footskate_guidance.clean_features:
 vGRF contacts, anchored feet, features re-derived from the corrected joints) and handed back to
-the sampler, so the remaining steps (the diffusion prior) smooth the correction.
+the sampler, so the remaining steps (the diffusion prior) smooth the correction. The whole call is
+batched torch on x0's device (no numpy, no loop over samples); the hook moves its vGRF network
+there.
 """
 
 from __future__ import annotations
@@ -42,10 +44,13 @@ class FootskateHook(AtSteps):
     def __call__(self, state: StepState) -> torch.Tensor:
         from stablemo.footskate_guidance import clean_features
 
-        x0, mask = state.x0, state.mask
-        feats = self.pipeline.denormalize(x0.float().cpu())
+        x0, mask = state.x0, state.mask                                    # (B, T, D) normalised, (B, T)
+        if self.vgrf is not None:
+            self.vgrf.to(x0.device)  # the cleanup runs where the sample is; a no-op once there
+        feats = self.pipeline.denormalize(x0.float())                      # (B, T, D) on x0's device
+        # batched torch end to end: features -> joints -> standard skeleton -> cleanup -> features
         cleaned, _, info = clean_features(feats, state.lengths, self.skeleton, self.vgrf, self.config)
-        x = self.pipeline.normalize(torch.from_numpy(cleaned))
-        x = torch.where(mask.cpu()[..., None], x, torch.zeros((), dtype=x.dtype))
+        x = self.pipeline.normalize(cleaned)                               # (B, T, D)
+        x = torch.where(mask[..., None], x, torch.zeros((), dtype=x.dtype, device=x.device))
         self.calls.append({"step": state.step, **{k: info[k] for k in ("seconds", "ranges", "anchored_ranges")}})
-        return x.to(device=x0.device, dtype=x0.dtype)
+        return x.to(dtype=x0.dtype)

@@ -203,6 +203,12 @@ def foot_contacts(x: np.ndarray, skeleton: Skeleton | str) -> np.ndarray:
 def joints_to_features(joints: np.ndarray, skeleton: Skeleton | str = "humanml3d", refit: bool = True) -> np.ndarray:
     """Joint positions (T, J, 3) or (B, T, J, 3) -> features (T−1, D) or (B, T−1, D), float32.
     refit: put the motion on the standard skeleton and floor first (see canonicalize_joints)."""
+    return joints_to_features_f64(joints, skeleton, refit).astype(np.float32)
+
+
+def joints_to_features_f64(joints: np.ndarray, skeleton: Skeleton | str = "humanml3d", refit: bool = True) -> np.ndarray:
+    """joints_to_features before its float32 cast: the float64 reference that the batched torch
+    twin (stablemo.motion.extract_torch) is tested against."""
     skel = get_skeleton(skeleton)
     x = canonicalize_joints(joints, skel, refit)  # (..., T, J, 3), global positions
     contacts = foot_contacts(x, skel)
@@ -235,7 +241,7 @@ def joints_to_features(joints: np.ndarray, skeleton: Skeleton | str = "humanml3d
     ]
     feats = np.concatenate(parts, axis=-1)
     assert feats.shape[-1] == skel.feature_dim
-    return feats.astype(np.float32)
+    return feats
 
 
 # --------------------------------------------------------------------------- recovery (torch)

@@ -128,3 +128,40 @@ def rot6d_to_matrix(d6: torch.Tensor) -> torch.Tensor:
 
 def matrix_to_rot6d(m: torch.Tensor) -> torch.Tensor:
     return torch.cat([m[..., :, 0], m[..., :, 1]], dim=-1)
+
+
+def qbetween(a: torch.Tensor, b: torch.Tensor, eps: float = 1e-9) -> torch.Tensor:
+    """Shortest-arc unit quaternion taking direction a (..., 3) to b (..., 3): the twin of
+    qbetween_np, including its half turn for (nearly) opposite directions. Branch-free (torch.where),
+    so a batch on any device needs no host round trip."""
+    a, b = torch.broadcast_tensors(a, b)
+    scale = torch.sqrt((a**2).sum(-1) * (b**2).sum(-1))  # |a||b|
+    w = scale + (a * b).sum(-1)
+    q = torch.cat([w[..., None], torch.linalg.cross(a, b, dim=-1)], dim=-1)
+    norm = torch.linalg.vector_norm(q, dim=-1, keepdim=True)
+    bad = (norm <= eps * scale[..., None].clamp(min=1e-30)) | (norm == 0)
+    # the coordinate axis least aligned with a gives an axis perpendicular to a
+    helper = torch.nn.functional.one_hot(a.abs().argmin(-1), 3).to(a.dtype)
+    axis = torch.linalg.cross(a, helper, dim=-1)
+    axis = axis / torch.linalg.vector_norm(axis, dim=-1, keepdim=True)
+    half_turn = torch.cat([torch.zeros_like(axis[..., :1]), axis], dim=-1)
+    q = torch.where(bad, half_turn, q)
+    return q / torch.where(bad, torch.ones_like(norm), norm)
+
+
+def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
+    """Unit quaternion (..., 4) -> rotation matrix (..., 3, 3); the same expressions as quat_to_matrix_np."""
+    w, x, y, z = q.unbind(-1)
+    return torch.stack(
+        [
+            torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            torch.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            torch.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        dim=-2,
+    )
+
+
+def quat_to_rot6d(q: torch.Tensor) -> torch.Tensor:
+    """Continuous 6D rotation (..., 6): the first matrix column, then the second (as quat_to_rot6d_np)."""
+    return matrix_to_rot6d(quat_to_matrix(q))
