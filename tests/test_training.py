@@ -405,7 +405,8 @@ def test_shipped_configs_parse(files, capsys):
     printed = yaml.safe_load(capsys.readouterr().out)
     assert printed["trainer"]["gradient_clip_val"] == 1.0
     assert printed["checkpoint"]["save_last"] is True
-    model = printed["model"]
+    assert printed["model"]["class_path"] == "stablemo.lit.module.DiffusionModule"  # the default LightningModule
+    model = printed["model"]["init_args"]
     assert model["prediction_type"] == "sample" and model["cond_drop_prob"] == 0.1
     assert model["schedule"] == {"num_train_timesteps": 1000, "beta_start": 1e-4, "beta_end": 0.02,
                                  "beta_schedule": "linear"}

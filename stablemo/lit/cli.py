@@ -70,6 +70,10 @@ class StableMoCLI(LightningCLI):
             # a resumed run (even with other checkpoint settings) keeps writing last.ckpt, not last-v1.ckpt
             "checkpoint.enable_version_counter": False,
         })
+        if self.subclass_mode_model:
+            # any LightningModule by `model.class_path` (e.g. ConsistencyDistillation); a config that
+            # gives only init arguments trains the diffusion model
+            parser.set_defaults({"model": {"class_path": f"{DiffusionModule.__module__}.{DiffusionModule.__qualname__}"}})
         parser.add_lightning_class_args(NonFiniteGuard, "guard")
 
     def instantiate_trainer(self, **kwargs):
@@ -106,37 +110,16 @@ def one_line(message: str) -> str:
     return f"{head} (it holds pickled objects that safe loading (weights_only) refuses: {reason})"
 
 
-def _names_model_class(argv: list[str]) -> bool:
-    """True if a --config file or a --model.class_path override selects another LightningModule."""
-    from pathlib import Path
-
-    import yaml
-
-    for i, arg in enumerate(argv):
-        if arg.startswith("--model.class_path"):
-            return True
-        path = argv[i + 1] if arg == "--config" and i + 1 < len(argv) else arg.partition("=")[2] if arg.startswith("--config=") else None
-        if path:
-            try:
-                cfg = yaml.safe_load(Path(path).read_text())
-            except (OSError, yaml.YAMLError):
-                continue  # LightningCLI reports unreadable configs itself
-            if isinstance(cfg, dict) and isinstance(cfg.get("model"), dict) and "class_path" in cfg["model"]:
-                return True
-    return False
-
-
 def _run(subcommand: str, argv: list[str]) -> int:
     from lightning.pytorch import LightningModule
 
     from stablemo.data import MotionDataModule
 
-    subclass = _names_model_class(argv)
     try:
         StableMoCLI(
-            LightningModule if subclass else DiffusionModule,
+            LightningModule,
             MotionDataModule,
-            subclass_mode_model=subclass,
+            subclass_mode_model=True,
             args=[subcommand, *argv],
             # the same config file may be reused for a resumed run in the same folder
             save_config_kwargs={"overwrite": True},
