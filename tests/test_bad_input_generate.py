@@ -169,3 +169,12 @@ def test_demo_generation_never_builds_the_compiled_kernels(monkeypatch, tmp_path
     monkeypatch.setattr(kernels, "kernels", no_build)
     assert cli.main(["generate", "a person jumps", "--out", str(tmp_path)] + FAST) == 0
     assert np.isfinite(np.load(tmp_path / "a-person-jumps.features.npy")).all()
+
+
+def test_generate_out_on_a_read_only_file_system(tmp_path):
+    from test_bad_input_writes import _read_only_run
+
+    ro = tmp_path / "ro"
+    proc = _read_only_run(ro, "generate", "a person walks", "--out", str(ro / "o"), "--steps", "1", "--no-render")
+    assert proc.returncode == 2, proc.stderr
+    assert_one_line(2, proc.stderr.strip(), "--out", str(ro / "o"))
