@@ -30,12 +30,10 @@ from torch import nn
 from stablemo.diffusion.schedule import NoiseSchedule, check_prediction_type
 from stablemo.errors import StableMoError
 from stablemo.fast import accelerate
+from stablemo.runtime import resolve_device, resolve_dtype
 from stablemo.hooks import SampleHook, StepState, apply_hooks
 from stablemo.inference_config import InferenceConfig, check_finite, check_positive_int
 from stablemo.kinds import Denoise, ModelKind, model_kind
-
-DTYPES = {"fp32": torch.float32, "float32": torch.float32, "bf16": torch.bfloat16, "bfloat16": torch.bfloat16,
-          "fp16": torch.float16, "float16": torch.float16}
 
 # (pipeline, texts, motion_mask (B, T), cfg, network dtype, planned timesteps) -> denoise(x_t, t).
 # The default encodes the texts once and asks the bundle's kind; the benchmarks pass their
@@ -60,21 +58,6 @@ class Request:
     hooks: Sequence[SampleHook] = ()
     batch_size: int | None = None
     progress: bool = False
-
-
-def resolve_dtype(dtype, device: torch.device) -> torch.dtype:
-    """Network precision: default fp16 on CUDA, fp32 on CPU; fp16 is refused on CPU (slow, inexact)."""
-    if dtype is None:
-        return torch.float16 if device.type == "cuda" else torch.float32
-    if isinstance(dtype, str):
-        if dtype not in DTYPES:
-            raise StableMoError(f"dtype: expected one of {sorted(DTYPES)}, got {dtype!r}")
-        dtype = DTYPES[dtype]
-    if dtype not in (torch.float32, torch.bfloat16, torch.float16):
-        raise StableMoError(f"dtype: expected float32, bfloat16 or float16, got {dtype}")
-    if dtype == torch.float16 and device.type == "cpu":
-        raise StableMoError("dtype: float16 is for CUDA; use bf16 or fp32 on the CPU")
-    return dtype
 
 
 @dataclass
@@ -384,21 +367,3 @@ def _check_stats(config: dict, source: str, model: nn.Module) -> None:
             raise StableMoError(f"{source}: {key!r} holds NaN/Inf")
     if (np.asarray(config["std"], dtype=np.float64) <= 0).any():
         raise StableMoError(f"{source}: 'std' holds values <= 0")
-
-
-def resolve_device(device) -> torch.device:
-    """The device to run on (default: cuda if available); one clear error for one that is not here."""
-    if device is None:
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    try:
-        dev = torch.device(device)
-    except (RuntimeError, TypeError):
-        raise StableMoError(f"device: unknown device {device!r}; use cpu or cuda") from None
-    available = ["cpu"] + (["cuda"] if torch.cuda.is_available() else []) + \
-        (["mps"] if getattr(torch.backends, "mps", None) and torch.backends.mps.is_available() else [])
-    if dev.type not in available:
-        raise StableMoError(f"device: {dev.type} is not available in this torch build "
-                            f"(available: {', '.join(available)})")
-    if dev.type == "cuda" and dev.index is not None and dev.index >= torch.cuda.device_count():
-        raise StableMoError(f"device: {device} does not exist ({torch.cuda.device_count()} CUDA device(s))")
-    return dev
