@@ -183,3 +183,18 @@ def test_fused_cross_attention_falls_back_under_autograd_and_is_only_for_wide_la
     torch.testing.assert_close(out, attn(x, attn.context(text, text_mask)))
     with pytest.raises(RuntimeError, match="H\\*d = C"):
         kernels.read_context(torch.randn(1, 4, 256), torch.randn(1, 2, 64, 64))
+
+
+def test_a_stale_build_lock_is_removed_and_a_live_one_kept(tmp_path):
+    """A build killed mid-way leaves torch's `lock` file; every later process would wait on it forever."""
+    import os
+    import time
+
+    lock = tmp_path / "lock"
+    lock.touch()
+    assert not fused.clear_stale_lock(tmp_path) and lock.exists()  # a build may be running right now
+    old = time.time() - fused.STALE_LOCK_SECONDS - 60
+    os.utime(lock, (old, old))
+    with pytest.warns(UserWarning, match="stale build lock"):
+        assert fused.clear_stale_lock(tmp_path)
+    assert not lock.exists() and not fused.clear_stale_lock(tmp_path)

@@ -14,6 +14,7 @@ import os
 import platform
 import shutil
 import sys
+import time
 import warnings
 from pathlib import Path
 
@@ -34,6 +35,27 @@ def _cpu_tag() -> str:
     return hashlib.sha1(f"{platform.machine()} {flags}".encode()).hexdigest()[:10]
 
 
+# A build takes ~30 s. torch's builder guards its folder with a `lock` file and waits for it to go
+# away; a build killed mid-way (Ctrl-C, a timeout) leaves the file behind, and every later process
+# then waits forever. A lock far older than any build is removed.
+STALE_LOCK_SECONDS = 600
+
+
+def clear_stale_lock(build_dir: Path, max_age: float = STALE_LOCK_SECONDS) -> bool:
+    """Remove `build_dir/lock` if it is older than `max_age` seconds; True if one was removed."""
+    lock = build_dir / "lock"
+    try:
+        age = time.time() - lock.stat().st_mtime
+    except FileNotFoundError:
+        return False
+    if age <= max_age:
+        return False
+    lock.unlink(missing_ok=True)
+    warnings.warn(f"stablemo: removed a stale build lock ({lock}, {age / 60:.0f} min old) left by an "
+                  "interrupted build of the fused CPU kernels", stacklevel=2)
+    return True
+
+
 @functools.lru_cache(maxsize=None)
 def kernels():
     """The compiled module (with `frame_norm_act`), or None where it cannot be built or is turned off."""
@@ -52,7 +74,9 @@ def kernels():
     try:
         from torch.utils.cpp_extension import _get_build_directory
 
-        if not (Path(_get_build_directory(name, False)) / f"{name}.so").is_file():
+        build_dir = Path(_get_build_directory(name, False))
+        clear_stale_lock(build_dir)
+        if not (build_dir / f"{name}.so").is_file():
             print(f"stablemo: compiling the fused CPU kernels (once, ~30 s): {name}", file=sys.stderr)
     except Exception:  # the notice is a courtesy; the build below reports real problems
         pass
