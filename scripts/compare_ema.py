@@ -32,6 +32,7 @@ from torch import nn
 from torch.optim.swa_utils import AveragedModel
 from torch.utils.data import DataLoader, TensorDataset
 
+from stablemo.io import atomic_open, write_text
 from stablemo.lit.ema import EMA
 
 DECAY, WARMUP = 0.999, 10.0
@@ -294,7 +295,8 @@ def ddp_worker(out: Path) -> None:
     avg_ptrs = {t.data_ptr() for t in itertools.chain(avg.parameters(), avg.buffers())}
     bcast_ptrs = {p for call in log["broadcast"] for p in call[:-1]}
     rank = trainer.global_rank
-    torch.save(cap.out, out / f"rank{rank}.pt")
+    with atomic_open(out / f"rank{rank}.pt") as f:
+        torch.save(cap.out, f)
     info = {
         "broadcast_calls": len(log["broadcast"]),
         "broadcast_bytes_per_call": [call[-1] for call in log["broadcast"]],
@@ -307,7 +309,7 @@ def ddp_worker(out: Path) -> None:
         "avg_bytes": nbytes(itertools.chain(avg.parameters(), avg.buffers())),
         "optimizer_steps": trainer.global_step,
     }
-    (out / f"rank{rank}.json").write_text(json.dumps(info))
+    write_text(out / f"rank{rank}.json", json.dumps(info))
 
 
 def section_ddp(tmp: Path) -> None:

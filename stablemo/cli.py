@@ -9,7 +9,7 @@ from __future__ import annotations
 import importlib
 import sys
 
-from stablemo.errors import StableMoError
+from stablemo.errors import StableMoError, one_line
 
 # name -> (module, function, one-line help)
 COMMANDS: dict[str, tuple[str, str, str]] = {
@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(func(rest) or 0)
     except StableMoError as err:
-        print(f"stablemo {name}: error: {err}", file=sys.stderr)
+        print(f"stablemo {name}: error: {one_line(str(err))}", file=sys.stderr)
         return 2
 
 

@@ -178,3 +178,15 @@ def test_generate_out_on_a_read_only_file_system(tmp_path):
     proc = _read_only_run(ro, "generate", "a person walks", "--out", str(ro / "o"), "--steps", "1", "--no-render")
     assert proc.returncode == 2, proc.stderr
     assert_one_line(2, proc.stderr.strip(), "--out", str(ro / "o"))
+
+
+def test_export_of_a_pickled_checkpoint_is_one_line(capsys, tmp_path):
+    """torch's weights_only refusal spans many lines and advises weights_only=False: the CLI keeps
+    one line with the reason, for every command."""
+    import collections
+
+    evil = tmp_path / "evil.ckpt"
+    torch.save({"state_dict": collections.OrderedDict(), "x": collections.Counter("ab")}, evil)
+    rc, err = run_cli(capsys, ["export", str(evil), "--out", str(tmp_path / "b")])
+    assert_one_line(rc, err, "evil.ckpt")
+    assert "weights_only=False" not in err and "\x1b[" not in err

@@ -11,7 +11,6 @@ A config whose `model:` has a `class_path` trains that LightningModule instead o
 
 from __future__ import annotations
 
-import re
 import sys
 import warnings
 from pathlib import Path
@@ -19,7 +18,7 @@ from pathlib import Path
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.plugins.io import CheckpointIO
 
-from stablemo.errors import StableMoError
+from stablemo.errors import StableMoError, one_line
 from stablemo.lit.callbacks import FinalStepCheckpoint, NonFiniteGuard
 from stablemo.lit.checkpoint_io import AtomicCheckpointIO, load_checkpoint_file
 from stablemo.lit.module import DiffusionModule
@@ -83,31 +82,6 @@ class StableMoCLI(LightningCLI):
             plugins.append(AtomicCheckpointIO())
         kwargs.setdefault("plugins", plugins)
         return super().instantiate_trainer(**kwargs)
-
-
-_ANSI = re.compile(r"\x1b\[[0-9;]*m")
-
-
-def one_line(message: str) -> str:
-    """An error message as one line (the CLI prints errors as one line, naming the file).
-
-    torch's weights_only refusal spans many lines with terminal escapes and advises re-loading with
-    weights_only=False, which is exactly what must not be done with a file that needs it: only its
-    reason is kept.
-    """
-    text = _ANSI.sub("", message)
-    lines = [line.strip() for line in text.splitlines() if line.strip()]
-    if len(lines) <= 1:
-        return lines[0] if lines else text
-    reason = next((line.split("WeightsUnpickler error:", 1)[1].strip() for line in lines
-                   if "WeightsUnpickler error:" in line), None)
-    if reason is None:
-        return " ".join(lines)
-    head = lines[0]
-    cut = head.find(" (UnpicklingError")
-    head = head[:cut] if cut > 0 else head
-    reason = reason.split(" was not an allowed global")[0].split(". ")[0].rstrip(".")
-    return f"{head} (it holds pickled objects that safe loading (weights_only) refuses: {reason})"
 
 
 def _run(subcommand: str, argv: list[str]) -> int:
