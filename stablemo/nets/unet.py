@@ -209,15 +209,23 @@ class CondUNet1D(nn.Module):
             h = stage(h, adagn[i], ctx.text_contexts[i], ctx.masks[i])
             skips.append(h)
             if i < len(self.downsample):
-                h = zero_pad_bct(self.downsample[i](h), ctx.masks[i + 1])
+                h = self.resample(self.downsample[i], h, ctx.masks[i + 1])
         h = self.mid(h, adagn[n], ctx.text_contexts[n], ctx.masks[-1])
         for j, stage in enumerate(self.up):
             level = n - 1 - j  # the resolution of down stage `level`
-            h = stage(torch.cat([h, skips.pop()], dim=1), adagn[n + 1 + j], ctx.text_contexts[n + 1 + j],
+            h = stage(self.merge_skip(h, skips.pop()), adagn[n + 1 + j], ctx.text_contexts[n + 1 + j],
                       ctx.masks[level])
             if j < len(self.upsample):
-                h = zero_pad_bct(self.upsample[j](h), ctx.masks[level - 1])
+                h = self.resample(self.upsample[j], h, ctx.masks[level - 1])
         return self.head(h, ctx.masks[0]).transpose(1, 2)
+
+    def resample(self, conv: nn.Module, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """A down- or up-sampling convolution, its padded frames zeroed at the new resolution (mask)."""
+        return zero_pad_bct(conv(h), mask)
+
+    def merge_skip(self, h: torch.Tensor, skip: torch.Tensor) -> torch.Tensor:
+        """The up path's input: (B, C1, T), (B, C2, T) -> (B, C1 + C2, T)."""
+        return torch.cat([h, skip], dim=1)
 
     def head(self, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """The output head: conv -> norm -> Mish -> zero-initialised 1x1 conv. (B, C, T) -> (B, D, T)."""
