@@ -9,7 +9,7 @@ version by that version, built from it and holding the very same parameters unde
     nn.Linear             -> CachedCastLinear       packed / low-precision cached weights
     nn.Mish               -> FastMish               seven vectorised passes (blocks.py)
     ResBlock1D            -> FastResBlock1D         norm + AdaGN + Mish + residual + padding fused
-    CondUNet1D            -> FastCondUNet1D         the output head's norm + Mish fused
+    CondUNet1D            -> FastCondUNet1D         head fused, frames-major skips, in-place padding
     CrossAttention1D      -> FastCrossAttention1D   padding zeroed in place
     LinearCrossAttention  -> FusedLinearCrossAttention   (>= 256 channels) fused per-head read
 
