@@ -336,6 +336,23 @@ def test_stale_checkpoint_partials_are_removed_when_a_run_starts(tmp_path):
     assert (folder / "last.ckpt").is_file()
 
 
+def test_stale_partials_go_when_a_run_starts_before_any_save(tmp_path):
+    """The checkpoint callback's setup (a run's start, before its first save) cleans the folder."""
+    from lightning.pytorch import LightningModule, Trainer
+
+    from stablemo.lit.callbacks import FinalStepCheckpoint
+
+    folder = tmp_path / "checkpoints"
+    folder.mkdir()
+    stale = folder / ".last.ckpt.k2j4x9_q.partial"
+    stale.write_bytes(b"\0" * 64)
+    old = time.time() - 3600
+    os.utime(stale, (old, old))
+    trainer = Trainer(default_root_dir=tmp_path, logger=False, enable_progress_bar=False, max_steps=1)
+    FinalStepCheckpoint(dirpath=folder).setup(trainer, LightningModule(), "fit")
+    assert not stale.exists()
+
+
 # ------------------------------------------------------------------------------- item 7: --out
 
 

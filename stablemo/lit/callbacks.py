@@ -81,6 +81,15 @@ class FinalStepCheckpoint(ModelCheckpoint):
     where the epoch is finished anyway).
     """
 
+    def setup(self, trainer: Trainer, pl_module: LightningModule, stage: str) -> None:
+        """At the start of a run, its checkpoint folder resolved: remove the `.partial` temp files
+        that hard-killed saves of earlier runs left there (stablemo.lit.checkpoint_io)."""
+        super().setup(trainer, pl_module, stage)
+        if self.dirpath is not None and trainer.is_global_zero:
+            from stablemo.lit.checkpoint_io import remove_stale_partials
+
+            remove_stale_partials(self.dirpath)
+
     def on_train_batch_end(self, trainer: Trainer, pl_module: LightningModule, outputs, batch, batch_idx: int) -> None:
         super().on_train_batch_end(trainer, pl_module, outputs, batch, batch_idx)
         final = 0 < trainer.max_steps <= trainer.global_step
