@@ -46,7 +46,7 @@ from stablemo.bench_measure import (  # noqa: F401 (re-exported: tests and scrip
     time_generation,
 )
 from stablemo.fast import gemm
-from stablemo.inference_config import MAX_FRAMES, PAPER_CFG, PAPER_STEPS, InferenceConfig, check_finite, check_positive_int
+from stablemo.inference_config import MAX_FRAMES, PAPER_CFG, PAPER_STEPS, InferenceConfig, check_finite, check_positive_int, check_seed
 from stablemo.errors import StableMoError
 from stablemo.nets.config import load_model_config
 
@@ -336,6 +336,7 @@ def main_aits(argv: list[str]) -> int:
         raise StableMoError(f"--ddpm-steps: must be in [1, 1000], got {args.ddpm_steps}")
     check_positive_int("--steps", args.steps)
     check_finite("--cfg", args.cfg, low=0.0, high=100.0)
+    check_seed("--seed", args.seed)
     if args.threads is not None:
         check_positive_int("--threads", args.threads)
     if args.json:

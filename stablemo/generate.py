@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 from stablemo.errors import StableMoError
-from stablemo.inference_config import check_finite, check_positive_int
+from stablemo.inference_config import check_finite, check_positive_int, check_seed
 from stablemo.io import check_output_dir, check_output_file
 
 DEFAULT_BUNDLE = Path(__file__).resolve().parent / "assets" / "demo_bundle"
@@ -160,6 +160,7 @@ def _check_numbers(args) -> None:
         check_finite("--seconds", args.seconds, low=0.0, strict=True)
     if args.frames is not None:
         check_positive_int("--frames", args.frames)
+    check_seed("--seed", args.seed)
 
 
 if __name__ == "__main__":

@@ -84,3 +84,15 @@ def check_positive_int(name: str, value) -> int:
     if int(value) < 1:
         raise StableMoError(f"{name}: must be >= 1, got {value}")
     return int(value)
+
+
+MAX_SEED = 2**63 - 1  # torch generators take a 64-bit seed; sample i of a request uses seed + i
+
+
+def check_seed(name: str, value, count: int = 1) -> int:
+    """A whole-number seed in [0, 2^63 - 1 - (count - 1)], so that seed + i stays a valid seed."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise StableMoError(f"{name}: expected a whole number, got {value!r}")
+    if not 0 <= int(value) <= MAX_SEED - (count - 1):
+        raise StableMoError(f"{name}: must be in [0, {MAX_SEED - (count - 1)}], got {value}")
+    return int(value)

@@ -32,7 +32,7 @@ from stablemo.errors import StableMoError
 from stablemo.fast import accelerate
 from stablemo.runtime import resolve_device, resolve_dtype
 from stablemo.hooks import SampleHook, StepState, apply_hooks
-from stablemo.inference_config import InferenceConfig, check_finite, check_positive_int
+from stablemo.inference_config import InferenceConfig, check_finite, check_positive_int, check_seed
 from stablemo.kinds import Denoise, ModelKind, model_kind
 
 # (pipeline, texts, motion_mask (B, T), cfg, network dtype, planned timesteps) -> denoise(x_t, t).
@@ -260,9 +260,9 @@ class Pipeline:
                 raise StableMoError(f"lengths[{i}]: {n} frames is outside this model's range "
                                     f"[{self.min_length}, {self.max_length}] ({self.fps:g} fps)")
         if isinstance(request.seed, (int, np.integer)):
-            seeds = [int(request.seed) + i for i in range(len(texts))]
+            seeds = [check_seed("seed", request.seed, len(texts)) + i for i in range(len(texts))]
         else:
-            seeds = [int(s) for s in request.seed]
+            seeds = [check_seed(f"seed[{i}]", s) for i, s in enumerate(request.seed)]
             if len(seeds) != len(texts):
                 raise StableMoError(f"seed: {len(seeds)} seeds for {len(texts)} prompts")
         sampler = request.sampler or self.inference.sampler

@@ -48,6 +48,8 @@ def no_model(monkeypatch):
     ("--cfg", "-1", "--cfg: must be >= 0"),
     ("--seconds", "nan", "--seconds: must be a finite number"),
     ("--seconds", "inf", "--seconds: must be a finite number"),
+    ("--seed", "99999999999999999999", "--seed: must be in [0, 9223372036854775807]"),
+    ("--seed", "-1", "--seed: must be in [0,"),
 ])
 def test_generate_refuses_non_finite_numbers_before_loading(capsys, tmp_path, no_model, flag, value, message):
     argv = ["generate", "a person walks", flag, value, "--no-render", "--out", str(tmp_path / "o")]
@@ -64,9 +66,11 @@ def test_python_api_refuses_non_finite_and_out_of_range_settings():
                             (dict(steps=0), "steps: must be >= 1"),
                             (dict(steps=2.5), "steps: expected a whole number"),
                             (dict(batch_size=0), "batch_size: must be >= 1"),
-                            (dict(sampler="ddpm", steps=2000), "steps")]:
+                            (dict(sampler="ddpm", steps=2000), "steps"),
+                            (dict(seed=2**63 - 1), r"seed: must be in \[0, 9223372036854775806\]"),  # 2 prompts: seed + 1 overflows
+                            (dict(seed=[0, -5]), r"seed\[1\]: must be in")]:
         with pytest.raises(StableMoError, match=message):
-            pipe.generate(["a person walks"], [40], **kwargs)
+            pipe.generate(["a person walks", "a person runs"], [40, 40], **kwargs)
     with pytest.raises(StableMoError, match=r"lengths\[0\]: expected a whole number"):
         pipe.generate(["a person walks"], [40.5])
 

@@ -27,7 +27,7 @@ import torch
 from tqdm import tqdm
 
 from stablemo.errors import StableMoError
-from stablemo.inference_config import check_finite, check_positive_int
+from stablemo.inference_config import check_finite, check_positive_int, check_seed
 from stablemo.eval import metrics
 from stablemo.eval.physics import foot_skating_ratio
 from stablemo.eval.text_motion import (  # noqa: F401 (re-exported: the evaluator adapters)
@@ -259,6 +259,7 @@ def _check_numbers(args) -> None:
     if args.cfg is not None:
         check_finite("--cfg", args.cfg, low=0.0, high=100.0)
     check_finite("--feat-bias", args.feat_bias, low=0.0, strict=True)
+    check_seed("--seed", args.seed)
 
 
 def main(argv: list[str]) -> int:
