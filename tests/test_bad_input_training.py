@@ -321,3 +321,23 @@ def test_fit_ckpt_path_file_still_brings_its_hyperparameters(tiny_data, tmp_path
     assert _run_cli(["fit", "--config", str(cfg), "--ckpt_path", str(ckpt), "--trainer.max_steps=3"], capsys)[0] == 0
     resumed = load_checkpoint_file(ckpt)
     assert resumed["global_step"] == 3 and resumed["hyper_parameters"]["lr"] == 0.002
+
+
+@pytest.mark.parametrize("extra, needles", [
+    (["--model.lr", "abc"], ["model.lr: Expected a <class 'float'>", "abc"]),
+    (["--model.model.denoiser.name", "foo"], ["denoiser name: unknown 'foo'"]),  # raised inside jsonargparse's instantiation
+    (["--trainer.max_stepz", "3"], ["unrecognized arguments", "max_stepz"]),
+])
+def test_fit_bad_settings_are_one_line(extra, needles, capsys):
+    rc, lines = _run_cli(["fit", "--config", str(REPO / "configs" / "synth_small.yaml"), *extra], capsys)
+    assert rc == 2 and len(lines) == 1 and "usage:" not in lines[0], lines
+    assert all(n in lines[0] for n in needles), lines
+
+
+def test_fit_config_that_is_not_a_config_is_named_in_one_line(tmp_path, capsys):
+    notes = tmp_path / "notes.txt"
+    notes.write_text("just some\nlines of text\n")
+    rc, lines = _run_cli(["fit", "--config", str(notes)], capsys)
+    assert rc == 2 and len(lines) == 1 and str(notes) in lines[0] and "just some" not in lines[0], lines
+    rc, lines = _run_cli(["fit", "--config", str(tmp_path / "missing.yaml")], capsys)
+    assert rc == 2 and len(lines) == 1 and "--config: File does not exist" in lines[0], lines

@@ -89,6 +89,8 @@ def _run(subcommand: str, argv: list[str]) -> int:
 
     from stablemo.data import MotionDataModule
 
+    from jsonargparse import ArgumentError
+
     try:
         StableMoCLI(
             LightningModule,
@@ -98,11 +100,60 @@ def _run(subcommand: str, argv: list[str]) -> int:
             # the same config file may be reused for a resumed run in the same folder
             save_config_kwargs={"overwrite": True},
             auto_configure_optimizers=False,
+            # a bad config or flag raises instead of printing the whole usage (~80 lines) and exiting
+            parser_kwargs={"exit_on_error": False},
         )
     except StableMoError as err:
         err.args = (one_line(str(err)),)  # same exception type (NonFiniteLossError, ...), one line
         raise
+    except ArgumentError as err:
+        raise StableMoError(argument_error_line(str(err), argv)) from None
+    except (ValueError, TypeError) as err:
+        # jsonargparse instantiates the class_path'd module inside its own checks and wraps what the
+        # module's __init__ raised ("Does not validate against any of the Union subtypes"): a
+        # StableMoError underneath is the message the user needs
+        cause = _stablemo_cause(err)
+        if cause is None:
+            raise
+        raise type(cause)(one_line(str(cause))) from None
     return 0
+
+
+def _stablemo_cause(err: BaseException) -> StableMoError | None:
+    seen = set()
+    while err is not None and id(err) not in seen:
+        if isinstance(err, StableMoError):
+            return err
+        seen.add(id(err))
+        err = err.__cause__ or err.__context__
+    return None
+
+
+def argument_error_line(message: str, argv: list[str]) -> str:
+    """jsonargparse's error as one line: the dotted key at fault and the innermost reason, e.g.
+    "model.lr: Expected a <class 'float'>. Got value: abc"; a file that is not a config at all is
+    named (jsonargparse would quote its whole content)."""
+    lines = [line.strip() for line in message.splitlines() if line.strip()]
+    if not lines:
+        return "invalid arguments"
+    if lines[0].startswith("Unexpected config"):
+        configs = [argv[i + 1] for i, a in enumerate(argv[:-1]) if a in ("--config", "-c")]
+        return f"--config: {', '.join(configs) or 'a config'}: not a StableMo/LightningCLI config (a YAML mapping of settings)"
+    keys, reasons = [], []
+    for line in lines:
+        if line.startswith('Parser key "') and line.count('"') >= 2:
+            key, _, rest = line[len('Parser key "'):].partition('"')
+            keys.append(key)
+            rest = rest.lstrip(": ").strip()
+            if rest:
+                reasons.append(rest)
+        elif not line.startswith(("- ", "Errors:", "Subtypes:", "Given value", "Does not validate")):
+            reasons.append(line)
+    # the most specific reason: an "Expected ..." line if there is one, else the innermost line
+    reason = next((r for r in reversed(reasons) if r.startswith("Expected")), reasons[-1] if reasons else lines[-1])
+    if keys[:1] == ["config"]:
+        keys[0] = "--config"
+    return f"{'.'.join(keys)}: {reason}" if keys else reason
 
 
 def main_fit(argv: list[str]) -> int:
