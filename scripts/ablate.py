@@ -59,8 +59,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 def train_variant(variant: str, args: argparse.Namespace, run_dir: Path) -> dict:
     import torch
-    from stablemo.data import MotionDataModule
-    from stablemo.lit.cli import StableMoCLI
+    from stablemo.lit.cli import run_cli
     from stablemo.lit.module import DiffusionModule
 
     cli_args = [
@@ -78,8 +77,8 @@ def train_variant(variant: str, args: argparse.Namespace, run_dir: Path) -> dict
     if args.batch_size:
         cli_args.append(f"--data.batch_size={args.batch_size}")
     cli_args += args.overrides
-    cli = StableMoCLI(DiffusionModule, MotionDataModule, args=cli_args, run=False,
-                      save_config_kwargs={"overwrite": True}, auto_configure_optimizers=False)
+    cli = run_cli(DiffusionModule, cli_args, run=False, save_config_kwargs={"overwrite": True},
+                  auto_configure_optimizers=False)
     start = time.perf_counter()
     cli.trainer.fit(cli.model, datamodule=cli.datamodule)
     seconds = time.perf_counter() - start

@@ -56,15 +56,13 @@ def main(argv: list[str]) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
 
-    from stablemo.data import MotionDataModule
-    from stablemo.lit.cli import StableMoCLI
+    from stablemo.lit.cli import run_cli
     from stablemo.lit.module import DiffusionModule
 
     cli_args = ["--config", args.config, f"--seed_everything={args.seed}", *args.overrides]
     if args.batch_size:
         cli_args.append(f"--data.batch_size={args.batch_size}")
-    cli = StableMoCLI(DiffusionModule, MotionDataModule, args=cli_args, run=False, save_config_callback=None,
-                      auto_configure_optimizers=False)
+    cli = run_cli(DiffusionModule, cli_args, run=False, save_config_callback=None, auto_configure_optimizers=False)
     configured = cli.trainer
     timer = StepTimer()
     trainer = Trainer(

@@ -84,25 +84,17 @@ class StableMoCLI(LightningCLI):
         return super().instantiate_trainer(**kwargs)
 
 
-def _run(subcommand: str, argv: list[str]) -> int:
-    from lightning.pytorch import LightningModule
+def run_cli(model_class, argv: list[str], **kwargs) -> StableMoCLI:
+    """StableMoCLI(model_class, MotionDataModule, args=argv, **kwargs) with every configuration
+    error as one StableMoError line: a bad config or flag (instead of ~80 lines of usage), and a
+    StableMoError raised while jsonargparse instantiates a class_path'd module (it wraps it)."""
+    from jsonargparse import ArgumentError
 
     from stablemo.data import MotionDataModule
 
-    from jsonargparse import ArgumentError
-
     try:
-        StableMoCLI(
-            LightningModule,
-            MotionDataModule,
-            subclass_mode_model=True,
-            args=[subcommand, *argv],
-            # the same config file may be reused for a resumed run in the same folder
-            save_config_kwargs={"overwrite": True},
-            auto_configure_optimizers=False,
-            # a bad config or flag raises instead of printing the whole usage (~80 lines) and exiting
-            parser_kwargs={"exit_on_error": False},
-        )
+        return StableMoCLI(model_class, MotionDataModule, args=argv, parser_kwargs={"exit_on_error": False},
+                           **kwargs)
     except StableMoError as err:
         err.args = (one_line(str(err)),)  # same exception type (NonFiniteLossError, ...), one line
         raise
@@ -116,7 +108,6 @@ def _run(subcommand: str, argv: list[str]) -> int:
         if cause is None:
             raise
         raise type(cause)(one_line(str(cause))) from None
-    return 0
 
 
 def _stablemo_cause(err: BaseException) -> StableMoError | None:
@@ -127,6 +118,20 @@ def _stablemo_cause(err: BaseException) -> StableMoError | None:
         seen.add(id(err))
         err = err.__cause__ or err.__context__
     return None
+
+
+def _run(subcommand: str, argv: list[str]) -> int:
+    from lightning.pytorch import LightningModule
+
+    run_cli(
+        LightningModule,
+        [subcommand, *argv],
+        subclass_mode_model=True,
+        # the same config file may be reused for a resumed run in the same folder
+        save_config_kwargs={"overwrite": True},
+        auto_configure_optimizers=False,
+    )
+    return 0
 
 
 def argument_error_line(message: str, argv: list[str]) -> str:
