@@ -273,6 +273,10 @@ class Pipeline:
         self.samplers[sampler].timesteps(self.schedule, steps)  # the sampler's own check of steps
         if request.batch_size is not None:
             check_positive_int("batch_size", request.batch_size)
+        for i, hook in enumerate(request.hooks):
+            if not (callable(hook) and callable(getattr(hook, "active", None))):
+                raise StableMoError(f"hooks[{i}]: {type(hook).__name__} is not a sample hook "
+                                    "(it needs active(step, steps) and __call__(state); see stablemo.hooks)")
         dtype = self.dtype if request.dtype is None else resolve_dtype(request.dtype, self.device)
         return replace(request, texts=texts, lengths=lengths, seed=seeds, sampler=sampler, steps=steps, cfg=cfg,
                        dtype=dtype, hooks=list(request.hooks))

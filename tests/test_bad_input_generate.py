@@ -71,6 +71,8 @@ def test_python_api_refuses_non_finite_and_out_of_range_settings():
                             (dict(seed=[0, -5]), r"seed\[1\]: must be in")]:
         with pytest.raises(StableMoError, match=message):
             pipe.generate(["a person walks", "a person runs"], [40, 40], **kwargs)
+    with pytest.raises(StableMoError, match=r"hooks\[0\]: function is not a sample hook"):
+        pipe.generate(["a person walks"], [40], hooks=[lambda state: None])
     with pytest.raises(StableMoError, match=r"lengths\[0\]: expected a whole number"):
         pipe.generate(["a person walks"], [40.5])
 
