@@ -274,7 +274,7 @@ def test_paper_unet_builds():
 @pytest.mark.slow
 def test_paper_unet_runs_short():
     """One real forward of the paper-sized CondUNet1D at T=16 (1.2 GB of float32 weights)."""
-    model = build_denoiser("unet", **PAPER_UNET).eval()
+    model = OneCall(build_denoiser("unet", **PAPER_UNET).eval())
     with torch.no_grad():
         out = model(torch.randn(1, 16, 263), torch.tensor([10]), torch.randn(1, 5, 256),
                     torch.ones(1, 5, dtype=torch.bool), torch.ones(1, 16, dtype=torch.bool))
