@@ -132,8 +132,9 @@ def main(argv: list[str] | None = None) -> int:
     hooks = make_hooks(pipe, footskate=args.footskate, footskate_weights=args.footskate_weights)
     request = Request(prompts, frames, seed=args.seed, sampler=args.sampler, steps=args.steps, cfg=args.cfg,
                       hooks=hooks, progress=True)
-    pipe.resolve(request)  # every setting checked before the first network call
-    result = pipe.generate(request)  # raises, writing nothing, if any motion is not finite
+    # generate() checks every setting before its first network call, and raises, writing nothing,
+    # if any motion is not finite
+    result = pipe.generate(request)
 
     from stablemo.io import save_npy
 

@@ -117,7 +117,6 @@ class Pipeline:
     ) -> None:
         check_prediction_type(prediction_type)
         self.config = config or {}
-        self.kind_name = kind
         self.kind: ModelKind = model_kind(kind)
         self.device = resolve_device(device)
         self.dtype = resolve_dtype(dtype, self.device)
@@ -161,7 +160,7 @@ class Pipeline:
             model = kind.build_model(config, cfg_file)
         except TypeError as err:
             raise StableMoError(f"{cfg_file}: 'model' does not describe a network ({err})") from None
-        _check_stats(config, cfg_file, model)
+        _check_stats(config, cfg_file)
         if not random_weights:
             weights_file = Path(path) / "model.safetensors"
             bad = [k for k, v in bundle.state_dict.items() if v.is_floating_point() and not torch.isfinite(v).all()]
@@ -353,21 +352,21 @@ class Pipeline:
         return x0.cpu()
 
 
-def _check_stats(config: dict, source: str, model: nn.Module) -> None:
-    """Mean/Std: finite vectors of the network's feature width, Std > 0 (it divides)."""
-    width = getattr(getattr(model, "denoiser", None), "input_dim", None)
-    if width is None:  # a student wraps its teacher's network
-        width = getattr(getattr(getattr(model, "model", None), "denoiser", None), "input_dim", None)
+def _check_stats(config: dict, source: str) -> None:
+    """Mean/Std: finite vectors of the network's feature width, Std > 0 (it divides). Called after
+    the kind built the network, so config["model"]["denoiser"] is known to be complete."""
+    width = int(config["model"]["denoiser"]["input_dim"])
+    values = {}
     for key in ("mean", "std"):
         try:
-            values = np.asarray(config[key], dtype=np.float64) if isinstance(config[key], list) else None
+            values[key] = np.asarray(config[key], dtype=np.float64) if isinstance(config[key], list) else None
         except (TypeError, ValueError):
-            values = None
-        if values is None or values.ndim != 1:
+            values[key] = None
+        if values[key] is None or values[key].ndim != 1:
             raise StableMoError(f"{source}: {key!r} must be a list of numbers")
-        if width is not None and len(values) != width:
-            raise StableMoError(f"{source}: {key!r} has {len(values)} values, the network's features have {width}")
-        if not np.isfinite(values).all():
+        if len(values[key]) != width:
+            raise StableMoError(f"{source}: {key!r} has {len(values[key])} values, the network's features have {width}")
+        if not np.isfinite(values[key]).all():
             raise StableMoError(f"{source}: {key!r} holds NaN/Inf")
-    if (np.asarray(config["std"], dtype=np.float64) <= 0).any():
+    if (values["std"] <= 0).any():
         raise StableMoError(f"{source}: 'std' holds values <= 0")
