@@ -13,7 +13,7 @@ NPY_MAGIC = b"\x93NUMPY"
 ZIP_MAGIC = b"PK\x03\x04"  # .npz archives are zip files
 
 
-def save_npy(path: Path, array: np.ndarray) -> None:
+def save_npy(path: str | Path, array: np.ndarray) -> None:
     """Write exactly `path` through an exclusive temp file and a rename: never a half-written file."""
     with atomic_open(path) as f:
         np.save(f, np.asarray(array), allow_pickle=False)

@@ -30,13 +30,8 @@ from footskate.atomicio import (  # noqa: F401  (re-exported)
     write_bytes,
     write_text,
 )
+from footskate.npyio import save_npy  # noqa: F401  (re-exported: the one .npy writer)
 from stablemo.errors import StableMoError
-
-
-def save_npy(path: str | os.PathLike, array: np.ndarray) -> None:
-    """Atomically write a numeric array as .npy (exactly `path`: no suffix is appended)."""
-    with atomic_open(path) as f:
-        np.save(f, np.asarray(array), allow_pickle=False)
 
 
 def check_output_file(path: str | os.PathLike, flag: str) -> Path:
