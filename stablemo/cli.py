@@ -19,11 +19,12 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "export": ("stablemo.lit.export", "main", "export a training checkpoint to an inference bundle"),
     "generate": ("stablemo.generate", "main", "generate motions from text"),
     "render": ("stablemo.render", "main", "render features or joints (.npy) as an animation"),
-    "data": ("stablemo.data.commands", "main", "dataset tools: synth, check"),
+    "data": ("stablemo.data.commands", "main", "dataset tools: synth, check, import-bvh"),
     "nets": ("stablemo.nets.summary", "main", "denoiser tools: summary"),
     "bench": ("stablemo.bench", "main", "benchmarks: aits, train"),
     "evaluate": ("stablemo.eval.command", "main", "evaluate a bundle against a dataset"),
     "footskate": ("stablemo.footskate_guidance", "main", "remove foot skating from a motion file"),
+    "bvh": ("stablemo.bvh.command", "main", "write features or joints (.npy) as BVH or an SMPL-order pose (.npz)"),
 }
 
 

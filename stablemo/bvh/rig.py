@@ -113,6 +113,11 @@ def build_rig(joints: np.ndarray, skeleton: Skeleton | str, names: tuple[str, ..
     num = skel.num_joints
     bones = joints[:, 1:] - joints[:, parents[1:]]  # (T, J-1, 3)
     lengths = np.concatenate([[0.0], np.median(np.linalg.norm(bones, axis=-1), axis=0)])  # (J,)
+    scale = max(float(lengths.max()), 1e-300)
+    for j in range(1, num):
+        if lengths[j] <= 1e-6 * scale:
+            raise StableMoError(
+                f"joints: bone {skel.joint_names[parents[j]]} -> {skel.joint_names[j]} has zero length; not a body?")
     offsets = lengths[:, None] * rest_dirs
     for joint in range(num):
         kids = [c for c in range(num) if parents[c] == joint]
@@ -163,6 +168,9 @@ def solve_rotations(joints: np.ndarray, rig: Rig) -> np.ndarray:
             local[:, j] = qmul_np(qinv_np(parent_world), rot)
         world[:, j] = qmul_np(parent_world, local[:, j])
     # one hemisphere per frame, continuous in time: a slerp between frames then takes the short way
+    if not np.all(np.isfinite(local)):
+        frame = int(np.argwhere(~np.isfinite(local))[0, 0])
+        raise StableMoError(f"joints: degenerate pose at frame {frame} (coinciding joints)")
     return continuous_hemisphere(local)
 
 

@@ -1,4 +1,5 @@
-"""`stablemo data check DIR [--dataset humanml3d|kit]` and `stablemo data synth --out DIR [--num N] [--seed S]`."""
+"""`stablemo data check DIR [--dataset humanml3d|kit]`, `stablemo data synth --out DIR [--num N] [--seed S]`
+and `stablemo data import-bvh DIR --out DATASET [--texts CSV] [--map YAML]` (stablemo/bvh/importer.py)."""
 
 from __future__ import annotations
 
@@ -21,6 +22,13 @@ def _parser() -> argparse.ArgumentParser:
     synth.add_argument("--out", required=True, help="output folder")
     synth.add_argument("--num", type=int, default=None, help="number of motions (default: the generator's)")
     synth.add_argument("--seed", type=int, default=0, help="random seed (same seed, same dataset)")
+    imp = sub.add_parser("import-bvh", help="turn a folder of BVH mocap into a HumanML3D-layout dataset")
+    imp.add_argument("dir", help="folder searched recursively for .bvh files")
+    imp.add_argument("--out", required=True, help="new dataset folder")
+    imp.add_argument("--texts", default=None, help="CSV 'file,text' with one caption per row (default: captions from the file names)")
+    imp.add_argument("--map", default=None, help="YAML {our joint name: file joint name} (default: ours/Mixamo or CMU names)")
+    imp.add_argument("--up", default="y", choices=["y", "z"], help="the files' up axis (default y)")
+    imp.add_argument("--seed", type=int, default=0, help="seed of the train/val/test split")
     return parser
 
 
@@ -32,11 +40,21 @@ def main(argv: list[str]) -> int:
         report = check_dataset(args.dir, args.dataset, cache=not args.no_cache)
         print(format_report(report, max_problems=len(report.problems) if args.all_problems else 30))
         return 0 if report.ok else 1
+    if args.command == "import-bvh":
+        from stablemo.bvh.importer import import_bvh_dir  # owned by the BVH module
+
+        if args.seed < 0:
+            raise StableMoError(f"--seed={args.seed}: must be >= 0")
+        clips = import_bvh_dir(args.dir, args.out, texts=args.texts, name_map=args.map, up=args.up, seed=args.seed)
+        print(f"wrote {len(clips)} clips ({sum(len(c.features) for c in clips)} frames at 20 fps) to {args.out}")
+        return 0
     if args.num is not None and args.num < 1:
         raise StableMoError(f"--num={args.num}: must be >= 1")
     if args.seed < 0:
         raise StableMoError(f"--seed={args.seed}: must be >= 0")
-    from stablemo.data.synth import write_dataset  # owned by the synthetic-dataset module
+    from stablemo.data.synth import (
+        write_dataset,  # owned by the synthetic-dataset module
+    )
 
     if args.num is None:
         write_dataset(args.out, seed=args.seed)

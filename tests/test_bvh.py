@@ -1,0 +1,262 @@
+"""BVH out: forward kinematics of the written file gives the joints back at any heading, for turning,
+jumping, crawling and flipping motions; rotations do not depend on the heading; resampling; the
+command and the SMPL-order pose."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from stablemo.bvh import (
+    bvh_text,
+    forward_kinematics,
+    motion_to_animation,
+    read_bvh,
+    write_bvh,
+)
+from stablemo.bvh.names import bvh_names
+from stablemo.errors import StableMoError
+from stablemo.motion import features_to_joints, joints_to_features
+from stablemo.motion.quaternion import qrot_np
+
+SAMPLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "humanml3d-sample"
+
+
+def synth_joints(action: str, seed: int = 0, rigid: bool = True, **params) -> np.ndarray:
+    """(T, 22, 3) joints of one synthetic action (stablemo.data.synth). The generator's trunk is not
+    quite rigid (its hip and chest triangles deform by ~1 mm); rigid=True gives the same motion
+    on fixed bones, as mocap and HumanML3D have, by one pass through a rig."""
+    from stablemo.data.synth import actions
+    from stablemo.data.synth.compose import build
+
+    p = actions.sample_params(action, np.random.default_rng(seed))
+    p.update(params)
+    joints = build([(action, p)], 0.2, 0.3).joints.astype(np.float64)
+    return forward_kinematics(motion_to_animation(joints)) if rigid else joints
+
+
+def rotate(joints: np.ndarray, rotvec) -> np.ndarray:
+    """Rotate every frame about the frame-0 root by axis-angle rotvec (3,) or per frame (T, 3)."""
+    r = Rotation.from_rotvec(np.array(np.broadcast_to(np.asarray(rotvec, float), (len(joints), 3))))
+    pivot = joints[:1, :1]
+    return np.einsum("tij,tkj->tki", r.as_matrix(), joints - pivot) + pivot
+
+
+def heading(joints: np.ndarray, degrees: float) -> np.ndarray:
+    return rotate(joints, [0.0, np.deg2rad(degrees), 0.0])
+
+
+def crawl(seed: int = 0) -> np.ndarray:
+    """A walk with the body pitched forward to lying (90° about x), moving along the floor."""
+    j = rotate(synth_joints("walk", seed), [np.pi / 2, 0.0, 0.0])
+    j[..., 1] -= j[..., 1].min() - 0.1
+    return j
+
+
+def flip(seed: int = 0) -> np.ndarray:
+    """A jump during which the body turns one full somersault (every pitch, upside down included)."""
+    j = synth_joints("jump", seed)
+    angles = np.linspace(0.0, 2 * np.pi, len(j))
+    centre = j[:, :1].copy()
+    r = Rotation.from_rotvec(np.stack([angles, 0 * angles, 0 * angles], 1)).as_matrix()
+    return np.einsum("tij,tkj->tki", r, j - centre) + centre
+
+
+def bvh_fk(text: str, tmp_path: Path, name: str = "m.bvh") -> tuple[np.ndarray, object]:
+    """Joints (T, 22, 3) in skeleton order from the BVH text, by the reader's forward kinematics."""
+    path = tmp_path / name
+    path.write_text(text)
+    anim = read_bvh(path)
+    order = [anim.rig.names.index(n) for n in bvh_names("humanml3d")]
+    return forward_kinematics(anim)[:, order], anim
+
+
+def errors(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(a - b, axis=-1)
+
+
+@pytest.mark.parametrize("degrees", [0, 90, 180, 270, 137])
+def test_fk_of_the_file_gives_the_joints_back_at_any_heading(tmp_path, degrees):
+    joints = heading(synth_joints("walk", 1), degrees)
+    fk, _ = bvh_fk(bvh_text(joints), tmp_path)
+    # the only error left is the file's 6 decimals
+    assert errors(fk, joints).max() < 1e-5
+
+
+@pytest.mark.parametrize("motion", ["turn", "circle", "jump", "crawl", "flip"])
+def test_fk_of_the_file_gives_the_joints_back_for_turning_jumping_crawling_flipping(tmp_path, motion):
+    joints = {"turn": lambda: synth_joints("turn", 2, angle=360), "circle": lambda: synth_joints("circle", 3),
+              "jump": lambda: synth_joints("jump", 4), "crawl": crawl, "flip": flip}[motion]()
+    fk, _ = bvh_fk(bvh_text(joints), tmp_path)
+    assert errors(fk, joints).max() < 1e-5
+    # the generator's own (slightly non-rigid) joints: within the issue's 1 cm mean / 3 cm max
+    raw = {"turn": lambda: synth_joints("turn", 2, rigid=False, angle=360), "jump": lambda: synth_joints("jump", 4, rigid=False)}
+    if motion in raw:
+        loose = raw[motion]()
+        err = errors(bvh_fk(bvh_text(loose), tmp_path)[0], loose)
+        assert err.mean() <= 0.01 and err.max() <= 0.03
+    # the body really went where the test says (the file is not trivially right)
+    if motion == "flip":
+        up = joints[:, 12] - joints[:, 0]
+        assert up[:, 1].min() < -0.2  # head below the pelvis at some frame
+    if motion == "crawl":
+        assert np.abs((joints[:, 12] - joints[:, 0])[:, 1]).max() < 0.15  # the trunk stays horizontal
+
+
+def test_real_clip_from_features_at_four_headings(tmp_path):
+    if not SAMPLE.is_dir():
+        pytest.skip("the HumanML3D sample clip is not available")
+    feats = np.load(SAMPLE / "new_joint_vecs" / "012314.npy")
+    joints = np.load(SAMPLE / "new_joints" / "012314.npy").astype(np.float64)
+    fk, _ = bvh_fk(bvh_text(feats), tmp_path)
+    assert errors(fk, joints).max() < 1e-5
+    for degrees in (90, 180, 270):
+        turned = heading(joints, degrees)
+        fk, _ = bvh_fk(bvh_text(turned), tmp_path)
+        assert errors(fk, turned).max() < 1e-5
+
+
+def test_joint_rotations_do_not_depend_on_the_heading():
+    joints = synth_joints("walk", 5)
+    base = motion_to_animation(joints).rotations
+    for degrees in (90, 180, 270):
+        turned = motion_to_animation(heading(joints, degrees)).rotations
+        # every joint below the root turns exactly as at heading 0 (same quaternion up to sign)
+        dots = np.abs((base[:, 1:] * turned[:, 1:]).sum(-1))
+        assert dots.min() > 1 - 1e-9
+        assert np.abs((base[:, 0] * turned[:, 0]).sum(-1)).min() < 0.95  # the root did turn
+
+
+def test_rotations_are_continuous_on_a_full_circle():
+    joints = synth_joints("circle", 6)  # walks through every heading
+    q = motion_to_animation(joints).rotations  # (T, J, 4)
+    step = 2 * np.degrees(np.arccos(np.clip(np.abs((q[1:] * q[:-1]).sum(-1)), 0.0, 1.0)))  # (T-1, J)
+    # 20 fps walking: no joint turns by more than ~30 degrees between frames; a twist flip would be ~180
+    assert step.max() < 45.0
+    # consecutive quaternions stay in one hemisphere (a slerp between them takes the short way)
+    assert ((q[1:] * q[:-1]).sum(-1)).min() > 0
+
+
+def test_joints_that_are_not_rigid_stay_within_a_centimetre(tmp_path):
+    # generated motions: bone lengths vary per frame and the hip/chest triangles are not rigid
+    rng = np.random.default_rng(0)
+    joints = synth_joints("walk", 7)
+    noisy = joints + rng.normal(0.0, 0.004, size=joints.shape)
+    fk, _ = bvh_fk(bvh_text(noisy), tmp_path)
+    err = errors(fk, noisy)
+    assert err.mean() <= 0.01 and err.max() <= 0.03
+    assert err.max() > 1e-4  # with fixed bone lengths the noise cannot be matched exactly
+
+
+def test_features_and_their_joints_give_the_same_file():
+    feats = joints_to_features(synth_joints("jump", 8), "humanml3d")
+    assert bvh_text(feats) == bvh_text(features_to_joints(feats.astype(np.float64), "humanml3d"))
+
+
+@pytest.mark.parametrize("fps", [30, 60, 120])
+def test_resampling_keeps_the_source_frames_and_the_bones(tmp_path, fps):
+    joints = heading(synth_joints("turn", 9, angle=180), 180)
+    fk, anim = bvh_fk(bvh_text(joints, fps=fps), tmp_path)
+    assert anim.fps == pytest.approx(fps)
+    step = {30: (3, 2), 60: (3, 1), 120: (6, 1)}[fps]  # (output frames, input frames) of one shared instant
+    shared = np.arange(0, len(fk), step[0])
+    assert errors(fk[shared], joints[shared // step[0] * step[1]]).max() < 1e-5
+    assert len(fk) == (len(joints) - 1) * fps // 20 + 1
+    # in-between frames: the same rigid bones, moving by no more than the source frames around them
+    lengths = np.linalg.norm(np.diff(fk[:, [0, 1, 4, 7]], axis=1), axis=-1)  # pelvis-hip-knee-ankle
+    assert np.ptp(lengths, axis=0).max() < 1e-5
+    speed = np.linalg.norm(np.diff(fk, axis=0), axis=-1).max() * fps
+    assert speed <= np.linalg.norm(np.diff(joints, axis=0), axis=-1).max() * 20 * 1.5
+
+
+def kit_features() -> np.ndarray:
+    """(T, 251) features of a KIT-shaped body, built from a HumanML3D motion's corresponding joints."""
+    joints = synth_joints("walk", 10)
+    kit_from_h3d = [0, 3, 6, 12, 15, 17, 19, 21, 16, 18, 20, 2, 5, 8, 11, 11, 1, 4, 7, 10, 10]
+    kit = joints[:, kit_from_h3d] * 1000.0  # millimetres
+    kit[:, [15, 20]] += np.array([0.0, 0.0, 50.0])  # toes beyond the metatarsals
+    return joints_to_features(kit, "kit")
+
+
+def test_kit_features(tmp_path):
+    from stablemo.motion import KIT
+
+    feats = kit_features()
+    target = features_to_joints(feats.astype(np.float64), "kit") / 1000.0  # the BVH is in metres
+    path = tmp_path / "kit.bvh"
+    write_bvh(path, feats)
+    anim = read_bvh(path)
+    assert anim.fps == pytest.approx(KIT.fps)
+    order = [anim.rig.names.index(n) for n in bvh_names("kit")]
+    # the constructed toes are not rigid with the feet (a fixed world offset): 0.06 mm
+    assert errors(forward_kinematics(anim)[:, order], target).max() < 2e-4
+
+
+def test_bvh_command_writes_bvh_and_smpl_npz(tmp_path, capsys):
+    from stablemo.bvh.command import main
+    from stablemo.bvh.smpl import SMPL_PARENTS
+
+    joints = heading(synth_joints("jump", 11), 200)
+    src = tmp_path / "m.joints.npy"
+    np.save(src, joints.astype(np.float32))
+    assert main([str(src), "--out", str(tmp_path / "m.bvh"), "--units", "cm", "--fps", "60"]) == 0
+    anim = read_bvh(tmp_path / "m.bvh")
+    assert anim.fps == pytest.approx(60) and anim.num_frames == (len(joints) - 1) * 3 + 1
+    order = [anim.rig.names.index(n) for n in bvh_names("humanml3d")]
+    assert errors(forward_kinematics(anim)[::3, order] / 100.0, joints).max() < 1e-5
+
+    assert main([str(src), "--out", str(tmp_path / "m.npz")]) == 0
+    d = np.load(tmp_path / "m.npz", allow_pickle=False)
+    assert d["poses"].shape == (len(joints), 72) and list(d["joint_names"][:2]) == ["pelvis", "left_hip"]
+    # posing the npz's rest skeleton with its rotations (SMPL's forward kinematics) gives the joints
+    local = Rotation.from_rotvec(d["poses"].reshape(-1, 3).astype(np.float64)).as_quat()[:, [3, 0, 1, 2]]
+    local = local.reshape(len(joints), 24, 4)
+    from stablemo.motion.quaternion import qmul_np
+
+    world = np.zeros_like(local)
+    pos = np.zeros((len(joints), 24, 3))
+    for j, p in enumerate(SMPL_PARENTS):
+        if p < 0:
+            world[:, j], pos[:, j] = local[:, j], d["root_position"]
+        else:
+            world[:, j] = qmul_np(world[:, p], local[:, j])
+            pos[:, j] = pos[:, p] + qrot_np(world[:, p], np.broadcast_to(d["rest_offsets"][j], (len(joints), 3)))
+    assert errors(pos[:, :22], joints).max() < 1e-4  # float32 file
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["{src}", "--out", "{tmp}/m.txt"], "name a .bvh or .npz file"),
+    (["{tmp}/none.npy", "--out", "{tmp}/m.bvh"], "none.npy: file not found"),
+    (["{bad}", "--out", "{tmp}/m.bvh"], "bad.npy: motion: shape (5, 7)"),
+    (["{nan}", "--out", "{tmp}/m.bvh"], "nan.npy: motion: contains NaN"),
+    (["{src}", "--out", "{tmp}/m.bvh", "--fps", "0"], "--fps: must be > 0"),
+    (["{kit}", "--out", "{tmp}/m.npz"], "SMPL order needs the 22-joint HumanML3D skeleton"),
+    (["{still}", "--out", "{tmp}/m.bvh"], "still.npy: joints: bone pelvis -> L_hip has zero length"),
+])
+def test_bvh_command_bad_input_is_one_line(tmp_path, capsys, argv, message):
+    from stablemo.cli import main
+
+    src = tmp_path / "m.npy"
+    np.save(src, synth_joints("walk", 12).astype(np.float32))
+    np.save(tmp_path / "bad.npy", np.zeros((5, 7), np.float32))
+    nan = synth_joints("walk", 12)
+    nan[3, 4, 1] = np.nan
+    np.save(tmp_path / "nan.npy", nan)
+    np.save(tmp_path / "kit.npy", kit_features())
+    np.save(tmp_path / "still.npy", np.zeros((30, 22, 3), np.float32))
+    subs = {"still": tmp_path / "still.npy", "src": src, "tmp": tmp_path, "bad": tmp_path / "bad.npy",
+            "nan": tmp_path / "nan.npy", "kit": tmp_path / "kit.npy"}
+    assert main(["bvh", *[a.format(**subs) for a in argv]]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err, err
+    assert not list(tmp_path.glob("m.bvh")) and not list(tmp_path.glob("m.npz"))
+
+
+def test_write_bvh_rejects_bad_motion():
+    with pytest.raises(StableMoError, match="NaN"):
+        bvh_text(np.full((10, 22, 3), np.nan))
+    with pytest.raises(StableMoError, match=r"shape \(10, 4\)"):
+        bvh_text(np.zeros((10, 4)))
