@@ -11,4 +11,10 @@ if [ ! -x .venv/bin/python ]; then
 fi
 .venv/bin/python -m pip install -q --upgrade pip >/dev/null
 .venv/bin/python -m pip install -q "$TORCH_SPEC"
-.venv/bin/python -m pip install -q -e ".[dev]"
+.venv/bin/python -m pip install -q -e ".[dev,serve]"
+# `stablemo serve` needs three.js from its npm package (never committed); without npm the command says how to get it
+if command -v npm >/dev/null; then
+  .venv/bin/python -m stablemo.serve.vendor || echo "setup: three.js not vendored; \`stablemo serve\` will say how to get it"
+else
+  echo "setup: npm not found, skipping three.js for \`stablemo serve\` (apt-get install npm, then: .venv/bin/python -m stablemo.serve.vendor)"
+fi

@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "bench": ("stablemo.bench", "main", "benchmarks: aits, train"),
     "evaluate": ("stablemo.eval.command", "main", "evaluate a bundle against a dataset"),
     "footskate": ("stablemo.footskate_guidance", "main", "remove foot skating from a motion file"),
+    "serve": ("stablemo.serve.command", "main", "a local web page and JSON API for generating motions"),
     "bvh": ("stablemo.bvh.command", "main", "write features or joints (.npy) as BVH or an SMPL-order pose (.npz)"),
 }
 

@@ -1,0 +1,394 @@
+// StableMo's page: a prompt box, a 3D skeleton (three.js, vendored), playback and downloads.
+// Generation follows typing: each edit waits DEBOUNCE_MS for the next keystroke, and at most one
+// request is in flight; edits made meanwhile are sent as one request when it returns, so a slow
+// model is never sent a backlog of half-typed prompts.
+import * as THREE from 'three';
+import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+
+const $ = (id) => document.getElementById(id);
+const COLOURS = { left: 0x1f6fd1, right: 0xd62f2f, center: 0x444444 };  // as stablemo.render
+const PATH_COLOUR = 0x2a9d5c;
+const DEBOUNCE_MS = 40;
+const CAMERA_OFFSET = new THREE.Vector3(2.4, 1.1, 3.4);  // from the pelvis: front-left, above
+
+// Everything the browser test and the latency measurement read (window.stablemo).
+const S = window.stablemo = {
+  ready: false,        // /api/info loaded and the renderer running
+  info: null,
+  motion: null,        // the motion on screen: {spec, text, seed, frames, fps, J, joints: Float32Array (T*J*3)}
+  frame: 0,            // the frame drawn last
+  playing: true,
+  speed: 1,
+  drawCount: 0,        // frames drawn with a motion
+  error: null,         // the error shown, or null
+  timings: [],         // per motion: {id, text, model, input, send, response, rendered, drawn} (performance.now ms)
+  screenPose: null,    // canvas pixel [x, y] of each joint of the frame drawn last
+  worldPose: null,     // world [x, y, z] (metres) of each joint of the frame drawn last
+};
+
+// ---- scene --------------------------------------------------------------------------------
+
+const canvas = $('canvas');
+const renderer = new THREE.WebGLRenderer({ canvas, antialias: true });
+renderer.setPixelRatio(window.devicePixelRatio);
+const scene = new THREE.Scene();
+scene.background = new THREE.Color(0xf4f4f2);
+const camera = new THREE.PerspectiveCamera(40, 1, 0.05, 200);
+const controls = new OrbitControls(camera, canvas);
+controls.target.set(0, 0.9, 0);
+camera.position.copy(controls.target).add(CAMERA_OFFSET);
+controls.update();
+
+// Cheap to draw on purpose: without a GPU the browser renders in software on the cores that also
+// generate (a shadow map and a lit floor cost ~3x per frame there), so the floor is unlit and the
+// shadow is the skeleton flattened onto it.
+scene.add(new THREE.HemisphereLight(0xffffff, 0x8c8c84, 2.2));
+const sun = new THREE.DirectionalLight(0xffffff, 1.2);
+sun.position.set(3, 8, 4);
+scene.add(sun);
+// The floor's 0.5 m grid (as in the GIFs) is a repeated texture drawn here: one draw call, and
+// no long lines through the camera plane (software WebGL drops those whole)
+const FLOOR_SIZE = 60;
+const tile = document.createElement('canvas');
+tile.width = tile.height = 64;
+const ctx = tile.getContext('2d');
+ctx.fillStyle = '#e9e9e4';
+ctx.fillRect(0, 0, 64, 64);
+ctx.fillStyle = '#b4b4ae';
+ctx.fillRect(0, 0, 64, 2);
+ctx.fillRect(0, 0, 2, 64);
+const floorTexture = new THREE.CanvasTexture(tile);
+floorTexture.wrapS = floorTexture.wrapT = THREE.RepeatWrapping;
+floorTexture.repeat.set(FLOOR_SIZE / 0.5, FLOOR_SIZE / 0.5);
+floorTexture.anisotropy = renderer.capabilities.getMaxAnisotropy();
+floorTexture.colorSpace = THREE.SRGBColorSpace;
+// polygon offset: the floor's depth is pushed back so the path and shadow lines drawn just above it
+// win the depth test even with a 16-bit depth buffer
+const floor = new THREE.Mesh(new THREE.PlaneGeometry(FLOOR_SIZE, FLOOR_SIZE), new THREE.MeshBasicMaterial(
+  { map: floorTexture, polygonOffset: true, polygonOffsetFactor: 2, polygonOffsetUnits: 2 }));
+floor.rotation.x = -Math.PI / 2;
+scene.add(floor);
+
+let figure = null;     // {group, joints: Mesh[], bones: [{mesh, a, b}], key}
+let pathLine = null;   // the pelvis path on the floor
+const pathMarker = new THREE.Mesh(new THREE.RingGeometry(0.06, 0.09, 24),
+                                  new THREE.MeshBasicMaterial({ color: PATH_COLOUR, side: THREE.DoubleSide }));
+pathMarker.rotation.x = -Math.PI / 2;
+pathMarker.visible = false;
+scene.add(pathMarker);
+
+function buildFigure(skeleton) {
+  const key = skeleton.name;
+  if (figure && figure.key === key) return;
+  if (figure) scene.remove(figure.group);
+  const group = new THREE.Group();
+  const side = new Array(skeleton.parents.length).fill('center');
+  skeleton.chains.forEach((chain, c) => chain.slice(1).forEach((j) => { side[j] = skeleton.sides[c]; }));
+  const materials = Object.fromEntries(Object.entries(COLOURS).map(([k, v]) => [k, new THREE.MeshLambertMaterial({ color: v })]));
+  const head = skeleton.chains.find((c, i) => skeleton.sides[i] === 'center').at(-1);
+  const joints = skeleton.parents.map((_, j) => {
+    const r = j === head ? 0.085 : j === 0 ? 0.05 : 0.032;
+    const m = new THREE.Mesh(new THREE.SphereGeometry(r, 16, 12), materials[side[j]]);
+    group.add(m);
+    return m;
+  });
+  const bones = [];
+  skeleton.chains.forEach((chain, c) => {
+    for (let i = 1; i < chain.length; i++) {
+      const mesh = new THREE.Mesh(new THREE.CylinderGeometry(0.022, 0.022, 1, 10), materials[skeleton.sides[c]]);
+      group.add(mesh);
+      bones.push({ mesh, a: chain[i - 1], b: chain[i] });
+    }
+  });
+  const shadowGeometry = new THREE.BufferGeometry();
+  shadowGeometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(bones.length * 6), 3));
+  const shadow = new THREE.LineSegments(shadowGeometry, new THREE.LineBasicMaterial({ color: 0x7a7a7a }));
+  group.add(shadow);
+  scene.add(group);
+  figure = { group, joints, bones, shadow, key };
+}
+
+const UP = new THREE.Vector3(0, 1, 0);
+const tmpA = new THREE.Vector3(), tmpB = new THREE.Vector3(), tmpD = new THREE.Vector3();
+
+function jointAt(m, f, j, out) {
+  const o = (f * m.J + j) * 3;
+  return out.set(m.joints[o] * m.scale, m.joints[o + 1] * m.scale, m.joints[o + 2] * m.scale);
+}
+
+function pose(f) {
+  const m = S.motion;
+  figure.joints.forEach((mesh, j) => jointAt(m, f, j, mesh.position));
+  const shadow = figure.shadow.geometry.attributes.position;
+  figure.bones.forEach(({ mesh, a, b }, i) => {
+    jointAt(m, f, a, tmpA);
+    jointAt(m, f, b, tmpB);
+    shadow.setXYZ(2 * i, tmpA.x, 0.002, tmpA.z);
+    shadow.setXYZ(2 * i + 1, tmpB.x, 0.002, tmpB.z);
+    tmpD.subVectors(tmpB, tmpA);
+    const len = tmpD.length();
+    mesh.position.addVectors(tmpA, tmpB).multiplyScalar(0.5);
+    mesh.scale.set(1, Math.max(len, 1e-4), 1);
+    if (len > 1e-6) mesh.quaternion.setFromUnitVectors(UP, tmpD.divideScalar(len));
+  });
+  shadow.needsUpdate = true;
+  const pelvis = figure.joints[0].position;
+  pathMarker.position.set(pelvis.x, 0.004, pelvis.z);
+}
+
+function buildPath(m) {
+  if (pathLine) { scene.remove(pathLine); pathLine.geometry.dispose(); }
+  const pts = [];
+  for (let f = 0; f < m.frames; f++) {
+    const p = jointAt(m, f, 0, new THREE.Vector3());
+    pts.push(new THREE.Vector3(p.x, 0.003, p.z));
+  }
+  pathLine = new THREE.Line(new THREE.BufferGeometry().setFromPoints(pts), new THREE.LineBasicMaterial({ color: PATH_COLOUR }));
+  scene.add(pathLine);
+  pathMarker.visible = true;
+}
+
+function followCamera() {
+  const p = figure.joints[0].position;
+  const goal = tmpA.set(p.x, 0.9, p.z);
+  const delta = tmpB.subVectors(goal, controls.target);
+  controls.target.add(delta);
+  camera.position.add(delta);
+}
+
+function resize() {
+  const w = canvas.clientWidth, h = canvas.clientHeight;
+  if (canvas.width !== Math.floor(w * renderer.getPixelRatio()) || canvas.height !== Math.floor(h * renderer.getPixelRatio())) {
+    renderer.setSize(w, h, false);
+    camera.aspect = w / Math.max(h, 1);
+    camera.updateProjectionMatrix();
+    return true;
+  }
+  return false;
+}
+
+S.three = { scene, camera, renderer, controls, floor };  // for debugging in the console
+
+// ---- playback loop ------------------------------------------------------------------------
+
+let framePos = 0, lastTick = performance.now(), dirtyView = true;
+controls.addEventListener('change', () => { dirtyView = true; });
+let firstDraw = null;   // timing record of a motion not drawn yet
+let presented = null;   // timing record drawn by the previous tick (shown on screen by now)
+
+function tick() {
+  requestAnimationFrame(tick);
+  const now = performance.now();
+  if (presented) {  // the frame rendered in the previous callback has gone to the screen
+    presented.drawn = now;
+    showTiming(presented);
+    presented = null;
+  }
+  const dt = Math.min((now - lastTick) / 1000, 0.1);
+  lastTick = now;
+  if (resize()) dirtyView = true;
+  const m = S.motion;
+  let f = -1;
+  if (m) {
+    if (S.playing) framePos = (framePos + dt * m.fps * S.speed) % m.frames;
+    f = Math.min(Math.floor(framePos), m.frames - 1);
+    if (f !== S.frame || firstDraw) {
+      pose(f);
+      if ($('follow').checked) followCamera();
+      dirtyView = true;
+    }
+  }
+  controls.update();
+  // only when something moved: a 20 fps motion needs 20 renders a second, not the display's 60
+  if (!dirtyView) return;
+  dirtyView = false;
+  renderer.render(scene, camera);
+  if (m) {
+    S.frame = f;
+    S.drawCount++;
+    recordPose();
+    if ($('scrub').value !== String(f)) $('scrub').value = f;
+    $('clock').textContent = `frame ${f + 1} / ${m.frames} · ${(f / m.fps).toFixed(2)} s / ${(m.frames / m.fps).toFixed(2)} s`;
+    if (firstDraw) { firstDraw.rendered = performance.now(); presented = firstDraw; firstDraw = null; }
+  }
+}
+
+function recordPose() {
+  const w = canvas.clientWidth, h = canvas.clientHeight;
+  S.worldPose = figure.joints.map((j) => j.position.toArray());
+  S.screenPose = figure.joints.map((j) => {
+    const v = j.position.clone().project(camera);
+    return [(v.x + 1) / 2 * w, (1 - v.y) / 2 * h];
+  });
+}
+
+// ---- requests -----------------------------------------------------------------------------
+
+let inflight = false, dirty = false, debounce = null, lastInput = performance.now(), seq = 0;
+
+function modelInfo(name) { return S.info.models.find((m) => m.name === name); }
+
+function currentSpec() {
+  const spec = { text: $('prompt').value, seconds: Number($('seconds').value), seed: Number($('seed').value),
+                 model: $('model').value, footskate: $('footskate').checked };
+  if ($('sampler').value) spec.sampler = $('sampler').value;
+  if ($('steps').value !== '') spec.steps = Number($('steps').value);
+  if ($('cfg').value !== '') spec.cfg = Number($('cfg').value);
+  return spec;
+}
+
+function schedule(delay = DEBOUNCE_MS) {
+  lastInput = performance.now();
+  clearTimeout(debounce);
+  debounce = setTimeout(submit, delay);
+}
+
+async function submit() {
+  if (inflight) { dirty = true; return; }
+  inflight = true;
+  dirty = false;
+  const spec = currentSpec();
+  const rec = { id: ++seq, text: spec.text, model: spec.model, seed: spec.seed, input: lastInput, send: performance.now() };
+  setStatus('generating…');
+  try {
+    const res = await fetch('/api/generate', {
+      method: 'POST', headers: { 'Content-Type': 'application/json' },
+      body: JSON.stringify({ ...spec, encoding: 'base64', features: false }),
+    });
+    const data = await res.json().catch(() => ({ error: `HTTP ${res.status}: the answer is not JSON` }));
+    if (!res.ok) showError(data.error || `HTTP ${res.status}`);
+    else { rec.response = performance.now(); rec.server = data.timing; setMotion(data, spec, rec); }
+  } catch (err) {
+    showError(`no answer from the server (${err.message})`);
+  } finally {
+    inflight = false;
+    if (dirty) submit();
+  }
+}
+
+function decode(arr) {
+  const bytes = Uint8Array.from(atob(arr.base64), (c) => c.charCodeAt(0));
+  return new Float32Array(bytes.buffer);  // little-endian, as every browser's platform
+}
+
+function setMotion(data, spec, rec) {
+  const model = modelInfo(data.model);
+  const [T, J] = data.joints.shape;
+  buildFigure(model.skeleton);
+  S.motion = { spec, text: data.text, seed: data.seed, model: data.model, frames: T, J, fps: data.fps,
+               steps: data.steps, sampler: data.sampler, cfg: data.cfg, joints: decode(data.joints),
+               scale: model.skeleton.units === 'mm' ? 0.001 : 1 };
+  buildPath(S.motion);
+  framePos = 0;
+  $('scrub').max = T - 1;
+  firstDraw = rec;
+  S.error = null;
+  setStatus('');
+  document.querySelectorAll('#downloads button').forEach((b) => { b.disabled = false; });
+}
+
+function setStatus(text) {
+  if (S.error && text === 'generating…') return;  // keep an error visible until a motion replaces it
+  $('status').textContent = text;
+  $('status').className = '';
+}
+
+function showError(message) {
+  S.error = message;
+  $('status').textContent = message;
+  $('status').className = 'error';
+}
+
+function showTiming(rec) {
+  S.timings.push(rec);
+  const server = rec.server ? ` (model ${rec.server.compute_ms.toFixed(0)} ms)` : '';
+  $('timing').textContent = `prompt → first frame: ${(rec.drawn - rec.send).toFixed(0)} ms${server}; `
+    + `from the last keystroke: ${(rec.drawn - rec.input).toFixed(0)} ms`;
+}
+
+async function download(format) {
+  const m = S.motion;
+  if (!m) return;
+  setStatus(`preparing ${format}…`);
+  try {
+    const res = await fetch('/api/download', { method: 'POST', headers: { 'Content-Type': 'application/json' },
+                                               body: JSON.stringify({ ...m.spec, format }) });
+    if (!res.ok) {
+      const data = await res.json().catch(() => ({}));
+      showError(data.error || `HTTP ${res.status}`);
+      return;
+    }
+    const blob = await res.blob();
+    const match = /filename="([^"]+)"/.exec(res.headers.get('Content-Disposition') || '');
+    const a = document.createElement('a');
+    a.href = URL.createObjectURL(blob);
+    a.download = match ? match[1] : `motion.${format}`;
+    document.body.append(a);
+    a.click();
+    a.remove();
+    setTimeout(() => URL.revokeObjectURL(a.href), 30000);
+    setStatus('');
+  } catch (err) {
+    showError(`download failed (${err.message})`);
+  }
+}
+
+// ---- controls -----------------------------------------------------------------------------
+
+function applyModel(name) {
+  const model = modelInfo(name);
+  const sampler = $('sampler');
+  sampler.replaceChildren(new Option(`default (${model.defaults.sampler})`, ''),
+                          ...model.samplers.map((s) => new Option(s, s)));
+  $('steps').placeholder = `default ${model.defaults.steps}`;
+  $('cfg').placeholder = `default ${model.defaults.cfg}`;
+  const seconds = $('seconds');
+  seconds.min = Math.ceil((model.min_frames / model.fps) * 2) / 2;
+  seconds.max = Math.floor((model.max_frames / model.fps) * 2) / 2;
+}
+
+function togglePlay() {
+  S.playing = !S.playing;
+  $('play').textContent = S.playing ? 'Pause' : 'Play';
+}
+
+async function start() {
+  try {
+    const res = await fetch('/api/info');
+    S.info = await res.json();
+  } catch (err) {
+    showError(`no answer from the server (${err.message})`);
+    return;
+  }
+  const select = $('model');
+  select.replaceChildren(...S.info.models.map((m) => new Option(m.label, m.name)));
+  select.value = S.info.default;
+  applyModel(select.value);
+  buildFigure(modelInfo(select.value).skeleton);
+  $('prompt').addEventListener('input', () => { if ($('live').checked) schedule(); });
+  $('prompt').addEventListener('keydown', (e) => { if (e.key === 'Enter') schedule(0); });
+  $('generate').addEventListener('click', () => schedule(0));
+  select.addEventListener('change', () => { applyModel(select.value); schedule(0); });
+  for (const id of ['seconds', 'seed', 'sampler', 'steps', 'cfg', 'footskate']) {
+    $(id).addEventListener('change', () => schedule(0));
+  }
+  $('reseed').addEventListener('click', () => { $('seed').value = Math.floor(Math.random() * 1e6); schedule(0); });
+  $('play').addEventListener('click', togglePlay);
+  $('speed').addEventListener('change', () => { S.speed = Number($('speed').value); });
+  $('scrub').addEventListener('input', () => {
+    if (S.playing) togglePlay();
+    framePos = Number($('scrub').value);
+  });
+  document.addEventListener('keydown', (e) => {
+    if (e.key === ' ' && !['INPUT', 'SELECT', 'TEXTAREA', 'BUTTON'].includes(document.activeElement.tagName)) {
+      e.preventDefault();
+      togglePlay();
+    }
+  });
+  document.querySelectorAll('#downloads button').forEach((b) => b.addEventListener('click', () => download(b.dataset.format)));
+  setStatus('type a motion above; it is generated as you type');
+  requestAnimationFrame(tick);
+  S.ready = true;
+}
+
+start();

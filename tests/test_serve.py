@@ -1,0 +1,232 @@
+"""`stablemo serve`: the JSON API against offline generation, its errors, its queue, downloads,
+the page's assets (nothing from the network) and the vendoring of three.js."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import io
+import json
+import re
+import tarfile
+import threading
+import urllib.request
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("fastapi")
+pytest.importorskip("httpx")  # FastAPI's TestClient
+
+from fastapi.testclient import TestClient
+
+from stablemo.cli import main as cli_main
+from stablemo.errors import StableMoError
+from stablemo.pipeline import Request
+from stablemo.serve import vendor as vendor_mod
+from stablemo.serve.api import STATIC_DIR, Busy, Worker, create_app
+from stablemo.serve.local import serving
+from stablemo.serve.models import ModelSet
+
+DEMO = Path(__file__).resolve().parents[1] / "stablemo" / "assets" / "demo_bundle"
+
+
+@pytest.fixture(scope="module")
+def models():
+    return ModelSet({"teacher": DEMO})
+
+
+@pytest.fixture(scope="module")
+def client(models):
+    with TestClient(create_app(models)) as c:
+        yield c
+
+
+def offline(models, text, frames, seed, **kw):
+    pipe = models.models["teacher"].pipeline
+    g = pipe.generate(Request([text], frames, seed=seed, **kw))
+    return g.joint_list()[0], g.feature_list()[0]
+
+
+def decode(arr):
+    return np.frombuffer(base64.b64decode(arr["base64"]), dtype="<f4").reshape(arr["shape"])
+
+
+def test_generate_equals_offline_generation(client, models):
+    body = {"text": "a person jumps, then turns left", "frames": 44, "seed": 7, "steps": 2}
+    res = client.post("/api/generate", json=body)
+    assert res.status_code == 200, res.text
+    data = res.json()
+    joints, feats = offline(models, body["text"], 44, 7, steps=2)
+    assert (data["frames"], data["fps"], data["seed"], data["steps"], data["cfg"]) == (44, 20.0, 7, 2, 2.5)
+    assert np.array_equal(np.asarray(data["joints"], dtype=np.float32), joints)  # lists: every float32 exact
+    assert np.array_equal(np.asarray(data["features"], dtype=np.float32), feats)
+    res = client.post("/api/generate", json={**body, "encoding": "base64", "features": False})
+    data = res.json()
+    assert "features" not in data and data["timing"]["cached"] is True
+    assert np.array_equal(decode(data["joints"]), joints)
+    # another seed is another motion; seconds are converted at the model's frame rate
+    other = client.post("/api/generate", json={**body, "seed": 8, "frames": None, "seconds": 2.2}).json()
+    assert other["frames"] == 44 and not np.array_equal(np.asarray(other["joints"], dtype=np.float32), joints)
+
+
+@pytest.mark.parametrize("body, message", [
+    ({"text": "   "}, "text: empty prompt"),
+    ({"seconds": 3}, "text: expected a string, got null"),
+    ({"text": "walk", "seconds": 30}, "seconds: 30 s is 600 frames, outside this model's range [40, 196] frames"),
+    ({"text": "walk", "frames": 12.5}, "frames: expected a whole number"),
+    ({"text": "walk", "seconds": 3, "frames": 60}, "seconds: give seconds or frames, not both"),
+    ({"text": "walk", "seed": -1}, "seed: must be in [0,"),
+    ({"text": "walk", "seed": "1"}, "seed: expected a whole number"),
+    ({"text": "walk", "steps": 0}, "steps: must be >= 1"),
+    ({"text": "walk", "steps": 5000}, "steps: must be an integer in [1, 1000]"),
+    ({"text": "walk", "cfg": -1}, "cfg: must be >= 0"),
+    ({"text": "walk", "sampler": "euler"}, "sampler: unknown 'euler'"),
+    ({"text": "walk", "model": "other"}, "model: unknown 'other'; served: teacher"),
+    ({"text": "walk", "stpes": 3}, "stpes: unknown field"),
+    ({"text": "walk", "footskate": "yes"}, "footskate: expected true or false"),
+    ({"text": "walk", "encoding": "msgpack"}, "encoding: expected one of lists, base64"),
+    ({"text": "x" * 1001}, "text: 1001 characters, at most 1000"),
+    ([1, 2], "request: expected a JSON object"),
+])
+def test_bad_input_is_400_with_one_line(client, body, message):
+    res = client.post("/api/generate", json=body)
+    assert res.status_code == 400
+    error = res.json()["error"]
+    assert error.startswith(message) and "\n" not in error
+
+
+def test_bad_json_and_bad_download_format(client):
+    res = client.post("/api/generate", content=b'{"text": "walk",', headers={"Content-Type": "application/json"})
+    assert res.status_code == 400 and res.json()["error"].startswith("request: the body is not valid JSON")
+    res = client.post("/api/download", json={"text": "walk", "format": "mp3"})
+    assert res.status_code == 400 and res.json()["error"].startswith("format: expected one of")
+
+
+def test_downloads_are_the_shown_motion(client, models):
+    body = {"text": "a person waves", "frames": 40, "seed": 2, "steps": 1}
+    joints, feats = offline(models, body["text"], 40, 2, steps=1)
+    res = client.post("/api/download", json={**body, "format": "joints.npy"})
+    assert res.status_code == 200
+    assert res.headers["content-disposition"] == 'attachment; filename="a-person-waves-seed2.joints.npy"'
+    assert np.array_equal(np.load(io.BytesIO(res.content), allow_pickle=False), joints)
+    res = client.post("/api/download", json={**body, "format": "features.npy"})
+    assert np.array_equal(np.load(io.BytesIO(res.content), allow_pickle=False), feats)
+    res = client.post("/api/download", json={**body, "format": "gif"})
+    assert res.status_code == 200 and res.content[:6] == b"GIF89a"
+    from PIL import Image
+
+    assert Image.open(io.BytesIO(res.content)).n_frames == 40
+
+
+def test_info_describes_the_model(client):
+    info = client.get("/api/info").json()
+    assert info["default"] == "teacher"
+    (model,) = info["models"]
+    assert model["defaults"] == {"sampler": "dpmpp_2m_sde", "steps": 10, "cfg": 2.5}
+    assert (model["min_frames"], model["max_frames"], model["fps"]) == (40, 196, 20.0)
+    assert len(model["skeleton"]["parents"]) == 22 and model["skeleton"]["sides"].count("center") == 1
+
+
+def test_concurrent_requests_queue_and_none_is_mixed_up(models):
+    """8 requests, 4 at a time, through a real socket: each answer is its own seed's motion."""
+    with serving(create_app(models)) as url:
+        def post(seed):
+            body = json.dumps({"text": "a person runs in a circle", "frames": 40, "seed": seed, "steps": 1,
+                               "encoding": "base64"}).encode()
+            req = urllib.request.Request(f"{url}/api/generate", body, {"Content-Type": "application/json"})
+            with urllib.request.urlopen(req, timeout=60) as res:
+                return json.loads(res.read())
+
+        with ThreadPoolExecutor(4) as pool:
+            answers = list(pool.map(post, range(100, 108)))
+    for seed, data in zip(range(100, 108), answers):
+        assert data["seed"] == seed
+        assert np.array_equal(decode(data["joints"]), offline(models, "a person runs in a circle", 40, seed, steps=1)[0])
+
+
+def test_worker_runs_one_job_at_a_time_and_refuses_past_its_queue():
+    worker = Worker(max_queue=2, name="test")
+    gate, running, peak = threading.Event(), [], []
+
+    def job(i):
+        running.append(i)
+        peak.append(len(running))
+        gate.wait(10)
+        running.remove(i)
+        return i
+
+    async def scenario():
+        first = asyncio.ensure_future(worker.run(job, 1))
+        second = asyncio.ensure_future(worker.run(job, 2))
+        await asyncio.sleep(0.05)
+        with pytest.raises(Busy, match="2 requests are waiting"):
+            await worker.run(job, 3)
+        gate.set()
+        return await asyncio.gather(first, second)
+
+    assert asyncio.run(scenario()) == [1, 2]
+    assert max(peak) == 1  # never two generations at once
+    worker.shutdown()
+
+
+def test_page_loads_nothing_from_the_network():
+    html = (STATIC_DIR / "index.html").read_text()
+    app_js = (STATIC_DIR / "app.js").read_text()
+    for text in (html, app_js, (STATIC_DIR / "style.css").read_text()):
+        assert not re.search(r"(https?:)?//[a-z0-9.-]+\.[a-z]{2,}/", text), "an absolute URL in the page"
+    imports = json.loads(re.search(r'<script type="importmap">(.*?)</script>', html, re.DOTALL).group(1))["imports"]
+    assert all(v.startswith("/static/vendor/") for v in imports.values())
+    for spec in re.findall(r"from '([^']+)'", app_js):
+        target = imports.get(spec) or next(v + spec[len(k):] for k, v in imports.items()
+                                          if k.endswith("/") and spec.startswith(k))
+        rel = target[len("/static/"):]
+        assert rel.split("/")[1] == "three"
+        assert rel[len("vendor/"):] in vendor_mod.FILES.values()  # vendored by stablemo.serve.vendor
+
+
+def test_serve_command_says_how_to_get_three_js(monkeypatch, tmp_path, capsys):
+    monkeypatch.setattr(vendor_mod, "VENDOR_DIR", tmp_path / "vendor")
+    assert cli_main(["serve"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "python -m stablemo.serve.vendor" in err and "npm" in err
+    for argv, message in ((["serve", "--port", "0"], "--port: must be in [1, 65535]"),
+                          (["serve", "--bundle", str(tmp_path / "nope")], "bundle folder not found")):
+        assert cli_main(argv) == 2
+        assert message in capsys.readouterr().err
+
+
+def _fake_npm(tmp_path: Path, payload: bytes) -> Path:
+    """An `npm` that 'packs' a tarball with our file names and the given content."""
+    tgz = tmp_path / "three.tgz"
+    with tarfile.open(tgz, "w:gz") as tar:
+        for member in vendor_mod.FILES:
+            info = tarfile.TarInfo(member)
+            info.size = len(payload)
+            tar.addfile(info, io.BytesIO(payload))
+    npm = tmp_path / "npm"
+    npm.write_text(f'#!/bin/sh\n# args: pack three@VERSION --silent --pack-destination DIR\ncp {tgz} "$5/three-{vendor_mod.THREE_VERSION}.tgz"\n')
+    npm.chmod(0o755)
+    return npm
+
+
+def test_vendor_refuses_a_tarball_that_is_not_the_pinned_release(tmp_path):
+    npm = _fake_npm(tmp_path, b"export const tampered = 1;\n")
+    with pytest.raises(StableMoError, match="integrity sha512-.* is not the pinned"):
+        vendor_mod.vendor(tmp_path / "vendor", npm=str(npm))
+    assert not (tmp_path / "vendor").exists()  # nothing half-vendored
+    assert "not vendored" in vendor_mod.missing(tmp_path / "vendor")
+
+
+def test_vendor_copies_the_pinned_files(tmp_path, monkeypatch):
+    payload = b"// stand-in\n"
+    npm = _fake_npm(tmp_path, payload)
+    tgz = (tmp_path / "three.tgz").read_bytes()
+    import hashlib
+
+    monkeypatch.setattr(vendor_mod, "THREE_INTEGRITY", "sha512-" + base64.b64encode(hashlib.sha512(tgz).digest()).decode())
+    out = vendor_mod.vendor(tmp_path / "vendor", npm=str(npm))
+    assert vendor_mod.missing(out) is None
+    assert all((out / dest).read_bytes() == payload for dest in vendor_mod.FILES.values())
