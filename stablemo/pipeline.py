@@ -34,6 +34,7 @@ from stablemo.runtime import resolve_device, resolve_dtype
 from stablemo.hooks import SampleHook, StepState, apply_hooks
 from stablemo.inference_config import InferenceConfig, check_finite, check_positive_int, check_seed
 from stablemo.kinds import Denoise, ModelKind, model_kind
+from stablemo.control.spec import Inpaint, JointControl
 
 # (pipeline, texts, motion_mask (B, T), cfg, network dtype, planned timesteps) -> denoise(x_t, t).
 # The default encodes the texts once and asks the bundle's kind; the benchmarks pass their
@@ -46,7 +47,9 @@ class Request:
     """One generation request. seed: an int (sample i uses seed + i) or one per text; sampler,
     steps, cfg: None = the bundle's inference config; dtype: network precision (None = the
     pipeline's); hooks: sample hooks, applied in this order; batch_size: split large requests into
-    chunks (results do not depend on it)."""
+    chunks (results do not depend on it); inpaint: known features per prompt (`stablemo.control.
+    Inpaint`, or None for a free prompt), imposed inside the sampler; control: joint targets per
+    prompt (`stablemo.control.JointControl` or None), reached by guidance after the hooks."""
 
     texts: Sequence[str]
     lengths: int | Sequence[int]
@@ -58,6 +61,8 @@ class Request:
     hooks: Sequence[SampleHook] = ()
     batch_size: int | None = None
     progress: bool = False
+    inpaint: "Inpaint | Sequence[Inpaint | None] | None" = None
+    control: "JointControl | Sequence[JointControl | None] | None" = None
 
 
 @dataclass
@@ -277,8 +282,32 @@ class Pipeline:
                 raise StableMoError(f"hooks[{i}]: {type(hook).__name__} is not a sample hook "
                                     "(it needs active(step, steps) and __call__(state); see stablemo.hooks)")
         dtype = self.dtype if request.dtype is None else resolve_dtype(request.dtype, self.device)
+        inpaint = self._per_prompt(request.inpaint, Inpaint, "inpaint", lengths,
+                                   lambda spec, n, what: spec.resolve(n, self.mean.shape[0], what))
+        control = self._per_prompt(request.control, JointControl, "control", lengths,
+                                   lambda spec, n, what: spec.resolve(n, self.skeleton, what))
         return replace(request, texts=texts, lengths=lengths, seed=seeds, sampler=sampler, steps=steps, cfg=cfg,
-                       dtype=dtype, hooks=list(request.hooks))
+                       dtype=dtype, hooks=list(request.hooks), inpaint=inpaint, control=control)
+
+    @staticmethod
+    def _per_prompt(value, cls, name: str, lengths: list[int], resolve) -> list | None:
+        """One checked spec (arrays) or None per prompt; None when no prompt has one."""
+        if value is None:
+            return None
+        items = [value] * len(lengths) if isinstance(value, cls) else list(value)
+        if len(items) != len(lengths):
+            raise StableMoError(f"{name}: {len(items)} entries for {len(lengths)} prompts")
+        out = []
+        for i, (item, n) in enumerate(zip(items, lengths)):
+            if item is None:
+                out.append(None)
+            elif isinstance(item, cls):
+                out.append(resolve(item, n, f"{name}[{i}]"))
+            elif isinstance(item, tuple) and len(item) == 2:  # already resolved (a resolved request)
+                out.append(item)
+            else:
+                raise StableMoError(f"{name}[{i}]: expected a {cls.__name__} or None, got {type(item).__name__}")
+        return out if any(item is not None for item in out) else None
 
     # ---- generation -------------------------------------------------------------------------
 
@@ -305,7 +334,9 @@ class Pipeline:
         parts = []
         for start in range(0, len(req.texts), chunk):
             sl = slice(start, start + chunk)
-            parts.append(self._generate_batch(req.texts[sl], req.lengths[sl], req.seed[sl], req, factory))
+            parts.append(self._generate_batch(req.texts[sl], req.lengths[sl], req.seed[sl], req, factory,
+                                              req.inpaint[sl] if req.inpaint else None,
+                                              req.control[sl] if req.control else None))
         T = max(p.shape[1] for p in parts)
         normalized = torch.cat([torch.nn.functional.pad(p, (0, 0, 0, T - p.shape[1])) for p in parts])
         mask = torch.arange(T)[None, :] < torch.tensor(req.lengths)[:, None]
@@ -326,7 +357,8 @@ class Pipeline:
         joints = features_to_joints(features, self.skeleton)
         return torch.where(mask[:, :, None, None], joints, torch.zeros((), dtype=joints.dtype))
 
-    def _generate_batch(self, texts, lengths, seeds, req: Request, factory: DenoiserFactory) -> torch.Tensor:
+    def _generate_batch(self, texts, lengths, seeds, req: Request, factory: DenoiserFactory,
+                        inpaint: list | None = None, control: list | None = None) -> torch.Tensor:
         B, D = len(texts), self.mean.shape[0]
         mult = self.length_multiple
         T = int(math.ceil(max(lengths) / mult) * mult)
@@ -338,18 +370,52 @@ class Pipeline:
         timesteps = sampler.timesteps(self.schedule, req.steps)
         denoise = factory(self, list(texts), mask, req.cfg, req.dtype, timesteps)
 
+        hooks = list(req.hooks)
+        if control is not None:  # joint targets last: after the other hooks (e.g. foot skating) moved the body
+            hooks.append(self._joint_guidance(control, T))
+        extra = {}
+        if inpaint is not None:
+            extra["inpaint"] = self._inpainting(inpaint, x_T)
         callback = None
-        if req.hooks:
+        if hooks:
             def callback(i, t, x0):
-                return apply_hooks(req.hooks, StepState(i, req.steps, int(t), x0, mask, list(lengths)))
+                return apply_hooks(hooks, StepState(i, req.steps, int(t), x0, mask, list(lengths)))
 
         # inference_mode is the fastest context, but its tensors cannot enter autograd: with hooks
         # the loop runs under no_grad so a hook may differentiate through its own computations
-        with torch.no_grad() if req.hooks else torch.inference_mode():
+        with torch.no_grad() if hooks else torch.inference_mode():
             x0 = sampler.run(denoise, x_T, self.schedule, req.steps, noise=noise, callback=callback,
-                             prediction_type=self.prediction_type, progress=req.progress)
+                             prediction_type=self.prediction_type, progress=req.progress, **extra)
         x0 = torch.where(mask[..., None], x0.float(), torch.zeros((), device=x0.device))
         return x0.cpu()
+
+
+    def _inpainting(self, specs: list, x_T: torch.Tensor):
+        """The batch's Inpainting: known values normalised, padded to x_T's (B, T, D)."""
+        from stablemo.diffusion.inpainting import Inpainting
+
+        values, known = torch.zeros_like(x_T), torch.zeros(x_T.shape, dtype=torch.bool, device=x_T.device)
+        for i, spec in enumerate(specs):
+            if spec is not None:
+                feats, keep = (torch.from_numpy(a).to(x_T.device) for a in spec)
+                n = feats.shape[0]
+                values[i, :n] = torch.where(keep, self.normalize(feats), torch.zeros(()))
+                known[i, :n] = keep
+        return Inpainting(values, known, x_T)
+
+    def _joint_guidance(self, specs: list, T: int):
+        """The batch's JointGuidance hook: targets (B, T, J, 3) and mask (B, T, J), padded."""
+        from stablemo.control.guidance import JointGuidance
+        from stablemo.motion.skeleton import get_skeleton
+
+        J = get_skeleton(self.skeleton).num_joints
+        targets, mask = torch.zeros(len(specs), T, J, 3), torch.zeros(len(specs), T, J, dtype=torch.bool)
+        for i, spec in enumerate(specs):
+            if spec is not None:
+                pos, keep = spec
+                targets[i, :pos.shape[0]] = torch.from_numpy(pos)
+                mask[i, :keep.shape[0]] = torch.from_numpy(keep)
+        return JointGuidance(targets.to(self.device), mask.to(self.device), self.mean, self.std, self.skeleton)
 
 
 def _check_stats(config: dict, source: str) -> None:

@@ -29,6 +29,7 @@ COLOURS = {"left": "#1f6fd1", "right": "#d62f2f", "center": "#444444"}
 SHADOW = "#9a9a9a"
 GRID = "#c8c8c8"
 PATH = "#2a9d5c"
+TARGET = "#e08a00"  # joint-control targets
 AZIMUTH_DEG, ELEVATION_DEG = 35.0, 20.0
 DPI = 80
 
@@ -98,7 +99,8 @@ def _check_joints(joints: np.ndarray, skeleton: Skeleton, name: str = "joints") 
 class _Panel:
     """Artists of one axes showing one motion; `show(t)` moves them to frame t."""
 
-    def __init__(self, ax, joints: np.ndarray, view: _View, title: str | None, show_time: bool, fps: float):
+    def __init__(self, ax, joints: np.ndarray, view: _View, title: str | None, show_time: bool, fps: float,
+                 targets: "tuple[np.ndarray, np.ndarray] | None" = None):
         from matplotlib.collections import LineCollection
 
         self.ax, self.joints, self.view, self.fps, self.show_time = ax, joints, view, fps, show_time
@@ -119,6 +121,14 @@ class _Panel:
         (self.head,) = ax.plot([], [], "o", color=COLOURS["center"], ms=5, zorder=20)
         # the head is the end of the first centre chain (the spine)
         self.head_joint = next(c for c, colour in view.bones if colour == COLOURS["center"])[-1]
+        # joint targets (joint control): every target faint, the current frame's bold
+        self.targets = None
+        if targets is not None:
+            positions, mask = targets  # (T, J, 3), (T, J) bool
+            self.targets = (positions, mask)
+            pts = view.project(positions[mask])
+            ax.plot(pts[:, 0], pts[:, 1], ".", color=TARGET, ms=2.5, alpha=0.35, zorder=4)
+            (self.target_now,) = ax.plot([], [], "x", color=TARGET, ms=7, mew=2.0, zorder=30)
         if title:
             ax.set_title(title, fontsize=9)
         self.text = ax.text(0.02, 0.02, "", transform=ax.transAxes, fontsize=7, color="#555555") if show_time else None
@@ -136,6 +146,10 @@ class _Panel:
             shadow.set_data(flat2d[idx, 0], flat2d[idx, 1])
         self.head.set_data([pose2d[self.head_joint, 0]], [pose2d[self.head_joint, 1]])
         self.path_done.set_data(self.path2d[: t + 1, 0], self.path2d[: t + 1, 1])
+        if self.targets is not None:
+            positions, mask = self.targets
+            now = self.view.project(positions[t][mask[t]]) if t < len(mask) and mask[t].any() else np.zeros((0, 2))
+            self.target_now.set_data(now[:, 0], now[:, 1])
         if self.text is not None:
             self.text.set_text(f"frame {t}  {t / self.fps:.2f} s")
 
@@ -155,20 +169,21 @@ def _rgb(fig) -> np.ndarray:
     return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
 
 
-def _animation_figure(joints: np.ndarray, skeleton: Skeleton, fps: float, title: str | None):
+def _animation_figure(joints: np.ndarray, skeleton: Skeleton, fps: float, title: str | None, targets=None):
     """(figure, show(t)): one figure whose panel is redrawn for frame t."""
     view = _View(joints, skeleton)
     head = 0.35 if title else 0.0  # inches reserved for the title
     fig = _figure(5.6, 5.6 * view.aspect + head)
     ax = fig.add_axes((0.0, 0.0, 1.0, 1.0 - head / fig.get_figheight()))
-    panel = _Panel(ax, joints, view, None, True, fps)
+    panel = _Panel(ax, joints, view, None, True, fps, targets)
     if title:
         fig.suptitle(title, fontsize=10, y=0.985)
     return fig, panel.show
 
 
-def _animation_frames(joints: np.ndarray, skeleton: Skeleton, fps: float, title: str | None) -> Iterator[np.ndarray]:
-    fig, show = _animation_figure(joints, skeleton, fps, title)
+def _animation_frames(joints: np.ndarray, skeleton: Skeleton, fps: float, title: str | None,
+                      targets=None) -> Iterator[np.ndarray]:
+    fig, show = _animation_figure(joints, skeleton, fps, title, targets)
     for t in range(len(joints)):
         show(t)
         yield _rgb(fig)
@@ -178,7 +193,7 @@ def _gif_palette():
     from matplotlib.colors import to_rgb
     from PIL import Image
 
-    bases = [*COLOURS.values(), SHADOW, GRID, PATH, "#555555", "#000000"]
+    bases = [*COLOURS.values(), SHADOW, GRID, PATH, TARGET, "#555555", "#000000"]
     colours = []
     for base in bases:
         rgb = np.array(to_rgb(base))
@@ -203,12 +218,13 @@ def _write_gif(frames: Iterator[np.ndarray], path: Path, fps: float) -> None:
         images[0].save(f, format="GIF", save_all=True, append_images=images[1:], duration=duration, loop=0, optimize=False)
 
 
-def _write_mp4(joints: np.ndarray, skeleton: Skeleton, fps: float, title: str | None, path: Path) -> None:
+def _write_mp4(joints: np.ndarray, skeleton: Skeleton, fps: float, title: str | None, path: Path,
+               targets=None) -> None:
     """H.264 through matplotlib's FFMpegWriter (it pipes the figure's frames to ffmpeg and keeps the
     frame size even, as yuv420p needs)."""
     from matplotlib.animation import FFMpegWriter
 
-    fig, show = _animation_figure(joints, skeleton, fps, title)
+    fig, show = _animation_figure(joints, skeleton, fps, title, targets)
     writer = FFMpegWriter(fps=fps, codec="h264", extra_args=["-pix_fmt", "yuv420p", "-loglevel", "error"])
     with atomic_path(path) as tmp:  # ffmpeg needs a file name: an exclusive temp file's
         try:
@@ -226,12 +242,15 @@ def render_animation(
     skeleton: Skeleton | str = "humanml3d",
     fps: float | None = None,
     title: str | None = None,
+    targets: "tuple[np.ndarray, np.ndarray] | None" = None,
 ) -> Path:
     """Write an animation of joints (T, J, 3); the format follows the suffix (.gif, or .mp4 with
-    ffmpeg). fps defaults to the skeleton's (20 for HumanML3D). Atomic: no half-written file."""
+    ffmpeg). fps defaults to the skeleton's (20 for HumanML3D). targets: joint-control targets
+    (positions (T, J, 3), mask (T, J)) drawn as points. Atomic: no half-written file."""
     skel = get_skeleton(skeleton)
     path = Path(path)
     arr = _check_joints(joints, skel)
+    targets = _check_targets(targets, arr)
     fps = float(fps or skel.fps)
     if not math.isfinite(fps) or fps <= 0:
         raise StableMoError(f"fps: must be a finite positive number, got {fps}")
@@ -241,10 +260,19 @@ def render_animation(
     if suffix == ".mp4" and shutil.which("ffmpeg") is None:
         raise StableMoError(f"{path}: writing .mp4 needs ffmpeg on PATH (not found); write a .gif instead")
     if suffix == ".gif":
-        _write_gif(_animation_frames(arr, skel, fps, title), path, fps)
+        _write_gif(_animation_frames(arr, skel, fps, title, targets), path, fps)
     else:
-        _write_mp4(arr, skel, fps, title, path)
+        _write_mp4(arr, skel, fps, title, path, targets)
     return path
+
+
+def _check_targets(targets, joints: np.ndarray):
+    if targets is None:
+        return None
+    positions, mask = (np.asarray(a) for a in targets)
+    if positions.shape[1:] != joints.shape[1:] or mask.shape != positions.shape[:2]:
+        raise StableMoError(f"targets: positions {positions.shape} and mask {mask.shape} do not fit joints {joints.shape}")
+    return positions.astype(np.float64), mask.astype(bool)
 
 
 def _frame_indices(num: int, count: int) -> list[int]:
@@ -263,19 +291,23 @@ def render_strip(
     skeleton: Skeleton | str = "humanml3d",
     num_frames: int = 8,
     title: str | None = None,
+    targets: "tuple[np.ndarray, np.ndarray] | None" = None,
+    frames: Sequence[int] | None = None,
 ) -> Path:
-    """PNG with `num_frames` evenly spaced frames side by side (same camera and scale)."""
+    """PNG with `num_frames` evenly spaced frames (or the given `frames`) side by side (same camera
+    and scale); targets as in render_animation."""
     skel = get_skeleton(skeleton)
     arr = _check_joints(joints, skel)
+    targets = _check_targets(targets, arr)
     path = Path(path)
-    frames = _frame_indices(len(arr), num_frames)
+    frames = _frame_indices(len(arr), num_frames) if frames is None else [int(f) for f in frames]
     view = _View(arr, skel)
     panel_w, head = 2.4, (0.55 if title else 0.25)
     fig = _figure(panel_w * len(frames), panel_w * view.aspect + head)
     top = 1.0 - head / fig.get_figheight()
     for i, t in enumerate(frames):
         ax = fig.add_axes((i / len(frames), 0.0, 1 / len(frames), top))
-        _Panel(ax, arr, view, f"frame {t} ({t / skel.fps:.1f} s)", False, skel.fps).show(t)
+        _Panel(ax, arr, view, f"frame {t} ({t / skel.fps:.1f} s)", False, skel.fps, targets).show(t)
     if title:
         fig.suptitle(title, fontsize=10, y=0.99)
     _save_png(fig, path)

@@ -254,8 +254,12 @@ def test_multistep_drops_to_first_order_around_an_edited_x0(sde):
         seen.append((x.clone(), x0.clone()))
         return x0
 
-    def edit_step_3(step, t, x0):
-        return x0.clone() if step == 3 else None
+    def edit_step_3(step, t, x0):  # edits sample 0 only
+        if step != 3:
+            return None
+        out = x0.clone()
+        out[0] += 0.01
+        return out
 
     sampler = dpmpp_2m_sde if sde else dpmpp_2m
     x_T = torch.randn(2, 6, 4, generator=torch.Generator().manual_seed(0))
@@ -265,9 +269,14 @@ def test_multistep_drops_to_first_order_around_an_edited_x0(sde):
 
     def first_order(i):
         c_x, c_d, _ = dpm_coefficients(sig[i], sig[i + 1], sde)
-        return c_x * seen[i][0] + c_d * seen[i][1]
+        x0 = seen[i][1].clone()
+        if i == 3:
+            x0[0] += 0.01
+        return c_x * seen[i][0] + c_d * x0
 
-    for i in (3, 4):  # the edited step and the one after it are first order
-        torch.testing.assert_close(seen[i + 1][0], first_order(i), atol=1e-6, rtol=1e-6)
+    for i in (3, 4):  # the edited step and the one after it are first order, for the edited sample
+        torch.testing.assert_close(seen[i + 1][0][0], first_order(i)[0], atol=1e-6, rtol=1e-6)
+        # the other sample of the batch keeps its second-order step
+        assert (seen[i + 1][0][1] - first_order(i)[1]).abs().max() > 1e-3
     for i in (2, 5):  # elsewhere the second-order term is there
         assert (seen[i + 1][0] - first_order(i)).abs().max() > 1e-3

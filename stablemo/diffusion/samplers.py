@@ -10,6 +10,8 @@
 - `noise(x) -> N(0, I)` tensor like x, drawn once per stochastic step after the x0 conversion;
   default: `torch.randn` from `generator`. The pipeline passes per-sample generators this way.
 - `callback(step_index, t: int, x0_hat) -> x0_hat | None`: progress and x0 guidance.
+- `inpaint`: an `Inpainting` (known values and their mask): imposed on x_t at the state's exact
+  noise level before each network call, on every x0 estimate after the callback, and on the result.
 
 All state is float32 (float64 if x_T is); coefficients are float64 Python floats. Multistep history is local to each
 call, so every call starts fresh. Formulas: `shared/design/facts-sampler.md` §3–4; DPM-Solver++
@@ -26,6 +28,7 @@ import torch
 from tqdm.auto import tqdm
 
 from stablemo.diffusion.guidance import to_x0
+from stablemo.diffusion.inpainting import Inpainting
 from stablemo.diffusion.schedule import NoiseSchedule, check_prediction_type
 
 Denoise = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
@@ -51,14 +54,27 @@ def _setup(x: torch.Tensor, generator, noise, prediction_type: str) -> tuple[tor
     return x, noise if noise is not None else default_noise(generator)
 
 
-def _predict(denoise, x, t: int, alpha, sigma, prediction_type, callback, step) -> tuple[torch.Tensor, bool]:
-    """(x0 estimate at (x, t) passed through the callback, whether the callback replaced it)."""
+def _predict(denoise, x, t: int, alpha, sigma, prediction_type, callback, step,
+             inpaint: Inpainting | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(x_t with the known part imposed, its x0 estimate passed through the callback and the known
+    part, which samples (B,) bool the callback changed)."""
+    if inpaint is not None:
+        x = inpaint.noisy(x, alpha, sigma)
     t_batch = torch.full((x.shape[0],), t, dtype=torch.long, device=x.device)
     x0 = to_x0(denoise(x, t_batch).to(x.dtype), x, alpha, sigma, prediction_type)
     guided = callback(step, t, x0) if callback is not None else None
+    changed = torch.zeros(x.shape[0], dtype=torch.bool, device=x.device)
     if guided is not None:
-        x0 = guided.to(x.dtype)
-    return x0, guided is not None
+        guided = guided.to(x.dtype)
+        changed = (guided != x0).flatten(1).any(1)
+        x0 = guided
+    if inpaint is not None:
+        x0 = inpaint.clean(x0)
+    return x, x0, changed
+
+
+def _finish(x: torch.Tensor, inpaint: Inpainting | None) -> torch.Tensor:
+    return x if inpaint is None else inpaint.clean(x)
 
 
 def _vp(sigma: float) -> tuple[float, float]:
@@ -77,6 +93,7 @@ def ddpm(
     callback: Callback | None = None,
     prediction_type: str = "sample",
     progress: bool = False,
+    inpaint: Inpainting | None = None,
 ) -> torch.Tensor:
     """Ancestral DDPM (Ho et al. 2020 eq. 6-7, fixed_small variance) on the 'leading' grid.
 
@@ -90,7 +107,7 @@ def ddpm(
     for i, t in enumerate(tqdm(timesteps, disable=not progress, desc="ddpm")):
         a_t = abar[t]
         a_prev = abar[t - ratio] if t - ratio >= 0 else 1.0
-        x0, _ = _predict(denoise, x, t, math.sqrt(a_t), math.sqrt(1 - a_t), prediction_type, callback, i)
+        x, x0, _ = _predict(denoise, x, t, math.sqrt(a_t), math.sqrt(1 - a_t), prediction_type, callback, i, inpaint)
         beta = 1 - a_t / a_prev
         c_x0 = math.sqrt(a_prev) * beta / (1 - a_t)
         c_xt = math.sqrt(a_t / a_prev) * (1 - a_prev) / (1 - a_t)
@@ -98,7 +115,7 @@ def ddpm(
         if t > 0:
             var = max((1 - a_prev) / (1 - a_t) * beta, 1e-20)
             x = x + math.sqrt(var) * draw(x)
-    return x
+    return _finish(x, inpaint)
 
 
 def ddim(
@@ -112,6 +129,7 @@ def ddim(
     prediction_type: str = "sample",
     progress: bool = False,
     eta: float = 0.0,
+    inpaint: Inpainting | None = None,
 ) -> torch.Tensor:
     """DDIM (Song et al. 2021 eq. 12) on the 'leading' grid; eta = 0 is deterministic."""
     x, draw = _setup(x, generator, noise, prediction_type)
@@ -122,13 +140,13 @@ def ddim(
         a_t = abar[t]
         a_prev = abar[t - ratio] if t - ratio >= 0 else 1.0
         sa, ss = math.sqrt(a_t), math.sqrt(1 - a_t)
-        x0, _ = _predict(denoise, x, t, sa, ss, prediction_type, callback, i)
+        x, x0, _ = _predict(denoise, x, t, sa, ss, prediction_type, callback, i, inpaint)
         eps = (x - sa * x0) / ss
         std = eta * math.sqrt((1 - a_prev) / (1 - a_t) * (1 - a_t / a_prev))
         x = math.sqrt(a_prev) * x0 + math.sqrt(max(1 - a_prev - std * std, 0.0)) * eps
         if eta > 0:
             x = x + std * draw(x)
-    return x
+    return _finish(x, inpaint)
 
 
 def dpm_coefficients(sigma_s: float, sigma_t: float, sde: bool) -> tuple[float, float, float]:
@@ -146,7 +164,8 @@ def dpm_coefficients(sigma_s: float, sigma_t: float, sde: bool) -> tuple[float, 
     return (alpha_t / alpha_s) * ratio, alpha_t * (1 - ratio), 0.0
 
 
-def _dpmpp_2m(denoise, x, schedule, steps, draw, callback, prediction_type, progress, sde: bool) -> torch.Tensor:
+def _dpmpp_2m(denoise, x, schedule, steps, draw, callback, prediction_type, progress, sde: bool,
+              inpaint: Inpainting | None = None) -> torch.Tensor:
     """DPM-Solver++(2M), midpoint form, on Karras sigmas; `sde` selects the SDE variant.
 
     Written with VE ratios (e^{-h} = sigma_t / sigma_s) so the final step to sigma = 0 stays
@@ -155,30 +174,32 @@ def _dpmpp_2m(denoise, x, schedule, steps, draw, callback, prediction_type, prog
     the callback edited x0 at this step or the previous one: the multistep term extrapolates
     x0_i - x0_{i-1}, and an edit (e.g. the foot-skate correction) is not a smooth function of the
     noise level, so extrapolating it overshoots (4 hooked foot-skate steps: the feet's mean
-    acceleration fell from 17.9 to 10.8 m/s² with this rule).
+    acceleration fell from 17.9 to 10.8 m/s² with this rule). Decided per sample, so a sample's
+    result does not depend on whether another sample of its batch was edited.
     """
     timesteps, sigmas = schedule.karras_timesteps(steps)
     sig = sigmas.tolist()
-    prev_x0, prev_guided = None, False
+    prev_x0, prev_guided = None, None
     desc = "dpmpp_2m_sde" if sde else "dpmpp_2m"
     for i, t in enumerate(tqdm(timesteps, disable=not progress, desc=desc)):
         s_s, s_t = sig[i], sig[i + 1]  # VE noise levels
         alpha_s, vp_s = _vp(s_s)
-        x0, guided = _predict(denoise, x, t, alpha_s, vp_s, prediction_type, callback, i)
+        x, x0, guided = _predict(denoise, x, t, alpha_s, vp_s, prediction_type, callback, i, inpaint)
         z = draw(x) if sde else None
         c_x, c_d, c_z = dpm_coefficients(s_s, s_t, sde)
-        second_order = prev_x0 is not None and i < steps - 1 and not (guided or prev_guided)
-        if second_order:
+        if prev_x0 is not None and i < steps - 1:
             h = math.log(s_s / s_t)
             h0 = math.log(sig[i - 1] / s_s)
-            d = x0 + (0.5 * h / h0) * (x0 - prev_x0)  # D0 + D1 / 2 with D1 = (x0 - x0_prev) / r0
+            second = x0 + (0.5 * h / h0) * (x0 - prev_x0)  # D0 + D1 / 2 with D1 = (x0 - x0_prev) / r0
+            edited = (guided | prev_guided)[:, None, None]  # (B, 1, 1): first order where edited
+            d = torch.where(edited, x0, second)
         else:
             d = x0
         x = c_x * x + c_d * d
         if sde:
             x = x + c_z * z
         prev_x0, prev_guided = x0, guided
-    return x
+    return _finish(x, inpaint)
 
 
 def dpmpp_2m(
@@ -191,10 +212,11 @@ def dpmpp_2m(
     callback: Callback | None = None,
     prediction_type: str = "sample",
     progress: bool = False,
+    inpaint: Inpainting | None = None,
 ) -> torch.Tensor:
     """DPM-Solver++(2M) ODE with Karras sigmas (deterministic; `generator`/`noise` unused)."""
     x, draw = _setup(x, generator, noise, prediction_type)
-    return _dpmpp_2m(denoise, x, schedule, steps, draw, callback, prediction_type, progress, sde=False)
+    return _dpmpp_2m(denoise, x, schedule, steps, draw, callback, prediction_type, progress, sde=False, inpaint=inpaint)
 
 
 def dpmpp_2m_sde(
@@ -207,13 +229,14 @@ def dpmpp_2m_sde(
     callback: Callback | None = None,
     prediction_type: str = "sample",
     progress: bool = False,
+    inpaint: Inpainting | None = None,
 ) -> torch.Tensor:
     """SDE-DPM-Solver++(2M) with Karras sigmas: StableMoFusion's sampler (10 steps by default).
 
     One noise draw per step (also the last, where it is multiplied by 0), after the x0 conversion.
     """
     x, draw = _setup(x, generator, noise, prediction_type)
-    return _dpmpp_2m(denoise, x, schedule, steps, draw, callback, prediction_type, progress, sde=True)
+    return _dpmpp_2m(denoise, x, schedule, steps, draw, callback, prediction_type, progress, sde=True, inpaint=inpaint)
 
 
 SAMPLERS: dict[str, Callable[..., torch.Tensor]] = {

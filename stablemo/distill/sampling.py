@@ -12,6 +12,7 @@ from typing import Callable
 import numpy as np
 import torch
 
+from stablemo.diffusion.inpainting import Inpainting
 from stablemo.diffusion.samplers import Sampler
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.distill.consistency import CLEAN, ddim_jump, ddim_grid, lcm_consistency, renoise
@@ -45,18 +46,37 @@ def pcm_path(edges: list[int], steps: int) -> list[int]:
     return edges[::-1][::stride]
 
 
+def _level(schedule: NoiseSchedule, t: int) -> tuple[float, float]:
+    """(alpha, sigma) of the forward process at integer timestep t (VP form)."""
+    abar = float(schedule._abar64[t])
+    return abar ** 0.5, (1.0 - abar) ** 0.5
+
+
+def _predict(denoise, sample, schedule, i: int, t_int: int, callback, inpaint):
+    """(sample with the known part imposed at t, x0 estimate after the callback and the known part)."""
+    if inpaint is not None:
+        sample = inpaint.noisy(sample, *_level(schedule, t_int))
+    t = torch.full((sample.shape[0],), t_int, dtype=torch.long, device=sample.device)
+    x0 = denoise(sample, t)
+    if callback is not None:
+        out = callback(i, t_int, x0)
+        x0 = x0 if out is None else out
+    if inpaint is not None:
+        x0 = inpaint.clean(x0)
+    return sample, t, x0
+
+
 def sample_lcm(denoise: Denoise, x: torch.Tensor, schedule: NoiseSchedule, timesteps: list[int], noise: NoiseFn,
-               sigma_data: float = 0.5, timestep_scale: float = 10.0, callback=None) -> torch.Tensor:
+               sigma_data: float = 0.5, timestep_scale: float = 10.0, callback=None,
+               inpaint: Inpainting | None = None) -> torch.Tensor:
     """x: (B,T,D) standard normal at the first timestep (alpha ~ 0 there, as in MotionLCM)."""
     batch = x.shape[0]
     sample = x
     for i, t_int in enumerate(timesteps):
-        t = torch.full((batch,), t_int, dtype=torch.long, device=x.device)
-        x0 = denoise(sample, t)
-        if callback is not None:
-            out = callback(i, t_int, x0)
-            x0 = x0 if out is None else out
+        sample, t, x0 = _predict(denoise, sample, schedule, i, t_int, callback, inpaint)
         clean = lcm_consistency(sample, x0, t, sigma_data, timestep_scale)
+        if inpaint is not None:
+            clean = inpaint.clean(clean)
         if i + 1 < len(timesteps):
             t_next = torch.full((batch,), timesteps[i + 1], dtype=torch.long, device=x.device)
             sample = renoise(schedule, clean, t_next, noise(clean))
@@ -65,16 +85,13 @@ def sample_lcm(denoise: Denoise, x: torch.Tensor, schedule: NoiseSchedule, times
     return sample
 
 
-def sample_pcm(denoise: Denoise, x: torch.Tensor, schedule: NoiseSchedule, path: list[int], callback=None) -> torch.Tensor:
+def sample_pcm(denoise: Denoise, x: torch.Tensor, schedule: NoiseSchedule, path: list[int], callback=None,
+               inpaint: Inpainting | None = None) -> torch.Tensor:
     """Deterministic phased sampling along `path` (descending edges ending at CLEAN)."""
     batch = x.shape[0]
     sample = x
     for i, (t_int, to_int) in enumerate(zip(path[:-1], path[1:])):
-        t = torch.full((batch,), t_int, dtype=torch.long, device=x.device)
-        x0 = denoise(sample, t)
-        if callback is not None:
-            out = callback(i, t_int, x0)
-            x0 = x0 if out is None else out
+        sample, t, x0 = _predict(denoise, sample, schedule, i, t_int, callback, inpaint)
         to = torch.full((batch,), to_int, dtype=torch.long, device=x.device)
         sample = x0 if to_int == CLEAN else ddim_jump(schedule, sample, x0, t, to)
     return sample
@@ -92,12 +109,15 @@ def consistency_samplers(config: dict, schedule: NoiseSchedule) -> dict[str, Sam
             return schedule.predict_x0(denoise(x, t), x, t, prediction_type)
         return predict
 
-    def lcm(denoise, x, schedule, steps, noise, callback=None, prediction_type="sample", progress=False):
+    def lcm(denoise, x, schedule, steps, noise, callback=None, prediction_type="sample", progress=False, inpaint=None):
         timesteps = lcm_timesteps(schedule.num_train_timesteps, config["ddim_steps"], steps)
-        return sample_lcm(x0_of(denoise, prediction_type), x, schedule, timesteps, noise, sigma_data, scale, callback)
+        return sample_lcm(x0_of(denoise, prediction_type), x, schedule, timesteps, noise, sigma_data, scale, callback,
+                          inpaint)
 
-    def pcm(denoise, x, schedule, steps, noise=None, callback=None, prediction_type="sample", progress=False):
-        return sample_pcm(x0_of(denoise, prediction_type), x, schedule, pcm_path(config["edges"], steps), callback)
+    def pcm(denoise, x, schedule, steps, noise=None, callback=None, prediction_type="sample", progress=False,
+            inpaint=None):
+        return sample_pcm(x0_of(denoise, prediction_type), x, schedule, pcm_path(config["edges"], steps), callback,
+                          inpaint)
 
     if mode == "lcm":
         return {"lcm": Sampler(lcm, lambda sched, steps: lcm_timesteps(sched.num_train_timesteps, config["ddim_steps"], steps))}

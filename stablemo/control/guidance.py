@@ -1,0 +1,159 @@
+"""Joint control by guidance on the predicted x0 (OmniControl's spatial guidance, in motion space).
+
+At every sampler step the hook moves the predicted clean motion towards the joint targets:
+
+1. Root in-painting, exact and analytic, where the pelvis (the root) is a target: the root height
+   is set, and the root's horizontal velocities are corrected (minimum-norm, spread evenly between
+   consecutive targets, in the heading the motion already has) so that the integrated root path
+   passes through every pelvis target. The motion starts at the origin, which acts as a target at
+   frame 0.
+2. Gradient steps on x0 (normalised space) for every target, through the differentiable features
+   -> joints map only (never through the network). The update is smoothed over time (a Gaussian of
+   `smooth` frames), so a sparse target moves its neighbourhood with it instead of one frame
+   (no velocity spike at a keyframe), and the step is preconditioned by the feature scale (GD in
+   de-normalised units). More iterations at the last step, where the result is final.
+
+Batched over samples and targets: no Python loop over samples or frames.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from stablemo.hooks import StepState
+from stablemo.motion.features import feature_slices, features_to_joints, recover_root
+from stablemo.motion.quaternion import qrot
+from stablemo.motion.skeleton import get_skeleton
+
+
+def _gather_frames(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """x: (B, T, C), index: (B, T) long -> (B, T, C) with out[b, t] = x[b, index[b, t]]."""
+    return torch.gather(x, 1, index[..., None].expand(-1, -1, x.shape[-1]))
+
+
+def project_root(features: torch.Tensor, targets: torch.Tensor, mask: torch.Tensor,
+                 lengths: torch.Tensor) -> torch.Tensor:
+    """Root channels corrected so the root passes through its targets.
+
+    features: (B, T, D) de-normalised; targets: (B, T, 3) root positions; mask: (B, T) bool (True =
+    target); lengths: (B,). Samples without a root target are returned unchanged.
+    """
+    B, T, _ = features.shape
+    frames = torch.arange(T, device=features.device)
+    valid = frames[None, :] < lengths[:, None]
+    mask = mask & valid
+    if not mask.any():
+        return features
+    out = features.clone()
+    out[..., 3] = torch.where(mask, targets[..., 1], features[..., 3])
+    q, pos = recover_root(out)  # q: (B, T, 4), pos: (B, T, 3)
+    anchors = mask.clone()
+    anchors[:, 0] = True  # the motion starts at the origin
+    goal = torch.where(mask[..., None], targets, torch.zeros_like(targets))[..., [0, 2]]  # (B, T, 2)
+    goal[:, 0] = 0.0
+    have = pos[..., [0, 2]]
+    # previous anchor <= k and next anchor > k for every step k -> k+1
+    idx = frames[None, :].expand(B, T)
+    prev = torch.where(anchors, idx, torch.full_like(idx, -1)).cummax(1).values  # (B, T), >= 0 (frame 0 is one)
+    later = torch.where(anchors, idx, torch.full_like(idx, T))
+    nxt = later.flip(1).cummin(1).values.flip(1)  # next anchor >= k
+    nxt = torch.cat([nxt[:, 1:], torch.full_like(nxt[:, :1], T)], 1)  # next anchor > k
+    has_next = nxt < T
+    nxt_c = nxt.clamp(max=T - 1)
+    span = (nxt - prev).clamp(min=1).to(features.dtype)[..., None]
+    want = _gather_frames(goal, nxt_c) - _gather_frames(goal, prev)
+    got = _gather_frames(have, nxt_c) - _gather_frames(have, prev)
+    correction = torch.where(has_next[..., None], (want - got) / span, torch.zeros_like(want))  # (B, T, 2)
+    step = have[:, 1:] - have[:, :-1] + correction[:, :-1]  # (B, T-1, 2) global steps
+    step3 = torch.stack([step[..., 0], torch.zeros_like(step[..., 0]), step[..., 1]], -1)
+    local = qrot(q[:, 1:], step3)  # velocity k-1 lives in the facing frame of k (see recover_root)
+    has_root_target = mask.any(1)[:, None, None]
+    out[:, :-1, 1:3] = torch.where(has_root_target, local[..., [0, 2]], out[:, :-1, 1:3])
+    return out
+
+
+def _gaussian(smooth: float, device, dtype) -> torch.Tensor | None:
+    if smooth <= 0:
+        return None
+    radius = int(math.ceil(3 * smooth))
+    k = torch.exp(-0.5 * (torch.arange(-radius, radius + 1, device=device, dtype=dtype) / smooth) ** 2)
+    return k / k.sum()
+
+
+class JointGuidance:
+    """A sample hook steering x0 towards joint targets (see the module docstring).
+
+    targets: (B, T, J, 3) dataset units; mask: (B, T, J) bool; mean/std: (D,) the model's feature
+    statistics; iters: gradient iterations at each step, final_iters: at the last step; smooth:
+    the update's temporal Gaussian (frames); follow: the share of the mean horizontal miss of the
+    targets at a frame without a pelvis target that the root takes (the rest moves the pose).
+    """
+
+    def __init__(self, targets: torch.Tensor, mask: torch.Tensor, mean: torch.Tensor, std: torch.Tensor,
+                 skeleton, iters: int = 10, final_iters: int = 100, smooth: float = 2.0, follow: float = 0.5):
+        self.targets, self.mask = targets.float(), mask.bool()
+        self.mean, self.std = mean.float(), std.float()
+        self.skeleton = get_skeleton(skeleton)
+        self.iters, self.final_iters = int(iters), int(final_iters)
+        self.smooth, self.follow = float(smooth), float(follow)
+        # only the joints' root-relative positions take gradient steps: the root moves by projection
+        # (its velocities are integrated over the whole motion, badly conditioned for plain steps);
+        # rotations, velocities and contacts are left to the network, which re-derives them from the
+        # positions at the next step
+        movable = torch.zeros(self.mean.shape[0], dtype=torch.bool)
+        movable[feature_slices(self.skeleton)["ric"]] = True
+        self.movable = movable
+
+    def active(self, step: int, steps: int) -> bool:
+        return True
+
+    def _root_targets(self, feats, targets, mask) -> tuple[torch.Tensor, torch.Tensor]:
+        """Root targets (B, T, 3) and their mask (B, T): the pelvis's where it is a target, else the
+        root moved by `follow` x the mean horizontal miss of the frame's other targets."""
+        joints = features_to_joints(feats, self.skeleton)
+        w = mask.to(feats.dtype)[..., None]  # (B, T, J, 1)
+        miss = ((targets - joints) * w).sum(2) / w.sum(2).clamp(min=1)  # (B, T, 3)
+        virtual = joints[:, :, 0] + self.follow * miss * torch.tensor([1.0, 0.0, 1.0], device=feats.device)
+        pelvis = mask[..., 0]
+        others = mask.any(2) & ~pelvis
+        if self.follow <= 0:
+            others = torch.zeros_like(others)
+        root = torch.where(pelvis[..., None], targets[:, :, 0], virtual)
+        return root, pelvis | others
+
+    def __call__(self, state: StepState) -> torch.Tensor:
+        x0 = state.x0
+        dev = x0.device
+        mean, std = self.mean.to(dev), self.std.to(dev)
+        targets, mask = self.targets.to(dev), self.mask.to(dev)
+        lengths = torch.tensor(state.lengths, device=dev)
+        feats = x0 * std + mean
+        with torch.no_grad():
+            root, root_mask = self._root_targets(feats, targets, mask)
+            feats = project_root(feats, root, root_mask, lengths)
+        iters = self.final_iters if state.step == state.steps - 1 else self.iters
+        weight = mask.to(x0.dtype)[..., None]  # (B, T, J, 1)
+        kernel = _gaussian(self.smooth, dev, x0.dtype)
+        update_mask = self.movable.to(dev) & state.mask.to(dev)[..., None]  # (B, T, D)
+        for _ in range(iters):
+            var = feats.detach().requires_grad_(True)
+            joints = features_to_joints(var, self.skeleton)
+            # half the squared distance: its gradient w.r.t. a joint's root-relative position is the
+            # miss rotated into the body frame, so a unit step lands that joint on its target
+            loss = 0.5 * (((joints - targets) ** 2) * weight).sum()
+            (grad,) = torch.autograd.grad(loss, var)
+            grad = torch.where(update_mask, grad, torch.zeros((), device=dev))
+            if kernel is not None:  # (B, T, D): a temporal convolution per channel
+                B, T, D = grad.shape
+                g = torch.nn.functional.conv1d(grad.transpose(1, 2).reshape(B * D, 1, T), kernel.view(1, 1, -1),
+                                               padding=kernel.numel() // 2)
+                grad = torch.where(update_mask, g.reshape(B, D, T).transpose(1, 2), torch.zeros((), device=dev))
+            feats = feats.detach() - grad
+        # samples without a target come back bit-identical (the sampler treats them as unedited)
+        controlled = mask.flatten(1).any(1)[:, None, None]
+        return torch.where(controlled, (feats - mean) / std, x0).detach()
+
+
+__all__ = ["JointGuidance", "project_root"]
