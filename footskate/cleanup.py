@@ -35,14 +35,23 @@ class CleanupConfig:
     w_vgrf: float = 0.05         # keep the predicted vGRFs (MSLE)
     w_smooth: float = 100.0      # penalise acceleration of the correction (no pops at range borders)
     w_clearance: float = 1000.0  # outside contact ranges, feet may rise but not sink below their input height
-    ramp_seconds: float = 0.05   # contact weights ramp over this much at each end of a range (5 frames at 100 Hz)
-    min_range: int = 3           # ranges shorter than this get no anchoring
+    # between anchored ranges, feet follow the input shifted by the anchors' horizontal corrections
+    # interpolated across the swing. Off by default: on synthetic injected sliding 1000 keeps the
+    # feet's acceleration below the input's (walk 3.97 -> 3.84, run 6.50 -> 6.50 m/s²; without it
+    # 4.08 / 7.03), but on the real clip's accumulating-drift test it leaves more skating (GMD ratio
+    # 0.256 -> 0.229 instead of 0.195; docs/footskate.md)
+    w_swing: float = 0.0
+    ramp_seconds: float = 0.1    # contact weights ramp over this much at each end of a range (2 frames at 20 fps)
+    min_range: int = 2           # ranges shorter than this get no anchoring (a 1-frame contact cannot slide)
     max_offset: float = 0.25     # m; ranges whose joint strays further from the target are not anchored
+    sink: float = float("inf")   # m; an anchor pulls its joint down by at most this much below the input's height
     split_travel: float = float("inf")  # m; contacts along which the joint travels further are cut into pieces (off)
     vgrf_every: int = 10         # refresh the (linearised) vGRF gradient every k iterations: the net dominates cost
-    # contacts when none are given: "heuristic" (default: measured better than our synthetic-trained
-    # V22 on held-out synthetic motions, F1 0.969 vs 0.951), "vgrf" (the network), "auto" (vgrf if a model is given)
-    detect: str = "heuristic"
+    # contacts when none are given: "gated" (the vGRF network's contacts, kept where the joint is
+    # within contact_margin of its own lowest point: the force says when a foot bears weight, the
+    # height which joint is down), "vgrf" (the network alone), "heuristic" (height and speed),
+    # "auto" (the default: gated if a model is given, else heuristic)
+    detect: str = "auto"
     contact_margin: float = 0.05  # heuristic: m above the joint's own lowest point
     contact_speed: float = 0.9325 # heuristic: m/s
 
@@ -155,7 +164,11 @@ def contact_ranges(contacts: torch.Tensor, positions: torch.Tensor, up_axis: int
     targets = torch.full((b * k, t, 3), float("nan"), dtype=positions.dtype, device=c.device)
     targets[c] = target[seg_c]
     d = torch.minimum(frame[c] - start[seg_c], start[seg_c] + length[seg_c] - 1 - frame[c])
-    w = ramp(((d + 1).float() / (ramp_frames + 1)).clamp(max=1.0))
+    # Ramps that fit the range: a range shorter than two ramps plus a middle frame (a running
+    # stance is 2-5 frames at 20 fps) ramps over (length - 1) // 2 frames each side, so its middle
+    # frames are fully anchored; a 2-frame range is anchored at full weight.
+    fit = torch.minimum(torch.full_like(length, ramp_frames), (length - 1) // 2)[seg_c]
+    w = torch.where(fit > 0, ramp(((d + 1).float() / (fit + 1).float()).clamp(max=1.0)), torch.ones_like(d, dtype=torch.float32))
     # A "contact" whose joint strays more than max_offset (horizontally) from the range target is a
     # mis-detection (a walking foot, not a skating one): anchoring it would wreck the pose.
     horiz = [a for a in range(3) if a != up_axis]
@@ -169,10 +182,35 @@ def contact_ranges(contacts: torch.Tensor, positions: torch.Tensor, up_axis: int
     return (targets.view(b, k, t, 3).permute(0, 2, 1, 3), weights.view(b, k, t).permute(0, 2, 1), info)
 
 
+def swing_offsets(offsets: torch.Tensor, anchored: torch.Tensor, up_axis: int) -> torch.Tensor:
+    """offsets (B, T, K, 3) of anchors from the input, valid where anchored (B, T, K) -> horizontal
+    offsets for every frame: linear in time between the nearest anchored frames before and after,
+    held before the first and after the last one, zero for a joint with no anchor.
+
+    Anchoring a sliding stance foot and letting the swing snap back to the input's path puts a
+    kink in the foot's trajectory at every lift-off and touchdown (measured: more foot acceleration
+    than the sliding input); carrying the correction across the swing keeps it smooth.
+    """
+    b, t, k, _ = offsets.shape
+    idx = torch.arange(t, device=offsets.device)[None, :, None].expand(b, t, k)
+    prev = torch.cummax(torch.where(anchored, idx, torch.full_like(idx, -1)), dim=1).values
+    nxt = torch.flip(torch.cummin(torch.flip(torch.where(anchored, idx, torch.full_like(idx, t)), [1]), dim=1).values, [1])
+    has_prev, has_next = prev >= 0, nxt < t
+    prev = torch.where(has_prev, prev, nxt).clamp(0, t - 1)
+    nxt = torch.where(has_next, nxt, prev).clamp(0, t - 1)
+    a = ((idx - prev).to(offsets.dtype) / (nxt - prev).clamp(min=1).to(offsets.dtype)).clamp(0, 1)[..., None]
+    pick = lambda i: torch.gather(offsets, 1, i[..., None].expand(b, t, k, 3))
+    out = pick(prev) * (1 - a) + pick(nxt) * a
+    out = torch.where((has_prev | has_next)[..., None], out, torch.zeros_like(out))
+    out[..., up_axis] = 0.0
+    return out
+
+
 def detect_contacts(joints: torch.Tensor, lengths: torch.Tensor | None, feet: list[int], fps: float, up_axis: int,
                     vgrf: VGRFNet | None = None, margin: float = 0.05,
-                    speed: float = 0.9325) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """Contacts (B, T, 4) from the vGRF network if given, else the height/speed heuristic."""
+                    speed: float = 0.9325, gate: bool = False) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Contacts (B, T, 4) from the vGRF network if given (with `gate`: only where the joint is
+    within `margin` of its own lowest point, whatever its speed), else the height/speed heuristic."""
     if lengths is None:
         lengths = torch.full((joints.shape[0],), joints.shape[1], dtype=torch.long, device=joints.device)
     mask = valid_mask(lengths, joints.shape[1])
@@ -180,6 +218,9 @@ def detect_contacts(joints: torch.Tensor, lengths: torch.Tensor | None, feet: li
         with torch.no_grad():
             forces = vgrf(joints, lengths)
         contacts = contacts_from_forces(forces, fps, lengths)
+        if gate:  # no speed condition: a sliding stance foot is exactly what must be caught
+            contacts = contacts & contacts_from_heights(joints[:, :, feet], fps, up_axis, lengths, height=margin,
+                                                        speed=float("inf"))
     else:
         forces = None
         contacts = contacts_from_heights(joints[:, :, feet], fps, up_axis, lengths, height=margin, speed=speed)
@@ -224,14 +265,14 @@ def cleanup(joints: torch.Tensor, parents, feet, lengths: torch.Tensor | None = 
     n_frames = lengths.to(dtype)                                               # per-sample normaliser
     feet_idx = torch.as_tensor(list(feet), device=device)
 
-    if cfg.detect not in ("auto", "vgrf", "heuristic"):
-        raise FootskateError(f"detect: expected auto, vgrf or heuristic, got {cfg.detect!r}")
+    if cfg.detect not in ("auto", "gated", "vgrf", "heuristic"):
+        raise FootskateError(f"detect: expected auto, gated, vgrf or heuristic, got {cfg.detect!r}")
     if contacts is None:
-        if cfg.detect == "vgrf" and vgrf is None:
-            raise FootskateError("detect: 'vgrf' contact detection needs a vGRF network")
+        if cfg.detect in ("vgrf", "gated") and vgrf is None:
+            raise FootskateError(f"detect: {cfg.detect!r} contact detection needs a vGRF network")
         detector = None if cfg.detect == "heuristic" else vgrf
         contacts, forces0 = detect_contacts(x0, lengths, list(feet), cfg.fps, cfg.up_axis, detector,
-                                            cfg.contact_margin, cfg.contact_speed)
+                                            cfg.contact_margin, cfg.contact_speed, gate=cfg.detect != "vgrf")
     else:
         contacts = torch.as_tensor(contacts, device=device).bool()
         if contacts.shape != (b, t, 4):
@@ -243,6 +284,14 @@ def cleanup(joints: torch.Tensor, parents, feet, lengths: torch.Tensor | None = 
                                             cfg.max_offset, cfg.split_travel)
     weights = weights * maskf[..., None]
     targets_filled = torch.nan_to_num(targets)
+    if cfg.sink < float("inf"):
+        # Vertically, a contact frame where the joint is already lifting (heel-off, a range detected
+        # a frame wide) keeps its lift: pinning it to the range's lowest height and releasing it at
+        # the border put a vertical kink (foot acceleration) at every lift-off. The target height
+        # h - min(h - low, sink) is continuous in h.
+        h = x0[:, :, feet_idx, cfg.up_axis]
+        low = targets_filled[..., cfg.up_axis]
+        targets_filled[..., cfg.up_axis] = h - (h - low).clamp(min=0, max=cfg.sink)
 
     # Parameterisation: root trajectory + the global direction of every leg bone (each keeping its
     # per-frame input length). Bones above the hips move rigidly with the root, which keeps the
@@ -288,6 +337,8 @@ def cleanup(joints: torch.Tensor, parents, feet, lengths: torch.Tensor | None = 
     pair = (mask[:, 1:] & mask[:, :-1]).to(dtype)                             # valid velocity pairs
     triple = (mask[:, 2:] & mask[:, :-2]).to(dtype)
     free = ((weights == 0) & mask[..., None]).to(dtype)                       # (B, T, 4) unanchored foot frames
+    swing_goal = feet0 + swing_offsets(targets_filled - feet0, weights > 0, cfg.up_axis)  # (B, T, 4, 3)
+    swing_w = (1 - weights).clamp(min=0) * maskf[..., None]                   # (B, T, 4)
     vgrf_grad = None
     has_anchor = bool((weights > 0).any())
     history = []
@@ -306,10 +357,12 @@ def cleanup(joints: torch.Tensor, parents, feet, lengths: torch.Tensor | None = 
             "smooth": (acc.square().sum(-1).mean(-1) * triple).sum(1) / n_frames,
             "clearance": ((feet0[..., cfg.up_axis] - feet_pos[..., cfg.up_axis]).clamp(min=0).square()
                           * free).sum((1, 2)) / n_frames,
+            "swing": ((feet_pos - swing_goal).square().sum(-1) * swing_w).sum((1, 2)) / n_frames,
         }
         loss = (cfg.w_pose * per_sample["pose"] + cfg.w_norm * per_sample["norm"]
                 + cfg.w_trajectory * per_sample["trajectory"] + cfg.w_foot * per_sample["foot"]
-                + cfg.w_smooth * per_sample["smooth"] + cfg.w_clearance * per_sample["clearance"]).sum()
+                + cfg.w_smooth * per_sample["smooth"] + cfg.w_clearance * per_sample["clearance"]
+                + cfg.w_swing * per_sample["swing"]).sum()
         if use_vgrf:
             # The vGRF net costs far more than everything else: its gradient w.r.t. positions is
             # refreshed every `vgrf_every` iterations and applied as a linear term in between.

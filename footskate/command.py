@@ -88,8 +88,8 @@ def run(args: argparse.Namespace, codec: FeatureCodec | None) -> dict:
     lengths = lengths_of(batch)
     joints = batch if is_joints else codec.to_joints(batch.astype(np.float32))
     vgrf = resolve_vgrf(args.weights, topo)
-    if args.contacts == "vgrf" and vgrf is None:
-        raise FootskateError(f"--contacts vgrf: no vGRF network for skeleton {topo.name} (give --weights)")
+    if args.contacts in ("vgrf", "gated") and vgrf is None:
+        raise FootskateError(f"--contacts {args.contacts}: no vGRF network for skeleton {topo.name} (give --weights)")
     config = CleanupConfig(iters=args.iters, fps=args.fps or topo.fps, up_axis=topo.up_axis, detect=args.contacts)
     metres = torch.from_numpy(np.ascontiguousarray(joints, dtype=np.float32)) * topo.unit
     res = cleanup(metres, topo.parents, topo.feet, lengths=torch.from_numpy(lengths), vgrf=vgrf, config=config)
@@ -103,7 +103,8 @@ def run(args: argparse.Namespace, codec: FeatureCodec | None) -> dict:
     save_finite(Path(args.out), out[0] if single else out, "--out")
     info = {"samples": batch.shape[0], "ranges": res.info["ranges"], "anchored": res.info["anchored_ranges"],
             "seconds": res.info["seconds"],
-            "contacts": "heuristic" if vgrf is None or args.contacts == "heuristic" else "vgrf"}
+            "contacts": "heuristic" if vgrf is None or args.contacts == "heuristic" else
+                        "vgrf" if args.contacts == "vgrf" else "gated"}
     print(f"footskate: {info['samples']} motion(s), {info['anchored']}/{info['ranges']} contact ranges anchored "
           f"({info['contacts']} contacts), {info['seconds']:.2f}s -> {args.out}")
     return info
@@ -116,9 +117,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--joints-out", default=None, help="also write the corrected joint positions here")
     p.add_argument("--weights", default=None,
                    help="vGRF weights: our .safetensors or your UnderPressure pretrained.tar (default: shipped V22)")
-    p.add_argument("--contacts", choices=["auto", "vgrf", "heuristic"], default=CleanupConfig.detect,
-                   help="contact detection: the vGRF network, the height/speed rule, or auto (the network when "
-                        "there is one); the network's vGRF term is used either way")
+    p.add_argument("--contacts", choices=["auto", "gated", "vgrf", "heuristic"], default=CleanupConfig.detect,
+                   help="contact detection: gated (the vGRF network's contacts where the joint is near its lowest "
+                        "point), vgrf (the network alone), heuristic (height and speed), or auto (gated when there "
+                        "is a network); the network's vGRF term is used either way")
     p.add_argument("--iters", type=int, default=CleanupConfig.iters)
     p.add_argument("--skeleton", choices=["humanml3d", "kit"], default="humanml3d")
     p.add_argument("--fps", type=float, default=None, help="frame rate (default: the skeleton's)")
