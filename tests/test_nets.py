@@ -24,6 +24,9 @@ TINY = {
                                 num_heads=2, cross_attention=True, norm="group")),
     "unet_tweak": ("unet", dict(base_channels=16, channel_mults=[1, 2, 2, 2], time_dim=32, num_groups=2,
                                 num_heads=2, cross_attention=True, norm="frame")),
+    # the published T2MUnet's layout (stablemo.official imports its checkpoints into it)
+    "unet_official": ("unet", dict(base_channels=16, channel_mults=[1, 2, 2, 2], time_dim=32, num_groups=2,
+                                   num_heads=2, cross_attention=True, norm="frame", variant="official")),
 }
 if importlib.util.find_spec("stablemo.nets.dit"):
     TINY.update({
@@ -125,7 +128,7 @@ def test_padding_invariance(variant, dtype, rtol):
         for it in items:
             n, l = it["x"].shape[0], it["text"].shape[0]
             refs.append(model(*cast(collate([it], round_up(n, k), l, None), dtype))[0, :n])
-        for total in (round_up(40, k), round_up(40, k) + k, round_up(40, k) + 3 * k + 8):
+        for total in (round_up(40, k), round_up(40, k) + k, round_up(40, k) + 3 * k + round_up(8, k)):
             x, t, text, tm, mm = cast(collate(items, total, 12, gen), dtype)
             out = model(x, t, text, tm, mm)
             assert torch.isfinite(out).all()
@@ -418,7 +421,7 @@ def test_prepared_conditioning_is_reused_across_steps_and_changes_no_result(vari
     model = make(variant).net
     gen = torch.Generator().manual_seed(3)
     items = sample_items(gen, [24, 17], [5, 3])
-    x, t, text, tm, mm = collate(items, 24, 6, gen)
+    x, t, text, tm, mm = collate(items, round_up(24, model.length_multiple), 6, gen)
     with torch.inference_mode():
         ctx = model.prepare(text, tm, mm)
         for step, t_step in enumerate([t, t // 2, torch.zeros_like(t)]):

@@ -44,7 +44,7 @@ from stablemo.nets.unet import CondUNet1D, CrossAttention1D, ResBlock1D
 
 
 def _fused_attention(stock: LinearCrossAttention) -> nn.Module:
-    if stock.out.in_features < MIN_FUSED_CHANNELS:
+    if stock.query.out_features < MIN_FUSED_CHANNELS:
         return stock
     return FusedLinearCrossAttention(stock)
 

@@ -162,10 +162,13 @@ class FastCondUNet1D(CondUNet1D):
         nn.Module.__init__(self)
         adopt(self, stock)
         self.input_dim, self.text_dim, self.length_multiple = stock.input_dim, stock.text_dim, stock.length_multiple
-        self.fused_ok = stock.final_norm.weight.numel() >= MIN_FUSED_CHANNELS
+        self.variant, self.upsample_first = stock.variant, stock.upsample_first
+        self.text_embed, self.final_conv, self.final_norm = stock.text_embed, stock.final_conv, stock.final_norm
+        self.fused_ok = self.final_norm is not None and self.final_norm.weight.numel() >= MIN_FUSED_CHANNELS
 
     def head(self, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        h = norm_mish(self.final_norm, self.final_conv(h), mask, self.fused_ok)
+        if self.final_conv is not None:  # the official layout's head is the 1x1 convolution alone
+            h = norm_mish(self.final_norm, self.final_conv(h), mask, self.fused_ok)
         return zero_pad_bct_(self.out(h), mask)
 
     def resample(self, conv: nn.Module, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

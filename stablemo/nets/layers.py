@@ -63,19 +63,41 @@ def sinusoidal_embedding(positions: torch.Tensor, dim: int, max_period: float = 
     return emb
 
 
-class TimestepEmbedder(nn.Module):
-    """Sinusoidal encoding of the diffusion step followed by two linear layers (Stable Diffusion)."""
+def interleaved_sinusoidal_embedding(positions: torch.Tensor, dim: int) -> torch.Tensor:
+    """positions: (N,) -> (N, dim) float32, sin and cos interleaved (features 2i, 2i+1), computed with
+    the float32 operations of the published StableMoFusion T2MUnet's table (bit-equal to it for
+    steps 0-999 at dim 512; the same values as `sinusoidal_embedding`, in another order)."""
+    freqs = torch.exp(torch.arange(0, dim, 2, dtype=torch.float32, device=positions.device) * (-math.log(10000.0) / dim))
+    args = positions.float()[:, None] * freqs[None]  # (N, dim / 2)
+    return torch.stack([torch.sin(args), torch.cos(args)], dim=-1).reshape(len(positions), dim)
 
-    def __init__(self, dim: int, out_dim: int | None = None):
+
+class TimestepEmbedder(nn.Module):
+    """Sinusoidal encoding of the diffusion step followed by two linear layers.
+
+    variant ``"stablemo"``: [cos | sin] features, Linear(dim, out) -> SiLU -> Linear (Stable
+    Diffusion). ``"official"``: the published StableMoFusion T2MUnet's, interleaved sin/cos
+    features, Linear(dim, 4 dim) -> Mish -> Linear(4 dim, out) (stablemo.official imports it).
+    """
+
+    def __init__(self, dim: int, out_dim: int | None = None, variant: str = "stablemo"):
         super().__init__()
+        if variant not in ("stablemo", "official"):
+            raise StableMoError(f"time embedding variant: expected 'stablemo' or 'official', got {variant!r}")
         out_dim = out_dim or dim
-        self.dim = dim
-        self.mlp = nn.Sequential(nn.Linear(dim, out_dim), nn.SiLU(), nn.Linear(out_dim, out_dim))
+        self.dim, self.variant = dim, variant
+        if variant == "official":
+            self.mlp = nn.Sequential(nn.Linear(dim, 4 * dim), nn.Mish(), nn.Linear(4 * dim, out_dim))
+        else:
+            self.mlp = nn.Sequential(nn.Linear(dim, out_dim), nn.SiLU(), nn.Linear(out_dim, out_dim))
 
     def forward(self, t: torch.Tensor, extra: torch.Tensor | None = None) -> torch.Tensor:
         """t: (B,) -> (B, out_dim). extra: (B, dim) features added to the sinusoidal encoding before
         the MLP (a consistency student's guidance-scale embedding, stablemo.distill)."""
-        emb = sinusoidal_embedding(t, self.dim)
+        if self.variant == "official":
+            emb = interleaved_sinusoidal_embedding(t, self.dim)
+        else:
+            emb = sinusoidal_embedding(t, self.dim)
         if extra is not None:
             emb = emb + extra.to(emb.dtype)
         return self.mlp(emb.to(self.mlp[0].weight.dtype))
@@ -149,7 +171,7 @@ class LinearCrossAttention(nn.Module):
     x: (B, T, C), context: (B, H, d, d) -> x + attn(x, text): (B, T, C).
     """
 
-    def __init__(self, dim: int, text_dim: int, num_heads: int = 8, dropout: float = 0.0):
+    def __init__(self, dim: int, text_dim: int, num_heads: int = 8, dropout: float = 0.0, out_proj: bool = True):
         super().__init__()
         if dim % num_heads:
             raise StableMoError(f"num_heads: {dim} channels are not divisible by {num_heads} heads")
@@ -159,13 +181,15 @@ class LinearCrossAttention(nn.Module):
         self.query = nn.Linear(dim, dim)
         self.key = nn.Linear(text_dim, dim)
         self.value = nn.Linear(text_dim, dim)
-        self.out = nn.Linear(dim, dim)
+        # out_proj=False: the published StableMoFusion attention adds the heads' read unprojected;
+        # a text with no valid token then adds exactly zero (its CFG "no cross-attention" pass)
+        self.out = nn.Linear(dim, dim) if out_proj else nn.Identity()
         self.dropout = nn.Dropout(dropout)
 
     def context(self, text: torch.Tensor, text_mask: torch.Tensor) -> torch.Tensor:
         """The text summarised per head: (B, L, text_dim) -> (B, H, d, d)."""
         B, H = text.shape[0], self.num_heads
-        d = self.out.in_features // H
+        d = self.query.out_features // H
         text = self.text_norm(zero_pad_btc(text, text_mask))
         k_logits = self.key(text).reshape(B, -1, H, d)
         k_logits = k_logits.masked_fill(~text_mask[:, :, None, None], torch.finfo(k_logits.dtype).min)

@@ -15,6 +15,17 @@ Ablation switches (paper Table 4):
 
 Both norms are exactly padding invariant here: the "group" norm takes its statistics over valid
 frames only (the published baseline does not, which is the leak the tweak fixes there).
+
+``variant="official"`` lays the network out as the published StableMoFusion T2MUnet (its
+checkpoints import into it, stablemo.official; docs/official.md), with everything else above kept:
+- a stride-2 down-sampling after *every* stage (the middle runs at N / 2^n, so T must be a
+  multiple of 2^n = 16 for four stages), and on the way up a transposed convolution *before* each
+  up stage that also changes the width (C_deeper -> C_stage), then the skip concatenation;
+- the output head is the zero-initialised 1x1 convolution alone (no conv -> norm -> Mish);
+- no pooled text in the AdaGN embedding: the text enters through cross-attention only;
+- cross-attention without an output projection (a text without valid tokens adds exactly zero);
+- the timestep embedding of the published code (interleaved sin/cos, a 4x wide Mish MLP).
+Masks work as in the default layout, so the variant stays exactly padding invariant.
 """
 
 from __future__ import annotations
@@ -72,9 +83,9 @@ class ResBlock1D(nn.Module):
 class CrossAttention1D(nn.Module):
     """LinearCrossAttention applied to (B, C, T) feature maps; context: (B, H, d, d)."""
 
-    def __init__(self, channels: int, text_dim: int, num_heads: int, dropout: float):
+    def __init__(self, channels: int, text_dim: int, num_heads: int, dropout: float, out_proj: bool = True):
         super().__init__()
-        self.attn = LinearCrossAttention(channels, text_dim, num_heads, dropout)
+        self.attn = LinearCrossAttention(channels, text_dim, num_heads, dropout, out_proj)
 
     def forward(self, x: torch.Tensor, context: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         return zero_pad_bct(self.attn(x.transpose(1, 2), context).transpose(1, 2), mask)
@@ -84,14 +95,15 @@ class Stage(nn.Module):
     """Two residual blocks, each optionally followed by cross-attention."""
 
     def __init__(self, in_ch, out_ch, emb_dim, text_dim, *, kernel_size, num_groups, norm, dropout,
-                 cross_attention, num_heads):
+                 cross_attention, num_heads, out_proj=True):
         super().__init__()
         self.blocks = nn.ModuleList([
             ResBlock1D(in_ch, out_ch, emb_dim, kernel_size, num_groups, norm, dropout),
             ResBlock1D(out_ch, out_ch, emb_dim, kernel_size, num_groups, norm, dropout),
         ])
         self.attns = nn.ModuleList(
-            [CrossAttention1D(out_ch, text_dim, num_heads, dropout) for _ in range(2)] if cross_attention else []
+            [CrossAttention1D(out_ch, text_dim, num_heads, dropout, out_proj) for _ in range(2)]
+            if cross_attention else []
         )
 
     def forward(self, x, adagn: Sequence[torch.Tensor], contexts: Sequence[torch.Tensor], mask):
@@ -106,12 +118,13 @@ class Stage(nn.Module):
 @dataclass
 class UNetConditioning(Conditioning):
     """CondUNet1D's per-request inputs. masks: the motion mask at each resolution (B, T / 2^i);
-    pooled: (B, time_dim) text embedding added to the timestep's; text_contexts: (B, H, d, d) per
-    cross-attention layer of each stage, in `CondUNet1D.stages()` order; adagn: per stage, per
-    block, the (S, B, 2 C) AdaGN projections of the S planned timesteps (None: not planned)."""
+    pooled: (B, time_dim) text embedding added to the timestep's (None in the official layout);
+    text_contexts: (B, H, d, d) per cross-attention layer of each stage, in `CondUNet1D.stages()`
+    order; adagn: per stage, per block, the (S, B, 2 C) AdaGN projections of the S planned
+    timesteps (None: not planned)."""
 
     masks: list[torch.Tensor]
-    pooled: torch.Tensor
+    pooled: torch.Tensor | None
     text_contexts: list[list[torch.Tensor]]
     adagn: list[list[torch.Tensor]] | None
 
@@ -132,36 +145,48 @@ class CondUNet1D(nn.Module):
         dropout: float = 0.1,
         cross_attention: bool = True,
         norm: str = "frame",
+        variant: str = "stablemo",
     ):
         super().__init__()
         if len(channel_mults) < 1:
             raise StableMoError("channel_mults: need at least one stage")
         if kernel_size % 2 == 0:
             raise StableMoError(f"kernel_size: must be odd to keep the length, got {kernel_size}")
-        self.input_dim, self.text_dim = input_dim, text_dim
-        self.length_multiple = 2 ** (len(channel_mults) - 1)
+        if variant not in ("stablemo", "official"):
+            raise StableMoError(f"variant: expected 'stablemo' or 'official' (the published T2MUnet's layout), got {variant!r}")
+        official = variant == "official"
+        self.input_dim, self.text_dim, self.variant = input_dim, text_dim, variant
+        n = len(channel_mults)
+        n_down = n if official else n - 1
+        self.length_multiple = 2 ** n_down
         dims = [input_dim] + [base_channels * m for m in channel_mults]
         common = dict(kernel_size=kernel_size, num_groups=num_groups, norm=norm, dropout=dropout,
-                      cross_attention=cross_attention, num_heads=num_heads)
+                      cross_attention=cross_attention, num_heads=num_heads, out_proj=not official)
 
-        self.time_embed = TimestepEmbedder(time_dim)
-        self.text_embed = nn.Linear(text_dim, time_dim)  # pooled text joins the AdaGN embedding
+        self.time_embed = TimestepEmbedder(time_dim, variant=variant)
+        # pooled text joins the AdaGN embedding (not in the published network)
+        self.text_embed = None if official else nn.Linear(text_dim, time_dim)
 
-        n = len(channel_mults)
         self.down = nn.ModuleList(Stage(dims[i], dims[i + 1], time_dim, text_dim, **common) for i in range(n))
-        self.downsample = nn.ModuleList(nn.Conv1d(dims[i + 1], dims[i + 1], 3, stride=2, padding=1) for i in range(n - 1))
+        self.downsample = nn.ModuleList(nn.Conv1d(dims[i + 1], dims[i + 1], 3, stride=2, padding=1) for i in range(n_down))
         self.mid = Stage(dims[-1], dims[-1], time_dim, text_dim, **common)
-        # up stage i (run from i = n-1 down to 0) concatenates the skip of down stage i
+        # up stage i (run from i = n-1 down to 0) concatenates the skip of down stage i; the
+        # default up-samples after a stage (same width), the official layout before it (new width)
         up, upsample, ch = [], [], dims[-1]
         for i in reversed(range(n)):
+            if official:
+                upsample.append(nn.ConvTranspose1d(ch, dims[i + 1], 4, stride=2, padding=1))
+                ch = dims[i + 1]
             up.append(Stage(ch + dims[i + 1], dims[i + 1], time_dim, text_dim, **common))
             ch = dims[i + 1]
-            if i > 0:
+            if i > 0 and not official:
                 upsample.append(nn.ConvTranspose1d(ch, ch, 4, stride=2, padding=1))
         self.up = nn.ModuleList(up)
         self.upsample = nn.ModuleList(upsample)
-        self.final_conv = nn.Conv1d(ch, ch, kernel_size, padding=kernel_size // 2)
-        self.final_norm = MaskedGroupNorm(num_groups, ch, norm)
+        self.upsample_first = official
+        # the official head is the 1x1 convolution alone
+        self.final_conv = None if official else nn.Conv1d(ch, ch, kernel_size, padding=kernel_size // 2)
+        self.final_norm = None if official else MaskedGroupNorm(num_groups, ch, norm)
         self.out = nn.Conv1d(ch, input_dim, 1)
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
@@ -178,14 +203,16 @@ class CondUNet1D(nn.Module):
         masks = [motion_mask]
         for _ in self.downsample:
             masks.append(downsample_mask(masks[-1]))
-        pooled = self.text_embed(masked_mean(text, text_mask))  # (B, time_dim)
+        pooled = None if self.text_embed is None else self.text_embed(masked_mean(text, text_mask))  # (B, time_dim)
         contexts = [[attn.attn.context(text, text_mask) for attn in stage.attns] for stage in self.stages()]
         timesteps = tuple(int(s) for s in timesteps)
         adagn = None
         if timesteps and time_cond is None and len(timesteps) <= MAX_PLANNED_STEPS:
             B = motion_mask.shape[0]
             steps = torch.tensor(timesteps, device=motion_mask.device).repeat_interleave(B)
-            emb_all = self.time_embed(steps).view(len(timesteps), B, -1) + pooled  # (S, B, time_dim)
+            emb_all = self.time_embed(steps).view(len(timesteps), B, -1)  # (S, B, time_dim)
+            if pooled is not None:
+                emb_all = emb_all + pooled
             adagn = [[block.adagn(emb_all) for block in stage.blocks] for stage in self.stages()]
         else:
             timesteps = ()
@@ -196,7 +223,9 @@ class CondUNet1D(nn.Module):
         index = ctx.planned_index(t) if ctx.adagn is not None else None
         if index is not None:
             return [[table[index] for table in stage] for stage in ctx.adagn]
-        emb = self.time_embed(t, ctx.time_cond) + ctx.pooled  # (B, time_dim)
+        emb = self.time_embed(t, ctx.time_cond)  # (B, time_dim)
+        if ctx.pooled is not None:
+            emb = emb + ctx.pooled
         return [[block.adagn(emb) for block in stage.blocks] for stage in self.stages()]
 
     def forward(self, x: torch.Tensor, t: torch.Tensor, ctx: UNetConditioning) -> torch.Tensor:
@@ -213,9 +242,11 @@ class CondUNet1D(nn.Module):
         h = self.mid(h, adagn[n], ctx.text_contexts[n], ctx.masks[-1])
         for j, stage in enumerate(self.up):
             level = n - 1 - j  # the resolution of down stage `level`
+            if self.upsample_first:
+                h = self.resample(self.upsample[j], h, ctx.masks[level])
             h = stage(self.merge_skip(h, skips.pop()), adagn[n + 1 + j], ctx.text_contexts[n + 1 + j],
                       ctx.masks[level])
-            if j < len(self.upsample):
+            if not self.upsample_first and j < len(self.upsample):
                 h = self.resample(self.upsample[j], h, ctx.masks[level - 1])
         return self.head(h, ctx.masks[0]).transpose(1, 2)
 
@@ -228,6 +259,8 @@ class CondUNet1D(nn.Module):
         return torch.cat([h, skip], dim=1)
 
     def head(self, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        """The output head: conv -> norm -> Mish -> zero-initialised 1x1 conv. (B, C, T) -> (B, D, T)."""
-        h = zero_pad_bct(F.mish(self.final_norm(self.final_conv(h), mask)), mask)
+        """The output head: conv -> norm -> Mish -> zero-initialised 1x1 conv (the official layout:
+        the 1x1 conv alone). (B, C, T) -> (B, D, T)."""
+        if self.final_conv is not None:
+            h = zero_pad_bct(F.mish(self.final_norm(self.final_conv(h), mask)), mask)
         return zero_pad_bct(self.out(h), mask)

@@ -4,6 +4,12 @@ texts (list[str]) -> (text (B, L, latent_dim), text_mask (B, L) bool). The froze
 outside the module tree, so it is neither in ``state_dict()`` nor in ``parameters()`` and never
 receives gradients; bundles hold only the trainable part. The classifier-free-guidance null
 condition is the empty string ``NULL_TEXT = ""`` (encoded like any caption: its special tokens).
+
+``variant="official"`` is the published StableMoFusion T2MUnet's text path (stablemo.official):
+the frozen encoder (CLIP) gives all 77 positions of each caption, padding (token id 0) included,
+and the transformer runs with no padding mask, as the published code does; the null condition
+has no token at all (mask all False), so the denoiser's cross-attention adds nothing for it, which
+is the published classifier-free guidance's unconditional pass (cross-attention skipped).
 """
 
 from __future__ import annotations
@@ -15,15 +21,20 @@ from stablemo.errors import StableMoError
 from stablemo.text.encoders import MINILM, FrozenTextEncoder, get_encoder
 
 NULL_TEXT = ""
+OFFICIAL_CONTEXT = 77  # CLIP's context length: the published text path keeps all of its positions
 
 
 class TextConditioner(nn.Module):
     def __init__(self, encoder: str = MINILM, latent_dim: int = 256, num_layers: int = 4, num_heads: int = 4,
-                 ff_dim: int = 2048, dropout: float = 0.1, cache_size: int = 4096):
+                 ff_dim: int = 2048, dropout: float = 0.1, cache_size: int = 4096, variant: str = "stablemo"):
         super().__init__()
-        self.encoder_name, self.latent_dim = encoder, latent_dim
+        if variant not in ("stablemo", "official"):
+            raise StableMoError(f"text variant: expected 'stablemo' or 'official' (the published T2MUnet's "
+                                f"text path), got {variant!r}")
+        self.encoder_name, self.latent_dim, self.variant = encoder, latent_dim, variant
+        pad_to = OFFICIAL_CONTEXT if variant == "official" else None
         # stored in __dict__ (not a submodule): no state_dict entry, no parameters, no .to() moves
-        object.__setattr__(self, "_frozen", get_encoder(encoder, cache_size))
+        object.__setattr__(self, "_frozen", get_encoder(encoder, cache_size, pad_to))
         self.proj = nn.Linear(self.frozen.dim, latent_dim)
         layer = nn.TransformerEncoderLayer(latent_dim, num_heads, ff_dim, dropout, activation="gelu", batch_first=True)
         self.transformer = nn.TransformerEncoder(layer, num_layers, enable_nested_tensor=False)
@@ -37,6 +48,8 @@ class TextConditioner(nn.Module):
         """Padded frozen token features (B, L, dim) float32 and mask (B, L) bool, on CPU."""
         if isinstance(texts, str) or not isinstance(texts, (list, tuple)) or not texts:
             raise StableMoError("texts: expected a non-empty list of strings")
+        if self.variant == "official":
+            return self._official_features(list(texts))
         feats = self.frozen.encode(list(texts))
         L = max(f.shape[0] for f in feats)
         out = torch.zeros(len(feats), L, self.frozen.dim)
@@ -46,12 +59,25 @@ class TextConditioner(nn.Module):
             mask[i, : f.shape[0]] = True
         return out, mask
 
+    def _official_features(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B, 77, dim) features and mask: all True for a caption, all False (zeros) for NULL_TEXT."""
+        real = [t for t in texts if t != NULL_TEXT]
+        found = dict(zip(real, self.frozen.encode(real))) if real else {}
+        out = torch.zeros(len(texts), OFFICIAL_CONTEXT, self.frozen.dim)
+        mask = torch.zeros(len(texts), OFFICIAL_CONTEXT, dtype=torch.bool)
+        for i, text in enumerate(texts):
+            if text != NULL_TEXT:
+                out[i], mask[i] = found[text], True
+        return out, mask
+
     def forward(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
         weight = self.proj.weight
         if self.frozen.device != weight.device:
             self.frozen.to(weight.device)
         feats, mask = self.frozen_features(texts)
         feats, mask = feats.to(weight.device, weight.dtype), mask.to(weight.device)
-        x = self.transformer(self.proj(feats), src_key_padding_mask=~mask)
+        # the official path has no padding mask (a null row, all masked, would give NaN with one)
+        padding = None if self.variant == "official" else ~mask
+        x = self.transformer(self.proj(feats), src_key_padding_mask=padding)
         x = self.norm(x)
         return torch.where(mask[:, :, None], x, torch.zeros((), dtype=x.dtype, device=x.device)), mask

@@ -10,6 +10,10 @@ the CPU as float32, and it is shared between modules (``get_encoder`` returns on
 and deep copies, e.g. an EMA copy of a model, keep pointing at the same instance). Each text is
 encoded on its own, without padding, so its features are the same bits whatever it is batched with
 and whether or not they come from the cache (exact resume depends on this).
+
+``pad_to=77`` reproduces the published StableMoFusion text path (stablemo.official): each text's
+token ids are padded with id 0 to 77 positions, as OpenAI's ``clip.tokenize`` does, and all 77
+positions' features are returned (CLIP's causal mask only, no padding mask).
 """
 
 from __future__ import annotations
@@ -43,10 +47,11 @@ def minilm_path() -> Path:
 class FrozenTextEncoder:
     """Texts -> per-text token features (l_i, dim) from a frozen transformers model."""
 
-    def __init__(self, name: str = MINILM, cache_size: int = 4096, max_tokens: int = DEFAULT_MAX_TOKENS):
+    def __init__(self, name: str = MINILM, cache_size: int = 4096, max_tokens: int = DEFAULT_MAX_TOKENS,
+                 pad_to: int | None = None):
         from transformers import AutoConfig, AutoModel, AutoTokenizer
 
-        self.name, self.cache_size = name, int(cache_size)
+        self.name, self.cache_size, self.pad_to = name, int(cache_size), pad_to
         if self.cache_size < 0:
             raise StableMoError(f"cache_size: must be >= 0, got {cache_size}")
         if name == MINILM:
@@ -85,6 +90,12 @@ class FrozenTextEncoder:
         self.dim = int(self.model.config.hidden_size)
         limit = getattr(self.tokenizer, "model_max_length", max_tokens) or max_tokens
         self.max_tokens = int(min(limit, max_tokens))
+        if pad_to is not None:
+            positions = getattr(self.model.config, "max_position_embeddings", None)
+            if positions is None or positions < pad_to:
+                raise StableMoError(f"text encoder {name!r}: {pad_to} padded token positions need a model with "
+                                    f">= {pad_to} position embeddings (it has {positions})")
+            self.max_tokens = int(pad_to)
         self._cache: OrderedDict[str, torch.Tensor] = OrderedDict()
         self._lock = threading.Lock()
         self.hits = self.misses = 0
@@ -119,6 +130,11 @@ class FrozenTextEncoder:
         return [self._encode_one(text) for text in texts]
 
     def _encode_one(self, text: str) -> torch.Tensor:
+        if self.pad_to is not None:  # ids padded with 0, no attention mask: (pad_to, dim)
+            ids = self.tokenizer([text], truncation=True, max_length=self.pad_to)["input_ids"][0]
+            padded = torch.zeros(1, self.pad_to, dtype=torch.long)
+            padded[0, : len(ids)] = torch.tensor(ids)
+            return self.model(input_ids=padded.to(self.device)).last_hidden_state[0].float().cpu()
         tokens = self.tokenizer([text], truncation=True, max_length=self.max_tokens, return_tensors="pt")
         tokens = {k: v.to(self.device) for k, v in tokens.items()}
         return self.model(**tokens).last_hidden_state[0].float().cpu()  # (l, dim), no padding
@@ -158,14 +174,14 @@ def _load_error(name: str, source: str, local: bool, err: Exception) -> str:
     return f"text encoder {name!r}: cannot load from {source} ({type(err).__name__}: {' '.join(str(err).split())})"
 
 
-_ENCODERS: dict[tuple[str, int], FrozenTextEncoder] = {}
+_ENCODERS: dict[tuple[str, int, int | None], FrozenTextEncoder] = {}
 _ENCODERS_LOCK = threading.Lock()
 
 
-def get_encoder(name: str = MINILM, cache_size: int = 4096) -> FrozenTextEncoder:
-    """One shared encoder instance per (id, cache size) in this process."""
-    key = (name, int(cache_size))
+def get_encoder(name: str = MINILM, cache_size: int = 4096, pad_to: int | None = None) -> FrozenTextEncoder:
+    """One shared encoder instance per (id, cache size, padding) in this process."""
+    key = (name, int(cache_size), pad_to)
     with _ENCODERS_LOCK:
         if key not in _ENCODERS:
-            _ENCODERS[key] = FrozenTextEncoder(name, cache_size=cache_size)
+            _ENCODERS[key] = FrozenTextEncoder(name, cache_size=cache_size, pad_to=pad_to)
         return _ENCODERS[key]
