@@ -17,6 +17,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "validate": ("stablemo.lit.cli", "main_validate", "validate a model (LightningCLI)"),
     "test": ("stablemo.lit.cli", "main_test", "test a model (LightningCLI)"),
     "export": ("stablemo.lit.export", "main", "export a training checkpoint to an inference bundle"),
+    "import-official": ("stablemo.official.command", "main", "convert a published StableMoFusion checkpoint to a bundle"),
     "generate": ("stablemo.generate", "main", "generate motions from text"),
     "render": ("stablemo.render", "main", "render features or joints (.npy) as an animation"),
     "data": ("stablemo.data.commands", "main", "dataset tools: synth, check, import-bvh"),
