@@ -69,7 +69,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed; prompt i uses seed + i (default 0)")
     p.add_argument("--bundle", default=None, help=f"bundle folder (default: the packaged demo model, {DEFAULT_BUNDLE})")
     p.add_argument("--out", default="outputs", help="output folder (default ./outputs)")
-    p.add_argument("--format", choices=["gif", "mp4"], default="gif", help="animation format (mp4 needs ffmpeg)")
+    p.add_argument("--format", action="append", choices=["gif", "mp4", "bvh"], default=None,
+                   help="output format, may repeat: gif (default), mp4 (needs ffmpeg), bvh (for Blender and game engines, docs/bvh.md)")
     p.add_argument("--no-render", action="store_true", help="write the .npy files only")
     p.add_argument("--footskate", action="store_true",
                    help="remove foot skating inside the last denoising steps (StableMoFusion*, vGRF-guided)")
@@ -109,7 +110,8 @@ def main(argv: list[str] | None = None) -> int:
     bundle = _bundle_path(args.bundle)
     out = check_output_dir(args.out, "--out")
     slugs = unique_slugs(prompts)
-    suffixes = ["features.npy", "joints.npy"] + ([] if args.no_render else [args.format])
+    formats = [] if args.no_render else list(dict.fromkeys(args.format or ["gif"]))
+    suffixes = ["features.npy", "joints.npy"] + formats
     for slug in slugs:  # every file is checked before the compute, so a bad --out costs nothing
         for suffix in suffixes:
             check_output_file(out / f"{slug}.{suffix}", "--out")
@@ -142,11 +144,16 @@ def main(argv: list[str] | None = None) -> int:
         save_npy(out / f"{slug}.features.npy", feats)
         save_npy(out / f"{slug}.joints.npy", joints)
         written = [f"{slug}.features.npy", f"{slug}.joints.npy"]
-        if not args.no_render:
-            from stablemo.render import render_animation
+        for fmt in formats:
+            if fmt == "bvh":
+                from stablemo.bvh import write_bvh
 
-            render_animation(joints, out / f"{slug}.{args.format}", pipe.skeleton, fps=pipe.fps, title=text)
-            written.append(f"{slug}.{args.format}")
+                write_bvh(out / f"{slug}.bvh", joints, skeleton=pipe.skeleton, source_fps=pipe.fps)
+            else:
+                from stablemo.render import render_animation
+
+                render_animation(joints, out / f"{slug}.{fmt}", pipe.skeleton, fps=pipe.fps, title=text)
+            written.append(f"{slug}.{fmt}")
         print(f"{text!r}: {frames} frames -> {out}/{{{', '.join(written)}}}")
     return 0
 

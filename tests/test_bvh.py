@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from test_generate_cli import bundle  # noqa: F401  (the generate tests' tiny random-weight bundle)
 
 from stablemo.bvh import (
     bvh_text,
@@ -260,3 +261,19 @@ def test_write_bvh_rejects_bad_motion():
         bvh_text(np.full((10, 22, 3), np.nan))
     with pytest.raises(StableMoError, match=r"shape \(10, 4\)"):
         bvh_text(np.zeros((10, 4)))
+
+
+def test_generate_writes_bvh_beside_the_animation(tmp_path, bundle):  # noqa: F811  (the imported fixture)
+    from stablemo import generate
+
+    out = tmp_path / "out"
+    assert generate.main(["a person walks", "--frames", "16", "--steps", "2", "--bundle", str(bundle), "--out", str(out),
+                          "--format", "bvh", "--format", "gif", "--format", "bvh"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == [
+        "a-person-walks.bvh", "a-person-walks.features.npy", "a-person-walks.gif", "a-person-walks.joints.npy"]
+    anim = read_bvh(out / "a-person-walks.bvh")
+    assert anim.num_frames == 16 and anim.fps == pytest.approx(20.0)
+    # gif stays the default, and --no-render still writes the arrays only
+    assert generate.main(["a person runs", "--frames", "16", "--steps", "2", "--bundle", str(bundle), "--out", str(out),
+                          "--no-render", "--format", "bvh"]) == 0
+    assert not (out / "a-person-runs.bvh").exists()

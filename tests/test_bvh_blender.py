@@ -53,10 +53,6 @@ def blender_heads(bvh_path, tmp_path) -> tuple[np.ndarray, float]:
 
 @pytest.mark.parametrize("degrees", [0, 90, 180, 270])
 def test_blender_puts_the_bones_on_the_joints(tmp_path, degrees):
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).parent))
     from test_bvh import flip, heading, synth_joints
 
     # a full turn on the spot then a somersault, turned to the heading: every orientation, upside down too
