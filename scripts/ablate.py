@@ -66,8 +66,7 @@ def train_variant(variant: str, args: argparse.Namespace, run_dir: Path) -> dict
         "--config", str(CONFIGS / "common.yaml"), "--config", str(CONFIGS / f"{variant}.yaml"),
         f"--seed_everything={args.seed}", f"--model.seed={args.seed}", f"--data.seed={args.seed}",
         f"--data.data_dir={args.data}",
-        f"--trainer.default_root_dir={run_dir}", f"--trainer.logger.init_args.save_dir={run_dir}",
-        f"--checkpoint.dirpath={run_dir / 'checkpoints'}",
+        f"--trainer.default_root_dir={run_dir}",  # its checkpoints/ and logs/ follow (stablemo.lit.cli)
         f"--trainer.enable_progress_bar={str(args.progress).lower()}",
     ]
     if args.dataset:

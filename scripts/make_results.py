@@ -1,58 +1,335 @@
-"""Write docs/results.md: the demo model on the synthetic benchmark, samplers and students side by side.
+"""Write docs/results.md: the demo model on the synthetic benchmark, samplers, students and precisions.
 
-    python scripts/make_results.py --bundle stablemo/assets/demo_bundle --data data/synth \
-        --evaluator outputs/evaluator_synth/checkpoints/last.ckpt \
-        [--student LCM=bundles/demo_lcm --student PCM=bundles/demo_pcm] [--replications 20] \
-        [--ddpm-items 96 --ddpm-replications 1] [--out docs/results.md]
+One command from a clean clone (after `bash scripts/setup.sh`) regenerates every table:
 
-Every row is scored by the same evaluator on the same test split with the same replication seeds.
-AITS (batch 1, model loaded, each sentence encoding its own text) is measured for every row in this
-one run, after the quality rows, round-robin sentence by sentence so the rows' ratios are measured
-side by side (never taken from an earlier run, even with `--resume`). The
-1000-step DDPM row is expensive on a CPU: it runs on `--ddpm-items` items for `--ddpm-replications`
-replication(s), and is compared with the 10-step SDE row scored on exactly the same items.
-The report (markdown and JSON) is rewritten after every row, marked partial until the last one;
-`--resume` continues a stopped run with the same settings.
+    OMP_NUM_THREADS=1 .venv/bin/python scripts/make_results.py --resume      # docs/results.md, hours on 2 cores
+    OMP_NUM_THREADS=1 .venv/bin/python scripts/make_results.py --quick       # CI-sized check, minutes
+
+What it needs it makes, by seed: the synthetic data (`stablemo data synth --num 2000 --seed 0`
+when `--data` is absent) and the LCM/PCM students (`scripts/distill_demo.sh lcm|pcm` when their
+bundles are absent; not in `--quick`, which scores the students it finds). The evaluator is the
+packaged `stablemo/assets/evaluator_synth` (scripts/make_evaluator_asset.sh made it). Checksums of
+the data, bundles and evaluator, and the environment (versions, CPU, threads, git commit), are
+printed and recorded in the report.
+
+Tables, each computed by one `run_*` function and written by one `render_*` function:
+  samplers   every sampler of the teacher and the students at 1/2/4 steps (`--dtype`, default fp32)
+  ratios     students and 1-step DDIM against the teacher's 10-step SDE row
+  precision  the teacher's 10-step SDE row and the 1-step students in `--low-precision` (bf16)
+             beside fp32, paired per replication, with the paper UNet's AITS of both precisions
+             from `stablemo bench aits` in the notes
+  ddpm       Table 5's claim: 1000 DDPM steps vs 10 SDE steps on `--ddpm-items` items
+
+Every row is scored by the same evaluator on the same test split with the same replication seeds
+(so rows are paired replication by replication). AITS (batch 1, model loaded, each sentence
+encoding its own text) is measured for every row in this one run, after the quality rows,
+round-robin sentence by sentence (never taken from an earlier run, even with `--resume`).
+The report (markdown and JSON beside it) is rewritten after every row, marked partial until the
+last one; `--resume` keeps each row whose own settings (checksums of data, bundle and evaluator,
+sampler, steps, precision, replications, items, seed) are unchanged.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
+import os
 import platform
+import subprocess
 import sys
 import time
+from dataclasses import dataclass
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from stablemo.data import MotionDataset
-from stablemo.errors import run_script
+from stablemo.errors import StableMoError, run_script
 from stablemo.eval import metrics
-from stablemo.eval.command import REAL_ROW, evaluate, load_text_motion_evaluator
-from stablemo.io import write_text
-from stablemo.pipeline import Pipeline
+from stablemo.eval.command import REAL_ROW, SYNTH_EVALUATOR, evaluate, load_text_motion_evaluator
 from stablemo.inference_config import PAPER_CFG
+from stablemo.io import check_output_file, write_text
 
+REPO = Path(__file__).resolve().parents[1]
 COLUMNS = [("r1", "R@1 ↑"), ("r3", "R@3 ↑"), ("fid", "FID ↓"), ("mm_dist", "MM-Dist ↓"), ("diversity", "Diversity →")]
+TEACHER_ROW = "Teacher, SDE-DPM-Solver++ 2M, 10 steps"
+DEFAULT_STUDENTS = ["LCM=bundles/demo_lcm", "PCM=bundles/demo_pcm"]
+SYNTH = {"num": 2000, "seed": 0}  # the benchmark's data: `stablemo data synth --num 2000 --seed 0`
+# the precision table's targets (issue 27): low-precision FID <= 1.02x fp32, R@3 within 0.01
+FID_RATIO_TARGET, R3_TARGET = 1.02, 0.01
+FULL = {"replications": 20, "max_items": 128, "aits_sentences": 20, "ddpm_replications": 1, "paper_aits_repeats": 3}
+QUICK = {"replications": 2, "max_items": 64, "aits_sentences": 4, "ddpm_replications": 0, "paper_aits_repeats": 0}
 
 
-def make_generate(pipe: Pipeline, steps: int, sampler: str | None, cfg: float):
-    lo, hi = pipe.min_length, pipe.max_length
-
-    def generate(texts, lengths, seeds):
-        out = pipe.generate(texts, [min(max(n, lo), hi) for n in lengths], steps=steps, cfg=cfg, sampler=sampler,
-                            seed=seeds)
-        return out.features, out.joints
-
-    return generate
+# ----------------------------------------------------------------------------- provenance
 
 
-def aits(runs: list[tuple[str, Pipeline, int, str | None]], items: list[dict], cfg: float) -> dict[str, float]:
-    """AITS of every run {name: seconds}, measured side by side with cold text caches."""
-    methods = {name: metrics.pipeline_method(pipe, steps, cfg, sampler) for name, pipe, steps, sampler in runs}
-    return metrics.average_inference_times(methods, [it["text"] for it in items], [it["length"] for it in items])
+def sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def folder_checksums(folder: str | Path) -> dict[str, str]:
+    """sha256 of each top-level file, of each subfolder (over its files' relative paths and sha256
+    in sorted order) and of the whole folder ("*"): short enough to print, fine enough to say which
+    part differs when a regenerated folder does not match."""
+    folder = Path(folder)
+    # hidden entries are not data: the loader's memory-mapped cache (.stablemo_cache/) appears at first use
+    files = sorted(p for p in folder.rglob("*")
+                   if p.is_file() and not any(part.startswith(".") for part in p.relative_to(folder).parts))
+    lines = {p.relative_to(folder).as_posix(): sha256_file(p) for p in files}
+    groups: dict[str, list[str]] = {}
+    out: dict[str, str] = {}
+    for rel, digest in lines.items():
+        head, _, rest = rel.partition("/")
+        if rest:
+            groups.setdefault(head + "/", []).append(f"{rel} {digest}\n")
+        else:
+            out[rel] = digest
+    for name, entries in groups.items():
+        out[name] = hashlib.sha256("".join(entries).encode()).hexdigest()
+    out["*"] = hashlib.sha256("".join(f"{r} {d}\n" for r, d in lines.items()).encode()).hexdigest()
+    return dict(sorted(out.items()))
+
+
+def environment() -> dict[str, str]:
+    """What the numbers depend on besides the code: versions, CPU, threads, commit."""
+    import lightning
+
+    from stablemo.fast import gemm_backend
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    commit = _git("rev-parse", "HEAD")
+    dirty = _git("status", "--porcelain", "--untracked-files=no")
+    return {
+        "date (UTC)": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M"),
+        "commit": (commit or "unknown") + (" (with uncommitted changes)" if dirty else ""),
+        "python": platform.python_version(), "torch": torch.__version__, "numpy": np.__version__,
+        "lightning": lightning.__version__, "os": f"{platform.system()} {platform.release()}",
+        "cpu": f"{cpu}, {os.cpu_count()} logical cores", "torch threads": str(torch.get_num_threads()),
+        "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "unset"), "GEMM backend": gemm_backend(),
+    }
+
+
+def _git(*args: str) -> str:
+    try:
+        return subprocess.run(["git", *args], check=False, cwd=REPO, capture_output=True, text=True, timeout=30).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return ""
+
+
+def ensure_data(path: Path) -> None:
+    """The synthetic benchmark at `path`, generated by seed when it is not there yet."""
+    if (path / "Mean.npy").is_file():
+        return
+    if path.exists() and any(path.iterdir()):
+        raise StableMoError(f"--data {path}: exists but holds no dataset (no Mean.npy)")
+    from stablemo.cli import main as stablemo
+
+    print(f"== generating the synthetic data in {path} (--num {SYNTH['num']} --seed {SYNTH['seed']})", flush=True)
+    if stablemo(["data", "synth", "--out", str(path), "--num", str(SYNTH["num"]), "--seed", str(SYNTH["seed"])]):
+        raise StableMoError(f"--data {path}: generating the synthetic data failed")
+
+
+def ensure_student(name: str, path: Path, distill: bool) -> bool:
+    """A student bundle at `path`, distilled by scripts/distill_demo.sh when missing (if allowed)."""
+    if (path / "config.json").is_file():
+        return True
+    mode = name.lower()
+    default = REPO / "bundles" / f"demo_{mode}"
+    if not distill or mode not in ("lcm", "pcm") or path.resolve() != default.resolve():
+        print(f"== skipping the {name} student: {path} is missing", flush=True)
+        return False
+    print(f"== distilling the {name} student into {path} (scripts/distill_demo.sh {mode}, ~30 min on a CPU)", flush=True)
+    env = dict(os.environ)
+    venv_cli = Path(sys.executable).parent / "stablemo"
+    if venv_cli.is_file():
+        env["STABLEMO"] = str(venv_cli)
+    subprocess.run(["bash", str(REPO / "scripts" / "distill_demo.sh"), mode], cwd=REPO, env=env, check=True)
+    return True
+
+
+# ----------------------------------------------------------------------------- rows
+
+
+@dataclass(frozen=True)
+class Run:
+    """One scored configuration: a bundle sampled with `sampler` (None: the student's own) for
+    `steps` steps with the network in `dtype`."""
+
+    name: str  # the row name in fp32 ("Teacher, DDIM, 4 steps")
+    bundle: str
+    steps: int
+    sampler: str | None
+    dtype: str = "fp32"
+
+    @property
+    def label(self) -> str:
+        return self.name if self.dtype == "fp32" else f"{self.name}, {self.dtype}"
+
+
+class Context:
+    """What the rows share: data, evaluator, pipelines (one per bundle and precision), checksums."""
+
+    def __init__(self, args):
+        from stablemo.data import MotionDataset
+
+        self.args = args
+        self.started = time.time()
+        self.pipes: dict[tuple[str, str], object] = {}
+        self.checksums = {"data": folder_checksums(args.data), "evaluator": folder_checksums(args.evaluator)
+                          if Path(args.evaluator).is_dir() else {"*": sha256_file(Path(args.evaluator))}}
+        self.data = MotionDataset.from_folder(args.data, "test", "humanml3d", crop="eval", seed=args.seed,
+                                              progress=False)
+        self.evaluator = load_text_motion_evaluator(args.evaluator, "humanml3d")
+        rng = np.random.default_rng(args.seed)
+        self.timing_items = [self.data[int(i)] for i in rng.choice(len(self.data), args.aits_sentences, replace=False)]
+
+    def out_of_time(self) -> bool:
+        return self.args.budget_min is not None and time.time() - self.started > 60 * self.args.budget_min
+
+    def pipe(self, bundle: str, dtype: str):
+        if (bundle, dtype) not in self.pipes:
+            from stablemo.pipeline import Pipeline
+
+            self.pipes[(bundle, dtype)] = Pipeline.from_bundle(bundle, dtype=dtype)
+            self.checksums.setdefault(f"bundle {bundle}", folder_checksums(bundle))
+        return self.pipes[(bundle, dtype)]
+
+    def key(self, run: Run | None, items: int | None, replications: int) -> dict:
+        """Everything a row's numbers depend on; a row is kept by --resume only if this is unchanged."""
+        key = {"data": self.checksums["data"]["*"], "evaluator": self.checksums["evaluator"]["*"],
+               "items": items, "replications": replications, "seed": self.args.seed, "cfg": self.args.cfg}
+        if run is not None:
+            self.pipe(run.bundle, run.dtype)
+            key.update(bundle=self.checksums[f"bundle {run.bundle}"]["*"], steps=run.steps, sampler=run.sampler,
+                       dtype=run.dtype)
+        return key
+
+    def score(self, raw: dict, section: str, run: Run, items: int | None, replications: int, save) -> bool:
+        """Score `run` into raw[section][run.label] (and the real motions into raw[section][REAL_ROW])
+        unless a row with the same key is there already or the time budget is spent; True if scored."""
+        rows = raw.setdefault(section, {})
+        key = self.key(run, items, replications)
+        if rows.get(run.label, {}).get("key") == key:
+            return False
+        if self.out_of_time():
+            print(f"== {run.label} ({section}): left for a later --resume (--budget-min {self.args.budget_min:g} spent)")
+            return False
+        print(f"== {run.label} ({section})", flush=True)
+        pipe = self.pipe(run.bundle, run.dtype)
+        lo, hi = pipe.min_length, pipe.max_length
+
+        def generate(texts, lengths, seeds):
+            # evaluation crops can be shorter than the model's minimum: generate at the minimum and
+            # score the first `length` frames
+            out = pipe.generate(texts, [min(max(n, lo), hi) for n in lengths], steps=run.steps, cfg=self.args.cfg,
+                                sampler=run.sampler, seed=seeds)
+            return out.features, out.joints
+
+        result = evaluate(self.data, self.evaluator, generate, replications=replications, seed=self.args.seed,
+                          max_items=items, row_name=run.label, progress=True)
+        rows[REAL_ROW] = {"key": self.key(None, items, replications), "row": result["rows"][REAL_ROW]}
+        rows[run.label] = {"key": key, "row": result["rows"][run.label]}
+        save()
+        return True
+
+    def aits(self, runs: list[Run], sentences: list[dict] | None = None) -> dict[str, float]:
+        """AITS of every run {label: seconds}, side by side, every sentence with cold text caches."""
+        items = self.timing_items if sentences is None else sentences
+        methods = {r.label: metrics.pipeline_method(self.pipe(r.bundle, r.dtype), r.steps, self.args.cfg, r.sampler)
+                   for r in runs}
+        return metrics.average_inference_times(methods, [it["text"] for it in items], [it["length"] for it in items])
+
+
+# ----------------------------------------------------------------------------- tables: compute
+
+
+def sampler_runs(args, students: list[tuple[str, str]]) -> list[Run]:
+    t = args.bundle
+    runs = [Run(TEACHER_ROW, t, 10, "dpmpp_2m_sde"), Run("Teacher, DPM-Solver++ 2M (ODE), 10 steps", t, 10, "dpmpp_2m"),
+            Run("Teacher, DDIM, 10 steps", t, 10, "ddim"), Run("Teacher, DDIM, 4 steps", t, 4, "ddim"),
+            Run("Teacher, DDIM, 1 step", t, 1, "ddim")]
+    for name, path in students:
+        runs += [Run(f"{name} student, {s} step{'s' if s > 1 else ''}", path, s, None) for s in (1, 2, 4)]
+    return [Run(r.name, r.bundle, r.steps, r.sampler, args.dtype) for r in runs]
+
+
+def precision_runs(args, students: list[tuple[str, str]]) -> list[tuple[Run, Run]]:
+    """(fp32, low precision) pairs: the teacher's default row and every student's 1-step row."""
+    if args.low_precision == "none":
+        return []
+    base = [Run(TEACHER_ROW, args.bundle, 10, "dpmpp_2m_sde")]
+    base += [Run(f"{name} student, 1 step", path, 1, None) for name, path in students]
+    return [(r, Run(r.name, r.bundle, r.steps, r.sampler, args.low_precision)) for r in base]
+
+
+def run_samplers(ctx: Context, raw: dict, runs: list[Run], save) -> None:
+    # cheapest first (network calls per sentence), so that a --budget-min run completes the most rows
+    for run in sorted(runs, key=lambda r: r.steps * (1 if r.sampler is None else 2)):
+        ctx.score(raw, "rows", run, ctx.args.max_items, ctx.args.replications, save)
+
+
+def run_precision(ctx: Context, raw: dict, pairs: list[tuple[Run, Run]], save) -> None:
+    # the fp32 rows are the samplers table's own when it ran in fp32 (same key: kept, not rescored)
+    for pair in pairs:
+        for run in pair:
+            ctx.score(raw, "rows", run, ctx.args.max_items, ctx.args.replications, save)
+
+
+def run_paper_aits(args, raw: dict, save, ctx_out_of_time: bool = False) -> None:
+    """The paper UNet (random weights) in fp32 and low precision, parallel CFG, from `stablemo bench
+    aits` in this process: the speed side of the precision table (the demo network is too small
+    for bf16 to pay off)."""
+    if not args.paper_aits_repeats or args.low_precision == "none" or ctx_out_of_time:
+        return
+    from tempfile import TemporaryDirectory
+
+    from stablemo.bench import main as bench
+
+    print("== paper UNet AITS (stablemo bench aits)", flush=True)
+    argv = ["aits", "--random-weights", "--skip-ddpm", "--skip-student", "--repeats", str(args.paper_aits_repeats),
+            "--threads", str(torch.get_num_threads()), "--seed", str(args.seed)]
+    with TemporaryDirectory() as tmp:
+        bench([*argv, "--json", f"{tmp}/bench.json"])
+        result = json.loads(Path(f"{tmp}/bench.json").read_text())
+    rows = {r["dtype"]: r for r in result["rows"] if r["parallel_cfg"] and r["text_cache"]}
+    raw["paper_aits"] = {"command": "stablemo bench " + " ".join(argv),
+                         "rows": {d: {"aits": r["aits"], "seconds": r["seconds"], "name": r["name"]}
+                                  for d, r in rows.items()},
+                         "model": result.get("model", "")}
+    save()
+
+
+def run_ddpm(ctx: Context, raw: dict, save) -> None:
+    """Table 5's claim on a subset: 1000 DDPM steps vs 10 SDE steps on the same items and seeds."""
+    args = ctx.args
+    if not args.ddpm_replications:
+        return
+    for run in ddpm_runs(args):
+        scored = ctx.score(raw, "ddpm", run, args.ddpm_items, args.ddpm_replications, save)
+        if run.label in raw["ddpm"] and (scored or run.label not in raw["ddpm_aits"]):
+            raw["ddpm_aits"][run.label] = ctx.aits([run], ctx.timing_items[:2])[run.label]
+            save()
+
+
+def ddpm_runs(args) -> list[Run]:
+    return [Run("Teacher, DDPM, 1000 steps", args.bundle, 1000, "ddpm"), Run(TEACHER_ROW, args.bundle, 10, "dpmpp_2m_sde")]
+
+
+# ----------------------------------------------------------------------------- tables: render
 
 
 def cell(row: dict, key: str) -> str:
@@ -63,7 +340,7 @@ def cell(row: dict, key: str) -> str:
     return f"{row[key]['mean']:.3f} ± {row[key]['conf95']:.3f}"
 
 
-def table(rows: list[tuple[str, dict, float | None]]) -> str:
+def metric_table(rows: list[tuple[str, dict, float | None]]) -> str:
     header = "| Method | " + " | ".join(h for _, h in COLUMNS) + " | AITS (s) |"
     lines = [header, "|" + "---|" * (len(COLUMNS) + 2)]
     for name, row, t in rows:
@@ -71,163 +348,275 @@ def table(rows: list[tuple[str, dict, float | None]]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--bundle", required=True)
-    p.add_argument("--data", required=True)
-    p.add_argument("--evaluator", required=True)
-    p.add_argument("--student", action="append", default=[], metavar="NAME=DIR", help="consistency student bundle")
-    p.add_argument("--replications", type=int, default=20)
-    p.add_argument("--max-items", type=int, default=None, help="items scored per replication (default: the split)")
-    p.add_argument("--ddpm-items", type=int, default=96)
-    p.add_argument("--ddpm-replications", type=int, default=1)
-    p.add_argument("--aits-sentences", type=int, default=20)
-    p.add_argument("--cfg", type=float, default=PAPER_CFG)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", default="docs/results.md")
-    p.add_argument("--resume", action="store_true",
-                   help="keep the rows already in OUT's .json when it was written with the same settings")
-    args = p.parse_args(argv)
-
-    torch.manual_seed(args.seed)
-    teacher = Pipeline.from_bundle(args.bundle)
-    data = MotionDataset.from_folder(args.data, "test", teacher.config.get("dataset", "humanml3d"), crop="eval",
-                                     seed=args.seed, progress=False)
-    evaluator = load_text_motion_evaluator(args.evaluator, teacher.config.get("dataset", "humanml3d"))
-    rng = np.random.default_rng(args.seed)
-    timing_items = [data[int(i)] for i in rng.choice(len(data), args.aits_sentences, replace=False)]
-    common = dict(replications=args.replications, seed=args.seed, max_items=args.max_items, progress=True)
-    started = time.time()
-
-    runs: list[tuple[str, Pipeline, int, str | None]] = [
-        ("Teacher, SDE-DPM-Solver++ 2M, 10 steps", teacher, 10, "dpmpp_2m_sde"),
-        ("Teacher, DPM-Solver++ 2M (ODE), 10 steps", teacher, 10, "dpmpp_2m"),
-        ("Teacher, DDIM, 10 steps", teacher, 10, "ddim"),
-        ("Teacher, DDIM, 4 steps", teacher, 4, "ddim"),
-        ("Teacher, DDIM, 1 step", teacher, 1, "ddim"),
-    ]
-    for spec in args.student:
-        name, _, path = spec.partition("=")
-        student = Pipeline.from_bundle(path)
-        for steps in (1, 2, 4):
-            runs.append((f"{name} student, {steps} step{'s' if steps > 1 else ''}", student, steps, None))
-
-    settings = {"bundle": args.bundle, "data": args.data, "evaluator": args.evaluator, "students": args.student,
-                "replications": args.replications, "max_items": args.max_items, "ddpm_items": args.ddpm_items,
-                "ddpm_replications": args.ddpm_replications, "cfg": args.cfg, "seed": args.seed}
-    raw: dict = {"settings": settings, "rows": {}, "aits": {}, "subset": {}, "complete": False}
-    json_path = Path(args.out).with_suffix(".json")
-    if args.resume and json_path.is_file():
-        previous = json.loads(json_path.read_text())
-        if previous.get("settings") == settings:
-            raw.update({k: previous.get(k, raw[k]) for k in ("rows", "subset")})
-            print(f"resuming: {len(raw['rows'])} row(s) and {len(raw['subset'])} subset row(s) from {json_path}")
-        else:
-            print(f"not resuming: {json_path} was written with other settings")
-    claim_runs = [("Teacher, DDPM, 1000 steps", 1000, "ddpm"), ("Teacher, SDE-DPM-Solver++ 2M, 10 steps", 10, "dpmpp_2m_sde")]
-    total = len(runs) + (len(claim_runs) if args.ddpm_replications else 0)
-
-    def rows_done() -> int:
-        return len([n for n, *_ in runs if n in raw["rows"]]) + len(raw["subset"])
-
-    kept = rows_done()
-
-    def save() -> None:
-        done = rows_done()
-        raw["complete"] = done == total
-        write_text(args.out, render(args, argv, raw, runs, (time.time() - started) / 60, done, total, kept))
-        write_text(json_path, json.dumps(raw, indent=2) + "\n")
-
-    for name, pipe, steps, sampler in runs:
-        if name in raw["rows"]:
-            continue
-        print(f"== {name}", flush=True)
-        result = evaluate(data, evaluator, make_generate(pipe, steps, sampler, args.cfg), row_name=name, **common)
-        raw["rows"][REAL_ROW] = result["rows"][REAL_ROW]
-        raw["rows"][name] = result["rows"][name]
-        save()
-    print(f"== AITS of {len(runs)} rows, side by side over {len(timing_items)} sentences", flush=True)
-    raw["aits"] = aits(runs, timing_items, args.cfg)
-    save()
-
-    # Table 5's claim on a subset: 1000 DDPM steps vs 10 SDE steps on the same items and seeds
-    if args.ddpm_replications:
-        subset = dict(replications=args.ddpm_replications, seed=args.seed, max_items=args.ddpm_items, progress=True)
-        for name, steps, sampler in claim_runs:
-            if name in raw["subset"]:
-                continue
-            print(f"== {name} (subset)", flush=True)
-            result = evaluate(data, evaluator, make_generate(teacher, steps, sampler, args.cfg), row_name=name, **subset)
-            timed = aits([(name, teacher, steps, sampler)], timing_items[:2], args.cfg)[name]
-            raw["subset"][name] = {"row": result["rows"][name], "aits": timed, "real": result["rows"][REAL_ROW]}
-            save()
-    save()
-    print(f"wrote {args.out}")
-    return 0
+def _row(raw: dict, label: str, section: str = "rows") -> dict | None:
+    entry = raw.get(section, {}).get(label)
+    return entry["row"] if entry else None
 
 
-def render(args, argv, raw: dict, runs, minutes: float, done: int, total: int, kept: int = 0) -> str:
-    cmd = "python scripts/make_results.py " + " ".join(argv)
-    real = raw["rows"].get(REAL_ROW)
-    main_rows = [(name, raw["rows"][name], raw["aits"].get(name)) for name, *_ in runs if name in raw["rows"]]
-    claim_rows = [(name, v["row"], v["aits"]) for name, v in raw["subset"].items()]
-    if claim_rows:
-        claim_rows.insert(0, ("Real motion", next(iter(raw["subset"].values()))["real"], None))
-    status = "" if done == total else f"\n**Partial: {done} of {total} rows so far (the run is still going or was stopped).**\n"
-    claim = f"""## Table 5's claim: 10 SDE-DPM-Solver++ steps vs 1000 DDPM steps
-
-The same {args.ddpm_items} test items and seeds, {args.ddpm_replications} replication(s) (1000 steps are
-expensive on a CPU).
-
-{table(claim_rows)}
-""" if claim_rows else ""
-    ratios = student_ratios(raw, runs)
-    return f"""# Results on the synthetic benchmark
-
-Generated by `scripts/make_results.py` (do not edit by hand). Command:
-
-```bash
-{cmd}
-```
-{status}
-Machine: {platform.machine()}, {torch.get_num_threads()} torch threads, torch {torch.__version__}; this invocation took
-{minutes:.0f} min{f" ({kept} of the {total} rows were kept from an earlier invocation with the same settings, `--resume`)" if kept else ""}. Model: `{args.bundle}` (the demo CondUNet1D, see `configs/demo.yaml`). Evaluator:
-`{args.evaluator}` (StableMo's contrastive text–motion evaluator trained on the same synthetic
-data, `configs/evaluator_synth.yaml`). Test split with the evaluation crops; mean ± 95% interval over
-{args.replications} replications; CFG {args.cfg:g}. AITS: average inference time per sentence, batch 1,
-model loaded, every sentence encoding its own text (cold caches), over {args.aits_sentences} test sentences
-timed round-robin across the rows. Items scored per replication:
-{args.max_items or 'the whole test split'}.
-
-## Samplers and consistency students
-
-{table(([("Real motion", real, None)] if real else []) + main_rows)}
-{ratios}
-{claim}"""
-
-
-TEACHER_ROW = "Teacher, SDE-DPM-Solver++ 2M, 10 steps"
-
-
-def student_ratios(raw: dict, runs) -> str:
-    """Each student row against the teacher's 10-step SDE row: FID ratio and AITS ratio (the
-    distillation targets: 1 step FID <= 1.5x, 4 steps <= 1.1x, 1-step AITS <= 1/8)."""
-    if TEACHER_ROW not in raw["rows"] or TEACHER_ROW not in raw["aits"]:
+def render_samplers(raw: dict, runs: list[Run]) -> str:
+    rows = [(r.label, _row(raw, r.label), raw.get("aits", {}).get(r.label)) for r in runs if _row(raw, r.label)]
+    if not rows:
         return ""
-    teacher_fid, teacher_aits = raw["rows"][TEACHER_ROW]["fid"]["mean"], raw["aits"][TEACHER_ROW]
+    real = _row(raw, REAL_ROW)
+    return "## Samplers and consistency students\n\n" + metric_table([("Real motion", real, None)] + rows) + "\n"
+
+
+def render_ratios(raw: dict, runs: list[Run]) -> str:
+    """Each student row and the teacher's 1-step DDIM against the teacher's 10-step SDE row: FID and
+    AITS ratios (the distillation targets: 1 step FID <= 1.5x, 4 steps <= 1.1x, 1-step AITS <= 1/8)."""
+    teacher = next((r for r in runs if r.name == TEACHER_ROW), None)
+    aits = raw.get("aits", {})
+    if teacher is None or _row(raw, teacher.label) is None or teacher.label not in aits:
+        return ""
+    teacher_fid = _row(raw, teacher.label)["fid"]["mean"]
     lines = []
-    for name, _, steps, sampler in runs:
-        if sampler is None and name in raw["rows"]:
-            fid = raw["rows"][name]["fid"]["mean"]
-            lines.append(f"| {name} | {fid / teacher_fid:.2f} | {raw['aits'][name] / teacher_aits:.3f} |")
-    one_step = "Teacher, DDIM, 1 step"
-    if one_step in raw["rows"]:
-        lines.append(f"| {one_step} | {raw['rows'][one_step]['fid']['mean'] / teacher_fid:.2f} | "
-                     f"{raw['aits'][one_step] / teacher_aits:.3f} |")
+    for r in [r for r in runs if r.sampler is None] + [r for r in runs if r.name == "Teacher, DDIM, 1 step"]:
+        if _row(raw, r.label) is not None and r.label in aits:
+            lines.append(f"| {r.label} | {_row(raw, r.label)['fid']['mean'] / teacher_fid:.2f} | "
+                         f"{aits[r.label] / aits[teacher.label]:.3f} |")
     if not lines:
         return ""
     return ("\n### Against the teacher's 10-step SDE-DPM-Solver++ row\n\n"
             "| Method | FID / teacher FID | AITS / teacher AITS |\n|---|---|---|\n" + "\n".join(lines) + "\n")
+
+
+def paired(low: dict, ref: dict, key: str, op) -> metrics.Interval:
+    """Per-replication op(low, ref) over replications (rows share items, seeds and reference statistics)."""
+    return metrics.replication_interval([op(a, b) for a, b in zip(low[key]["values"], ref[key]["values"])])
+
+
+def render_precision(raw: dict, pairs: list[tuple[Run, Run]], args) -> str:
+    aits = raw.get("aits", {})
+    lines = []
+    for ref_run, low_run in pairs:
+        ref, low = _row(raw, ref_run.label), _row(raw, low_run.label)
+        if ref is None or low is None:
+            continue
+        ratio = paired(low, ref, "fid", lambda a, b: a / b)
+        d_r3 = paired(low, ref, "r3", lambda a, b: a - b)
+        met = ratio.mean <= FID_RATIO_TARGET and abs(d_r3.mean) <= R3_TARGET
+        t_ref, t_low = aits.get(ref_run.label), aits.get(low_run.label)
+        speed = f"{t_low / t_ref:.2f}" if t_ref and t_low else "–"
+        lines.append(f"| {ref_run.name} | fp32 | {cell(ref, 'r3')} | {cell(ref, 'fid')} | {_seconds(t_ref)} | | | | |")
+        lines.append(f"| {low_run.name} | {low_run.dtype} | {cell(low, 'r3')} | {cell(low, 'fid')} | {_seconds(t_low)} | "
+                     f"{_interval(ratio, 3)} | {_interval(d_r3, 3, signed=True)} | {speed} | {'yes' if met else 'no'} |")
+    if not lines:
+        return ""
+    low = args.low_precision
+    notes = [(f"Rows in pairs: fp32, then {low} on the same items, captions, seeds and reference statistics, "
+             f"so the ratio and the difference are taken replication by replication (mean ± 95% interval over "
+             f"{args.replications} replications). {low}: the network under autocast (matrix products and "
+             "convolutions in low precision, Linear weights cast once and cached; stablemo.fast); the solver, "
+             f"guidance, x0 conversion and the evaluator stay float32. Target: FID ratio ≤ {FID_RATIO_TARGET:g} "
+             f"and |ΔR@3| ≤ {R3_TARGET:g} (met: both means within). The demo network is small (1.6 M parameters, "
+             f"32–64 channels): its AITS column shows the cost of casting, not the speed of {low} on a "
+             "paper-sized network, which the next note gives.")]
+    paper = raw.get("paper_aits")
+    if paper and "fp32" in paper["rows"] and low in paper["rows"]:
+        a32, alow = paper["rows"]["fp32"]["aits"], paper["rows"][low]["aits"]
+        notes.append(f"Paper UNet ({paper['model'] or 'configs/humanml3d.yaml'}, random weights, batch 1, 196 "
+                     f"frames, 10 steps, parallel CFG, text cache), `{paper['command']}` in this run: fp32 "
+                     f"{a32:.3f} s, {low} {alow:.3f} s per sentence ({alow / a32:.2f}× the fp32 time).")
+    header = ("| Method | Precision | R@3 ↑ | FID ↓ | AITS (s) | FID / fp32 FID | R@3 − fp32 R@3 | "
+              "AITS / fp32 AITS | Target met |\n|---|---|---|---|---|---|---|---|---|")
+    return (f"\n## Low precision ({low}) against fp32\n\n" + header + "\n" + "\n".join(lines) + "\n\n"
+            + "\n\n".join(notes) + "\n")
+
+
+def _seconds(t: float | None) -> str:
+    return "–" if t is None else f"{t:.4f}"
+
+
+def _interval(iv: metrics.Interval, digits: int, signed: bool = False) -> str:
+    fmt = f"{{:{'+' if signed else ''}.{digits}f}}"
+    return f"{fmt.format(iv.mean)} ± {iv.half_width:.{digits}f}" if len(iv.values) > 1 else fmt.format(iv.mean)
+
+
+def render_ddpm(raw: dict, args) -> str:
+    rows = [(r.label, _row(raw, r.label, "ddpm"), raw.get("ddpm_aits", {}).get(r.label)) for r in ddpm_runs(args)
+            if _row(raw, r.label, "ddpm")]
+    if not rows:
+        return ""
+    rows.insert(0, ("Real motion", _row(raw, REAL_ROW, "ddpm"), None))
+    return f"""
+## Table 5's claim: 10 SDE-DPM-Solver++ steps vs 1000 DDPM steps
+
+The same {args.ddpm_items} test items and seeds, {args.ddpm_replications} replication(s) (1000 steps are
+expensive on a CPU); AITS over 2 sentences.
+
+{metric_table(rows)}
+"""
+
+
+def render_provenance(raw: dict) -> str:
+    env = "\n".join(f"| {k} | {v} |" for k, v in raw.get("environment", {}).items())
+    sums = []
+    for what, table in raw.get("checksums", {}).items():
+        for name, digest in table.items():
+            sums.append(f"| {what} | `{name}` | `{digest[:16]}` |")
+    return ("\n## Provenance\n\nEnvironment of this invocation:\n\n| | |\n|---|---|\n" + env + "\n\n"
+            "sha256 (first 16 hex digits; the full ones are in the JSON beside this file) of what was scored: "
+            "each top-level file, each subfolder (over its files' paths and sha256, sorted) and the whole "
+            "folder (`*`). Data generated by `stablemo data synth --num 2000 --seed 0`.\n\n"
+            "| What | File or folder | sha256 |\n|---|---|---|\n" + "\n".join(sums) + "\n")
+
+
+def render(args, argv, raw: dict, runs: list[Run], pairs, minutes: float, done: int, total: int) -> str:
+    cmd = "python scripts/make_results.py " + " ".join(argv)
+    status = "" if done == total else f"\n**Partial: {done} of {total} rows so far (the run is still going or was stopped).**\n"
+    return f"""# Results on the synthetic benchmark
+
+Generated by `scripts/make_results.py` (do not edit by hand). Command (from a clean clone: `bash
+scripts/setup.sh`, then this; it generates the data and distils the students it needs):
+
+```bash
+OMP_NUM_THREADS=1 {cmd}
+```
+{status}
+This invocation took {minutes:.0f} min{f" ({raw['kept']} of the {total} rows were kept from an earlier invocation with the same row settings, `--resume`)" if raw.get('kept') else ""}.
+Model: `{args.bundle}` (the demo CondUNet1D, see `configs/demo.yaml`). Evaluator: `{args.evaluator}`
+(StableMo's contrastive text–motion evaluator trained on the same synthetic data,
+`configs/evaluator_synth.yaml`, exported by `scripts/make_evaluator_asset.sh`). Test split with the
+evaluation crops; mean ± 95% interval over {args.replications} replications; CFG {args.cfg:g}; network
+precision {args.dtype} unless a row says otherwise. AITS: average inference time per sentence, batch 1,
+model loaded, every sentence encoding its own text (cold caches), over {args.aits_sentences} test
+sentences timed round-robin across the rows. Items scored per replication: {args.max_items or 'the whole test split'}.
+Machine and versions: see Provenance at the end.
+
+{render_samplers(raw, runs)}{render_ratios(raw, runs)}{render_precision(raw, pairs, args)}{render_ddpm(raw, args)}{render_provenance(raw)}"""
+
+
+# ----------------------------------------------------------------------------- main
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--bundle", default="stablemo/assets/demo_bundle")
+    p.add_argument("--data", default="data/synth", help="the synthetic benchmark (generated by seed when absent)")
+    p.add_argument("--evaluator", default=str(SYNTH_EVALUATOR.relative_to(REPO)))
+    p.add_argument("--student", action="append", default=None, metavar="NAME=DIR",
+                   help=f"consistency student bundle (default: {' '.join(DEFAULT_STUDENTS)}, distilled when absent)")
+    p.add_argument("--no-distill", action="store_true", help="skip missing students instead of distilling them")
+    p.add_argument("--quick", action="store_true",
+                   help="CI-sized: 2 replications of 64 items, 4 AITS sentences, no DDPM or paper-UNet rows, "
+                        "no distillation; writes outputs/results_quick.md unless --out is given")
+    p.add_argument("--replications", type=int, help=f"default {FULL['replications']} ({QUICK['replications']} with --quick)")
+    p.add_argument("--max-items", type=int,
+                   help=f"items scored per replication (default {FULL['max_items']}, {QUICK['max_items']} with --quick)")
+    p.add_argument("--ddpm-items", type=int, default=96)
+    p.add_argument("--ddpm-replications", type=int, help="0: leave out the 1000-step DDPM table (default 1, 0 with --quick)")
+    p.add_argument("--aits-sentences", type=int, help=f"default {FULL['aits_sentences']} ({QUICK['aits_sentences']} with --quick)")
+    p.add_argument("--dtype", choices=["fp32", "bf16", "fp16"], default="fp32",
+                   help="network precision of the samplers table (fp16: CUDA only)")
+    p.add_argument("--low-precision", choices=["bf16", "fp16", "none"], default="bf16",
+                   help="precision of the low-precision table's rows, beside fp32 (none: leave it out)")
+    p.add_argument("--paper-aits-repeats", type=int,
+                   help="sentences per row of the paper UNet's `stablemo bench aits` (0: leave it out; default 3, 0 with --quick)")
+    p.add_argument("--cfg", type=float, default=PAPER_CFG)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default=None, help="default: docs/results.md (outputs/results_quick.md with --quick)")
+    p.add_argument("--resume", action="store_true", help="keep the rows of OUT's .json whose settings are unchanged")
+    p.add_argument("--budget-min", type=float, default=None,
+                   help="start no new row after this many minutes; the rows done get their AITS and tables "
+                        "(marked partial) and a later --resume scores the rest")
+    args = p.parse_args(argv)
+    for k, v in (QUICK if args.quick else FULL).items():
+        if getattr(args, k) is None:
+            setattr(args, k, v)
+    args.no_distill = args.no_distill or args.quick
+    args.out = args.out or ("outputs/results_quick.md" if args.quick else "docs/results.md")
+    return args
+
+
+def check_args(args) -> None:
+    """Every argument checked before any compute (one line naming it)."""
+    from stablemo.inference_config import check_finite, check_positive_int, check_seed
+    from stablemo.runtime import resolve_device, resolve_dtype
+
+    for flag in ("replications", "max_items", "ddpm_items", "aits_sentences"):
+        check_positive_int(f"--{flag.replace('_', '-')}", getattr(args, flag))
+    for flag in ("ddpm_replications", "paper_aits_repeats"):
+        if getattr(args, flag) < 0:
+            raise StableMoError(f"--{flag.replace('_', '-')}: must be >= 0, got {getattr(args, flag)}")
+    check_finite("--cfg", args.cfg, low=0.0, high=100.0)
+    check_seed("--seed", args.seed)
+    device = resolve_device(None)
+    for flag in ("dtype", "low_precision"):
+        value = getattr(args, flag)
+        if value != "none":
+            try:
+                resolve_dtype(value, device)
+            except StableMoError as err:
+                raise StableMoError(f"--{flag.replace('_', '-')}: {err}") from None
+    for flag in ("bundle", "evaluator"):
+        if not Path(getattr(args, flag)).exists():
+            raise StableMoError(f"--{flag} {getattr(args, flag)}: not found")
+    check_output_file(args.out, "--out")
+
+
+def main(argv: list[str]) -> int:
+    args = parse_args(argv)
+    check_args(args)
+    torch.manual_seed(args.seed)
+    started = time.time()
+    ensure_data(Path(args.data))
+    students = []
+    for spec in DEFAULT_STUDENTS if args.student is None else args.student:
+        name, sep, path = spec.partition("=")
+        if not sep or not name or not path:
+            raise StableMoError(f"--student {spec!r}: expected NAME=DIR")
+        if ensure_student(name, Path(path), distill=not args.no_distill):
+            students.append((name, path))
+
+    ctx = Context(args)
+    runs = sampler_runs(args, students)
+    pairs = precision_runs(args, students)
+    raw: dict = {"environment": environment(), "checksums": {}, "rows": {}, "ddpm": {}, "aits": {}, "ddpm_aits": {}}
+    # every row this invocation reports, with the key its numbers depend on
+    expected = {"rows": {r.label: ctx.key(r, args.max_items, args.replications) for r in runs + [x for p in pairs for x in p]},
+                "ddpm": {r.label: ctx.key(r, args.ddpm_items, args.ddpm_replications) for r in ddpm_runs(args)}
+                if args.ddpm_replications else {}}
+    expected["rows"][REAL_ROW] = ctx.key(None, args.max_items, args.replications)
+    if args.ddpm_replications:
+        expected["ddpm"][REAL_ROW] = ctx.key(None, args.ddpm_items, args.ddpm_replications)
+    json_path = Path(args.out).with_suffix(".json")
+    if args.resume and json_path.is_file():
+        previous = json.loads(json_path.read_text())
+        for section, keys in expected.items():  # only rows whose settings are unchanged
+            raw[section] = {label: entry for label, entry in previous.get(section, {}).items()
+                            if isinstance(entry, dict) and label in keys and entry.get("key") == keys[label]}
+        raw["ddpm_aits"] = {k: v for k, v in previous.get("ddpm_aits", {}).items() if k in raw["ddpm"]}
+    total = sum(len(keys) - 1 for keys in expected.values())
+
+    def rows_done() -> int:
+        return sum(1 for section, keys in expected.items() for label in keys
+                   if label != REAL_ROW and raw[section].get(label, {}).get("key") == keys[label])
+
+    raw["kept"] = rows_done()
+
+    def save() -> None:
+        raw["checksums"] = ctx.checksums
+        done = rows_done()
+        raw["complete"] = done == total
+        write_text(args.out, render(args, argv, raw, runs, pairs, (time.time() - started) / 60, done, total))
+        write_text(json_path, json.dumps(raw, indent=2) + "\n")
+
+    for what, digest in ctx.checksums["data"].items():
+        print(f"sha256 data {what}: {digest}")
+    print(f"sha256 evaluator: {ctx.checksums['evaluator']['*']}")
+    run_precision(ctx, raw, pairs, save)  # first: the rows issue 27 asks for, and their speed note
+    run_paper_aits(args, raw, save, ctx.out_of_time())
+    run_samplers(ctx, raw, runs, save)
+    run_ddpm(ctx, raw, save)
+    done = [r for r in runs + [x for p in pairs for x in p] if r.label in raw["rows"]]
+    timed = list({r.label: r for r in done}.values())
+    print(f"== AITS of {len(timed)} rows, side by side over {len(ctx.timing_items)} sentences", flush=True)
+    raw["aits"] = ctx.aits(timed)
+    save()
+    for name, table in ctx.checksums.items():
+        print(f"sha256 {name}: {table['*']}")
+    print(f"wrote {args.out}")
+    return 0
 
 
 if __name__ == "__main__":

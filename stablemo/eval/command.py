@@ -1,7 +1,7 @@
 """`stablemo evaluate`: the field's text-to-motion benchmark with 95% intervals over replications.
 
-    stablemo evaluate --bundle DIR --data DIR --evaluator DIR|CKPT [--replications 20]
-        [--steps 10 --sampler dpmpp_2m_sde --cfg 2.5] [--footskate] [--multimodality]
+    stablemo evaluate --bundle DIR --data DIR [--evaluator DIR|CKPT] [--replications 20]
+        [--steps 10 --sampler dpmpp_2m_sde --cfg 2.5] [--dtype fp32|bf16|fp16] [--footskate] [--multimodality]
         [--split test --seed 0 --out results.json]
 
 Protocol (facts-humanml3d.md §6–8). Each replication r makes two passes over the split's items with
@@ -37,6 +37,9 @@ from stablemo.eval.text_motion import (  # noqa: F401 (re-exported: the evaluato
 )
 
 REAL_ROW = "Real motion"
+# StableMo's evaluator of the synthetic benchmark, shipped so that `stablemo evaluate` runs out of the
+# box (made by scripts/make_evaluator_asset.sh: data synth seed 0, configs/evaluator_synth.yaml)
+SYNTH_EVALUATOR = Path(__file__).resolve().parents[1] / "assets" / "evaluator_synth"
 COLUMNS = [  # (json key, table header, lower/higher/closer-is-better hint only for readers)
     ("r1", "R@1"), ("r2", "R@2"), ("r3", "R@3"), ("fid", "FID"), ("mm_dist", "MM-Dist"),
     ("diversity", "Diversity"), ("multimodality", "MModality"), ("skate_ratio", "Skate"),
@@ -219,8 +222,9 @@ def _parser() -> argparse.ArgumentParser:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--bundle", help="inference bundle to evaluate (omit to score only the real motions)")
     p.add_argument("--data", required=True, help="dataset folder (HumanML3D layout)")
-    p.add_argument("--evaluator", required=True,
-                   help="our evaluator (.ckpt or exported folder) or the published archive folder / finest.tar")
+    p.add_argument("--evaluator",
+                   help="our evaluator (.ckpt or exported folder) or the published archive folder / finest.tar "
+                        "(default on the synthetic benchmark's data: the packaged stablemo/assets/evaluator_synth)")
     p.add_argument("--glove", help="folder with our_vab_data.npy and our_vab_words.pkl|txt (published evaluator)")
     p.add_argument("--dataset", choices=["humanml3d", "kit"], help="default: the bundle's, else humanml3d")
     p.add_argument("--split", default="test")
@@ -239,10 +243,18 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--max-items", type=int, default=None, help="score at most this many items per pass")
     p.add_argument("--feat-bias", type=float, default=5.0, help="feat_bias of the data statistics")
     p.add_argument("--device", default=None)
+    p.add_argument("--dtype", choices=["fp32", "bf16", "fp16"], default=None,
+                   help="network precision (default: fp32 on the CPU, fp16 on CUDA; fp16 is CUDA-only); "
+                        "the solver, guidance and evaluator stay float32")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", help="write the results as JSON here")
     p.add_argument("--no-progress", action="store_true")
     return p
+
+
+def dtype_name(dtype: torch.dtype) -> str:
+    """torch.bfloat16 -> "bf16" (the --dtype spelling)."""
+    return {torch.float32: "fp32", torch.bfloat16: "bf16", torch.float16: "fp16"}.get(dtype, str(dtype))
 
 
 def _check_numbers(args) -> None:
@@ -262,9 +274,39 @@ def _check_numbers(args) -> None:
     check_seed("--seed", args.seed)
 
 
+def default_evaluator(data: str | Path) -> Path:
+    """The packaged synthetic-benchmark evaluator, for data written by `stablemo data synth` only:
+    scoring HumanML3D or KIT with it would print numbers no one else can compare with."""
+    from stablemo.data.synth.writer import MARKER
+
+    if not (Path(data) / MARKER).is_file():
+        raise StableMoError(f"--evaluator: required for {data} (not the synthetic benchmark: no {MARKER}); give "
+                            "the published Guo et al. evaluator folder (see docs/evaluation.md) or a StableMo one")
+    if not (SYNTH_EVALUATOR / "config.json").is_file():
+        raise StableMoError(f"--evaluator: the packaged evaluator {SYNTH_EVALUATOR} is missing (a broken install?); "
+                            "pass one explicitly")
+    return SYNTH_EVALUATOR
+
+
+def _check_precision(args):
+    """--dtype against --device, before anything is loaded: fp16 is CUDA-only."""
+    if args.dtype is None:
+        return None
+    if not args.bundle:
+        raise StableMoError("--dtype: sets the precision of the generating network; give --bundle")
+    from stablemo.runtime import resolve_device, resolve_dtype
+
+    try:
+        return resolve_dtype(args.dtype, resolve_device(args.device))
+    except StableMoError as err:
+        raise StableMoError(f"--{err}") from None
+
+
 def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
     _check_numbers(args)
+    dtype = _check_precision(args)
+    evaluator_path = args.evaluator or default_evaluator(args.data)
     if args.out:
         from stablemo.io import check_output_file
 
@@ -277,11 +319,11 @@ def main(argv: list[str]) -> int:
     if args.bundle:
         from stablemo.pipeline import Pipeline
 
-        pipe = Pipeline.from_bundle(args.bundle, device=args.device)
+        pipe = Pipeline.from_bundle(args.bundle, device=args.device, dtype=dtype)
         dataset_name = args.dataset or pipe.config.get("dataset", "humanml3d")
     data = MotionDataset.from_folder(args.data, args.split, dataset_name, feat_bias=args.feat_bias, crop="eval",
                                      seed=args.seed, progress=not args.no_progress)
-    evaluator = load_text_motion_evaluator(args.evaluator, dataset_name, args.glove)
+    evaluator = load_text_motion_evaluator(evaluator_path, dataset_name, args.glove)
     if evaluator.feature_dim != data.spec.feature_dim:
         raise StableMoError(f"--evaluator: expects {evaluator.feature_dim}-d features, the data has {data.spec.feature_dim}")
 
@@ -295,7 +337,8 @@ def main(argv: list[str]) -> int:
         steps = args.steps or inference.steps
         cfg = inference.cfg if args.cfg is None else args.cfg
         sampler = args.sampler or inference.sampler
-        row_name = f"{Path(args.bundle).name} ({sampler}, {steps} steps, cfg {cfg:g})"
+        precision = "" if pipe.dtype == torch.float32 else f", {dtype_name(pipe.dtype)}"
+        row_name = f"{Path(args.bundle).name} ({sampler}, {steps} steps, cfg {cfg:g}{precision})"
         if args.footskate:
             row_name += " + footskate"
         lo, hi = pipe.min_length, pipe.max_length
@@ -325,7 +368,8 @@ def main(argv: list[str]) -> int:
     result["settings"].update(
         bundle=args.bundle, data=args.data, split=args.split, dataset=dataset_name,
         steps=steps if pipe else None, sampler=sampler if pipe else None, cfg=cfg if pipe else None,
-        device=str(pipe.device) if pipe else None, aits_sentences=args.aits if pipe else 0,
+        device=str(pipe.device) if pipe else None, dtype=dtype_name(pipe.dtype) if pipe else None,
+        aits_sentences=args.aits if pipe else 0,
     )
     result["aits"] = aits
     print(f"evaluator: {evaluator.name}; split {args.split}, {result['settings']['items']} items, "

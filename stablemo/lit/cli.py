@@ -3,7 +3,9 @@
 Everything is configured in YAML and overridable on the command line. Two callbacks are always
 present and configurable under their own keys: `checkpoint` (ModelCheckpoint that also saves the
 final step; save_last on) and
-`guard` (NonFiniteGuard). Checkpoints are written atomically and loaded with weights_only=True
+`guard` (NonFiniteGuard). The run folder `trainer.default_root_dir` holds a run's checkpoints
+(`<root>/checkpoints`) and CSV log (`<root>/logs`) unless `checkpoint.dirpath` or `trainer.logger`
+say otherwise. Checkpoints are written atomically and loaded with weights_only=True
 (AtomicCheckpointIO) unless the config names another CheckpointIO plugin.
 A config whose `model:` has a `class_path` trains that LightningModule instead of DiffusionModule
 (e.g. `stablemo.eval.evaluator.EvaluatorModule` in configs/evaluator_*.yaml).
@@ -15,6 +17,7 @@ import sys
 import warnings
 from pathlib import Path
 
+from jsonargparse import Namespace
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.plugins.io import CheckpointIO
 
@@ -74,6 +77,23 @@ class StableMoCLI(LightningCLI):
             # gives only init arguments trains the diffusion model
             parser.set_defaults({"model": {"class_path": f"{DiffusionModule.__module__}.{DiffusionModule.__qualname__}"}})
         parser.add_lightning_class_args(NonFiniteGuard, "guard")
+
+    def before_instantiate_classes(self) -> None:
+        """The run folder (`trainer.default_root_dir`) holds the run: checkpoints go to
+        `<root>/checkpoints` and, when the config names no logger, the CSV log to `<root>/logs`, unless
+        `checkpoint.dirpath` / `trainer.logger` are set explicitly. So `--trainer.default_root_dir DIR`
+        moves the whole run, and `--ckpt_path last` finds the checkpoints of an earlier run in the
+        same folder (Lightning's own default, `<root>/lightning_logs/version_N/checkpoints`, is a new
+        folder per run, where "last" finds nothing to resume)."""
+        config = self.config[self.subcommand] if self.subcommand else self.config
+        root = config.get("trainer", {}).get("default_root_dir")
+        if not root:
+            return  # no run folder: Lightning's defaults
+        if config.get("checkpoint") is not None and config["checkpoint"].get("dirpath") is None:
+            config["checkpoint"]["dirpath"] = str(Path(root) / "checkpoints")
+        if config["trainer"].get("logger") is None:
+            config["trainer"]["logger"] = Namespace(class_path="lightning.pytorch.loggers.CSVLogger",
+                                                    init_args=Namespace(save_dir=str(root), name="logs"))
 
     def instantiate_trainer(self, **kwargs):
         plugins = self._get(self.config_init, "trainer", default={}).get("plugins") or []
