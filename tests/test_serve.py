@@ -105,7 +105,7 @@ def test_bad_json_and_bad_download_format(client):
     assert res.status_code == 400 and res.json()["error"].startswith("format: expected one of")
 
 
-def test_downloads_are_the_shown_motion(client, models):
+def test_downloads_are_the_shown_motion(client, models, tmp_path):
     body = {"text": "a person waves", "frames": 40, "seed": 2, "steps": 1}
     joints, feats = offline(models, body["text"], 40, 2, steps=1)
     res = client.post("/api/download", json={**body, "format": "joints.npy"})
@@ -114,6 +114,18 @@ def test_downloads_are_the_shown_motion(client, models):
     assert np.array_equal(np.load(io.BytesIO(res.content), allow_pickle=False), joints)
     res = client.post("/api/download", json={**body, "format": "features.npy"})
     assert np.array_equal(np.load(io.BytesIO(res.content), allow_pickle=False), feats)
+    res = client.post("/api/download", json={**body, "format": "bvh"})
+    assert res.headers["content-disposition"] == 'attachment; filename="a-person-waves-seed2.bvh"'
+    (tmp_path / "m.bvh").write_bytes(res.content)
+    from stablemo.bvh import forward_kinematics, motion_to_animation, read_bvh
+    from stablemo.bvh.names import bvh_names
+
+    anim = read_bvh(tmp_path / "m.bvh")
+    fk = forward_kinematics(anim)[:, [anim.rig.names.index(n) for n in bvh_names("humanml3d")]]  # (T, 22, 3)
+    rigid = forward_kinematics(motion_to_animation(joints, skeleton="humanml3d"))  # the shown motion on a rigid rig
+    assert anim.fps == 20.0 and np.abs(fk - rigid).max() < 1e-5
+    # a rigid rig cannot follow the generated bones' stretching exactly: close on average, not equal
+    assert np.linalg.norm(fk - joints, axis=-1).mean() < 0.05  # metres
     res = client.post("/api/download", json={**body, "format": "gif"})
     assert res.status_code == 200 and res.content[:6] == b"GIF89a"
     from PIL import Image
@@ -192,10 +204,19 @@ def test_serve_command_says_how_to_get_three_js(monkeypatch, tmp_path, capsys):
     assert cli_main(["serve"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "python -m stablemo.serve.vendor" in err and "npm" in err
+    import socket
+
+    taken = socket.socket()
+    taken.bind(("127.0.0.1", 0))
+    taken.listen()
+    port = taken.getsockname()[1]
+    monkeypatch.setattr(vendor_mod, "missing", lambda *a: None)  # past the vendor check
     for argv, message in ((["serve", "--port", "0"], "--port: must be in [1, 65535]"),
+                          (["serve", "--port", str(port)], f"--port: cannot listen on 127.0.0.1:{port}"),
                           (["serve", "--bundle", str(tmp_path / "nope")], "bundle folder not found")):
         assert cli_main(argv) == 2
         assert message in capsys.readouterr().err
+    taken.close()
 
 
 def _fake_npm(tmp_path: Path, payload: bytes) -> Path:

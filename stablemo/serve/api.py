@@ -4,12 +4,12 @@
     GET  /api/info         served models: defaults, length range, samplers, skeleton
     POST /api/generate     {"text", "seconds"|"frames", "seed", "model", "sampler", "steps", "cfg",
                             "footskate", "encoding", "features"} -> joints, features, fps, ...
-    POST /api/download     the same body + "format": joints.npy | features.npy | gif -> the file
+    POST /api/download     the same body + "format": joints.npy | features.npy | bvh | gif -> the file
 
 Bad input is HTTP 400 with {"error": "<field>: <one line>"}, checked before the job is queued. All
 generation runs on one worker thread: a request that arrives while another computes waits its
 turn (FIFO) instead of splitting the cores, and past `max_queue` waiting requests the answer is
-503 at once. GIFs render on a second thread so a download does not hold up typing.
+503 at once. GIFs and BVH files are made on a second thread so a download does not hold up typing.
 """
 
 # no `from __future__ import annotations`: FastAPI reads the route functions' annotations at run time
@@ -34,7 +34,7 @@ from stablemo.serve.models import ModelSet, Motion, motion_json
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 DOWNLOADS = {"joints.npy": "application/octet-stream", "features.npy": "application/octet-stream",
-             "gif": "image/gif"}
+             "gif": "image/gif", "bvh": "application/octet-stream"}
 log = logging.getLogger("stablemo.serve")
 
 
@@ -124,6 +124,8 @@ def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_
         motion, _, _ = await run_job(spec)
         if fmt == "gif":
             data = await render_worker.run(gif_bytes, motion)
+        elif fmt == "bvh":
+            data = await render_worker.run(bvh_bytes, motion)
         else:
             data = npy_bytes(motion.joints if fmt == "joints.npy" else motion.features)
         name = f"{slugify(spec.text)}-seed{spec.seed}.{fmt}"
@@ -138,6 +140,13 @@ def npy_bytes(arr: np.ndarray) -> bytes:
     buffer = io.BytesIO()
     np.lib.format.write_array(buffer, np.ascontiguousarray(arr, dtype=np.float32), allow_pickle=False)
     return buffer.getvalue()
+
+
+def bvh_bytes(motion: Motion) -> bytes:
+    """The motion as BVH (stablemo.bvh: a T-pose rig from its bones, rotations at its frame rate, metres)."""
+    from stablemo.bvh import bvh_text
+
+    return bvh_text(motion.joints, skeleton=motion.info["skeleton"], source_fps=motion.fps).encode("ascii")
 
 
 def gif_bytes(motion: Motion) -> bytes:

@@ -62,6 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.max_queue < 1:
         raise StableMoError(f"--max-queue: must be >= 1, got {args.max_queue}")
     bundles = bundles_from_args(args.bundle)
+    _check_port(args.host, args.port)
     from stablemo.serve.vendor import missing
 
     problem = missing()
@@ -88,3 +89,20 @@ def main(argv: list[str] | None = None) -> int:
           flush=True)
     uvicorn.run(app, host=args.host, port=args.port, log_level="warning")
     return 0
+
+
+def _check_port(host: str, port: int) -> None:
+    """A taken port or an address not on this machine is one line before the models load."""
+    import socket
+
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except socket.gaierror as err:
+        raise StableMoError(f"--host: {host}: {err.strerror}") from None
+    family, _, _, _, address = infos[0]
+    with socket.socket(family, socket.SOCK_STREAM) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn binds
+        try:
+            sock.bind(address)
+        except OSError as err:
+            raise StableMoError(f"--port: cannot listen on {host}:{port} ({err.strerror}); is another server running there?") from None
