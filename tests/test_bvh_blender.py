@@ -67,3 +67,15 @@ def test_blender_puts_the_bones_on_the_joints(tmp_path, degrees):
     assert heads.shape == joints.shape
     err = np.linalg.norm(heads - joints, axis=-1)
     assert err.max() < 1e-4, (err.mean(), err.max())  # Blender works in float32
+
+
+def test_blender_follows_stretching_bones(tmp_path):
+    from test_bvh import heading, synth_joints
+
+    joints = heading(synth_joints("jump", 3), 180)
+    wobble = 1.0 + 0.1 * np.sin(np.linspace(0, 9, len(joints)))[:, None, None]
+    joints = joints[:, :1] + (joints - joints[:, :1]) * wobble  # every bone changes length
+    path = tmp_path / "s.bvh"
+    write_bvh(path, joints, stretch=True)
+    heads, _ = blender_heads(path, tmp_path)
+    assert np.linalg.norm(heads - joints, axis=-1).max() < 1e-4

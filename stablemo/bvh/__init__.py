@@ -10,7 +10,8 @@ motion's joints back):
 
     keyword arguments: skeleton ("humanml3d" | "kit", default from the shape), fps (output frame
     rate; rotations resampled by slerp; default the source rate), source_fps (default the
-    skeleton's: 20 / 12.5), units ("m" default, "cm", "mm").
+    skeleton's: 20 / 12.5), units ("m" default, "cm", "mm"), stretch (False: rigid bones of the
+    motion's median lengths; True: per-joint translations too, exact where bones change length).
 
 Reading: `read_bvh(path) -> Animation`, `forward_kinematics(anim) -> (T, J, 3)`;
 `stablemo data import-bvh` turns a folder of BVH files into a HumanML3D-layout dataset

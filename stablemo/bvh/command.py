@@ -2,7 +2,10 @@
 
     stablemo bvh outputs/walk.features.npy --out walk.bvh              # 20 fps, metres
     stablemo bvh outputs/walk.joints.npy --out walk.bvh --fps 60 --units cm
+    stablemo bvh outputs/walk.features.npy --out walk.bvh --stretch     # bones follow the motion's changing lengths
     stablemo bvh outputs/walk.features.npy --out walk.npz               # SMPL 24-joint axis-angle + root
+
+It prints how far the file's joints are from the motion's (forward kinematics at the source rate).
 """
 
 from __future__ import annotations
@@ -10,6 +13,8 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+
+import numpy as np
 
 from stablemo.errors import StableMoError
 
@@ -22,6 +27,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--source-fps", type=float, default=None, help="the input's frame rate (default: the skeleton's)")
     p.add_argument("--skeleton", default=None, choices=["humanml3d", "kit"], help="default: from the array's shape")
     p.add_argument("--units", default="m", choices=["m", "cm", "mm"], help="BVH length unit (default m)")
+    p.add_argument("--stretch", action="store_true",
+                   help="position channels on every joint, so that bones may change length and every joint is "
+                        "exact (generated motions); default: rigid bones of the motion's median lengths")
     return p
 
 
@@ -39,13 +47,21 @@ def main(argv: list[str] | None = None) -> int:
         raise StableMoError(f"--out: {out}: name a .bvh or .npz file")
     check_output_file(out, "--out")
     motion = load_npy(args.input)
-    from stablemo.bvh.writer import motion_to_animation
+    from stablemo.bvh.resample import resample
+    from stablemo.bvh.rig import forward_kinematics
+    from stablemo.bvh.writer import UNITS, motion_joints, motion_to_animation
 
+    is_bvh = out.suffix.lower() == ".bvh"
     try:
-        anim = motion_to_animation(motion, skeleton=args.skeleton, fps=args.fps, source_fps=args.source_fps,
-                                   units=args.units if out.suffix.lower() == ".bvh" else "m")
+        joints, skel = motion_joints(motion, args.skeleton)
+        anim = motion_to_animation(joints, skeleton=skel, source_fps=args.source_fps,
+                                   units=args.units if is_bvh else "m", stretch=args.stretch and is_bvh)
     except StableMoError as err:
         raise StableMoError(f"{args.input}: {err}") from None
+    metres = 1.0 / UNITS[args.units if is_bvh else "m"]
+    err = np.linalg.norm(forward_kinematics(anim) * metres - joints / (1000.0 if skel.units == "mm" else 1.0), axis=-1)
+    if args.fps is not None:
+        anim = resample(anim, args.fps)
     if out.suffix.lower() == ".npz":
         from stablemo.bvh.smpl import write_smpl_npz
 
@@ -55,7 +71,9 @@ def main(argv: list[str] | None = None) -> int:
         from stablemo.io import write_text
 
         write_text(out, format_bvh(anim))
-    print(f"{args.input}: {anim.num_frames} frames at {anim.fps:g} fps -> {out}")
+    fit = f"joints within {err.mean() * 100:.2f} cm on average, {err.max() * 100:.2f} cm at most"
+    hint = " (the motion's bones change length; --stretch follows them)" if err.max() > 0.03 and is_bvh else ""
+    print(f"{args.input}: {anim.num_frames} frames at {anim.fps:g} fps -> {out}; {fit}{hint}")
     return 0
 
 

@@ -3,10 +3,11 @@
 Why our own IK rather than the features' 6D rotation channels: HumanML3D stores, for every bone,
 the shortest world-space rotation from the bone's raw rest axis to its direction (motion/features.py,
 `swing_rotations`). Such a rotation carries nothing beyond the bone's direction (which the ric
-positions give exactly), and its twist is undefined where a bone points against its raw axis in
-world space: the feet (raw +z) whenever the body walks towards -z. Converting those rotations to a
-BVH makes the foot spin at heading 180° (the MoMask BVH bug). Here every rotation is taken relative
-to the parent's own frame instead, so nothing depends on the heading:
+positions give exactly), and its twist depends on where the body faces: joint rotations built from
+those swings (parent swing^-1 * child swing) differ by up to 180° for the same pose turned to
+heading 90/180/270 (clip 012314: ankles, elbows, collars; scripts/bvh_report.py), and their twist is
+undefined where a bone points against its raw axis in world space. Here every rotation is taken
+relative to the parent's own frame instead, so no rotation below the root depends on the heading:
 
 - a joint with one child (most joints): the shortest rotation, in the parent joint's frame, from the
   child's rest direction to where the child is. It is singular only when a bone points straight
@@ -20,6 +21,9 @@ to the parent's own frame instead, so nothing depends on the heading:
 - leaves (hands, toes, head): identity (they follow their parent).
 
 Bone lengths are each bone's median length over the motion. The root position is written as is.
+Generated motions do not keep their bone lengths (the demo model's knees and forearms vary by up
+to ~7 cm); rigid bones then miss those joints by that much, and `stretch` adds per-joint
+translations that follow the changing lengths exactly (a file some retargeting tools ignore).
 Quaternions are (w, x, y, z), shapes carried in comments.
 """
 
@@ -146,17 +150,23 @@ def _branch_roles(kids: list[int], rest_dirs: np.ndarray, name: str, joint: int)
     return up, plus, minus
 
 
-def solve_rotations(joints: np.ndarray, rig: Rig) -> np.ndarray:
-    """Local rotations (T, J, 4) that put the rig's joints on `joints` (T, J, 3)."""
+def solve_rotations(joints: np.ndarray, rig: Rig, stretch: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+    """Local rotations (T, J, 4) that put the rig's joints on `joints` (T, J, 3), and with
+    `stretch` the per-frame local translations (T, J, 3) that make every joint exact (bones whose
+    length changes from frame to frame, as in generated motions); else None (rigid bones)."""
     t, num = joints.shape[:2]
     local = np.broadcast_to(IDENTITY, (t, num, 4)).copy()
     world = np.empty((t, num, 4))
     pos = np.empty((t, num, 3))
     pos[:, 0] = joints[:, 0]
+    translations = np.broadcast_to(rig.offsets, (t, num, 3)).copy() if stretch else None
     for j in range(num):  # parents come before children
         p = rig.parents[j]
         parent_world = world[:, p] if p >= 0 else np.broadcast_to(IDENTITY, (t, 4))
-        if p >= 0:
+        if p >= 0 and stretch:
+            translations[:, j] = qrot_np(qinv_np(parent_world), joints[:, j] - pos[:, p])
+            pos[:, j] = joints[:, j]
+        elif p >= 0:
             pos[:, j] = pos[:, p] + qrot_np(parent_world, np.broadcast_to(rig.offsets[j], (t, 3)))
         kids = rig.children(j)
         if len(kids) == 1:
@@ -171,7 +181,7 @@ def solve_rotations(joints: np.ndarray, rig: Rig) -> np.ndarray:
     if not np.all(np.isfinite(local)):
         frame = int(np.argwhere(~np.isfinite(local))[0, 0])
         raise StableMoError(f"joints: degenerate pose at frame {frame} (coinciding joints)")
-    return continuous_hemisphere(local)
+    return continuous_hemisphere(local), translations
 
 
 def continuous_hemisphere(q: np.ndarray) -> np.ndarray:
@@ -200,8 +210,9 @@ def forward_kinematics(anim: Animation) -> np.ndarray:
     return pos
 
 
-def joints_to_animation(joints: np.ndarray, skeleton: Skeleton | str, fps: float) -> Animation:
-    """The writer's core: joints (T, J, 3) of `skeleton` -> a T-pose rig and its animation."""
+def joints_to_animation(joints: np.ndarray, skeleton: Skeleton | str, fps: float, stretch: bool = False) -> Animation:
+    """The writer's core: joints (T, J, 3) of `skeleton` -> a T-pose rig and its animation.
+    stretch: also per-joint translations, so that bones may change length and every joint is exact."""
     from stablemo.bvh.names import bvh_names, rest_directions
 
     skel = get_skeleton(skeleton)
@@ -211,4 +222,5 @@ def joints_to_animation(joints: np.ndarray, skeleton: Skeleton | str, fps: float
     if not np.all(np.isfinite(x)):
         raise StableMoError("joints: contain NaN or Inf")
     rig = build_rig(x, skel, bvh_names(skel), rest_directions(skel))
-    return Animation(rig, x[:, 0].copy(), solve_rotations(x, rig), float(fps))
+    rotations, translations = solve_rotations(x, rig, stretch)
+    return Animation(rig, x[:, 0].copy(), rotations, float(fps), translations)

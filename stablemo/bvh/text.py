@@ -1,6 +1,6 @@
 """BVH text: write an Animation, parse a file back into one. Errors name the file and line.
 
-Conventions written: y up, units of the motion (metres for HumanML3D unless scaled), the root's
+Conventions written (rigid bones; with stretch, every joint also gets position channels): y up, units of the motion (metres for HumanML3D unless scaled), the root's
 OFFSET is zero and its position channels hold its world position (so readers that add the OFFSET
 and readers that do not agree), rotation channels `Zrotation Xrotation Yrotation` on every joint
 (M = Rz Rx Ry, the Mixamo order; a heading is then the last, innermost angle and an upright body
@@ -29,6 +29,7 @@ from stablemo.errors import StableMoError
 
 ROOT_CHANNELS = ("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation")
 JOINT_CHANNELS = ("Zrotation", "Xrotation", "Yrotation")
+STRETCH_CHANNELS = ROOT_CHANNELS  # joints of an animation with per-joint translations
 _EULER = "ZXY"  # scipy intrinsic order matching JOINT_CHANNELS
 _POS = {"Xposition": 0, "Yposition": 1, "Zposition": 2}
 _ROT = {"Xrotation": "X", "Yrotation": "Y", "Zrotation": "Z"}
@@ -61,7 +62,8 @@ def format_bvh(anim: Animation, precision: int = 6) -> str:
     def emit(j: int, depth: int) -> None:
         pad = "  " * depth
         kind = "ROOT" if rig.parents[j] < 0 else "JOINT"
-        channels = ROOT_CHANNELS if rig.parents[j] < 0 else JOINT_CHANNELS
+        moves = rig.parents[j] < 0 or anim.positions is not None
+        channels = ROOT_CHANNELS if rig.parents[j] < 0 else STRETCH_CHANNELS if moves else JOINT_CHANNELS
         off = rig.offsets[j] if rig.parents[j] >= 0 else np.zeros(3)
         lines.extend([f"{pad}{kind} {rig.names[j]}", f"{pad}{{", f"{pad}  OFFSET {_vec(off, precision)}",
                       f"{pad}  CHANNELS {len(channels)} {' '.join(channels)}"])
@@ -75,7 +77,12 @@ def format_bvh(anim: Animation, precision: int = 6) -> str:
 
     emit(0, 0)
     euler = quat_to_euler(anim.rotations[:, order])  # (T, J, 3) in Z, X, Y order
-    data = np.concatenate([anim.root, euler.reshape(len(euler), -1)], axis=1)  # (T, 3 + 3J)
+    if anim.positions is None:
+        data = np.concatenate([anim.root, euler.reshape(len(euler), -1)], axis=1)  # (T, 3 + 3J)
+    else:  # every joint: its translation, then its rotation
+        moves = anim.positions[:, order].copy()
+        moves[:, 0] = anim.root
+        data = np.concatenate([moves, euler], axis=2).reshape(len(euler), -1)  # (T, 6J)
     lines += ["MOTION", f"Frames: {len(data)}", f"Frame Time: {1.0 / anim.fps:.8f}"]
     buf = io.StringIO()
     np.savetxt(buf, data, fmt=f"%.{precision}f", delimiter=" ")

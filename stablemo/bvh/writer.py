@@ -41,16 +41,17 @@ def motion_joints(motion, skeleton: Skeleton | str | None = None, what: str = "m
 
 
 def motion_to_animation(motion, *, skeleton: Skeleton | str | None = None, fps: float | None = None,
-                        source_fps: float | None = None, units: str = "m") -> Animation:
+                        source_fps: float | None = None, units: str = "m", stretch: bool = False) -> Animation:
     """The BVH animation of a motion: joints (or features, recovered to joints) -> T-pose rig +
     local rotations (stablemo.bvh.rig), scaled to `units`, resampled to `fps` (default: the
-    source rate, 20 for HumanML3D, 12.5 for KIT)."""
+    source rate, 20 for HumanML3D, 12.5 for KIT). stretch: per-joint translations so that every
+    joint is exact even where the motion's bones change length (generated motions)."""
     joints, skel = motion_joints(motion, skeleton)
     if units not in UNITS:
         raise StableMoError(f"units={units!r}: choose one of {', '.join(UNITS)}")
     scale = UNITS[units] / (1000.0 if skel.units == "mm" else 1.0)
     src = float(source_fps) if source_fps is not None else skel.fps
-    anim = joints_to_animation(joints * scale, skel, src)
+    anim = joints_to_animation(joints * scale, skel, src, stretch)
     return resample(anim, float(fps)) if fps is not None else anim
 
 
