@@ -19,14 +19,16 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "export": ("stablemo.lit.export", "main", "export a training checkpoint to an inference bundle"),
     "import-official": ("stablemo.official.command", "main", "convert a published StableMoFusion checkpoint to a bundle"),
     "generate": ("stablemo.generate", "main", "generate motions from text"),
+    "edit": ("stablemo.edit", "main", "regenerate part of a motion (body parts, frames) with a new text"),
+    "control-file": ("stablemo.control.command", "main", "write a joint-control file (.npz) from joints"),
     "render": ("stablemo.render", "main", "render features or joints (.npy) as an animation"),
     "data": ("stablemo.data.commands", "main", "dataset tools: synth, check, import-bvh"),
     "nets": ("stablemo.nets.summary", "main", "denoiser tools: summary"),
     "bench": ("stablemo.bench", "main", "benchmarks: aits, train"),
     "evaluate": ("stablemo.eval.command", "main", "evaluate a bundle against a dataset"),
     "footskate": ("stablemo.footskate_guidance", "main", "remove foot skating from a motion file"),
-    "serve": ("stablemo.serve.command", "main", "a local web page and JSON API for generating motions"),
     "bvh": ("stablemo.bvh.command", "main", "write features or joints (.npy) as BVH or an SMPL-order pose (.npz)"),
+    "serve": ("stablemo.serve.command", "main", "a local web page and JSON API for generating motions"),
 }
 
 

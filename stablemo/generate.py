@@ -2,6 +2,7 @@
 
     stablemo generate "a person walks forward, then waves their right hand" --seconds 6 --out outputs
     stablemo generate --prompts prompts.txt --frames 120 --steps 10 --cfg 2.5 --format mp4
+    stablemo generate "a person walks forward" --control path.npz     # joint targets (docs/control.md)
 
 Every file is written atomically: an interrupted run leaves no half-written output.
 """
@@ -76,6 +77,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="remove foot skating inside the last denoising steps (StableMoFusion*, vGRF-guided)")
     p.add_argument("--footskate-weights", default=None,
                    help="vGRF weights for --footskate (default: StableMo's own V22; or a V22 distilled by you)")
+    p.add_argument("--control", metavar="FILE.npz", default=None,
+                   help="joint targets for every prompt: positions (T, J, 3) and mask (T, J) (docs/control.md); "
+                        "the length defaults to the file's T")
     p.add_argument("--dtype", default=None, help="network precision: fp32, bf16 (CPU/GPU) or fp16 (GPU); default fp32 on CPU, fp16 on GPU")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     return p
@@ -120,10 +124,17 @@ def main(argv: list[str] | None = None) -> int:
     from stablemo.pipeline import Pipeline, Request
 
     pipe = Pipeline.from_bundle(bundle, device=args.device, dtype=args.dtype)
+    control = None
+    if args.control is not None:
+        from stablemo.control.files import load_control
+
+        control = load_control(args.control, pipe.skeleton)
     if args.frames is not None:
         frames, flag = args.frames, f"--frames {args.frames}"
     elif args.seconds is not None:
         frames, flag = round(args.seconds * pipe.fps), f"--seconds {args.seconds:g}"
+    elif control is not None:
+        frames, flag = len(control.positions), f"--control {args.control} ({len(control.positions)} frames)"
     else:
         frames, flag = min(round(DEFAULT_SECONDS * pipe.fps), pipe.max_length), None
     if flag and not pipe.min_length <= frames <= pipe.max_length:
@@ -131,31 +142,42 @@ def main(argv: list[str] | None = None) -> int:
             f"{flag}: {frames} frames is outside this model's range [{pipe.min_length}, {pipe.max_length}] frames "
             f"({pipe.min_length / pipe.fps:g}-{pipe.max_length / pipe.fps:g} s at {pipe.fps:g} fps)"
         )
+    targets = None
+    if control is not None:  # checked against the length now, before any network call
+        targets = control.resolve(frames, pipe.skeleton, what=f"--control {args.control}")
     hooks = make_hooks(pipe, footskate=args.footskate, footskate_weights=args.footskate_weights)
     request = Request(prompts, frames, seed=args.seed, sampler=args.sampler, steps=args.steps, cfg=args.cfg,
-                      hooks=hooks, progress=True)
+                      hooks=hooks, progress=True, control=[control] * len(prompts) if control else None)
     # generate() checks every setting before its first network call, and raises, writing nothing,
     # if any motion is not finite
     result = pipe.generate(request)
-
-    from stablemo.io import save_npy
-
     for text, slug, feats, joints in zip(prompts, slugs, result.feature_list(), result.joint_list()):
-        save_npy(out / f"{slug}.features.npy", feats)
-        save_npy(out / f"{slug}.joints.npy", joints)
-        written = [f"{slug}.features.npy", f"{slug}.joints.npy"]
-        for fmt in formats:
-            if fmt == "bvh":
-                from stablemo.bvh import write_bvh
-
-                write_bvh(out / f"{slug}.bvh", joints, skeleton=pipe.skeleton, source_fps=pipe.fps)
-            else:
-                from stablemo.render import render_animation
-
-                render_animation(joints, out / f"{slug}.{fmt}", pipe.skeleton, fps=pipe.fps, title=text)
-            written.append(f"{slug}.{fmt}")
+        written = write_motion(out, slug, feats, joints, pipe, formats, text, targets)
         print(f"{text!r}: {frames} frames -> {out}/{{{', '.join(written)}}}")
     return 0
+
+
+def write_motion(out: Path, slug: str, feats, joints, pipe, formats: list[str], title: str,
+                 targets=None) -> list[str]:
+    """Features, joints and each of `formats` (gif, mp4: an animation; bvh) of one motion; the names written.
+    targets: joint-control targets (positions, mask) drawn in the animation."""
+    from stablemo.io import save_npy
+
+    save_npy(out / f"{slug}.features.npy", feats)
+    save_npy(out / f"{slug}.joints.npy", joints)
+    written = [f"{slug}.features.npy", f"{slug}.joints.npy"]
+    for fmt in formats:
+        if fmt == "bvh":
+            from stablemo.bvh import write_bvh
+
+            write_bvh(out / f"{slug}.bvh", joints, skeleton=pipe.skeleton, source_fps=pipe.fps)
+        else:
+            from stablemo.render import render_animation
+
+            render_animation(joints, out / f"{slug}.{fmt}", pipe.skeleton, fps=pipe.fps, title=title,
+                             targets=targets)
+        written.append(f"{slug}.{fmt}")
+    return written
 
 
 def _check_numbers(args) -> None:
