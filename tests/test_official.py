@@ -147,6 +147,18 @@ def test_no_ema_imports_the_raw_weights(run):
     assert all(torch.equal(state[k], v) for k, v in run["raw"].state_dict().items())
 
 
+def test_dataset_stats_get_the_official_feat_bias(run):
+    from stablemo.bundle import load_bundle
+
+    meta, out = run["root"] / "run" / "meta", run["root"] / "feat_bias_bundle"
+    assert cli_main(["import-official", str(run["ckpt"]), "--out", str(out), "--clip", str(run["root"] / "clip"),
+                     "--mean", str(meta / "mean.npy"), "--std", str(meta / "std.npy"), "--feat-bias", "5"]) == 0
+    std, given = np.asarray(load_bundle(out).config["std"]), np.load(meta / "std.npy")
+    np.testing.assert_allclose(std[4:-4], given[4:-4])
+    np.testing.assert_allclose(std[:4], given[:4] / 5)
+    np.testing.assert_allclose(std[-4:], given[-4:] / 5)
+
+
 def test_official_text_path_keeps_77_positions_and_the_null_text_has_none(run):
     from transformers import CLIPTokenizer
 

@@ -26,12 +26,16 @@ def main(argv: list[str]) -> int:
                                        "NAME/model/latest.tar)")
     parser.add_argument("--mean", help="the model's Mean .npy (with --std; instead of --meta)")
     parser.add_argument("--std", help="the model's Std .npy (with --mean)")
+    parser.add_argument("--feat-bias", type=float, default=None,
+                        help="with --mean/--std of a dataset (Mean.npy/Std.npy): divide the Std of the root features "
+                             "and foot contacts by this, as the official training does (its --feat_bias, default 5)")
     parser.add_argument("--opt", help="the run's opt.txt (default: NAME/opt.txt if present; prediction type, "
                                       "schedule, dataset)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing bundle at --out")
     args = parser.parse_args(argv)
     check_bundle_target(args.out, args.overwrite, flag="--out")  # before anything is read
     path = import_official(args.ckpt, args.out, clip=args.clip, dataset=args.dataset, ema=not args.no_ema,
-                           meta=args.meta, mean=args.mean, std=args.std, opt=args.opt, overwrite=args.overwrite)
+                           meta=args.meta, mean=args.mean, std=args.std, opt=args.opt, feat_bias=args.feat_bias,
+                           overwrite=args.overwrite)
     print(f"wrote {path}")
     return 0

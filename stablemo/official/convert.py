@@ -117,8 +117,8 @@ def check_clip(frozen, state: dict, clip_dim: int, clip: str) -> str:
 
 def import_official(ckpt: str | Path, out: str | Path, clip: str = DEFAULT_CLIP, dataset: str | None = None,
                     ema: bool = True, meta: str | Path | None = None, mean: str | Path | None = None,
-                    std: str | Path | None = None, opt: str | Path | None = None, overwrite: bool = False,
-                    log=print) -> Path:
+                    std: str | Path | None = None, opt: str | Path | None = None, feat_bias: float | None = None,
+                    overwrite: bool = False, log=print) -> Path:
     """Convert the checkpoint `ckpt` into a bundle at `out`; see `stablemo import-official --help`."""
     from stablemo.diffusion.schedule import NoiseSchedule, check_prediction_type
     from stablemo.model import MotionDiffusionModel
@@ -131,6 +131,10 @@ def import_official(ckpt: str | Path, out: str | Path, clip: str = DEFAULT_CLIP,
         raise StableMoError("--mean/--std: give both files or neither")
     if meta is not None and mean is not None:
         raise StableMoError("--meta: give either --meta DIR or --mean FILE --std FILE, not both")
+    if feat_bias is not None and not (np.isfinite(feat_bias) and feat_bias > 0):
+        raise StableMoError(f"--feat-bias: must be a positive number, got {feat_bias}")
+    if feat_bias is not None and mean is None:
+        raise StableMoError("--feat-bias: only with --mean/--std of a dataset (meta/std.npy has it applied already)")
     if dataset is not None and dataset not in DATASETS:
         raise StableMoError(f"--dataset: expected one of {sorted(DATASETS)}, got {dataset!r}")
     opt_path = Path(opt) if opt is not None else _default_beside(ckpt, "opt.txt")
@@ -165,6 +169,9 @@ def import_official(ckpt: str | Path, out: str | Path, clip: str = DEFAULT_CLIP,
     if width != expected:
         raise StableMoError(f"--dataset: {dataset} motions have {expected} features, the checkpoint's network {width}")
     mean_values, std_values = read_stats(Path(mean), Path(std), width)
+    if feat_bias is not None:  # as the official training does to a dataset's Std (datasets/t2m_dataset.py)
+        std_values[:4] /= feat_bias  # root rotation velocity, root linear velocity (2), root height
+        std_values[-4:] /= feat_bias  # foot contacts
 
     clip_source = str(Path(clip).expanduser().resolve()) if Path(clip).expanduser().is_dir() else clip
     model = MotionDiffusionModel(denoiser, {"encoder": clip_source, **text})
@@ -194,6 +201,7 @@ def import_official(ckpt: str | Path, out: str | Path, clip: str = DEFAULT_CLIP,
             "total_it": int(checkpoint.get("total_it", 0) or 0),
             "mean": str(mean),
             "std": str(std),
+            "feat_bias_applied": feat_bias,
             "opt": options,
         },
     }
