@@ -251,3 +251,41 @@ def test_vendor_copies_the_pinned_files(tmp_path, monkeypatch):
     out = vendor_mod.vendor(tmp_path / "vendor", npm=str(npm))
     assert vendor_mod.missing(out) is None
     assert all((out / dest).read_bytes() == payload for dest in vendor_mod.FILES.values())
+
+
+def test_joint_control_reaches_the_targets_and_equals_offline(client, models):
+    """A pelvis path (every frame) and one right-wrist keyframe, as the page sends them."""
+    from stablemo.control import JointControl
+
+    frames = 60
+    path = [[f, 0, 0.02 * f, 0.95, 0.0] for f in range(frames)]  # walk 1.2 m along +x (sideways to the start)
+    wrist = [30, 21, 0.9, 1.6, 0.3]
+    body = {"text": "a person walks forward", "frames": frames, "seed": 4, "control": {"targets": path + [wrist]}}
+    data = client.post("/api/generate", json=body).json()
+    joints = np.asarray(data["joints"], dtype=np.float32)
+    free = np.asarray(client.post("/api/generate", json={**body, "control": None}).json()["joints"], dtype=np.float32)
+    target = np.array([p[2:] for p in path])
+    assert np.linalg.norm(joints[:, 0] - target, axis=-1).mean() < 0.05  # the pelvis follows the path
+    assert np.linalg.norm(free[:, 0] - target, axis=-1).mean() > 0.2  # and would not without it
+    assert data["control"]["targets"] == frames + 1
+    assert data["control"]["mean_error_m"] == pytest.approx(
+        np.linalg.norm(np.concatenate([joints[:, 0] - target, joints[30, 21][None] - wrist[2:]]), axis=-1).mean(), abs=1e-5)
+    positions, mask = np.zeros((frames, 22, 3), np.float32), np.zeros((frames, 22), bool)
+    for f, j, *xyz in path + [wrist]:
+        positions[f, j], mask[f, j] = xyz, True
+    ref, _ = offline(models, body["text"], frames, 4, control=[JointControl(positions, mask)])
+    assert np.array_equal(joints, ref)
+
+
+@pytest.mark.parametrize("control, message", [
+    ({"points": []}, 'control: expected {"targets"'),
+    ({"targets": [[0, 0, 1.0, 2.0]]}, "control.targets[0]: expected [frame, joint, x, y, z]"),
+    ({"targets": [[60, 0, 0, 1, 0]]}, "control.targets[0]: frame must be a whole number in [0, 59], got 60"),
+    ({"targets": [[1, 22, 0, 1, 0]]}, "control.targets[0]: joint must be a whole number in [0, 21], got 22"),
+    ({"targets": [[1, 3, 0, "a", 0]]}, "control.targets[0]: position: expected a number"),
+    ({"targets": [[1, 3, 0, 1, 0], [1, 3, 0, 1, 1]]}, "control.targets[1]: frame 1, joint 3 is given twice"),
+    ({"targets": [[0, 0, 1.0, 0.9, 0.0]]}, "control.positions: the root at frame 0 is at x=1.000"),
+])
+def test_bad_control_is_400_with_one_line(client, control, message):
+    res = client.post("/api/generate", json={"text": "walk", "frames": 60, "control": control})
+    assert res.status_code == 400 and res.json()["error"].startswith(message), res.json()

@@ -125,3 +125,54 @@ def test_typed_prompt_is_drawn_and_moves_then_empty_prompt_shows_the_error(page,
     wait_for(page, "return window.stablemo.error")
     status = page.find_element(By.ID, "status")
     assert status.text == "text: empty prompt" and "error" in status.get_attribute("class")
+
+
+def test_a_drawn_path_is_followed_and_a_dragged_joint_is_reached(page):
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    box = page.find_element(By.ID, "prompt")
+    box.send_keys(Keys.CONTROL, "a")
+    box.send_keys("a person walks forward")
+    wait_for(page, "const s = window.stablemo; return s.motion && s.motion.text === 'a person walks forward' && !s.error")
+    free_end = np.array(page.execute_script("const m = window.stablemo.motion; const o = ((m.frames - 1) * m.J) * 3;"
+                                            "return [m.joints[o], m.joints[o + 2]]"))
+    page.find_element(By.ID, "follow").click()  # a still camera to draw on
+    if not page.execute_script("return window.stablemo.playing"):
+        page.find_element(By.ID, "play").click()
+    page.find_element(By.ID, "draw-path").click()
+    canvas = page.find_element(By.ID, "canvas")
+    drag = ActionChains(page, duration=10).move_to_element_with_offset(canvas, -60, 120).click_and_hold()
+    for i in range(24):  # to the right, then bending away from the camera
+        drag.move_by_offset(10, 0 if i < 12 else -6)
+    drag.release().perform()
+    wait_for(page, "const s = window.stablemo; return s.motion && s.motion.control && s.motion.control.targets === s.motion.frames")
+    path = np.array(page.execute_script("return window.stablemo.path"))  # (N, 2) x, z from the origin
+    assert np.allclose(path[0], 0) and np.linalg.norm(path[-1]) > 1.0
+    pelvis = np.array(page.execute_script("const m = window.stablemo.motion; const out = [];"
+                                          "for (let f = 0; f < m.frames; f++) { const o = f * m.J * 3;"
+                                          "out.push([m.joints[o], m.joints[o + 2]]); } return out"))  # (T, 2)
+    # the pelvis ends where the path ends, and passes near every drawn point; the free walk did not
+    assert np.linalg.norm(pelvis[-1] - path[-1]) < 0.05
+    assert np.linalg.norm(free_end - path[-1]) > 0.3
+    nearest = np.linalg.norm(path[:, None] - pelvis[None], axis=-1).min(1)  # (N,)
+    assert nearest.max() < 0.1
+    assert "targets reached within" in page.find_element(By.ID, "control-info").text
+
+    # keyframe: pause, drag the right wrist up by 60 px; the new motion puts it there at that frame
+    page.find_element(By.ID, "draw-path").click()
+    page.find_element(By.ID, "edit-pose").click()  # pauses
+    time.sleep(0.3)
+    frame, wrist_px, before = page.execute_script(
+        "const s = window.stablemo; return [s.frame, s.screenPose[21], s.worldPose[21]]")
+    width, height = page.execute_script("const r = document.getElementById('canvas').getBoundingClientRect();"
+                                        "return [r.width, r.height]")
+    ActionChains(page, duration=10).move_to_element_with_offset(
+        canvas, round(wrist_px[0] - width / 2), round(wrist_px[1] - height / 2)).click_and_hold() \
+        .move_by_offset(0, -30).move_by_offset(0, -30).release().perform()
+    wait_for(page, "const s = window.stablemo; return s.motion.control && s.motion.control.targets === s.motion.frames + 1")
+    (key,) = page.execute_script("return window.stablemo.keyframes")
+    assert key["frame"] == frame and key["joint"] == 21
+    after = page.execute_script("const m = window.stablemo.motion; const o = (arguments[0] * m.J + 21) * 3;"
+                                "return [m.joints[o], m.joints[o + 1], m.joints[o + 2]]", frame)
+    assert np.linalg.norm(np.array(after) - key["position"]) < 0.05
+    assert np.array(after)[1] - np.array(before)[1] > 0.1  # the wrist went up

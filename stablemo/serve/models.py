@@ -21,6 +21,7 @@ import numpy as np
 
 from stablemo.errors import StableMoError
 from stablemo.inference_config import check_finite, check_positive_int, check_seed
+from stablemo.pipeline import Request
 
 DEFAULT_SECONDS = 6.0
 MAX_TEXT_CHARS = 1000  # the text encoders keep far fewer tokens; longer is a pasting accident
@@ -39,7 +40,8 @@ class Spec:
     steps: int | None = None
     cfg: float | None = None
     footskate: bool = False
-    control: Any = None  # reserved for joint control (stablemo.control), compared by identity of content
+    # joint targets ((frame, joint, x, y, z), ...) sorted; empty = free motion (stablemo.control.JointControl)
+    control: tuple = ()
 
 
 @dataclass
@@ -144,25 +146,32 @@ class ModelSet:
         footskate = body.get("footskate", False)
         if not isinstance(footskate, bool):
             raise StableMoError(f"footskate: expected true or false, got {footskate!r}")
-        if body.get("control") is not None:
-            raise StableMoError("control: joint control is not available in this server yet")
+        control = _control(body.get("control"), frames, pipe.skeleton)
         encoding = body.get("encoding", "lists")
         if encoding not in ENCODINGS:
             raise StableMoError(f"encoding: expected one of {', '.join(ENCODINGS)}, got {encoding!r}")
         features = body.get("features", True)
         if not isinstance(features, bool):
             raise StableMoError(f"features: expected true or false, got {features!r}")
-        spec = Spec(name, text.strip(), frames, seed, sampler, steps, cfg, footskate)
-        # the sampler's own checks (steps it can run, ...) before the job is queued
-        from stablemo.pipeline import Request
-
-        pipe.resolve(Request([spec.text], spec.frames, seed=seed, sampler=sampler, steps=steps, cfg=cfg))
+        spec = Spec(name, text.strip(), frames, seed, sampler, steps, cfg, footskate, control)
+        # the pipeline's own checks (steps the sampler can run, targets against the motion, ...)
+        # before the job is queued
+        try:
+            pipe.resolve(self._request(spec, hooks=()))
+        except StableMoError as err:  # the pipeline names per-prompt lists; one prompt here
+            message = str(err).replace("control[0]", "control", 1).replace("texts[0]", "text", 1)
+            raise StableMoError(message) from None
         return spec, {"encoding": encoding, "features": features, "format": body.get("format")}
+
+    def _request(self, spec: Spec, hooks) -> Request:
+        control = None
+        if spec.control:
+            control = [control_from_targets(spec.control, spec.frames, self.models[spec.model].pipeline.skeleton)]
+        return Request([spec.text], spec.frames, seed=spec.seed, sampler=spec.sampler, steps=spec.steps,
+                       cfg=spec.cfg, hooks=hooks, control=control)
 
     def warm_up(self, name: str) -> None:
         """One generation at the default length, uncached: first-call costs are paid at start-up."""
-        from stablemo.pipeline import Request
-
         pipe = self.models[name].pipeline
         pipe.generate(Request(["a person walks forward"], min(round(DEFAULT_SECONDS * pipe.fps), pipe.max_length)))
 
@@ -176,15 +185,18 @@ class ModelSet:
                 self._cache.move_to_end(spec)
                 return self._cache[spec], True
         from stablemo.hooks import make_hooks
-        from stablemo.pipeline import Request
 
         pipe = self.models[spec.model].pipeline
         start = time.perf_counter()
-        hooks = make_hooks(pipe, footskate=spec.footskate)
-        result = pipe.generate(Request([spec.text], spec.frames, seed=spec.seed, sampler=spec.sampler,
-                                       steps=spec.steps, cfg=spec.cfg, hooks=hooks))
-        motion = Motion(spec, result.joint_list()[0].astype(np.float32), result.feature_list()[0].astype(np.float32),
-                        pipe.fps, dict(result.info, skeleton=pipe.skeleton), seconds=time.perf_counter() - start)
+        result = pipe.generate(self._request(spec, hooks=make_hooks(pipe, footskate=spec.footskate)))
+        joints = result.joint_list()[0].astype(np.float32)  # (T, J, 3)
+        info = dict(result.info, skeleton=pipe.skeleton)
+        if spec.control:  # how close the motion came to its targets, metres
+            t = np.array(spec.control, dtype=np.float64)  # (N, 5): frame, joint, x, y, z
+            err = np.linalg.norm(joints[t[:, 0].astype(int), t[:, 1].astype(int)] - t[:, 2:], axis=-1)
+            info["control"] = {"targets": len(t), "mean_error_m": float(err.mean()), "max_error_m": float(err.max())}
+        motion = Motion(spec, joints, result.feature_list()[0].astype(np.float32), pipe.fps, info,
+                        seconds=time.perf_counter() - start)
         with self._lock:
             self._cache[spec] = motion
             while len(self._cache) > self._cache_size:
@@ -209,9 +221,58 @@ def motion_json(motion: Motion, encoding: str, features: bool) -> dict:
         "sampler": motion.info["sampler"], "steps": motion.info["steps"], "cfg": motion.info["cfg"],
         "footskate": spec.footskate, "joints": encode_array(motion.joints, encoding),
     }
+    if "control" in motion.info:
+        out["control"] = motion.info["control"]
     if features:
         out["features"] = encode_array(motion.features, encoding)
     return out
+
+
+def _control(value: Any, frames: int, skeleton: str) -> tuple:
+    """{"targets": [[frame, joint, x, y, z], ...]} -> sorted tuple of targets (frame, joint ints;
+    positions in metres, in the motion's frame: it starts at the origin facing +z)."""
+    if value is None:
+        return ()
+    from stablemo.motion.skeleton import get_skeleton
+
+    if not isinstance(value, dict) or set(value) != {"targets"} or not isinstance(value["targets"], list):
+        raise StableMoError('control: expected {"targets": [[frame, joint, x, y, z], ...]}')
+    joints = get_skeleton(skeleton).num_joints
+    targets = value["targets"]
+    if len(targets) > frames * joints:
+        raise StableMoError(f"control.targets: {len(targets)} targets, more than the motion's {frames} x {joints} (frame, joint) pairs")
+    out = {}
+    for i, item in enumerate(targets):
+        where = f"control.targets[{i}]"
+        if not isinstance(item, list) or len(item) != 5:
+            raise StableMoError(f"{where}: expected [frame, joint, x, y, z], got {json_short(item)}")
+        frame, joint = item[0], item[1]
+        for name, v, high in (("frame", frame, frames - 1), ("joint", joint, joints - 1)):
+            if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= high:
+                raise StableMoError(f"{where}: {name} must be a whole number in [0, {high}], got {json_short(v)}")
+        xyz = tuple(_number(f"{where}: position", v) for v in item[2:])
+        if (frame, joint) in out:
+            raise StableMoError(f"{where}: frame {frame}, joint {joint} is given twice")
+        out[frame, joint] = xyz
+    return tuple((f, j, *xyz) for (f, j), xyz in sorted(out.items()))
+
+
+def control_from_targets(targets: tuple, frames: int, skeleton: str):
+    """The JointControl of a Spec's targets: positions (T, J, 3), mask (T, J)."""
+    from stablemo.control import JointControl
+    from stablemo.motion.skeleton import get_skeleton
+
+    positions = np.zeros((frames, get_skeleton(skeleton).num_joints, 3), np.float32)
+    mask = np.zeros(positions.shape[:2], bool)
+    for f, j, x, y, z in targets:
+        positions[f, j] = (x, y, z)
+        mask[f, j] = True
+    return JointControl(positions, mask)
+
+
+def json_short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _frames(body: dict, pipe) -> int:

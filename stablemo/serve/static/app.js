@@ -250,6 +250,14 @@ function currentSpec() {
   if ($('sampler').value) spec.sampler = $('sampler').value;
   if ($('steps').value !== '') spec.steps = Number($('steps').value);
   if ($('cfg').value !== '') spec.cfg = Number($('cfg').value);
+  const model = modelInfo(spec.model);
+  const frames = Math.round(spec.seconds * model.fps);
+  const targets = controlTargets(frames);
+  if (targets.length) {  // targets are per frame: say the frame count rather than have it rounded twice
+    delete spec.seconds;
+    spec.frames = frames;
+    spec.control = { targets };
+  }
   return spec;
 }
 
@@ -292,15 +300,17 @@ function setMotion(data, spec, rec) {
   const [T, J] = data.joints.shape;
   buildFigure(model.skeleton);
   S.motion = { spec, text: data.text, seed: data.seed, model: data.model, frames: T, J, fps: data.fps,
-               steps: data.steps, sampler: data.sampler, cfg: data.cfg, joints: decode(data.joints),
+               steps: data.steps, sampler: data.sampler, cfg: data.cfg, joints: decode(data.joints), control: data.control,
                scale: model.skeleton.units === 'mm' ? 0.001 : 1 };
   buildPath(S.motion);
-  framePos = 0;
+  // a new prompt plays from the start; an edit made while paused stays at the frame being edited
+  framePos = S.playing ? 0 : Math.min(framePos, T - 1);
   $('scrub').max = T - 1;
   firstDraw = rec;
   S.error = null;
   setStatus('');
   document.querySelectorAll('#downloads button').forEach((b) => { b.disabled = false; });
+  showControlInfo();
 }
 
 function setStatus(text) {
@@ -349,6 +359,173 @@ async function download(format) {
   }
 }
 
+// ---- joint control: a pelvis path drawn on the floor, keyframes by dragging joints --------------
+
+const TARGET_COLOUR = 0xe08a00;  // as stablemo.render's targets
+const raycaster = new THREE.Raycaster();
+const pointer = new THREE.Vector2();
+const floorPlane = new THREE.Plane(new THREE.Vector3(0, 1, 0), 0);
+const targetMaterial = new THREE.MeshBasicMaterial({ color: TARGET_COLOUR });
+let mode = null;            // 'path' | 'pose' | null
+let draft = null;           // the path being drawn: [[x, z], ...] world
+let dragging = null;        // {joint, plane} while a joint is dragged
+let pathObject = null;      // the drawn path on the floor
+const keyGroup = new THREE.Group();
+scene.add(keyGroup);
+S.path = null;              // the path, starting at the origin: [[x, z], ...] metres
+S.keyframes = [];           // [{frame, joint, position: [x, y, z]}]
+
+function setPointer(e) {
+  const r = canvas.getBoundingClientRect();
+  pointer.set(((e.clientX - r.left) / r.width) * 2 - 1, -((e.clientY - r.top) / r.height) * 2 + 1);
+  raycaster.setFromCamera(pointer, camera);
+}
+
+function setMode(next) {
+  mode = mode === next ? null : next;
+  $('draw-path').setAttribute('aria-pressed', String(mode === 'path'));
+  $('edit-pose').setAttribute('aria-pressed', String(mode === 'pose'));
+  controls.enabled = mode === null;  // the left button draws or drags instead of orbiting
+  $('view').classList.toggle('drawing', mode !== null);
+  if (mode === 'pose' && S.playing) togglePlay();
+  showControlInfo();
+}
+
+function showPath(points, y = 0.004) {
+  if (pathObject) { scene.remove(pathObject); pathObject.geometry.dispose(); pathObject = null; }
+  if (!points || points.length < 2) return;
+  const geometry = new THREE.BufferGeometry().setFromPoints(points.map(([x, z]) => new THREE.Vector3(x, y, z)));
+  pathObject = new THREE.Line(geometry, new THREE.LineBasicMaterial({ color: TARGET_COLOUR }));
+  scene.add(pathObject);
+  dirtyView = true;
+}
+
+function showKeyframes() {
+  keyGroup.clear();
+  for (const k of S.keyframes) {
+    const marker = new THREE.Mesh(new THREE.OctahedronGeometry(0.045), targetMaterial);
+    marker.position.fromArray(k.position);
+    keyGroup.add(marker);
+  }
+  $('clear-keys').disabled = S.keyframes.length === 0;
+  dirtyView = true;
+}
+
+// The path as T pelvis targets: resampled by arc length (constant speed over the motion), at the
+// pelvis heights of the motion on screen (the root's height is a target too; this keeps its jumps).
+function pathTargets(frames) {
+  const pts = S.path;
+  const cum = [0];
+  for (let i = 1; i < pts.length; i++) cum.push(cum[i - 1] + Math.hypot(pts[i][0] - pts[i - 1][0], pts[i][1] - pts[i - 1][1]));
+  const total = cum.at(-1);
+  const out = [];
+  let seg = 1;
+  for (let f = 0; f < frames; f++) {
+    const s = frames > 1 ? (total * f) / (frames - 1) : 0;
+    while (seg < pts.length - 1 && cum[seg] < s) seg++;
+    const a = pts[seg - 1], b = pts[seg];
+    const u = cum[seg] > cum[seg - 1] ? Math.min(Math.max((s - cum[seg - 1]) / (cum[seg] - cum[seg - 1]), 0), 1) : 0;
+    const m = S.motion;
+    const y = m ? m.joints[(Math.min(f, m.frames - 1) * m.J) * 3 + 1] * m.scale : 0.95;
+    out.push([f, 0, a[0] + u * (b[0] - a[0]), y, a[1] + u * (b[1] - a[1])]);
+  }
+  out[0][2] = 0;  // the motion starts at the origin
+  out[0][4] = 0;
+  return out;
+}
+
+function controlTargets(frames) {
+  const targets = new Map();
+  if (S.path) for (const t of pathTargets(frames)) targets.set(`${t[0]},${t[1]}`, t);
+  for (const k of S.keyframes) targets.set(`${k.frame},${k.joint}`, [k.frame, k.joint, ...k.position]);
+  return [...targets.values()].map((t) => t.map((v, i) => (i < 2 ? v : Math.round(v * 1e4) / 1e4)));
+}
+
+function showControlInfo() {
+  const parts = [];
+  if (mode === 'path') parts.push('drag on the floor to draw the pelvis path (it starts where the motion starts)');
+  if (mode === 'pose') parts.push('pick a frame (scrub), then drag a joint to where it should be');
+  if (S.path) {
+    let length = 0;
+    for (let i = 1; i < S.path.length; i++) length += Math.hypot(S.path[i][0] - S.path[i - 1][0], S.path[i][1] - S.path[i - 1][1]);
+    parts.push(`path ${length.toFixed(2)} m`);
+  }
+  if (S.keyframes.length) parts.push(`${S.keyframes.length} keyframe${S.keyframes.length > 1 ? 's' : ''}`);
+  if (S.motion && S.motion.control) {
+    parts.push(`targets reached within ${(100 * S.motion.control.mean_error_m).toFixed(1)} cm on average `
+               + `(worst ${(100 * S.motion.control.max_error_m).toFixed(1)} cm)`);
+  }
+  $('control-info').textContent = parts.join(' · ');
+}
+
+canvas.addEventListener('pointerdown', (e) => {
+  if (e.button !== 0 || mode === null) return;
+  setPointer(e);
+  if (mode === 'path') {
+    const p = raycaster.ray.intersectPlane(floorPlane, new THREE.Vector3());
+    if (!p) return;
+    draft = [[p.x, p.z]];
+  } else if (mode === 'pose' && figure && S.motion) {
+    const hit = raycaster.intersectObjects(figure.joints, false)[0];
+    if (!hit) return;
+    const joint = figure.joints.indexOf(hit.object);
+    const normal = camera.getWorldDirection(new THREE.Vector3()).negate();
+    dragging = { joint, plane: new THREE.Plane().setFromNormalAndCoplanarPoint(normal, hit.object.position.clone()) };
+  } else {
+    return;
+  }
+  canvas.setPointerCapture(e.pointerId);
+  e.preventDefault();
+});
+
+canvas.addEventListener('pointermove', (e) => {
+  if (!draft && !dragging) return;
+  setPointer(e);
+  if (draft) {
+    const p = raycaster.ray.intersectPlane(floorPlane, new THREE.Vector3());
+    const last = draft.at(-1);
+    if (p && Math.hypot(p.x - last[0], p.z - last[1]) > 0.03) {
+      draft.push([p.x, p.z]);
+      showPath(draft);
+    }
+  } else {
+    const p = raycaster.ray.intersectPlane(dragging.plane, new THREE.Vector3());
+    if (p) {
+      figure.joints[dragging.joint].position.copy(p);
+      dragging.position = p.toArray();
+      dirtyView = true;
+    }
+  }
+});
+
+canvas.addEventListener('pointerup', () => {
+  if (draft) {
+    const [x0, z0] = draft[0];
+    const path = draft.map(([x, z]) => [x - x0, z - z0]);
+    draft = null;
+    if (path.length >= 2) {
+      S.path = path;
+      $('clear-path').disabled = false;
+      showPath(path);
+      showControlInfo();
+      schedule(0);
+    } else {
+      showPath(S.path);
+    }
+  } else if (dragging) {
+    const { joint, position } = dragging;
+    dragging = null;
+    if (position) {
+      const frame = S.frame;
+      S.keyframes = S.keyframes.filter((k) => !(k.frame === frame && k.joint === joint));
+      S.keyframes.push({ frame, joint, position });
+      showKeyframes();
+      showControlInfo();
+      schedule(0);
+    }
+  }
+});
+
 // ---- controls -----------------------------------------------------------------------------
 
 function applyModel(name) {
@@ -389,6 +566,21 @@ async function start() {
     $(id).addEventListener('change', () => schedule(0));
   }
   $('reseed').addEventListener('click', () => { $('seed').value = Math.floor(Math.random() * 1e6); schedule(0); });
+  $('draw-path').addEventListener('click', () => setMode('path'));
+  $('edit-pose').addEventListener('click', () => setMode('pose'));
+  $('clear-path').addEventListener('click', () => {
+    S.path = null;
+    showPath(null);
+    $('clear-path').disabled = true;
+    showControlInfo();
+    schedule(0);
+  });
+  $('clear-keys').addEventListener('click', () => {
+    S.keyframes = [];
+    showKeyframes();
+    showControlInfo();
+    schedule(0);
+  });
   $('play').addEventListener('click', togglePlay);
   $('speed').addEventListener('change', () => { S.speed = Number($('speed').value); });
   $('scrub').addEventListener('input', () => {
