@@ -16,7 +16,6 @@ channels that barely move. The grammar is small; scipy does the Euler algebra.
 
 from __future__ import annotations
 
-import io
 import math
 import warnings
 from pathlib import Path
@@ -84,9 +83,9 @@ def format_bvh(anim: Animation, precision: int = 6) -> str:
         moves[:, 0] = anim.root
         data = np.concatenate([moves, euler], axis=2).reshape(len(euler), -1)  # (T, 6J)
     lines += ["MOTION", f"Frames: {len(data)}", f"Frame Time: {1.0 / anim.fps:.8f}"]
-    buf = io.StringIO()
-    np.savetxt(buf, data, fmt=f"%.{precision}f", delimiter=" ")
-    return "\n".join(lines) + "\n" + buf.getvalue()
+    row = " ".join([f"%.{precision}f"] * data.shape[1])
+    frames = "\n".join(row % tuple(values) for values in data.tolist())
+    return "\n".join(lines) + "\n" + frames + "\n"
 
 
 def _vec(v: np.ndarray, precision: int) -> str:
