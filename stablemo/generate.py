@@ -3,6 +3,7 @@
     stablemo generate "a person walks forward, then waves their right hand" --seconds 6 --out outputs
     stablemo generate --prompts prompts.txt --frames 120 --steps 10 --cfg 2.5 --format mp4
     stablemo generate "a person walks forward" --control path.npz     # joint targets (docs/control.md)
+    stablemo generate --timeline timeline.txt                            # prompts over time, one motion
 
 Every file is written atomically: an interrupted run leaves no half-written output.
 """
@@ -80,6 +81,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--control", metavar="FILE.npz", default=None,
                    help="joint targets for every prompt: positions (T, J, 3) and mask (T, J) (docs/control.md); "
                         "the length defaults to the file's T")
+    p.add_argument("--timeline", metavar="FILE", default=None,
+                   help="lines 'start_s end_s text' (contiguous from 0): one motion of the whole length, its "
+                        "windows joined by in-painting (docs/long_motion.md)")
     p.add_argument("--dtype", default=None, help="network precision: fp32, bf16 (CPU/GPU) or fp16 (GPU); default fp32 on CPU, fp16 on GPU")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     return p
@@ -102,6 +106,11 @@ def _bundle_path(arg: str | None) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if args.timeline is not None:
+        from stablemo.timeline.command import run_timeline
+
+        _check_numbers(args)
+        return run_timeline(args, _bundle_path(args.bundle), check_output_dir(args.out, "--out"))
     prompts = [p.strip() for p in args.prompt]
     for i, p in enumerate(prompts):
         if not p:

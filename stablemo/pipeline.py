@@ -350,6 +350,23 @@ class Pipeline:
                 "dtype": str(req.dtype).replace("torch.", "")}
         return Generation(req.texts, req.lengths, req.seed, features, joints, normalized, mask, info)
 
+    def generate_timeline(self, segments, seed: int = 0, **options):
+        """A timeline [(start_s, end_s, text), ...] (or `stablemo.timeline.Segment`s) -> one motion of
+        exactly its length (`stablemo.timeline.TimelineMotion`); options: overlap, blend (seconds),
+        steps, sampler, cfg, dtype, hooks. docs/long_motion.md."""
+        from stablemo.timeline import generate_timeline
+
+        return generate_timeline(self, segments, seed=seed, **options)
+
+    def stream(self, texts_or_callback, chunk_seconds: float = 2.0, **options):
+        """An iterator of `stablemo.timeline.Chunk`s of one continuing motion, each conditioned on the
+        frames already produced; the text may change between chunks (a list, or a callable
+        (index, previous chunk) -> text or None). Options: seed, context_seconds, max_chunks, steps,
+        sampler, cfg, dtype, hooks, control. docs/long_motion.md."""
+        from stablemo.timeline import stream
+
+        return stream(self, texts_or_callback, chunk_seconds=chunk_seconds, **options)
+
     def to_joints(self, features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """De-normalised features (B,T,D) -> joints (B,T,J,3), zero on padding (root integration is causal)."""
         from stablemo.motion import features_to_joints

@@ -1,0 +1,132 @@
+"""A timeline of prompts -> one motion of exactly its length, made of windows of at most the model's
+length joined by in-painting.
+
+Each window generates new frames for one segment's text. Every window after the first starts with
+the last `overlap` frames of the motion so far: the first `overlap - blend` of them are in-painted
+exactly (prefix completion), the last `blend` are generated freely and cross-faded from the old
+rows to the new ones (DoubleTake-style blending of the hand-over). Windows are joined in feature
+space, where every row is frame-local, and the joints are recovered once for the whole motion, so
+the root trajectory and heading continue across windows in one global frame.
+
+A segment longer than a window is split evenly over several windows of its text; a window shorter
+than the model's minimum length is generated at the minimum and cut.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from stablemo.errors import StableMoError
+from stablemo.inference_config import check_seed
+from stablemo.motion.features import features_to_joints
+from stablemo.timeline.spec import Segment, check_segments, segment_frames
+from stablemo.timeline.windows import Sampling, crossfade, generate_window, settle
+
+DEFAULT_OVERLAP_S = 1.0  # chosen by measurement: docs/long_motion.md
+DEFAULT_BLEND_S = 0.0
+DEFAULT_SETTLE_S = 0.0
+
+
+@dataclass(frozen=True)
+class Window:
+    """One generated window: its text, the global frame of its first row, its generated length, how
+    many rows were copied from the motion (prefix), of which the last `blend` were cross-faded, and
+    the global frames [new_start, new_end) it added."""
+
+    text: str
+    start: int
+    length: int
+    prefix: int
+    blend: int
+    new_start: int
+    new_end: int
+
+
+@dataclass
+class TimelineMotion:
+    """features (N, D) de-normalised; joints (N, J, 3) in one global frame; frames: [start, end) of
+    each segment; windows: how it was made; joins: global frames where a window's new rows begin."""
+
+    segments: list[Segment]
+    frames: list[tuple[int, int]]
+    features: np.ndarray
+    joints: np.ndarray
+    fps: float
+    windows: list[Window] = field(default_factory=list)
+
+    @property
+    def joins(self) -> list[int]:
+        return [w.new_start for w in self.windows if w.new_start > 0]
+
+    @property
+    def boundaries(self) -> list[int]:
+        return [a for a, _ in self.frames[1:]]
+
+
+def _frames(pipe, seconds: float, name: str) -> int:
+    if not isinstance(seconds, (int, float)) or isinstance(seconds, bool) or not math.isfinite(seconds) or seconds < 0:
+        raise StableMoError(f"{name}: must be a finite number of seconds >= 0, got {seconds!r}")
+    return round(seconds * pipe.fps)
+
+
+def plan_windows(frames: Sequence[tuple[int, int]], texts: Sequence[str], min_length: int, max_length: int,
+                 overlap: int, blend: int) -> list[Window]:
+    """Windows covering the segments' frames in order (see the module docstring)."""
+    windows: list[Window] = []
+    produced = 0
+    for (a, b), text in zip(frames, texts):
+        while produced < b:
+            prefix = min(overlap, produced)
+            cap = max_length - prefix
+            remaining = b - produced
+            # split what is left of the segment evenly over the windows it needs (no 3-frame tail window)
+            pieces = math.ceil(remaining / cap)
+            new = math.ceil(remaining / pieces)
+            length = max(min_length, prefix + new)
+            windows.append(Window(text, produced - prefix, length, prefix, min(blend, prefix), produced, produced + new))
+            produced += new
+    return windows
+
+
+def generate_timeline(pipe, segments: Sequence[Segment | tuple], seed: int = 0, overlap: float = DEFAULT_OVERLAP_S,
+                      blend: float = DEFAULT_BLEND_S, settle_s: float = DEFAULT_SETTLE_S, steps: int | None = None, sampler: str | None = None,
+                      cfg: float | None = None, dtype=None, hooks: Sequence = (), source: str = "segments",
+                      progress: bool = False) -> TimelineMotion:
+    """One motion for a timeline. overlap, blend: seconds of each window copied from the motion so
+    far, and of those the last seconds cross-faded instead of in-painted (blend <= overlap); settle_s:
+    seconds over which the jump where a window's new rows begin is faded out (`settle`); window i
+    uses seed + i; the sampler settings default to the bundle's."""
+    segments = check_segments(segments, source)
+    check_seed("seed", seed)
+    k, r = _frames(pipe, overlap, "overlap"), _frames(pipe, blend, "blend")
+    h = _frames(pipe, settle_s, "settle_s")
+    if r > k:
+        raise StableMoError(f"blend: {blend:g} s is longer than the overlap ({overlap:g} s)")
+    if k > pipe.max_length - 1:
+        raise StableMoError(f"overlap: {overlap:g} s ({k} frames) leaves no new frames in a window of at most "
+                            f"{pipe.max_length} frames")
+    frames = segment_frames(segments, pipe.fps, source)
+    windows = plan_windows(frames, [s.text for s in segments], pipe.min_length, pipe.max_length, k, r)
+    sampling = Sampling(steps, sampler, cfg, dtype, tuple(hooks))
+    motion = np.zeros((frames[-1][1], pipe.mean.shape[0]), np.float32)  # (N, D)
+    for i, w in enumerate(windows):
+        context = motion[w.start:w.new_start] if w.prefix else None
+        feats = generate_window(pipe, w.text, w.length, seed + i, context, w.prefix - w.blend, sampling)
+        if w.blend:
+            motion[w.new_start - w.blend:w.new_start] = crossfade(context[-w.blend:], feats[w.prefix - w.blend:w.prefix])
+        new = feats[w.prefix:w.prefix + w.new_end - w.new_start]
+        motion[w.new_start:w.new_end] = settle(motion[:w.new_start], new, h, pipe.skeleton) if w.prefix else new
+        if progress:
+            print(f"  window {i + 1}/{len(windows)}: frames {w.new_start}-{w.new_end} {w.text!r}", flush=True)
+    joints = features_to_joints(torch.from_numpy(motion.astype(np.float64)), pipe.skeleton).float().numpy()
+    if not np.isfinite(joints).all():
+        raise StableMoError("timeline: the recovered joints are not finite; nothing was written")
+    return TimelineMotion(segments, frames, motion, joints, pipe.fps, windows)
+
+
+__all__ = ["TimelineMotion", "Window", "generate_timeline", "plan_windows"]

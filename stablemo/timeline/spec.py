@@ -1,0 +1,125 @@
+"""A timeline: contiguous segments `start_s end_s text`, checked, and placed on the frame grid.
+
+    0   5   a person walks forward
+    5   10  a person jumps in place
+    10  15  a person turns left        # '#' starts a comment; blank lines are skipped
+
+Seconds are decimal numbers; the first segment starts at 0, each next one where the previous ended
+(an overlap or a gap is an error naming the line). Segment boundaries are rounded to frames once,
+from the absolute times (not from the durations), so the total length is exactly
+round(last end x fps) frames whatever the number of segments.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from stablemo.errors import StableMoError
+
+# Two times closer than this are the same instant: "0 2.5" then "2.5 5" must not be a 1e-16 s gap
+# after float parsing; a millisecond is far below a frame at any frame rate a model uses.
+_SAME_INSTANT_S = 1e-3
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One prompt of a timeline: [start_s, end_s) seconds and its text."""
+
+    start_s: float
+    end_s: float
+    text: str
+
+
+def check_segments(segments: Sequence[Segment | tuple], source: str = "segments",
+                   lines: Sequence[int] | None = None) -> list[Segment]:
+    """Segments as `Segment`s, contiguous from 0; one clear error naming the entry (or file line)."""
+    out: list[Segment] = []
+    if not segments:
+        raise StableMoError(f"{source}: the timeline has no segments")
+    for i, seg in enumerate(segments):
+        where = f"{source}:{lines[i]}" if lines else f"{source}[{i}]"
+        if not isinstance(seg, Segment):
+            try:
+                start, end, text = seg
+            except (TypeError, ValueError):
+                raise StableMoError(f"{where}: expected (start_s, end_s, text), got {seg!r}") from None
+            seg = Segment(start, end, text)
+        for name in ("start_s", "end_s"):
+            value = getattr(seg, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise StableMoError(f"{where}: {name} must be a finite number of seconds, got {value!r}")
+        if not isinstance(seg.text, str) or not seg.text.strip():
+            raise StableMoError(f"{where}: empty prompt")
+        if seg.end_s <= seg.start_s:
+            raise StableMoError(f"{where}: ends at {seg.end_s:g} s, not after its start {seg.start_s:g} s")
+        expected = out[-1].end_s if out else 0.0
+        if abs(seg.start_s - expected) > _SAME_INSTANT_S:
+            if not out:
+                problem = f"starts at {seg.start_s:g} s; the first segment must start at 0"
+            elif seg.start_s < expected:
+                problem = f"starts at {seg.start_s:g} s, overlapping the previous segment (which ends at {expected:g} s)"
+            else:
+                problem = f"starts at {seg.start_s:g} s, leaving a gap after the previous segment (which ends at {expected:g} s)"
+            raise StableMoError(f"{where}: {problem}; segments must be contiguous")
+        out.append(Segment(float(expected), float(seg.end_s), seg.text.strip()))
+    return out
+
+
+def parse_timeline(text: str, source: str = "timeline") -> list[Segment]:
+    """Timeline text (lines `start_s end_s text`) -> checked segments; errors name `source:line`."""
+    rows, lines = [], []
+    for number, raw in enumerate(text.splitlines(), start=1):
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        parts = line.split(None, 2)
+        if len(parts) < 3:
+            raise StableMoError(f"{source}:{number}: expected 'start_s end_s text', got {raw.strip()!r}")
+        times = []
+        for name, word in zip(("start", "end"), parts[:2]):
+            try:
+                value = float(word)
+            except ValueError:
+                value = math.nan
+            if not math.isfinite(value):
+                raise StableMoError(f"{source}:{number}: {name} time {word!r} is not a number of seconds")
+            times.append(value)
+        rows.append((times[0], times[1], parts[2]))
+        lines.append(number)
+    if not rows:
+        raise StableMoError(f"{source}: no segments (lines 'start_s end_s text')")
+    return check_segments(rows, source, lines)
+
+
+def read_timeline(path: str | Path) -> list[Segment]:
+    """A timeline file -> checked segments (UTF-8; errors name the file and line)."""
+    file = Path(path)
+    if not file.is_file():
+        raise StableMoError(f"{file}: timeline file not found")
+    try:
+        content = file.read_text(encoding="utf-8")
+    except UnicodeDecodeError as err:
+        raise StableMoError(f"{file}: not UTF-8 text (byte {err.start})") from None
+    except OSError as err:
+        raise StableMoError(f"{file}: cannot read ({err.strerror})") from None
+    return parse_timeline(content, str(file))
+
+
+def segment_frames(segments: Sequence[Segment], fps: float, source: str = "segments") -> list[tuple[int, int]]:
+    """[start, end) frames of each segment, rounded from the absolute times (exact total length);
+    a segment that rounds to no frame is an error naming it."""
+    bounds = [0] + [round(seg.end_s * fps) for seg in segments]
+    out = []
+    for i, (a, b) in enumerate(itertools.pairwise(bounds)):
+        if b <= a:
+            raise StableMoError(f"{source}[{i}] ({segments[i].text!r}): {segments[i].end_s - segments[i].start_s:g} s "
+                                f"is shorter than one frame at {fps:g} fps")
+        out.append((a, b))
+    return out
+
+
+__all__ = ["Segment", "check_segments", "parse_timeline", "read_timeline", "segment_frames"]

@@ -1,0 +1,127 @@
+"""Streaming: successive chunks of one continuing motion, each conditioned on the frames already
+produced (their last `context` frames in-painted as the window's prefix), the text free to change
+between chunks.
+
+    for chunk in pipe.stream("a person walks forward", chunk_seconds=2, max_chunks=30):
+        send(chunk.joints)                      # (40, 22, 3), in the stream's one global frame
+
+`texts_or_callback` is a prompt (the same text for every chunk), a list of prompts (one per chunk,
+the stream ends after the last), or a callable `(index, previous chunk or None) -> prompt or None`
+(None ends the stream), which is how an interactive page changes the text while it plays.
+Each chunk's joints are placed in the stream's global frame by `RootFrame` (the window's own
+recovery, rotated and moved to where its first frame stands), so a chunk costs the same at minute
+ten as at the start.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from stablemo.errors import StableMoError
+from stablemo.inference_config import check_seed
+from stablemo.timeline.windows import RootFrame, Sampling, generate_window, settle
+
+DEFAULT_CONTEXT_S = 1.0
+DEFAULT_SETTLE_S = 0.0
+
+
+@dataclass
+class Chunk:
+    """index: 0, 1, ...; start: global frame of its first row; features (n, D) de-normalised;
+    joints (n, J, 3) in the stream's global frame; window: frames generated for it (context + new)."""
+
+    index: int
+    text: str
+    start: int
+    features: np.ndarray
+    joints: np.ndarray
+    window: int
+
+
+TextSource = str | Sequence[str] | Callable[[int, "Chunk | None"], "str | None"]
+
+
+def _text_source(texts_or_callback: TextSource) -> Callable[[int, Chunk | None], str | None]:
+    if isinstance(texts_or_callback, str):
+        text = texts_or_callback
+        return lambda i, prev: text
+    if callable(texts_or_callback):
+        return texts_or_callback
+    try:
+        texts = list(texts_or_callback)
+    except TypeError:
+        raise StableMoError(f"texts_or_callback: expected a prompt, a list of prompts or a callable, "
+                            f"got {type(texts_or_callback).__name__}") from None
+    if not texts:
+        raise StableMoError("texts_or_callback: the list of prompts is empty")
+    return lambda i, prev: texts[i] if i < len(texts) else None
+
+
+def _seconds_to_frames(pipe, seconds, name: str, low: int) -> int:
+    if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not math.isfinite(seconds):
+        raise StableMoError(f"{name}: must be a finite number of seconds, got {seconds!r}")
+    frames = round(seconds * pipe.fps)
+    if frames < low:
+        raise StableMoError(f"{name}: {seconds:g} s is {frames} frames at {pipe.fps:g} fps; at least {low} needed")
+    return frames
+
+
+def stream(pipe, texts_or_callback: TextSource, chunk_seconds: float = 2.0, seed: int = 0,
+           context_seconds: float = DEFAULT_CONTEXT_S, settle_s: float = DEFAULT_SETTLE_S, max_chunks: int | None = None, steps: int | None = None,
+           sampler: str | None = None, cfg: float | None = None, dtype=None, hooks: Sequence = (),
+           control: Callable | None = None) -> Iterator[Chunk]:
+    """Yield chunks of `chunk_seconds` (see the module docstring); chunk i uses seed + i.
+
+    control: optional `(index, window_length, context_frames) -> JointControl or None`, joint targets
+    for a chunk's window in the window's own frame (its first frame at the origin facing +z). Every
+    argument is checked here, before the first chunk is generated."""
+    n = _seconds_to_frames(pipe, chunk_seconds, "chunk_seconds", 1)
+    k = _seconds_to_frames(pipe, context_seconds, "context_seconds", 0)
+    h = _seconds_to_frames(pipe, settle_s, "settle_s", 0)
+    if k + n > pipe.max_length:
+        raise StableMoError(f"chunk_seconds + context_seconds: {n + k} frames exceed this model's maximum "
+                            f"window of {pipe.max_length} frames ({pipe.max_length / pipe.fps:g} s)")
+    check_seed("seed", seed)
+    if max_chunks is not None and (isinstance(max_chunks, bool) or not isinstance(max_chunks, int) or max_chunks < 1):
+        raise StableMoError(f"max_chunks: must be a positive integer or None, got {max_chunks!r}")
+    next_text = _text_source(texts_or_callback)
+    sampling = Sampling(steps, sampler, cfg, dtype, tuple(hooks))
+    return _chunks(pipe, next_text, n, k, h, seed, max_chunks, sampling, control)
+
+
+def _chunks(pipe, next_text, n: int, k: int, h: int, seed: int, max_chunks, sampling: Sampling,
+            control) -> Iterator[Chunk]:
+    frame = RootFrame(pipe.skeleton)  # the global frame of the window's first row
+    context = None  # (<=k, D) the last rows produced
+    produced, prev, index = 0, None, 0
+    while max_chunks is None or index < max_chunks:
+        text = next_text(index, prev)
+        if text is None:
+            return
+        if not isinstance(text, str) or not text.strip():
+            raise StableMoError(f"texts_or_callback: chunk {index}: expected a non-empty prompt, got {text!r}")
+        p = 0 if context is None else len(context)
+        length = max(pipe.min_length, p + n)
+        spec = control(index, length, p) if control is not None else None
+        feats = generate_window(pipe, text, length, seed + index, context, p, sampling, spec)[:p + n]
+        if p:
+            feats[p:] = settle(feats[:p], feats[p:], h, pipe.skeleton)
+        joints = frame.joints(feats)  # (p + n, J, 3) global
+        chunk = Chunk(index, text, produced, feats[p:], joints[p:].astype(np.float32), length)
+        if not (np.isfinite(chunk.features).all() and np.isfinite(chunk.joints).all()):
+            raise StableMoError(f"stream: chunk {index} ({text!r}) is not finite")
+        # the next window starts k rows before the end of this one
+        start = max(0, p + n - k)
+        frame.advance(feats, joints, start)
+        context = feats[start:] if k else None
+        produced += n
+        prev = chunk
+        index += 1
+        yield chunk
+
+
+__all__ = ["Chunk", "stream"]

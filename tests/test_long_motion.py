@@ -1,0 +1,177 @@
+"""Long motion: timeline parsing, windows joined by in-painting in one global frame, streaming."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from stablemo.errors import StableMoError
+from stablemo.motion import features_to_joints
+from stablemo.pipeline import Pipeline
+from stablemo.timeline import parse_timeline, plan_windows, segment_frames
+from stablemo.timeline.windows import RootFrame, crossfade
+
+DEMO = Path(__file__).resolve().parents[1] / "stablemo" / "assets" / "demo_bundle"
+FAST = {"steps": 2}  # contract tests: the sampler settings do not change what is checked
+
+
+@pytest.fixture(scope="module")
+def demo():
+    return Pipeline.from_bundle(DEMO)
+
+
+def _global_joints(features: np.ndarray) -> np.ndarray:
+    return features_to_joints(torch.from_numpy(features.astype(np.float64))).numpy()
+
+
+# ---------------------------------------------------------------------------------- the timeline file
+
+
+def test_timeline_lines_parse_with_comments_and_exact_frames():
+    segs = parse_timeline("# a walk\n0 3.33 a person walks forward\n\n3.33 6.67  a person jumps  # high\n"
+                          "6.67 10 a person turns left\n")
+    assert [s.text for s in segs] == ["a person walks forward", "a person jumps", "a person turns left"]
+    frames = segment_frames(segs, 20.0)
+    assert frames == [(0, 67), (67, 133), (133, 200)]  # rounded from absolute times: exactly 10 s
+
+
+@pytest.mark.parametrize("text, message", [
+    ("0 3 a\n2 6 b\n", "t.txt:2: starts at 2 s, overlapping"),
+    ("0 3 a\n\n4 6 b\n", "t.txt:3: starts at 4 s, leaving a gap"),
+    ("0 3 a\n3 x b\n", "t.txt:2: end time 'x' is not a number"),
+    ("0 3 a\n3 nan b\n", "t.txt:2: end time 'nan' is not a number"),
+    ("1 3 a\n", "t.txt:1: starts at 1 s; the first segment must start at 0"),
+    ("0 3 a\n3 3 b\n", "t.txt:2: ends at 3 s, not after its start"),
+    ("0 3\n", "t.txt:1: expected 'start_s end_s text'"),
+    ("# nothing\n", "t.txt: no segments"),
+])
+def test_bad_timelines_name_the_line(text, message):
+    with pytest.raises(StableMoError, match=message.replace("(", r"\(")):
+        parse_timeline(text, "t.txt")
+
+
+def test_windows_cover_the_motion_once_within_the_model_lengths():
+    frames = [(0, 30), (30, 450), (450, 460)]  # short, longer than a window, shorter than the minimum
+    windows = plan_windows(frames, ["a", "b", "c"], 40, 196, 20, 5)
+    assert windows[0].prefix == 0 and windows[0].new_start == 0
+    assert [w.new_start for w in windows[1:]] == [w.new_end for w in windows[:-1]]
+    assert windows[-1].new_end == 460
+    for w in windows:
+        assert 40 <= w.length <= 196 and w.prefix + (w.new_end - w.new_start) <= w.length
+        assert w.start == w.new_start - w.prefix and w.blend == min(5, w.prefix)
+    middle = [w.new_end - w.new_start for w in windows if w.text == "b"]
+    assert len(middle) == 3 and max(middle) - min(middle) <= 1  # split evenly, no sliver window
+
+
+def test_crossfade_goes_from_old_to_new_in_equal_steps():
+    old, new = np.zeros((3, 2), np.float32), np.full((3, 2), 4.0, np.float32)
+    np.testing.assert_allclose(crossfade(old, new)[:, 0], [1.0, 2.0, 3.0])
+
+
+# ---------------------------------------------------------------------------------- one motion
+
+
+def test_timeline_is_one_motion_of_exact_length_continuing_each_window(demo):
+    segs = [(0, 2.5, "a person walks forward"), (2.5, 4.05, "a person jumps in place"), (4.05, 6, "a person turns left")]
+    motion = demo.generate_timeline(segs, seed=3, overlap=1.0, settle_s=0.5, **FAST)
+    assert motion.features.shape == (120, 263) and motion.joints.shape == (120, 22, 3)
+    assert motion.frames == [(0, 50), (50, 81), (81, 120)] and motion.boundaries == [50, 81]
+    np.testing.assert_allclose(motion.joints, _global_joints(motion.features), atol=1e-4)
+    # the root moves continuously across the joins: no step there larger than the largest inside
+    steps = np.linalg.norm(np.diff(motion.joints[:, 0], axis=0), axis=-1)  # (N-1,)
+    near = np.zeros(len(steps), bool)
+    for b in motion.joins:
+        near[b - 2:b + 1] = True
+    assert steps[near].max() <= steps[~near].max()
+    # each window after the first was conditioned on the previous one: a different first text changes them
+    other = demo.generate_timeline([(0, 2.5, "a person runs forward")] + segs[1:], seed=3, overlap=1.0, **FAST)
+    assert np.abs(other.features[50:] - motion.features[50:]).max() > 1e-3
+    again = demo.generate_timeline(segs, seed=3, overlap=1.0, settle_s=0.5, **FAST)
+    assert np.array_equal(again.features, motion.features)
+
+
+def test_blended_windows_keep_the_hard_prefix_and_fade_the_rest(demo):
+    segs = [(0, 2, "a person walks forward"), (2, 4, "a person jumps in place")]
+    hard = demo.generate_timeline(segs, seed=1, overlap=1.0, blend=0.0, **FAST)
+    soft = demo.generate_timeline(segs, seed=1, overlap=1.0, blend=0.5, **FAST)
+    assert np.array_equal(hard.features[:30], soft.features[:30])  # before the faded rows: the first window
+    assert np.abs(hard.features[30:40] - soft.features[30:40]).max() > 1e-4  # the faded rows changed
+    assert soft.windows[1].blend == 10
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"overlap": 0.5, "blend": 1.0}, "blend: 1 s is longer than the overlap"),
+    ({"overlap": 20.0}, "overlap: 20 s"),
+    ({"overlap": float("nan")}, "overlap: must be a finite number"),
+    ({"seed": -1}, "seed"),
+])
+def test_bad_timeline_options_are_one_clear_error(demo, kwargs, message):
+    with pytest.raises(StableMoError, match=message):
+        demo.generate_timeline([(0, 3, "a person walks forward")], **kwargs)
+
+
+# ---------------------------------------------------------------------------------- streaming
+
+
+def test_stream_chunks_continue_one_motion_in_one_global_frame(demo):
+    texts = ["a person walks forward"] * 3 + ["a person turns left"] * 2
+    chunks = list(demo.stream(texts, chunk_seconds=1.5, context_seconds=0.5, seed=2, **FAST))
+    assert [c.index for c in chunks] == list(range(5)) and [c.start for c in chunks] == [0, 30, 60, 90, 120]
+    assert [c.text for c in chunks] == texts and all(c.features.shape == (30, 263) for c in chunks)
+    feats = np.concatenate([c.features for c in chunks])
+    joints = np.concatenate([c.joints for c in chunks])
+    np.testing.assert_allclose(joints, _global_joints(feats), atol=1e-4)  # heading and position carried
+    assert np.abs(joints[-1, 0, [0, 2]]).max() > 0.3  # it went somewhere, and the chunks followed it
+
+
+def test_stream_asks_the_callback_and_stops_when_it_says_so(demo):
+    seen = []
+
+    def texts(index, previous):
+        seen.append((index, None if previous is None else previous.index))
+        return None if index == 3 else ("a person walks forward" if index < 2 else "a person jumps in place")
+
+    chunks = list(demo.stream(texts, chunk_seconds=1.0, **FAST))
+    assert len(chunks) == 3 and seen == [(0, None), (1, 0), (2, 1), (3, 2)]
+    assert chunks[2].text == "a person jumps in place"
+
+
+def test_stream_is_conditioned_on_what_it_produced(demo):
+    a = list(demo.stream(["a person walks forward", "a person jumps in place"], chunk_seconds=1.0, seed=5, **FAST))
+    b = list(demo.stream(["a person runs forward", "a person jumps in place"], chunk_seconds=1.0, seed=5, **FAST))
+    assert np.abs(a[1].features - b[1].features).max() > 1e-3
+    free = list(demo.stream(["a person walks forward", "a person jumps in place"], chunk_seconds=1.0, seed=5,
+                            context_seconds=0, **FAST))
+    assert np.abs(a[1].features - free[1].features).max() > 1e-3
+    # without context the root still continues: the next chunk starts where the last row's velocity leads
+    np.testing.assert_allclose(np.concatenate([c.joints for c in free]),
+                               _global_joints(np.concatenate([c.features for c in free])), atol=1e-4)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"chunk_seconds": 0.0}, "chunk_seconds: 0 s is 0 frames"),
+    ({"chunk_seconds": 9.0, "context_seconds": 1.0}, "exceed this model's maximum window of 196 frames"),
+    ({"chunk_seconds": float("inf")}, "chunk_seconds: must be a finite number"),
+    ({"max_chunks": 0}, "max_chunks: must be a positive integer"),
+])
+def test_bad_stream_options_fail_before_any_chunk(demo, kwargs, message):
+    with pytest.raises(StableMoError, match=message):
+        demo.stream("a person walks forward", **kwargs)
+
+
+def test_stream_rejects_an_empty_text_from_the_callback(demo):
+    with pytest.raises(StableMoError, match="chunk 1: expected a non-empty prompt"):
+        list(demo.stream(lambda i, prev: "a person walks" if i == 0 else " ", **FAST))
+
+
+def test_root_frame_places_a_window_where_its_first_frame_stands():
+    rng = np.random.default_rng(0)
+    feats = (rng.standard_normal((50, 263)) * 0.05).astype(np.float32)
+    whole = _global_joints(feats)
+    frame = RootFrame("humanml3d")
+    first = frame.joints(feats[:30])
+    frame.advance(feats[:30], first, 20)
+    np.testing.assert_allclose(frame.joints(feats[20:]), whole[20:], atol=1e-6)
