@@ -7,11 +7,13 @@ At every sampler step the hook moves the predicted clean motion towards the join
    consecutive targets, in the heading the motion already has) so that the integrated root path
    passes through every pelvis target. The motion starts at the origin, which acts as a target at
    frame 0.
-2. Gradient steps on x0 (normalised space) for every target, through the differentiable features
-   -> joints map only (never through the network). The update is smoothed over time (a Gaussian of
-   `smooth` frames), so a sparse target moves its neighbourhood with it instead of one frame
-   (no velocity spike at a keyframe), and the step is preconditioned by the feature scale (GD in
-   de-normalised units). More iterations at the last step, where the result is final.
+2. Gradient steps for every other target on the joints' root-relative positions (ric) of the
+   predicted x0, through the features -> joints map only (never through the network): with the
+   root fixed that map is a rotation plus an offset per frame, so the gradient is closed-form and a
+   unit step lands a joint on its target. The update is smoothed over time (a Gaussian of `smooth`
+   frames), so a sparse target moves its neighbourhood with it instead of one frame (no velocity
+   spike at a keyframe); iterating converges at the targets. More iterations at the last step,
+   where the result is final.
 
 Batched over samples and targets: no Python loop over samples or frames.
 """
@@ -24,7 +26,7 @@ import torch
 
 from stablemo.hooks import StepState
 from stablemo.motion.features import feature_slices, features_to_joints, recover_root
-from stablemo.motion.quaternion import qrot
+from stablemo.motion.quaternion import qinv, qrot
 from stablemo.motion.skeleton import get_skeleton
 
 
@@ -98,13 +100,10 @@ class JointGuidance:
         self.skeleton = get_skeleton(skeleton)
         self.iters, self.final_iters = int(iters), int(final_iters)
         self.smooth, self.follow = float(smooth), float(follow)
-        # only the joints' root-relative positions take gradient steps: the root moves by projection
-        # (its velocities are integrated over the whole motion, badly conditioned for plain steps);
-        # rotations, velocities and contacts are left to the network, which re-derives them from the
-        # positions at the next step
-        movable = torch.zeros(self.mean.shape[0], dtype=torch.bool)
-        movable[feature_slices(self.skeleton)["ric"]] = True
-        self.movable = movable
+        # Only the joints' root-relative positions (ric) take gradient steps: the root moves by
+        # projection (its velocities are integrated over the whole motion, badly conditioned for
+        # plain steps); rotations, velocities and contacts are left to the network, which re-derives
+        # them from the positions at the next step.
 
     def active(self, step: int, steps: int) -> bool:
         return True
@@ -134,23 +133,29 @@ class JointGuidance:
             root, root_mask = self._root_targets(feats, targets, mask)
             feats = project_root(feats, root, root_mask, lengths)
         iters = self.final_iters if state.step == state.steps - 1 else self.iters
-        weight = mask.to(x0.dtype)[..., None]  # (B, T, J, 1)
+        # With the root fixed, joint j >= 1 sits at R_t^T ric_j + o_t (R_t the heading, o_t the root's
+        # horizontal place): half the squared miss has the gradient R_t (joint - target) in ric_j, a
+        # unit step lands the joint on its target, and no autograd is needed.
+        q, root = recover_root(feats)  # (B, T, 4), (B, T, 3)
+        q = q[:, :, None, :].expand(-1, -1, targets.shape[2] - 1, -1)
+        offset = (root * torch.tensor([1.0, 0.0, 1.0], device=dev))[:, :, None, :]  # (B, T, 1, 3)
+        weight = mask[:, :, 1:, None].to(x0.dtype)  # (B, T, J-1, 1)
+        goal = targets[:, :, 1:]
+        ric_cols = feature_slices(self.skeleton)["ric"]
+        ric = feats[..., ric_cols].unflatten(-1, (-1, 3))  # (B, T, J-1, 3)
+        frame_mask = state.mask.to(dev)[:, :, None, None]
         kernel = _gaussian(self.smooth, dev, x0.dtype)
-        update_mask = self.movable.to(dev) & state.mask.to(dev)[..., None]  # (B, T, D)
         for _ in range(iters):
-            var = feats.detach().requires_grad_(True)
-            joints = features_to_joints(var, self.skeleton)
-            # half the squared distance: its gradient w.r.t. a joint's root-relative position is the
-            # miss rotated into the body frame, so a unit step lands that joint on its target
-            loss = 0.5 * (((joints - targets) ** 2) * weight).sum()
-            (grad,) = torch.autograd.grad(loss, var)
-            grad = torch.where(update_mask, grad, torch.zeros((), device=dev))
-            if kernel is not None:  # (B, T, D): a temporal convolution per channel
-                B, T, D = grad.shape
-                g = torch.nn.functional.conv1d(grad.transpose(1, 2).reshape(B * D, 1, T), kernel.view(1, 1, -1),
-                                               padding=kernel.numel() // 2)
-                grad = torch.where(update_mask, g.reshape(B, D, T).transpose(1, 2), torch.zeros((), device=dev))
-            feats = feats.detach() - grad
+            joints = qrot(qinv(q), ric) + offset
+            grad = qrot(q, (joints - goal) * weight)  # (B, T, J-1, 3)
+            if kernel is not None:  # the update smoothed over time, per coordinate
+                B, T = grad.shape[:2]
+                g = grad.flatten(2).transpose(1, 2).reshape(-1, 1, T)
+                g = torch.nn.functional.conv1d(g, kernel.view(1, 1, -1), padding=kernel.numel() // 2)
+                grad = g.reshape(B, -1, T).transpose(1, 2).unflatten(-1, (-1, 3))
+            ric = ric - torch.where(frame_mask, grad, torch.zeros((), device=dev))
+        feats = feats.clone()
+        feats[..., ric_cols] = ric.flatten(-2)
         # samples without a target come back bit-identical (the sampler treats them as unedited)
         controlled = mask.flatten(1).any(1)[:, None, None]
         return torch.where(controlled, (feats - mean) / std, x0).detach()

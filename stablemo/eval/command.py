@@ -30,6 +30,7 @@ from stablemo.errors import StableMoError
 from stablemo.inference_config import check_finite, check_positive_int, check_seed
 from stablemo.eval import metrics
 from stablemo.eval.physics import foot_skating_ratio
+from stablemo.motion import features_to_joints
 from stablemo.eval.text_motion import (  # noqa: F401 (re-exported: the evaluator adapters)
     GuoTextMotionEvaluator,
     OurEvaluator,
@@ -43,6 +44,8 @@ SYNTH_EVALUATOR = Path(__file__).resolve().parents[1] / "assets" / "evaluator_sy
 COLUMNS = [  # (json key, table header, lower/higher/closer-is-better hint only for readers)
     ("r1", "R@1"), ("r2", "R@2"), ("r3", "R@3"), ("fid", "FID"), ("mm_dist", "MM-Dist"),
     ("diversity", "Diversity"), ("multimodality", "MModality"), ("skate_ratio", "Skate"),
+    ("foot_acc", "Foot acc."), ("traj_err", "Traj. err"), ("loc_err", "Loc. err"), ("avg_err", "Avg. err"),
+    ("spikes", "Spikes"),
 ]
 
 # generate(texts, lengths, seeds) -> (features (B,T,D) raw, zero-padded; joints (B,T,J,3) or None)
@@ -98,10 +101,37 @@ def embed_texts(evaluator, texts: list[str], tokens: list[list[str]], batch_size
                            for s in range(0, len(texts), batch_size)])
 
 
-def _skate(joints: list[torch.Tensor]) -> float:
+def _control_metrics(joints: list[torch.Tensor], hints: list, reference: list[torch.Tensor]) -> dict[str, float]:
+    """Control errors (metres) of generated joints (L_i, J, 3) against their hints, and the share
+    of hinted frames with a root/foot acceleration spike above the reference motions' 99th percentile."""
+    from stablemo.eval.control import acceleration_spikes, control_errors
+
+    padded, _ = _padded_joints(joints)
+    targets, masks = torch.zeros_like(padded), torch.zeros(padded.shape[:3], dtype=torch.bool)
+    for i, hint in enumerate(hints):
+        n = len(hint.positions)
+        targets[i, :n] = torch.as_tensor(np.asarray(hint.positions, np.float32))
+        masks[i, :n] = torch.as_tensor(np.asarray(hint.mask))
+    errors = control_errors(padded, targets, masks)
+    errors["spikes"] = acceleration_spikes(padded, masks, reference)
+    return errors
+
+
+def _padded_joints(joints: list[torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
     padded, lengths = _pad([j.reshape(len(j), -1) for j in joints])
-    padded = padded.reshape(len(joints), padded.shape[1], -1, 3)
+    return padded.reshape(len(joints), padded.shape[1], -1, 3), lengths
+
+
+def _skate(joints: list[torch.Tensor]) -> float:
+    padded, lengths = _padded_joints(joints)
     return float(foot_skating_ratio(padded, lengths=lengths).mean())
+
+
+def _foot_acceleration(joints: list[torch.Tensor]) -> float:
+    from stablemo.eval.physics import foot_acceleration
+
+    padded, lengths = _padded_joints(joints)
+    return float(foot_acceleration(padded, lengths=lengths).mean())
 
 
 # ----------------------------------------------------------------------------- protocol
@@ -123,8 +153,13 @@ def evaluate(
     mm_generations: int = metrics.MM_GENERATIONS,
     row_name: str = "model",
     progress: bool = True,
+    control=None,
 ) -> dict:
-    """Run the benchmark; returns {"rows": {row: {metric: Interval.to_dict()}}, "settings": {...}}."""
+    """Run the benchmark; returns {"rows": {row: {metric: Interval.to_dict()}}, "settings": {...}}.
+
+    control: a `stablemo.eval.control.ControlProtocol`: hints from the scored motions are passed to
+    `generate(texts, lengths, seeds, controls=[JointControl, ...])`, and the control errors, the
+    feet's acceleration and the skating ratio are reported."""
     if replications < 1:
         raise StableMoError(f"--replications: must be >= 1, got {replications}")
     n_items = len(dataset) if max_items is None else min(len(dataset), int(max_items))
@@ -133,7 +168,7 @@ def evaluate(
     div_pairs = min(metrics.DIVERSITY_PAIRS, n_items - 1)
     joints_of = None
     if footskate:
-        from stablemo.motion import features_to_joints, get_skeleton
+        from stablemo.motion import get_skeleton
 
         skel = get_skeleton(skeleton)
         if skel.name != "humanml3d":
@@ -160,15 +195,24 @@ def evaluate(
 
         candidates = [(REAL_ROW, cur.features, None)]
         if generate is not None:
-            gen_feats, gen_joints = [], []
+            gen_feats, gen_joints, hints = [], [], []
             for s in range(0, n_items, batch_size):
                 sl = slice(s, s + batch_size)
                 seeds = [int(x) for x in rng.integers(0, 2**31 - 1, size=len(cur.texts[sl]))]
-                feats, joints = generate(cur.texts[sl], cur.lengths[sl], seeds)
+                if control is not None:
+                    batch_hints = control.hints(cur.features[sl], rng)
+                    hints += batch_hints
+                    feats, joints = generate(cur.texts[sl], cur.lengths[sl], seeds, controls=batch_hints)
+                else:
+                    feats, joints = generate(cur.texts[sl], cur.lengths[sl], seeds)
                 gen_feats += [feats[i, :n].float().cpu() for i, n in enumerate(cur.lengths[sl])]
                 if joints is not None:
                     gen_joints += [joints[i, :n].float().cpu() for i, n in enumerate(cur.lengths[sl])]
             candidates.append((row_name, gen_feats, gen_joints or None))
+            if control is not None:
+                real_joints = [features_to_joints(f[None].float(), control.skeleton)[0] for f in cur.features]
+                for key, value in _control_metrics(gen_joints, hints, real_joints).items():
+                    add(row_name, key, value)
 
         for row, feats, joints in candidates:
             emb = embed_motions(evaluator, feats, batch_size)
@@ -179,7 +223,10 @@ def evaluate(
             add(row, "fid", metrics.frechet_distance(*metrics.embedding_statistics(emb), *ref_stats))
             add(row, "diversity", metrics.diversity(emb, rng, div_pairs))
             if joints_of is not None:
-                add(row, "skate_ratio", _skate(joints if joints is not None else joints_of(feats)))
+                row_joints = joints if joints is not None else joints_of(feats)
+                add(row, "skate_ratio", _skate(row_joints))
+                if control is not None:  # the data's own jitter beside the controlled model's
+                    add(row, "foot_acc", _foot_acceleration(row_joints))
 
         if generate is not None and multimodality:
             picks = rng.choice(n_items, min(mm_captions, n_items), replace=False)
@@ -235,6 +282,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--footskate", action="store_true",
                    help="generate with foot-skate correction inside denoising (StableMoFusion*) and report the skating ratio")
     p.add_argument("--skate-ratio", action="store_true", help="report the foot-skating ratio (no correction)")
+    p.add_argument("--control", default=None,
+                   choices=["pelvis", "left_foot", "right_foot", "head", "left_wrist", "right_wrist", "all", "keyframes"],
+                   help="joint control (OmniControl / MotionLCM protocol): hints from the test motions at this joint "
+                        "('all': the six together; 'keyframes': whole poses); reports Traj./Loc./Avg. err, the "
+                        "share of hinted frames with an acceleration spike, foot acceleration and skating")
+    p.add_argument("--density", default="100%", help="with --control: share of frames (100%%, 25%%) or a count (5, 2, 1)")
     p.add_argument("--multimodality", action="store_true", help="also report MultiModality (100 captions × 30)")
     p.add_argument("--mm-captions", type=int, default=metrics.MM_CAPTIONS)
     p.add_argument("--mm-generations", type=int, default=metrics.MM_GENERATIONS)
@@ -307,6 +360,8 @@ def main(argv: list[str]) -> int:
     _check_numbers(args)
     dtype = _check_precision(args)
     evaluator_path = args.evaluator or default_evaluator(args.data)
+    if args.control is not None and not args.bundle:
+        raise StableMoError("--control: evaluates a model's joint control; give --bundle")
     if args.out:
         from stablemo.io import check_output_file
 
@@ -328,6 +383,7 @@ def main(argv: list[str]) -> int:
         raise StableMoError(f"--evaluator: expects {evaluator.feature_dim}-d features, the data has {data.spec.feature_dim}")
 
     generate = None
+    control = None
     row_name = "model"
     if pipe is not None:
         from stablemo.hooks import make_hooks
@@ -341,21 +397,28 @@ def main(argv: list[str]) -> int:
         row_name = f"{Path(args.bundle).name} ({sampler}, {steps} steps, cfg {cfg:g}{precision})"
         if args.footskate:
             row_name += " + footskate"
+        if args.control:
+            from stablemo.eval.control import ControlProtocol
+
+            control = ControlProtocol(args.control, args.density, pipe.skeleton)
+            row_name += f" + control {args.control} {args.density}"
         lo, hi = pipe.min_length, pipe.max_length
         hooks = make_hooks(pipe, footskate=args.footskate)  # StableMoFusion*: correction inside denoising
 
-        def generate(texts, lengths, seeds):
+        def generate(texts, lengths, seeds, controls=None):
             # Evaluation crops can be shorter than the model's minimum: generate at the minimum and
             # keep the first `length` frames (the scored length is always the requested one).
             gen_lengths = [min(max(n, lo), hi) for n in lengths]
             out = pipe.generate(Request(texts, gen_lengths, seed=seeds, sampler=sampler, steps=steps, cfg=cfg,
-                                        hooks=hooks))
+                                        hooks=hooks, control=controls))
             return out.features, out.joints
 
     result = evaluate(data, evaluator, generate, replications=args.replications, seed=args.seed,
-                      batch_size=args.batch_size, max_items=args.max_items, footskate=args.footskate or args.skate_ratio,
+                      batch_size=args.batch_size, max_items=args.max_items,
+                      footskate=args.footskate or args.skate_ratio or control is not None,
                       skeleton=data.spec.skeleton, multimodality=args.multimodality, mm_captions=args.mm_captions,
-                      mm_generations=args.mm_generations, row_name=row_name, progress=not args.no_progress)
+                      mm_generations=args.mm_generations, row_name=row_name, progress=not args.no_progress,
+                      control=control)
     aits = None
     if pipe is not None and args.aits > 0:
         rng = np.random.default_rng(args.seed)
