@@ -133,6 +133,13 @@ def test_downloads_are_the_shown_motion(client, models, tmp_path):
     assert Image.open(io.BytesIO(res.content)).n_frames == 40
 
 
+def test_no_page_of_the_server_needs_the_network(client):
+    assert client.get("/docs").status_code == 404  # FastAPI's Swagger page loads from a CDN
+    assert client.get("/api/openapi.json").status_code == 200
+    page = client.get("/").text
+    assert "/static/app.js" in page and "importmap" in page
+
+
 def test_info_describes_the_model(client):
     info = client.get("/api/info").json()
     assert info["default"] == "teacher"
@@ -288,4 +295,35 @@ def test_joint_control_reaches_the_targets_and_equals_offline(client, models):
 ])
 def test_bad_control_is_400_with_one_line(client, control, message):
     res = client.post("/api/generate", json={"text": "walk", "frames": 60, "control": control})
+    assert res.status_code == 400 and res.json()["error"].startswith(message), res.json()
+
+
+def test_timeline_streams_chunks_equal_to_the_pipelines_stream(client, models):
+    body = {"timeline": [{"text": "a person walks forward", "seconds": 3}, {"text": "a person jumps", "seconds": 2.5}],
+            "chunk_seconds": 2, "seed": 5, "steps": 2, "encoding": "base64"}
+    with client.stream("POST", "/api/stream", json=body) as res:
+        assert res.status_code == 200 and res.headers["content-type"].startswith("application/x-ndjson")
+        lines = [json.loads(line) for line in res.iter_lines() if line]
+    head, chunks, last = lines[0], lines[1:-1], lines[-1]
+    # 5.5 s in 2 s chunks: 3 chunks; each takes the prompt playing at its middle (1 s, 3 s, 5 s)
+    assert head["texts"] == ["a person walks forward", "a person jumps", "a person jumps"]
+    assert (head["chunks"], head["frames"], last["done"]) == (3, 120, True)
+    pipe = models.models["teacher"].pipeline
+    offline_chunks = list(pipe.stream(head["texts"], chunk_seconds=2, seed=5, max_chunks=3, steps=2))
+    for line, ref in zip(chunks, offline_chunks, strict=True):
+        assert (line["index"], line["start"], line["frames"]) == (ref.index, ref.start, 40)
+        assert np.array_equal(decode(line["joints"]), ref.joints)
+
+
+@pytest.mark.parametrize("body, message", [
+    ({"timeline": []}, "timeline: expected a non-empty list"),
+    ({"timeline": [{"text": "walk"}]}, 'timeline[0]: expected {"text", "seconds"}'),
+    ({"timeline": [{"text": " ", "seconds": 2}]}, "timeline[0].text: empty prompt"),
+    ({"timeline": [{"text": "walk", "seconds": -2}]}, "timeline[0].seconds: must be > 0"),
+    ({"timeline": [{"text": "walk", "seconds": 400}]}, "timeline: 400 s in all, at most 300 s"),
+    ({"timeline": [{"text": "walk", "seconds": 4}], "chunk_seconds": 9.5}, "chunk_seconds + context_seconds"),
+    ({"timeline": [{"text": "walk", "seconds": 4}], "steps": 0}, "steps: must be >= 1"),
+])
+def test_bad_timeline_is_400_before_any_chunk(client, body, message):
+    res = client.post("/api/stream", json=body)
     assert res.status_code == 400 and res.json()["error"].startswith(message), res.json()

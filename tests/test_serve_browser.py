@@ -176,3 +176,25 @@ def test_a_drawn_path_is_followed_and_a_dragged_joint_is_reached(page):
                                 "return [m.joints[o], m.joints[o + 1], m.joints[o + 2]]", frame)
     assert np.linalg.norm(np.array(after) - key["position"]) < 0.05
     assert np.array(after)[1] - np.array(before)[1] > 0.1  # the wrist went up
+
+
+def test_a_timeline_streams_into_one_motion(page):
+    box = page.find_element(By.ID, "timeline")
+    box.clear()
+    box.send_keys("2 a person walks forward\n2 a person jumps")
+    page.find_element(By.ID, "stream").click()
+    wait_for(page, "const m = window.stablemo.motion; return m && m.chunks === 2 && !m.streaming")
+    state = page.execute_script("const s = window.stablemo; return [s.motion.frames, s.motion.texts, s.error,"
+                                "document.getElementById('stream-info').textContent]")
+    assert state[:3] == [80, ["a person walks forward", "a person jumps"], None]
+    assert state[3].startswith("2 chunks, 4.0 s of motion")
+    frames = {page.execute_script("return window.stablemo.frame")}
+    for _ in range(6):
+        time.sleep(0.25)
+        frames.add(page.execute_script("return window.stablemo.frame"))
+    assert len(frames) > 2  # it plays
+    # a malformed line is named before anything is sent
+    box.send_keys("\nthree a person waves")
+    page.find_element(By.ID, "stream").click()
+    wait_for(page, "return window.stablemo.error")
+    assert page.find_element(By.ID, "status").text.startswith('timeline line 3: expected "<seconds> <prompt>"')

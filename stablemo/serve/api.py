@@ -5,6 +5,8 @@
     POST /api/generate     {"text", "seconds"|"frames", "seed", "model", "sampler", "steps", "cfg",
                             "footskate", "encoding", "features"} -> joints, features, fps, ...
     POST /api/download     the same body + "format": joints.npy | features.npy | bvh | gif -> the file
+    POST /api/stream       {"timeline": [{"text", "seconds"}, ...], "chunk_seconds", "seed", ...} ->
+                           NDJSON: a header line, one line per chunk as it is made, a last "done" line
 
 Bad input is HTTP 400 with {"error": "<field>: <one line>"}, checked before the job is queued. All
 generation runs on one worker thread: a request that arrives while another computes waits its
@@ -25,12 +27,12 @@ from pathlib import Path
 
 import numpy as np
 from fastapi import FastAPI, Request
-from fastapi.responses import FileResponse, JSONResponse, Response
+from fastapi.responses import FileResponse, JSONResponse, Response, StreamingResponse
 from fastapi.staticfiles import StaticFiles
 
 from stablemo.errors import StableMoError, one_line
 from stablemo.generate import slugify
-from stablemo.serve.models import ModelSet, Motion, motion_json
+from stablemo.serve.models import ModelSet, Motion, encode_array, motion_json
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 DOWNLOADS = {"joints.npy": "application/octet-stream", "features.npy": "application/octet-stream",
@@ -71,7 +73,8 @@ def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_
         generate_worker.shutdown()
         render_worker.shutdown()
 
-    app = FastAPI(title="StableMo", lifespan=lifespan, docs_url="/api/docs", redoc_url=None, openapi_url="/api/openapi.json")
+    # no /docs page: FastAPI's loads Swagger UI from a CDN, and nothing here may need the network
+    app = FastAPI(title="StableMo", lifespan=lifespan, docs_url=None, redoc_url=None, openapi_url="/api/openapi.json")
     app.state.models = models
 
     def error(status: int, message: str) -> JSONResponse:
@@ -114,6 +117,33 @@ def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_
         out["timing"] = {"compute_ms": 0.0 if cached else round(motion.seconds * 1000, 2),
                          "total_ms": round(total * 1000, 2), "cached": cached}
         return out
+
+    @app.post("/api/stream")
+    async def stream(request: Request):
+        try:
+            body = json.loads(await request.body())
+        except (json.JSONDecodeError, UnicodeDecodeError) as err:
+            raise StableMoError(f"request: the body is not valid JSON ({err})") from None
+        job = models.parse_stream(body)
+
+        async def lines():
+            start = time.perf_counter()
+            yield json.dumps({"model": job.model, "fps": job.fps, "frames": job.frames, "chunks": len(job.texts),
+                              "texts": job.texts}) + "\n"
+            while True:
+                try:  # one chunk per turn of the worker: other requests interleave with a long stream
+                    chunk = await generate_worker.run(next, job.chunks, None)
+                except (StableMoError, Busy) as err:
+                    yield json.dumps({"error": one_line(str(err))}) + "\n"
+                    return
+                if chunk is None:
+                    break
+                yield json.dumps({"index": chunk.index, "text": chunk.text, "start": chunk.start,
+                                  "frames": len(chunk.joints), "joints": encode_array(chunk.joints, job.encoding),
+                                  "elapsed_ms": round((time.perf_counter() - start) * 1000, 2)}) + "\n"
+            yield json.dumps({"done": True, "elapsed_ms": round((time.perf_counter() - start) * 1000, 2)}) + "\n"
+
+        return StreamingResponse(lines(), media_type="application/x-ndjson")
 
     @app.post("/api/download")
     async def download(request: Request):

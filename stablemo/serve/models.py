@@ -26,6 +26,7 @@ from stablemo.pipeline import Request
 DEFAULT_SECONDS = 6.0
 MAX_TEXT_CHARS = 1000  # the text encoders keep far fewer tokens; longer is a pasting accident
 ENCODINGS = ("lists", "base64")
+MAX_STREAM_SECONDS = 300.0  # a bound on one request's work; a longer show is several requests
 
 
 @dataclass(frozen=True)
@@ -175,6 +176,57 @@ class ModelSet:
         pipe = self.models[name].pipeline
         pipe.generate(Request(["a person walks forward"], min(round(DEFAULT_SECONDS * pipe.fps), pipe.max_length)))
 
+    def parse_stream(self, body: Any) -> StreamJob:
+        """A JSON timeline request -> a StreamJob whose chunks are computed when pulled. Every error
+        (fields, the timeline, the chunk settings against the model) is raised here, before any chunk."""
+        if not isinstance(body, dict):
+            raise StableMoError("request: expected a JSON object")
+        known = {"timeline", "chunk_seconds", "seed", "model", "sampler", "steps", "cfg", "encoding"}
+        unknown = sorted(set(body) - known)
+        if unknown:
+            raise StableMoError(f"{unknown[0]}: unknown field (known: {', '.join(sorted(known))})")
+        name = body.get("model") or self.default
+        if name not in self.models:
+            raise StableMoError(f"model: unknown {name!r}; served: {', '.join(self.models)}")
+        pipe = self.models[name].pipeline
+        timeline = body.get("timeline")
+        if not isinstance(timeline, list) or not timeline:
+            raise StableMoError('timeline: expected a non-empty list of {"text", "seconds"}')
+        segments = []
+        for i, item in enumerate(timeline):
+            where = f"timeline[{i}]"
+            if not isinstance(item, dict) or set(item) != {"text", "seconds"}:
+                raise StableMoError(f'{where}: expected {{"text", "seconds"}}, got {json_short(item)}')
+            text = item["text"]
+            if not isinstance(text, str) or not text.strip():
+                raise StableMoError(f"{where}.text: empty prompt")
+            if len(text) > MAX_TEXT_CHARS:
+                raise StableMoError(f"{where}.text: {len(text)} characters, at most {MAX_TEXT_CHARS}")
+            seconds = check_finite(f"{where}.seconds", _number(f"{where}.seconds", item["seconds"]), low=0.0, strict=True)
+            segments.append((text.strip(), seconds))
+        total = sum(sec for _, sec in segments)
+        if total > MAX_STREAM_SECONDS:
+            raise StableMoError(f"timeline: {total:g} s in all, at most {MAX_STREAM_SECONDS:g} s")
+        chunk = check_finite("chunk_seconds", _number("chunk_seconds", body.get("chunk_seconds", 2.0)), low=0.0, strict=True)
+        seed = check_seed("seed", body.get("seed", 0))
+        steps = body.get("steps")
+        if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int)):
+            raise StableMoError(f"steps: expected a whole number, got {steps!r}")
+        cfg = None if body.get("cfg") is None else check_finite("cfg", _number("cfg", body["cfg"]), low=0.0, high=100.0)
+        sampler = body.get("sampler")
+        encoding = body.get("encoding", "lists")
+        if encoding not in ENCODINGS:
+            raise StableMoError(f"encoding: expected one of {', '.join(ENCODINGS)}, got {encoding!r}")
+        # chunk i plays from i * chunk: it gets the prompt of the timeline at its middle
+        count = max(1, math.ceil(total / chunk - 1e-9))
+        ends = np.cumsum([sec for _, sec in segments])
+        texts = [segments[min(int(np.searchsorted(ends, (i + 0.5) * chunk, side="right")), len(segments) - 1)][0]
+                 for i in range(count)]
+        pipe.resolve(Request([texts[0]], pipe.max_length, seed=seed, sampler=sampler, steps=steps, cfg=cfg))
+        chunks = pipe.stream(texts, chunk_seconds=chunk, seed=seed, max_chunks=count, steps=steps, sampler=sampler,
+                             cfg=cfg)  # checks the chunk and context lengths against the model now
+        return StreamJob(name, texts, chunks, pipe.fps, round(chunk * pipe.fps) * count, encoding)
+
     # ---- generation ----------------------------------------------------------------------------
 
     def generate(self, spec: Spec) -> tuple[Motion, bool]:
@@ -202,6 +254,19 @@ class ModelSet:
             while len(self._cache) > self._cache_size:
                 self._cache.popitem(last=False)
         return motion, False
+
+
+@dataclass
+class StreamJob:
+    """A checked timeline: `chunks` is the pipeline's lazy iterator of stablemo.timeline.Chunk
+    (chunk i uses seed + i and texts[i]); frames: the total it will produce."""
+
+    model: str
+    texts: list[str]
+    chunks: Any
+    fps: float
+    frames: int
+    encoding: str
 
 
 def encode_array(arr: np.ndarray, encoding: str) -> Any:

@@ -155,7 +155,7 @@ function pose(f) {
 function buildPath(m) {
   if (pathLine) { scene.remove(pathLine); pathLine.geometry.dispose(); }
   const pts = [];
-  for (let f = 0; f < m.frames; f++) {
+  for (let f = 0; f < m.available; f++) {
     const p = jointAt(m, f, 0, new THREE.Vector3());
     pts.push(new THREE.Vector3(p.x, 0.003, p.z));
   }
@@ -205,9 +205,11 @@ function tick() {
   if (resize()) dirtyView = true;
   const m = S.motion;
   let f = -1;
-  if (m) {
-    if (S.playing) framePos = (framePos + dt * m.fps * S.speed) % m.frames;
-    f = Math.min(Math.floor(framePos), m.frames - 1);
+  if (m && m.available > 0) {
+    if (S.playing) framePos += dt * m.fps * S.speed;
+    // a stream still arriving holds at its last frame (buffering); a complete motion loops
+    framePos = m.streaming ? Math.min(framePos, m.available - 1) : framePos % m.frames;
+    f = Math.min(Math.floor(framePos), m.available - 1);
     if (f !== S.frame || firstDraw) {
       pose(f);
       if ($('follow').checked) followCamera();
@@ -219,7 +221,7 @@ function tick() {
   if (!dirtyView) return;
   dirtyView = false;
   renderer.render(scene, camera);
-  if (m) {
+  if (f >= 0) {
     S.frame = f;
     S.drawCount++;
     recordPose();
@@ -269,6 +271,7 @@ function schedule(delay = DEBOUNCE_MS) {
 
 async function submit() {
   if (inflight) { dirty = true; return; }
+  if (streamAbort) streamAbort.abort();  // a new prompt replaces a timeline being streamed
   inflight = true;
   dirty = false;
   const spec = currentSpec();
@@ -301,6 +304,7 @@ function setMotion(data, spec, rec) {
   buildFigure(model.skeleton);
   S.motion = { spec, text: data.text, seed: data.seed, model: data.model, frames: T, J, fps: data.fps,
                steps: data.steps, sampler: data.sampler, cfg: data.cfg, joints: decode(data.joints), control: data.control,
+               available: T, streaming: false,
                scale: model.skeleton.units === 'mm' ? 0.001 : 1 };
   buildPath(S.motion);
   // a new prompt plays from the start; an edit made while paused stays at the frame being edited
@@ -334,7 +338,7 @@ function showTiming(rec) {
 
 async function download(format) {
   const m = S.motion;
-  if (!m) return;
+  if (!m || !m.spec) return;
   setStatus(`preparing ${format}…`);
   try {
     const res = await fetch('/api/download', { method: 'POST', headers: { 'Content-Type': 'application/json' },
@@ -526,6 +530,121 @@ canvas.addEventListener('pointerup', () => {
   }
 });
 
+// ---- timeline: prompts one after another, streamed as one long motion -------------------------
+
+let streamAbort = null;
+
+function parseTimeline(text) {
+  const items = [];
+  text.split('\n').forEach((line, i) => {
+    if (!line.trim()) return;
+    const m = /^\s*(\d+(?:\.\d+)?)\s*s?\s+(\S.*?)\s*$/.exec(line);
+    if (!m) throw new Error(`timeline line ${i + 1}: expected "<seconds> <prompt>", e.g. "3 a person walks forward"`);
+    items.push({ text: m[2], seconds: Number(m[1]) });
+  });
+  if (!items.length) throw new Error('timeline: write one "<seconds> <prompt>" per line');
+  return items;
+}
+
+async function streamTimeline() {
+  let timeline;
+  try {
+    timeline = parseTimeline($('timeline').value);
+  } catch (err) {
+    showError(err.message);
+    return;
+  }
+  if (streamAbort) streamAbort.abort();
+  const abort = new AbortController();
+  streamAbort = abort;
+  const model = modelInfo($('model').value);
+  const body = { timeline, seed: Number($('seed').value), model: model.name, encoding: 'base64' };
+  if ($('sampler').value) body.sampler = $('sampler').value;
+  if ($('steps').value !== '') body.steps = Number($('steps').value);
+  if ($('cfg').value !== '') body.cfg = Number($('cfg').value);
+  const now = performance.now();
+  const rec = { id: ++seq, text: timeline.map((t) => t.text).join(' → '), model: model.name, seed: body.seed,
+                input: now, send: now, stream: true };
+  $('stop-stream').disabled = false;
+  S.error = null;
+  setStatus('streaming…');
+  let m = null;
+  try {
+    const res = await fetch('/api/stream', { method: 'POST', headers: { 'Content-Type': 'application/json' },
+                                             body: JSON.stringify(body), signal: abort.signal });
+    if (!res.ok) {
+      const data = await res.json().catch(() => ({}));
+      showError(data.error || `HTTP ${res.status}`);
+      return;
+    }
+    const reader = res.body.getReader();
+    const decoder = new TextDecoder();
+    let buffer = '';
+    for (;;) {
+      const { value, done } = await reader.read();
+      if (done) break;
+      buffer += decoder.decode(value, { stream: true });
+      let nl;
+      while ((nl = buffer.indexOf('\n')) >= 0) {
+        const line = buffer.slice(0, nl);
+        buffer = buffer.slice(nl + 1);
+        if (!line.trim()) continue;
+        const msg = JSON.parse(line);
+        if (msg.error) { showError(msg.error); return; }
+        if (msg.done) {
+          m.streaming = false;
+          m.frames = m.available;
+          rec.done = performance.now();
+          $('stream-info').textContent = `${m.chunks} chunks, ${(m.frames / m.fps).toFixed(1)} s of motion `
+            + `in ${(msg.elapsed_ms / 1000).toFixed(2)} s; first chunk after ${(rec.response - rec.send).toFixed(0)} ms`;
+          setStatus('');
+        } else if (msg.chunks !== undefined) {
+          m = startStream(msg, model, rec);
+        } else {
+          appendChunk(m, msg, rec);
+        }
+      }
+    }
+  } catch (err) {
+    if (err.name !== 'AbortError') showError(`streaming failed (${err.message})`);
+  } finally {
+    if (m && m.streaming) {  // stopped or failed: what arrived plays as a motion of its own
+      m.streaming = false;
+      m.frames = m.available;
+    }
+    if (streamAbort === abort) {
+      streamAbort = null;
+      $('stop-stream').disabled = true;
+    }
+  }
+}
+
+function startStream(head, model, rec) {
+  buildFigure(model.skeleton);
+  const J = model.skeleton.parents.length;
+  S.motion = { spec: null, text: rec.text, seed: rec.seed, model: head.model, frames: head.frames, J, fps: head.fps,
+               joints: new Float32Array(head.frames * J * 3), scale: model.skeleton.units === 'mm' ? 0.001 : 1,
+               available: 0, streaming: true, chunks: 0, texts: head.texts, control: null };
+  framePos = 0;
+  if (!S.playing) togglePlay();  // a stream is there to be watched as it arrives
+  $('scrub').max = head.frames - 1;
+  document.querySelectorAll('#downloads button').forEach((b) => { b.disabled = true; });  // single prompts only
+  $('stream-info').textContent = `0 / ${head.chunks} chunks`;
+  return S.motion;
+}
+
+function appendChunk(m, msg, rec) {
+  m.joints.set(decode(msg.joints), msg.start * m.J * 3);
+  m.available = msg.start + msg.frames;
+  m.chunks = msg.index + 1;
+  buildPath(m);
+  if (msg.index === 0) {
+    rec.response = performance.now();
+    firstDraw = rec;
+  }
+  $('stream-info').textContent = `${m.chunks} / ${m.texts.length} chunks · now: ${msg.text}`;
+}
+
 // ---- controls -----------------------------------------------------------------------------
 
 function applyModel(name) {
@@ -566,6 +685,8 @@ async function start() {
     $(id).addEventListener('change', () => schedule(0));
   }
   $('reseed').addEventListener('click', () => { $('seed').value = Math.floor(Math.random() * 1e6); schedule(0); });
+  $('stream').addEventListener('click', streamTimeline);
+  $('stop-stream').addEventListener('click', () => { if (streamAbort) streamAbort.abort(); });
   $('draw-path').addEventListener('click', () => setMode('path'));
   $('edit-pose').addEventListener('click', () => setMode('pose'));
   $('clear-path').addEventListener('click', () => {
