@@ -239,3 +239,20 @@ def test_bad_inpaint_is_one_clear_error(demo):
         demo.generate(["a person walks"], 60, inpaint=Inpaint(bad, np.ones(60, bool)))
     with pytest.raises(StableMoError, match="2 entries for 1 prompts"):
         demo.generate(["a person walks"], 60, inpaint=[None, None])
+
+
+def test_smooth_offsets_are_exact_at_anchors_and_have_no_kink():
+    from stablemo.control.guidance import smooth_offsets
+
+    T = 50
+    anchors = torch.zeros(1, T, dtype=torch.bool)
+    anchors[0, [0, 12, 30, 41]] = True
+    delta = torch.zeros(1, T, 2)
+    delta[0, [0, 12, 30, 41]] = torch.tensor([[0.0, 0.0], [1.0, -0.5], [0.2, 0.8], [-0.4, 0.1]])
+    out = smooth_offsets(delta, anchors)
+    assert torch.allclose(out[anchors], delta[anchors], atol=1e-6)
+    assert torch.allclose(out[0, 41:], delta[0, 41].expand(T - 41, 2))  # held after the last anchor
+    vel = out[0, 1:] - out[0, :-1]
+    # C1: the velocity changes gradually; straight lines between the anchors would jump by 0.13 at frame 12
+    jumps = (vel[1:] - vel[:-1]).norm(dim=-1)
+    assert jumps.max() < 0.04

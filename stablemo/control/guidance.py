@@ -2,11 +2,10 @@
 
 At every sampler step the hook moves the predicted clean motion towards the joint targets:
 
-1. Root in-painting, exact and analytic, where the pelvis (the root) is a target: the root height
-   is set, and the root's horizontal velocities are corrected (minimum-norm, spread evenly between
-   consecutive targets, in the heading the motion already has) so that the integrated root path
-   passes through every pelvis target. The motion starts at the origin, which acts as a target at
-   frame 0.
+1. Root in-painting, exact and analytic, where the pelvis (the root) is a target: the root's
+   path is moved by an offset that is exact at every pelvis target and C1-smooth between them
+   (no kink at a target), in the heading the motion already has, and written back as the root's
+   velocities and height. The motion starts at the origin, which acts as a target at frame 0.
 2. Gradient steps for every other target on the joints' root-relative positions (ric) of the
    predicted x0, through the features -> joints map only (never through the network): with the
    root fixed that map is a rotation plus an offset per frame, so the gradient is closed-form and a
@@ -30,49 +29,75 @@ from stablemo.motion.quaternion import qinv, qrot
 from stablemo.motion.skeleton import get_skeleton
 
 
-def _gather_frames(x: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
-    """x: (B, T, C), index: (B, T) long -> (B, T, C) with out[b, t] = x[b, index[b, t]]."""
-    return torch.gather(x, 1, index[..., None].expand(-1, -1, x.shape[-1]))
+def smooth_offsets(delta: torch.Tensor, anchors: torch.Tensor) -> torch.Tensor:
+    """Offsets known at anchor frames, interpolated C1-smoothly over every frame (cubic Hermite
+    with Catmull-Rom tangents, held constant before the first and after the last anchor, where the
+    tangent is zero), so a correction bends a path without a kink at the targets.
+
+    delta: (B, T, C), read at anchors only; anchors: (B, T) bool. Samples without anchors get 0.
+    """
+    B, T, _ = delta.shape
+    frames = torch.arange(T, device=delta.device)
+    idx = frames[None, :].expand(B, T)
+    # last anchor <= t (-1: none) and first anchor > t (T: none)
+    prev = torch.where(anchors, idx, torch.full_like(idx, -1)).cummax(1).values
+    first_ge = torch.where(anchors, idx, torch.full_like(idx, T)).flip(1).cummin(1).values.flip(1)
+    nxt = torch.cat([first_ge[:, 1:], torch.full_like(first_ge[:, :1], T)], 1)
+    before = torch.cat([torch.full_like(prev[:, :1], -1), prev[:, :-1]], 1)  # last anchor < t
+
+    def at(index):  # delta at anchor frames (clamped; callers mask the missing ones)
+        return torch.gather(delta, 1, index.clamp(0, T - 1)[..., None].expand(-1, -1, delta.shape[-1]))
+
+    # tangents at every frame as if it were an anchor (only anchors' are used)
+    has_before, has_next = before >= 0, nxt < T
+    span = torch.where(has_before, nxt - before, nxt - idx).clamp(min=1).to(delta.dtype)[..., None]
+    left = torch.where(has_before[..., None], at(before), delta)
+    tangent = torch.where(has_next[..., None], (at(nxt) - left) / span, torch.zeros_like(delta))
+    # Hermite between prev and nxt
+    inside = (prev >= 0) & has_next
+    width = (nxt - prev).clamp(min=1).to(delta.dtype)
+    u = ((idx - prev).to(delta.dtype) / width).clamp(0, 1)[..., None]
+    h00, h10 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u
+    h01, h11 = -2 * u**3 + 3 * u**2, u**3 - u**2
+    ta = torch.gather(tangent, 1, prev.clamp(0)[..., None].expand_as(delta))
+    tb = torch.gather(tangent, 1, nxt.clamp(max=T - 1)[..., None].expand_as(delta))
+    w = width[..., None]
+    curve = h00 * at(prev) + h10 * w * ta + h01 * at(nxt) + h11 * w * tb
+    held = torch.where((prev >= 0)[..., None], at(prev), at(first_ge))  # after the last / before the first
+    out = torch.where(inside[..., None], curve, held)
+    return torch.where(anchors.any(1)[:, None, None], out, torch.zeros_like(out))
 
 
 def project_root(features: torch.Tensor, targets: torch.Tensor, mask: torch.Tensor,
                  lengths: torch.Tensor) -> torch.Tensor:
-    """Root channels corrected so the root passes through its targets.
+    """Root channels corrected so the root passes through its targets, smoothly.
 
     features: (B, T, D) de-normalised; targets: (B, T, 3) root positions; mask: (B, T) bool (True =
-    target); lengths: (B,). Samples without a root target are returned unchanged.
+    target); lengths: (B,). The offset between the root's path and its targets, known at the target
+    frames (and 0 at frame 0, where every motion starts at the origin), is interpolated C1-smoothly
+    over time (smooth_offsets) and added to the path; the new path's steps are written back as the
+    root's velocities in the heading the motion already has, and its height as the root height.
+    Samples without a root target are returned unchanged.
     """
     B, T, _ = features.shape
     frames = torch.arange(T, device=features.device)
-    valid = frames[None, :] < lengths[:, None]
-    mask = mask & valid
+    mask = mask & (frames[None, :] < lengths[:, None])
     if not mask.any():
         return features
-    out = features.clone()
-    out[..., 3] = torch.where(mask, targets[..., 1], features[..., 3])
-    q, pos = recover_root(out)  # q: (B, T, 4), pos: (B, T, 3)
+    q, pos = recover_root(features)  # q: (B, T, 4), pos: (B, T, 3)
+    miss = targets - pos  # read at target frames only
+    height = smooth_offsets(miss[..., 1:2], mask)[..., 0]
     anchors = mask.clone()
-    anchors[:, 0] = True  # the motion starts at the origin
-    goal = torch.where(mask[..., None], targets, torch.zeros_like(targets))[..., [0, 2]]  # (B, T, 2)
-    goal[:, 0] = 0.0
-    have = pos[..., [0, 2]]
-    # previous anchor <= k and next anchor > k for every step k -> k+1
-    idx = frames[None, :].expand(B, T)
-    prev = torch.where(anchors, idx, torch.full_like(idx, -1)).cummax(1).values  # (B, T), >= 0 (frame 0 is one)
-    later = torch.where(anchors, idx, torch.full_like(idx, T))
-    nxt = later.flip(1).cummin(1).values.flip(1)  # next anchor >= k
-    nxt = torch.cat([nxt[:, 1:], torch.full_like(nxt[:, :1], T)], 1)  # next anchor > k
-    has_next = nxt < T
-    nxt_c = nxt.clamp(max=T - 1)
-    span = (nxt - prev).clamp(min=1).to(features.dtype)[..., None]
-    want = _gather_frames(goal, nxt_c) - _gather_frames(goal, prev)
-    got = _gather_frames(have, nxt_c) - _gather_frames(have, prev)
-    correction = torch.where(has_next[..., None], (want - got) / span, torch.zeros_like(want))  # (B, T, 2)
-    step = have[:, 1:] - have[:, :-1] + correction[:, :-1]  # (B, T-1, 2) global steps
+    anchors[:, 0] = True  # the motion starts at the origin: no offset there
+    planar_miss = torch.where(mask[..., None], miss[..., [0, 2]], torch.zeros_like(miss[..., [0, 2]]))
+    planar = pos[..., [0, 2]] + smooth_offsets(planar_miss, anchors)  # (B, T, 2)
+    step = planar[:, 1:] - planar[:, :-1]  # (B, T-1, 2) global steps
     step3 = torch.stack([step[..., 0], torch.zeros_like(step[..., 0]), step[..., 1]], -1)
     local = qrot(q[:, 1:], step3)  # velocity k-1 lives in the facing frame of k (see recover_root)
-    has_root_target = mask.any(1)[:, None, None]
-    out[:, :-1, 1:3] = torch.where(has_root_target, local[..., [0, 2]], out[:, :-1, 1:3])
+    has_target = mask.any(1)[:, None]
+    out = features.clone()
+    out[..., 3] = torch.where(has_target, features[..., 3] + height, features[..., 3])
+    out[:, :-1, 1:3] = torch.where(has_target[..., None], local[..., [0, 2]], features[:, :-1, 1:3])
     return out
 
 
