@@ -1,6 +1,7 @@
 """`stablemo bench`: inference timing (AITS, paper Table 5) and, via the training package, training speed.
 
     stablemo bench aits [--config FILE | --bundle DIR] [--random-weights] [--frames 196] [--repeats N]
+    stablemo bench stream [--chunks N] [--chunk-seconds 2]   (stablemo.timeline.bench)
     stablemo bench train ...   (stablemo.lit.bench_train)
 
 AITS = average inference time per sentence: batch 1, text in -> de-normalised features and joints
@@ -355,14 +356,19 @@ def main_aits(argv: list[str]) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    usage = "usage: stablemo bench {aits,train} [options]"
+    usage = "usage: stablemo bench {aits,stream,train} [options]"
     if not argv or argv[0] in ("-h", "--help"):
         print(usage + "\n\n  aits   inference time per sentence (paper Table 5) and FLOP efficiency\n"
+                      "  stream per-chunk cost of Pipeline.stream, teacher and 1-step student (stablemo.timeline.bench)\n"
                       "  train  training throughput (stablemo.lit.bench_train)")
         return 0
     name, rest = argv[0], argv[1:]
     if name == "aits":
         return main_aits(rest)
+    if name == "stream":
+        from stablemo.timeline.bench import main as main_stream  # per-chunk cost of Pipeline.stream
+
+        return main_stream(rest)
     if name == "train":
         from stablemo.lit.bench_train import main as main_train  # owned by the training package
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,7 @@ from stablemo.errors import StableMoError
 from stablemo.motion import features_to_joints
 from stablemo.pipeline import Pipeline
 from stablemo.timeline import parse_timeline, plan_windows, segment_frames
+from stablemo.timeline.seams import seam_report
 from stablemo.timeline.windows import RootFrame, crossfade
 
 DEMO = Path(__file__).resolve().parents[1] / "stablemo" / "assets" / "demo_bundle"
@@ -175,3 +177,62 @@ def test_root_frame_places_a_window_where_its_first_frame_stands():
     first = frame.joints(feats[:30])
     frame.advance(feats[:30], first, 20)
     np.testing.assert_allclose(frame.joints(feats[20:]), whole[20:], atol=1e-6)
+
+
+# ---------------------------------------------------------------------------------- seams, CLI, bench
+
+
+def test_seam_report_finds_a_jump_and_only_there():
+    t = np.arange(100) / 20.0
+    joints = np.zeros((100, 22, 3))
+    joints[:, :, 2] = (1.2 * t)[:, None]  # walking at 1.2 m/s: no acceleration
+    joints[:, :, 1] = 0.9 + 0.02 * np.sin(2 * np.pi * t)[:, None]
+    joints[60:, :, 1] += 0.1  # a 10 cm jump of the whole body at frame 60
+    rep = seam_report(joints, [30, 60], 20.0)
+    smooth, jump = rep["joins"]
+    assert jump["frame"] == 60 and jump["root"] > 30 and jump["foot"] > 30  # 0.1 m * 20^2 = 40 m/s^2
+    assert smooth["root"] < 1.0 and rep["inside_p99"]["root"] < 1.0
+    spans = seam_report(joints, [(52, 57)], 20.0)  # a span before the jump misses it
+    assert spans["joins"][0]["root"] < 1.0
+
+
+def test_generate_timeline_cli_writes_one_motion_of_the_whole_length(tmp_path, capsys):
+    from stablemo.generate import main
+
+    file = tmp_path / "walk jump.txt"
+    file.write_text("0 2.5 a person walks forward\n2.5 4.5 a person jumps in place\n")
+    assert main(["--timeline", str(file), "--out", str(tmp_path / "out"), "--no-render", "--steps", "2"]) == 0
+    feats = np.load(tmp_path / "out" / "walk-jump.features.npy")
+    joints = np.load(tmp_path / "out" / "walk-jump.joints.npy")
+    assert feats.shape == (90, 263) and joints.shape == (90, 22, 3)
+    info = json.loads((tmp_path / "out" / "walk-jump.timeline.json").read_text())
+    assert [s["frames"] for s in info["segments"]] == [[0, 50], [50, 90]] and len(info["windows"]) == 2
+
+
+@pytest.mark.parametrize("text, extra, message", [
+    ("0 2 a\n1 3 b\n", [], "t.txt:2: starts at 1 s, overlapping"),
+    ("0 2 a person walks\n", ["a prompt"], "--timeline: prompt cannot be combined"),
+    ("0 2 a person walks\n", ["--seconds", "3"], "--timeline: --seconds cannot be combined"),
+])
+def test_generate_timeline_cli_bad_input_is_one_line_before_loading(tmp_path, capsys, monkeypatch, text, extra,
+                                                                    message):
+    from stablemo import cli
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the model was loaded before the input was checked")
+
+    monkeypatch.setattr(Pipeline, "from_bundle", refuse)
+    file = tmp_path / "t.txt"
+    file.write_text(text)
+    rc = cli.main(["generate", "--timeline", str(file), "--out", str(tmp_path / "out"), *extra])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and message in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_bench_stream_times_teacher_and_student_side_by_side(capsys):
+    from stablemo.bench import main
+
+    assert main(["stream", "--chunks", "1", "--chunk-seconds", "1"]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith(("| teacher", "| student"))]
+    assert len(rows) == 2 and all(float(row.split("|")[2]) > 0 for row in rows)

@@ -27,9 +27,9 @@ from stablemo.motion.features import features_to_joints
 from stablemo.timeline.spec import Segment, check_segments, segment_frames
 from stablemo.timeline.windows import Sampling, crossfade, generate_window, settle
 
-DEFAULT_OVERLAP_S = 1.0  # chosen by measurement: docs/long_motion.md
+DEFAULT_OVERLAP_S = 0.5  # the three chosen on held-apart prompts by scripts/long_motion_report.py (docs/long_motion.md)
 DEFAULT_BLEND_S = 0.0
-DEFAULT_SETTLE_S = 0.0
+DEFAULT_SETTLE_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -62,6 +62,11 @@ class TimelineMotion:
     @property
     def joins(self) -> list[int]:
         return [w.new_start for w in self.windows if w.new_start > 0]
+
+    @property
+    def join_spans(self) -> list[tuple[int, int]]:
+        """(first, last) global frame of each hand-over: the cross-faded rows, then the first new row."""
+        return [(w.new_start - w.blend, w.new_start) for w in self.windows if w.new_start > 0]
 
     @property
     def boundaries(self) -> list[int]:

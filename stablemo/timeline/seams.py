@@ -37,19 +37,21 @@ def accelerations(joints: np.ndarray, fps: float, skeleton: str = "humanml3d") -
     return {"root": acc[:, 0], "foot": acc[:, _feet(skeleton)].max(-1)}
 
 
-def seam_report(joints: np.ndarray, joins: Sequence[int], fps: float, skeleton: str = "humanml3d",
-                margin: int = INSIDE_MARGIN) -> dict:
-    """Per join: root and foot acceleration peaks; the inside 99th percentiles."""
+def seam_report(joints: np.ndarray, joins: Sequence[int | tuple[int, int]], fps: float,
+                skeleton: str = "humanml3d", margin: int = INSIDE_MARGIN) -> dict:
+    """Per join: root and foot acceleration peaks; the inside 99th percentiles. A join is a frame b,
+    or a span (a, b) of rows mixing two windows (a cross-fade): then frames a-2..b+1 are its seam."""
     acc = accelerations(joints, fps, skeleton)
     T = len(joints)
+    spans = [(j, j) if isinstance(j, (int, np.integer)) else (int(j[0]), int(j[1])) for j in joins]
     near = np.zeros(T, bool)
-    for b in joins:
-        near[max(0, b - margin):b + margin] = True
+    for a, b in spans:
+        near[max(0, a - margin):b + margin] = True
     inside = ~near
     inside[[0, T - 1]] = False
     out = {"joins": [], "inside_p99": {k: float(np.percentile(v[inside], 99)) for k, v in acc.items()}}
-    for b in joins:
-        sl = slice(max(1, b - SEAM_HALF), min(T - 1, b + SEAM_HALF))
+    for a, b in spans:
+        sl = slice(max(1, a - SEAM_HALF), min(T - 1, b + SEAM_HALF))
         out["joins"].append({"frame": int(b), **{k: float(v[sl].max()) for k, v in acc.items()}})
     return out
 

@@ -23,10 +23,11 @@ import numpy as np
 
 from stablemo.errors import StableMoError
 from stablemo.inference_config import check_seed
+from stablemo.timeline.compose import DEFAULT_OVERLAP_S, DEFAULT_SETTLE_S
 from stablemo.timeline.windows import RootFrame, Sampling, generate_window, settle
 
-DEFAULT_CONTEXT_S = 1.0
-DEFAULT_SETTLE_S = 0.0
+DEFAULT_CONTEXT_S = DEFAULT_OVERLAP_S  # the timeline's measured choices (docs/long_motion.md)
+
 
 
 @dataclass
