@@ -148,18 +148,22 @@ def test_root_projection_passes_through_sparse_targets_in_the_motions_heading():
     assert torch.equal(out[..., 0], feats[..., 0]) and torch.equal(out[..., 4:], feats[..., 4:])
 
 
-def test_guidance_lowers_the_error_on_a_toy_problem():
-    """Targets for a wrist on 5 frames of a random motion: one guided x0 edit reaches them."""
+@pytest.mark.parametrize("skeleton,wrist,scale", [("humanml3d", 20, 1.0), ("kit", 10, 1000.0)])
+def test_guidance_lowers_the_error_on_a_toy_problem(skeleton, wrist, scale):
+    """Targets for a wrist on 5 frames of a random motion: one guided x0 edit reaches them (KIT: mm)."""
+    from stablemo.motion.skeleton import get_skeleton
+
+    skel = get_skeleton(skeleton)
     torch.manual_seed(1)
-    mean, std = torch.zeros(D), torch.ones(D) * 0.1
-    x0 = torch.randn(1, 40, D)
-    joints = features_to_joints(x0 * std + mean)
-    targets = joints + torch.tensor([0.2, -0.1, 0.3])
-    mask = torch.zeros(1, 40, J, dtype=torch.bool)
-    mask[0, ::8, 20] = True
-    hook = JointGuidance(targets, mask, mean, std, "humanml3d", final_iters=60)
+    mean, std = torch.zeros(skel.feature_dim), torch.ones(skel.feature_dim) * 0.1 * scale
+    x0 = torch.randn(1, 40, skel.feature_dim)
+    joints = features_to_joints(x0 * std + mean, skel)
+    targets = joints + torch.tensor([0.2, -0.1, 0.3]) * scale
+    mask = torch.zeros(1, 40, skel.num_joints, dtype=torch.bool)
+    mask[0, ::8, wrist] = True
+    hook = JointGuidance(targets, mask, mean, std, skel, final_iters=60)
     state = StepState(9, 10, 0, x0, torch.ones(1, 40, dtype=torch.bool), [40])
-    out = features_to_joints(hook(state) * std + mean)
+    out = features_to_joints(hook(state) * std + mean, skel)
     before = (joints - targets)[mask].norm(dim=-1).mean()
     after = (out - targets)[mask].norm(dim=-1).mean()
     assert after < 0.01 * before

@@ -3,8 +3,9 @@
 At each step the sampler predicts the clean motion x0; the pipeline then hands a `StepState` to
 every hook of the request that is active at that step, in the request's order, each hook seeing
 the previous one's result, and the sampler continues from the edited x0. Foot-skate correction
-(StableMoFusion*) is such a hook; so are joint control and in-painting, which compose with it in
-one request: `Request(hooks=[inpaint, control, footskate])` applies them in that order.
+(StableMoFusion*) is such a hook; so is joint control (stablemo.control.guidance, added by the
+pipeline for `Request.control`, after the request's own hooks). In-painting edits x_t as well as
+x0, so it is the samplers' `inpaint` argument rather than a hook (stablemo.diffusion.inpainting).
 
 Hooks work in torch on the sample's device, in the model's normalised feature space, and receive
 the motion mask and lengths with the sample.
