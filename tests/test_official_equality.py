@@ -117,3 +117,21 @@ def test_official_output_depends_on_padding_ours_does_not(pair):
     print(f"40 frames: ours at 48 vs 64 padded {rel(outs[1], outs[0]):.2e}, official vs ours {rel(outs[0], theirs):.2e}")
     assert rel(outs[1], outs[0]) < RTOL
     assert rel(outs[0], theirs) > 1e-3
+
+
+def test_compare_tool_reports_equality_padding_and_both_loops(tmp_path):
+    """`python -m stablemo.official.compare` (the numbers of docs/official.md), at a small size."""
+    import json
+
+    pytest.importorskip("einops", reason="the official models/unet.py imports einops")
+    pytest.importorskip("diffusers", reason="the official sampling loop uses diffusers' scheduler")
+    from stablemo.official import compare
+
+    out = tmp_path / "compare.json"
+    assert compare.main(["--official-src", SRC, "--size", "small", "--frames", "40", "--aits", "--repeats", "1",
+                         "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert max(v for k, v in result["equality"].items() if k != "frames") < RTOL
+    assert result["equality"]["frames"] == 32 and result["padding"]["padded_to"] == 48
+    assert result["padding"]["max_rel"] > 1e-3
+    assert set(result["aits"]) == {"official loop", "StableMo"}

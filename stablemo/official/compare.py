@@ -120,7 +120,7 @@ def padding_effect(official, pipe, frames: int, seed: int) -> dict:
     scale = float(theirs.abs().max())
     per_frame = (ours - theirs).abs().amax(dim=1) / scale  # (frames,)
     above = (per_frame > 1e-5).nonzero()
-    edges = [0, frames // 4, frames // 2, 3 * frames // 4, frames - 16, frames]
+    edges = sorted({0, frames // 4, frames // 2, 3 * frames // 4, max(frames - 16, 0), frames})
     return {"frames": frames, "padded_to": padded_len, "t": 500, "max_rel": float(per_frame.max()),
             "mean_abs_rel": float((ours - theirs).abs().mean() / theirs.abs().mean()),
             "max_rel_by_frames": {f"{a}-{b - 1}": float(per_frame[a:b].max()) for a, b in zip(edges, edges[1:])},
