@@ -41,6 +41,9 @@ class CleanupConfig:
     # 4.08 / 7.03), but on the real clip's accumulating-drift test it leaves more skating (GMD ratio
     # 0.256 -> 0.229 instead of 0.195; docs/footskate.md)
     w_swing: float = 0.0
+    # one-sided: penalise the feet's squared acceleration where it exceeds the input's (jitter the
+    # cleanup would add), leaving the input's own accelerations alone
+    w_accel: float = 300.0
     ramp_seconds: float = 0.1    # contact weights ramp over this much at each end of a range (2 frames at 20 fps)
     min_range: int = 2           # ranges shorter than this get no anchoring (a 1-frame contact cannot slide)
     max_offset: float = 0.25     # m; ranges whose joint strays further from the target are not anchored
@@ -54,6 +57,12 @@ class CleanupConfig:
     detect: str = "auto"
     contact_margin: float = 0.05  # heuristic: m above the joint's own lowest point
     contact_speed: float = 0.9325 # heuristic: m/s
+    # gated: a foot moving faster than this (3D, m/s) is swinging, whatever the network says.
+    # Generated stance feet slide at up to ~1.5 m/s (a quarter of a 3.5 m/s run + 0.7 m/s drift)
+    # and a landing foot still moves down; on the real clip 3.0 cuts the network's false contacts
+    # on fast low swings (F1 0.882 -> 0.905); 2.0 cut more there but cost running stances
+    # (synthetic run 92 -> 88 % sliding removed)
+    gate_speed: float = 3.0
 
 
 @dataclass
@@ -206,11 +215,23 @@ def swing_offsets(offsets: torch.Tensor, anchored: torch.Tensor, up_axis: int) -
     return out
 
 
+def _near(contacts: torch.Tensor, direction: int, lengths: torch.Tensor, frames: int = 3) -> torch.Tensor:
+    """(B, T, K) bool: a contact within `frames` frames before (direction -1) or after (+1)."""
+    from footskate.contacts import _shifted
+
+    out = torch.zeros_like(contacts)
+    for k in range(1, frames + 1):  # a few shifts, not a loop over samples
+        out = out | _shifted(contacts, direction * k, lengths)
+    return out
+
+
 def detect_contacts(joints: torch.Tensor, lengths: torch.Tensor | None, feet: list[int], fps: float, up_axis: int,
                     vgrf: VGRFNet | None = None, margin: float = 0.05,
-                    speed: float = 0.9325, gate: bool = False) -> tuple[torch.Tensor, torch.Tensor | None]:
+                    speed: float = 0.9325, gate: bool = False,
+                    gate_speed: float = 3.0) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Contacts (B, T, 4) from the vGRF network if given (with `gate`: only where the joint is
-    within `margin` of its own lowest point, whatever its speed), else the height/speed heuristic."""
+    within `margin` of its own lowest point and slower than `gate_speed`), else the height/speed
+    heuristic (`margin`, `speed`)."""
     if lengths is None:
         lengths = torch.full((joints.shape[0],), joints.shape[1], dtype=torch.long, device=joints.device)
     mask = valid_mask(lengths, joints.shape[1])
@@ -218,9 +239,15 @@ def detect_contacts(joints: torch.Tensor, lengths: torch.Tensor | None, feet: li
         with torch.no_grad():
             forces = vgrf(joints, lengths)
         contacts = contacts_from_forces(forces, fps, lengths)
-        if gate:  # no speed condition: a sliding stance foot is exactly what must be caught
+        if gate:  # a loose speed limit: a sliding stance foot is exactly what must be caught
             contacts = contacts & contacts_from_heights(joints[:, :, feet], fps, up_axis, lengths, height=margin,
-                                                        speed=float("inf"))
+                                                        speed=gate_speed)
+            # The network's force can dip below the threshold for a frame or three mid-stance (the
+            # crouch before a jump, when the body's weight is briefly unloaded): such a gap, where
+            # the height/speed rule says the joint is down, is filled so that one stance stays one
+            # anchored range.
+            rule = contacts_from_heights(joints[:, :, feet], fps, up_axis, lengths, height=margin, speed=speed)
+            contacts = contacts | (rule & _near(contacts, -1, lengths) & _near(contacts, 1, lengths))
     else:
         forces = None
         contacts = contacts_from_heights(joints[:, :, feet], fps, up_axis, lengths, height=margin, speed=speed)
@@ -272,7 +299,8 @@ def cleanup(joints: torch.Tensor, parents, feet, lengths: torch.Tensor | None = 
             raise FootskateError(f"detect: {cfg.detect!r} contact detection needs a vGRF network")
         detector = None if cfg.detect == "heuristic" else vgrf
         contacts, forces0 = detect_contacts(x0, lengths, list(feet), cfg.fps, cfg.up_axis, detector,
-                                            cfg.contact_margin, cfg.contact_speed, gate=cfg.detect != "vgrf")
+                                            cfg.contact_margin, cfg.contact_speed, gate=cfg.detect != "vgrf",
+                                            gate_speed=cfg.gate_speed)
     else:
         contacts = torch.as_tensor(contacts, device=device).bool()
         if contacts.shape != (b, t, 4):
@@ -339,6 +367,7 @@ def cleanup(joints: torch.Tensor, parents, feet, lengths: torch.Tensor | None = 
     free = ((weights == 0) & mask[..., None]).to(dtype)                       # (B, T, 4) unanchored foot frames
     swing_goal = feet0 + swing_offsets(targets_filled - feet0, weights > 0, cfg.up_axis)  # (B, T, 4, 3)
     swing_w = (1 - weights).clamp(min=0) * maskf[..., None]                   # (B, T, 4)
+    acc_in2 = (feet0[:, 2:] - 2 * feet0[:, 1:-1] + feet0[:, :-2]).square().sum(-1)  # (B, T-2, 4)
     vgrf_grad = None
     has_anchor = bool((weights > 0).any())
     history = []
@@ -349,6 +378,7 @@ def cleanup(joints: torch.Tensor, parents, feet, lengths: torch.Tensor | None = 
         feet_pos = positions(shift, delta, anc_feet, feet0)                    # (B, T, 4, 3)
         corr = feet_pos - feet0                                                # the correction at the feet
         acc = corr[:, 2:] - 2 * corr[:, 1:-1] + corr[:, :-2]
+        acc_out = feet_pos[:, 2:] - 2 * feet_pos[:, 1:-1] + feet_pos[:, :-2]  # (B, T-2, 4, 3)
         per_sample = {
             "pose": ((unit - unit0).square().sum(-1).mean(-1) * maskf).sum(1) / n_frames,
             "norm": ((direction.norm(dim=-1) - norm0).square().mean(-1) * maskf).sum(1) / n_frames,
@@ -358,11 +388,12 @@ def cleanup(joints: torch.Tensor, parents, feet, lengths: torch.Tensor | None = 
             "clearance": ((feet0[..., cfg.up_axis] - feet_pos[..., cfg.up_axis]).clamp(min=0).square()
                           * free).sum((1, 2)) / n_frames,
             "swing": ((feet_pos - swing_goal).square().sum(-1) * swing_w).sum((1, 2)) / n_frames,
+            "accel": ((acc_out.square().sum(-1) - acc_in2).clamp(min=0).mean(-1) * triple).sum(1) / n_frames,
         }
         loss = (cfg.w_pose * per_sample["pose"] + cfg.w_norm * per_sample["norm"]
                 + cfg.w_trajectory * per_sample["trajectory"] + cfg.w_foot * per_sample["foot"]
                 + cfg.w_smooth * per_sample["smooth"] + cfg.w_clearance * per_sample["clearance"]
-                + cfg.w_swing * per_sample["swing"]).sum()
+                + cfg.w_swing * per_sample["swing"] + cfg.w_accel * per_sample["accel"]).sum()
         if use_vgrf:
             # The vGRF net costs far more than everything else: its gradient w.r.t. positions is
             # refreshed every `vgrf_every` iterations and applied as a linear term in between.

@@ -265,7 +265,9 @@ def test_clean_motion_is_left_alone_and_cleanup_is_idempotent():
     once = cleanup(moving[None], PARENTS, FEET, contacts=contacts[None]).joints
     twice = cleanup(once, PARENTS, FEET, contacts=contacts[None]).joints
     change = (twice - once).norm(dim=-1)
-    assert change.mean() < 0.001 and change.max() < 0.006  # a second pass only polishes the residual
+    # a second pass only polishes the residual: mean 1.3 mm, max 4.1 mm since the one-sided
+    # acceleration term (w_accel) takes the first pass's accelerations as its new limit (0.6 / 4.6 without)
+    assert change.mean() < 0.002 and change.max() < 0.006
 
 
 def test_batched_equals_per_sample_with_different_lengths():

@@ -43,7 +43,10 @@ def test_gated_contacts_catch_a_fast_slide_and_drop_a_lifted_foot():
     gated, _ = detect_contacts(x, None, FEET, 20.0, 1, _Forces(), gate=True)
     rule, _ = detect_contacts(x, None, FEET, 20.0, 1)
     assert gated[0, :, :2].all() and not rule[0, :, :2].any()   # the sliding foot: only the gate sees it
-    assert gated[0, :10, 2].all() and not gated[0, 10:, 2].any()  # forces say "down", height says "up"
+    assert gated[0, :9, 2].all() and not gated[0, 9:, 2].any()  # forces say "down", height (and the lift) "up"
+    x[0, :, 7, 0] = x[0, :, 10, 0] = 0.2 * torch.arange(20)       # 4 m/s: a low swing, not a stance
+    gated, _ = detect_contacts(x, None, FEET, 20.0, 1, _Forces(), gate=True)
+    assert not gated[0, :, :2].any()
 
 
 def test_swing_offsets_carry_the_correction_across_the_swing():
@@ -90,3 +93,17 @@ def test_dance_steps_pivot_and_plant():
     still = contacts[1:, [0, 2]] & contacts[:-1, [0, 2]]
     speed = np.linalg.norm(ankle[1:, :, [0, 2]] - ankle[:-1, :, [0, 2]], axis=-1)
     assert speed[still].max() < 1e-3
+
+
+def test_a_short_force_dip_mid_stance_does_not_split_the_contact():
+    class Dip(_Forces):  # the body unloads its feet for two frames (the crouch before a jump)
+        def forward(self, joints, lengths=None):
+            f = super().forward(joints, lengths)
+            f[:, 9:12] = 0.0
+            return f
+
+    x = torch.zeros(1, 20, 22, 3)                                 # both feet down and still
+    gated, _ = detect_contacts(x, None, FEET, 20.0, 1, Dip(), gate=True)
+    plain, _ = detect_contacts(x, None, FEET, 20.0, 1, Dip())
+    assert not plain[0, 9:12].any()                               # the network alone splits the stance
+    assert gated[0].all()
