@@ -236,3 +236,34 @@ def test_bench_stream_times_teacher_and_student_side_by_side(capsys):
     assert main(["stream", "--chunks", "1", "--chunk-seconds", "1"]) == 0
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith(("| teacher", "| student"))]
     assert len(rows) == 2 and all(float(row.split("|")[2]) > 0 for row in rows)
+
+
+def test_stream_applies_hooks_and_joint_control_per_chunk(demo):
+    from stablemo.control import JointControl
+
+    calls = []
+
+    class Count:
+        def active(self, step, steps):
+            return True
+
+        def __call__(self, state):
+            calls.append(state.x0.shape[1])
+
+    target = np.array([1.0, 0.95, 1.0], np.float32)
+
+    def control(index, length, context):  # the pelvis at the window's last frame, in the window's frame
+        pos, mask = np.zeros((length, 22, 3), np.float32), np.zeros((length, 22), bool)
+        pos[-1, 0], mask[-1, 0] = target, True
+        return JointControl(pos, mask)
+
+    runs = {}
+    for name, ctl in (("free", None), ("control", control)):
+        chunks = list(demo.stream("a person walks forward", 2.0, max_chunks=2, seed=1, control=ctl, hooks=[Count()],
+                                  **FAST))
+        window = np.concatenate([chunks[0].features[-10:], chunks[1].features])  # chunk 1's window (10 rows of context)
+        runs[name] = (chunks[0].joints[-1, 0], _global_joints(window)[-1, 0])
+    assert len(calls) == 2 * 2 * 2  # two runs x two chunks x two steps
+    np.testing.assert_allclose(runs["control"][0], target, atol=1e-3)  # chunk 0: the window is the global frame
+    free, ctl = (np.linalg.norm(runs[k][1] - target) for k in ("free", "control"))
+    assert ctl < 0.5 * free  # chunk 1 is pulled to its target too (its prefix is fixed, so not exactly)

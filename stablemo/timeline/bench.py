@@ -22,6 +22,7 @@ import torch
 
 from stablemo.errors import StableMoError
 from stablemo.inference_config import check_finite, check_positive_int
+from stablemo.timeline.stream import DEFAULT_CONTEXT_S
 
 STUDENT_ASSET = Path(__file__).resolve().parents[1] / "assets" / "demo_student"
 PROMPTS = ["a person walks forward", "a person turns left", "a person jumps in place", "a person runs forward"]
@@ -33,7 +34,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--student", default=None, help="student bundle (default: see the module docstring)")
     p.add_argument("--chunks", type=int, default=20, help="timed chunks per row (default 20)")
     p.add_argument("--chunk-seconds", type=float, default=2.0)
-    p.add_argument("--context-seconds", type=float, default=1.0)
+    p.add_argument("--context-seconds", type=float, default=DEFAULT_CONTEXT_S)
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     p.add_argument("--seed", type=int, default=0)
     return p
