@@ -303,8 +303,6 @@ class Pipeline:
                 out.append(None)
             elif isinstance(item, cls):
                 out.append(resolve(item, n, f"{name}[{i}]"))
-            elif isinstance(item, tuple) and len(item) == 2:  # already resolved (a resolved request)
-                out.append(item)
             else:
                 raise StableMoError(f"{name}[{i}]: expected a {cls.__name__} or None, got {type(item).__name__}")
         return out if any(item is not None for item in out) else None
