@@ -20,8 +20,9 @@ import torch
 
 CONFIGS = {
     "heuristic contacts + vGRF term": {"detect": "heuristic"},
-    "gated vGRF contacts + vGRF term (default)": {"detect": "auto"},
-    "gated vGRF contacts, no vGRF term": {"detect": "auto", "w_vgrf": 0.0},
+    "gated contacts + vGRF term (default)": {"detect": "auto"},
+    "gated contacts + vGRF term refreshed every 10": {"detect": "auto", "vgrf_every": 10},
+    "gated contacts, no vGRF term": {"detect": "auto", "w_vgrf": 0.0},
 }
 
 
