@@ -62,6 +62,18 @@ class InferenceConfig:
         return base
 
 
+def student_inference(config: dict, source: str = "config.json") -> InferenceConfig:
+    """A consistency student's inference config: its own sampler, steps and absorbed guidance (from
+    its 'consistency' section) with the length range and fps it inherited from its teacher.
+
+    A student's config starts as a copy of its teacher's, whose inference section names the
+    teacher's sampler; students exported before this was fixed carry it, and export corrects them.
+    """
+    own = InferenceConfig.from_bundle({k: v for k, v in config.items() if k != "inference"}, source)
+    inherited = InferenceConfig.from_bundle(config, source)
+    return replace(own, min_length=inherited.min_length, max_length=inherited.max_length, fps=inherited.fps)
+
+
 def check_finite(name: str, value, low: float | None = None, high: float | None = None, strict: bool = False) -> float:
     """A finite number within [low, high] (low excluded when strict), else one clear error."""
     try:

@@ -214,3 +214,16 @@ def test_guidance_embedding_can_learn_faster(teacher_bundle):
     assert all(p is not module.student.w_proj.weight for p in rest["params"])
     trainable = [p for p in module.student.parameters() if p.requires_grad]
     assert len(rest["params"]) + 1 == len(trainable)
+
+
+def test_student_inference_is_the_students_own_with_the_teachers_lengths():
+    """A student config copied from a teacher with an inference section (sampler dpmpp_2m_sde) must
+    name the student's sampler, or the bundle would not load; lengths and fps stay the teacher's."""
+    from stablemo.inference_config import student_inference
+
+    config = {"kind": "consistency", "consistency": {"mode": "lcm", "steps": 1, "w": 1.5},
+              "inference": {"sampler": "dpmpp_2m_sde", "steps": 10, "cfg": 2.5, "min_length": 40,
+                            "max_length": 196, "fps": 20.0}}
+    got = student_inference(config)
+    assert (got.sampler, got.steps, got.cfg) == ("lcm", 1, 2.5)
+    assert (got.min_length, got.max_length, got.fps) == (40, 196, 20.0)

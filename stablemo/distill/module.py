@@ -14,7 +14,6 @@ The target follows the student by EMA (mu) after every optimiser step.
 from __future__ import annotations
 
 import copy
-from dataclasses import replace
 from typing import Any
 
 import torch
@@ -26,7 +25,7 @@ from stablemo.distill.consistency import CLEAN, cfg_x0, ddim_grid, ddim_jump, lo
 from stablemo.distill.discriminator import TeacherFeatureDiscriminator, hinge_d_loss, hinge_g_loss
 from stablemo.distill.student import MODES, ConsistencyStudent, consistency_fn
 from stablemo.errors import StableMoError
-from stablemo.inference_config import InferenceConfig
+from stablemo.inference_config import InferenceConfig, student_inference
 from stablemo.lit.module import CHECKPOINT_KEY, derive_seed
 from stablemo.model import MotionDiffusionModel
 
@@ -267,16 +266,14 @@ class ConsistencyDistillation(LightningModule):
         hp = self.hparams
         config = {k: v for k, v in self.teacher_config.items()
                   if k not in ("format", "version", "training", "inference")}
+        teacher_inference = InferenceConfig.from_bundle(self.teacher_config).to_dict()
         config["kind"] = "consistency"
         config["consistency"] = {
             "mode": hp.mode, "ddim_steps": hp.ddim_steps, "phases": hp.phases if hp.mode == "pcm" else None,
             "edges": self.edges, "w": hp.w_default, "w_dim": hp.w_dim, "sigma_data": hp.sigma_data,
             "timestep_scale": hp.timestep_scale, "steps": hp.sample_steps,
         }
-        # the student's own sampler, steps and absorbed guidance; the teacher's length range and fps
-        teacher = InferenceConfig.from_bundle(self.teacher_config)
-        config["inference"] = replace(InferenceConfig.from_bundle(config), min_length=teacher.min_length,
-                                      max_length=teacher.max_length, fps=teacher.fps).to_dict()
+        config["inference"] = student_inference({**config, "inference": teacher_inference}).to_dict()
         config["training"] = {"teacher": str(hp.teacher), "global_step": int(self.global_step),
                               "ema_decay": hp.ema_decay, "adversarial": hp.adversarial}
         return config, {k: v.detach().clone() for k, v in self.target.state_dict().items()}

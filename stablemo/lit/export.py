@@ -15,7 +15,7 @@ import torch
 
 from stablemo.bundle import check_bundle_target, save_bundle
 from stablemo.errors import StableMoError
-from stablemo.inference_config import InferenceConfig
+from stablemo.inference_config import InferenceConfig, student_inference
 from stablemo.lit.checkpoint_io import load_checkpoint_file
 from stablemo.lit.module import CHECKPOINT_KEY
 
@@ -94,7 +94,10 @@ def _precomputed_bundle(checkpoint: dict, extra: dict, source: str) -> tuple[dic
     state = {k[len(prefix):]: v for k, v in checkpoint["state_dict"].items() if k.startswith(prefix)}
     if not state:
         raise StableMoError(f"{source}: no weights under {prefix!r} in the checkpoint")
-    _check_finite(state, source, "student")
+    ema = extra.get("ema")
+    if ema is not None:  # a trained part's averaged weights over its raw ones (a ControlNet on a frozen base)
+        state.update({extra["ema_prefix"] + k: v for k, v in ema["shadow"].items()})
+    _check_finite(state, source, "exported")
     config = dict(extra["bundle"])
     config["training"] = {**config.get("training", {}), "checkpoint": source,
                           "global_step": int(checkpoint.get("global_step", 0))}
@@ -109,6 +112,8 @@ def export(ckpt: str | Path, out: str | Path, weights: str = "ema", overwrite: b
     config, state = bundle_from_checkpoint(checkpoint, source=str(ckpt), weights=weights)
     # the one inference config (sampler, steps, cfg, length range, fps), stated in every bundle
     config.setdefault("inference", InferenceConfig.from_bundle(config, str(ckpt)).to_dict())
+    if config.get("kind") == "consistency":  # its own sampler (older checkpoints carry the teacher's)
+        config["inference"] = student_inference(config, str(ckpt)).to_dict()
     return save_bundle(out, config, state, overwrite=overwrite)
 
 
