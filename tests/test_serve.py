@@ -140,6 +140,21 @@ def test_no_page_of_the_server_needs_the_network(client):
     assert "/static/app.js" in page and "importmap" in page
 
 
+def test_the_demo_student_is_served_by_default_and_equals_offline(tmp_path):
+    from stablemo.serve.command import DEMO_MODELS, bundles_from_args
+
+    assert bundles_from_args(None) == DEMO_MODELS and list(DEMO_MODELS) == ["student", "teacher"]
+    student = ModelSet({"student": DEMO_MODELS["student"]})
+    with TestClient(create_app(student)) as c:
+        data = c.post("/api/generate", json={"text": "a person jumps, then turns left", "seed": 11}).json()
+        info = c.get("/api/info").json()["models"][0]
+    assert (data["steps"], data["sampler"], data["frames"]) == (1, "lcm", 120)
+    assert info["kind"] == "consistency" and info["label"] == "student (consistency, 1 step)"
+    pipe = student.models["student"].pipeline
+    ref = pipe.generate(Request(["a person jumps, then turns left"], 120, seed=11)).joint_list()[0]
+    assert np.array_equal(np.asarray(data["joints"], dtype=np.float32), ref)
+
+
 def test_info_describes_the_model(client):
     info = client.get("/api/info").json()
     assert info["default"] == "teacher"

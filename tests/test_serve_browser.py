@@ -34,7 +34,7 @@ from stablemo.serve.api import create_app
 from stablemo.serve.local import serving
 from stablemo.serve.models import ModelSet
 
-DEMO = Path(__file__).resolve().parents[1] / "stablemo" / "assets" / "demo_bundle"
+ASSETS = Path(__file__).resolve().parents[1] / "stablemo" / "assets"
 PROMPT = "a person jumps, then turns left"
 # the page's limb colours (stablemo.render): left, right, centre
 LIMBS = np.array([[0x1F, 0x6F, 0xD1], [0xD6, 0x2F, 0x2F], [0x44, 0x44, 0x44]], dtype=float)
@@ -61,7 +61,8 @@ def wait_for(driver, script: str, timeout: float = 60.0):
 
 @pytest.fixture(scope="module")
 def page():
-    models = ModelSet({"teacher": DEMO})
+    # the demo student (1 step) keeps the page tests quick; the page is the same for any model
+    models = ModelSet({"student": ASSETS / "demo_student"})
     with serving(create_app(models)) as url:
         driver = chrome_driver()
         try:
@@ -87,7 +88,7 @@ def test_typed_prompt_is_drawn_and_moves_then_empty_prompt_shows_the_error(page,
                    "&& s.timings.some(t => t.text === s.motion.text && t.drawn)")
     state = page.execute_script("const s = window.stablemo; return {frames: s.motion.frames, error: s.error, "
                                 "fps: s.motion.fps, model: s.motion.model}")
-    assert state == {"frames": 120, "error": None, "fps": 20, "model": "teacher"}
+    assert state == {"frames": 120, "error": None, "fps": 20, "model": "student"}
 
     # the figure moves: two poses drawn 0.5 s apart differ by more than a few centimetres
     first = page.execute_script("return [window.stablemo.frame, window.stablemo.worldPose]")
