@@ -13,14 +13,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 import numpy as np
 
 from stablemo.errors import StableMoError
 from stablemo.generate import _bundle_path, slugify, write_motion
 from stablemo.inference_config import check_finite, check_positive_int, check_seed
-from stablemo.io import check_output_dir, check_output_file
+from stablemo.io import check_output_dir, check_output_file, load_npy
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -47,15 +46,9 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _read_features(path: str) -> np.ndarray:
-    file = Path(path)
-    if not file.is_file():
-        raise StableMoError(f"{file}: features file not found")
-    try:
-        arr = np.load(file, allow_pickle=False)
-    except (OSError, ValueError) as err:
-        raise StableMoError(f"{file}: not a readable .npy file ({err})") from None
-    if not isinstance(arr, np.ndarray) or arr.ndim != 2 or not np.issubdtype(arr.dtype, np.number):
-        raise StableMoError(f"{file}: expected a (T, D) array of features, got shape {getattr(arr, 'shape', '?')}")
+    arr = load_npy(path)
+    if arr.ndim != 2:
+        raise StableMoError(f"{path}: expected a (T, D) array of features, got shape {arr.shape}")
     return arr.astype(np.float32)
 
 

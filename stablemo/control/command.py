@@ -18,7 +18,7 @@ import numpy as np
 
 from stablemo.control.files import control_from_joints, density_frames, joint_index, parse_frames, save_control
 from stablemo.errors import StableMoError
-from stablemo.io import check_output_file
+from stablemo.io import check_output_file, load_npy
 from stablemo.motion.skeleton import get_skeleton, skeleton_for_shape
 
 
@@ -57,12 +57,7 @@ def canonical_start(joints: np.ndarray, skeleton) -> np.ndarray:
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     path = Path(args.joints)
-    if not path.is_file():
-        raise StableMoError(f"{path}: joints file not found")
-    try:
-        joints = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as err:
-        raise StableMoError(f"{path}: not a readable .npy file ({err})") from None
+    joints = load_npy(path)
     skel = skeleton_for_shape(joints.shape) if joints.ndim == 3 else None
     if skel is None or joints.shape[-1] != 3:
         raise StableMoError(f"{path}: expected joints (T, 22, 3) or (T, 21, 3), got shape {joints.shape}")
