@@ -47,8 +47,9 @@ def joint_index(name: str, skeleton) -> int:
 
 
 def parse_frames(spec: str, length: int, what: str = "--frames") -> np.ndarray:
-    """'0:40,160:196' / '0,50,100' / '25%' (evenly spaced share) / '5' frames evenly spaced when
-    given as a bare count with `density` semantics handled by `density_frames`. Returns (length,) bool."""
+    """Frames by ranges and indices, e.g. '0:40,160:196' or '0,50,100' (ranges end-exclusive, an
+    open end runs to the motion's end), as a (length,) bool mask; out-of-range frames are an error.
+    Shares and counts of evenly spaced frames are `density_frames`."""
     keep = np.zeros(length, bool)
     for part in spec.split(","):
         part = part.strip()
