@@ -78,7 +78,7 @@ def main(argv=None) -> None:
     plot_path(motion, out / "example_path.png")
     if args.gif:
         render_animation(motion.joints, out / "example.gif", pipe.skeleton, fps=pipe.fps,
-                         title=" | ".join(s.text.removeprefix("a person ") for s in motion.segments))
+                         title=f"{args.timeline}: {len(motion.segments)} prompts, {len(motion.features) / pipe.fps:g} s")
     print(f"{len(motion.features)} frames, joins at {motion.joins} -> {out}")
 
 
