@@ -10,6 +10,7 @@ MODEL_KINDS; the pipeline has no branch on the kind.
 from __future__ import annotations
 
 import importlib
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable, Protocol
 
 import torch
@@ -25,6 +26,16 @@ if TYPE_CHECKING:
 Denoise = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 
 
+@dataclass
+class ControlTargets:
+    """A batch's joint targets as the pipeline resolved them from the requests' JointControl specs:
+    targets (B, T, J, 3) in dataset units, zero where free; mask (B, T, J) bool. A kind that reads
+    them (a ControlNet) takes them in `make_denoiser(..., control=)`; the others ignore them."""
+
+    targets: torch.Tensor
+    mask: torch.Tensor
+
+
 class ModelKind(Protocol):
     def build_model(self, config: dict, source: str) -> nn.Module:
         """The untrained network for a bundle config (`source` names the file in errors)."""
@@ -34,8 +45,9 @@ class ModelKind(Protocol):
 
     def make_denoiser(self, pipeline: "Pipeline", text: torch.Tensor, text_mask: torch.Tensor,
                       motion_mask: torch.Tensor, cfg: float, dtype: torch.dtype | None,
-                      timesteps: list[int]) -> Denoise:
-        """`denoise(x_t, t)` for one request: text (B, L, C), text_mask (B, L), motion_mask (B, T)."""
+                      timesteps: list[int], control: ControlTargets | None = None) -> Denoise:
+        """`denoise(x_t, t)` for one request: text (B, L, C), text_mask (B, L), motion_mask (B, T);
+        control: the batch's joint targets (None: no prompt has any)."""
 
 
 class DiffusionKind:
@@ -49,7 +61,7 @@ class DiffusionKind:
     def samplers(self, config: dict, schedule: NoiseSchedule) -> dict[str, Sampler]:
         return SAMPLER_TABLE
 
-    def make_denoiser(self, pipeline, text, text_mask, motion_mask, cfg, dtype, timesteps) -> Denoise:
+    def make_denoiser(self, pipeline, text, text_mask, motion_mask, cfg, dtype, timesteps, control=None) -> Denoise:
         from stablemo.diffusion.guidance import CFGDenoiser
 
         null_text, null_mask = pipeline.null_condition(text.shape[0])
@@ -61,6 +73,7 @@ class DiffusionKind:
 MODEL_KINDS: dict[str, tuple[str, str]] = {
     "diffusion": ("stablemo.kinds", "DiffusionKind"),
     "consistency": ("stablemo.distill.kind", "ConsistencyKind"),
+    "controlnet": ("stablemo.controlnet.kind", "ControlNetKind"),
 }
 
 

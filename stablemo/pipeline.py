@@ -33,7 +33,7 @@ from stablemo.fast import accelerate
 from stablemo.runtime import resolve_device, resolve_dtype
 from stablemo.hooks import SampleHook, StepState, apply_hooks
 from stablemo.inference_config import InferenceConfig, check_finite, check_positive_int, check_seed
-from stablemo.kinds import Denoise, ModelKind, model_kind
+from stablemo.kinds import ControlTargets, Denoise, ModelKind, model_kind
 from stablemo.control.spec import Inpaint, JointControl
 
 # (pipeline, texts, motion_mask (B, T), cfg, network dtype, planned timesteps) -> denoise(x_t, t).
@@ -49,7 +49,9 @@ class Request:
     pipeline's); hooks: sample hooks, applied in this order; batch_size: split large requests into
     chunks (results do not depend on it); inpaint: known features per prompt (`stablemo.control.
     Inpaint`, or None for a free prompt), imposed inside the sampler; control: joint targets per
-    prompt (`stablemo.control.JointControl` or None), reached by guidance after the hooks."""
+    prompt (`stablemo.control.JointControl` or None): a ControlNet bundle reads them as its hint,
+    and with control_guidance (default) the joint-guidance hook refines x0 towards them after the
+    other hooks at every step (a 1-step student: one refinement after its step)."""
 
     texts: Sequence[str]
     lengths: int | Sequence[int]
@@ -63,6 +65,7 @@ class Request:
     progress: bool = False
     inpaint: "Inpaint | Sequence[Inpaint | None] | None" = None
     control: "JointControl | Sequence[JointControl | None] | None" = None
+    control_guidance: bool = True
 
 
 @dataclass
@@ -240,10 +243,12 @@ class Pipeline:
         for frozen in self._frozen_encoders:
             frozen.clear_cache()
 
-    def make_denoiser(self, texts: list[str], motion_mask: torch.Tensor, cfg: float, dtype, timesteps) -> Denoise:
-        """The default DenoiserFactory: texts encoded once, the bundle kind's denoiser."""
+    def make_denoiser(self, texts: list[str], motion_mask: torch.Tensor, cfg: float, dtype, timesteps,
+                      control: ControlTargets | None = None) -> Denoise:
+        """The default DenoiserFactory: texts encoded once, the bundle kind's denoiser (which may read
+        the batch's joint targets, `control`)."""
         text, text_mask = self.encode(texts)
-        return self.kind.make_denoiser(self, text, text_mask, motion_mask, cfg, dtype, timesteps)
+        return self.kind.make_denoiser(self, text, text_mask, motion_mask, cfg, dtype, timesteps, control=control)
 
     def resolve(self, request: Request) -> Request:
         """The request with every default filled in from the inference config, checked: one clear
@@ -281,6 +286,8 @@ class Pipeline:
             if not (callable(hook) and callable(getattr(hook, "active", None))):
                 raise StableMoError(f"hooks[{i}]: {type(hook).__name__} is not a sample hook "
                                     "(it needs active(step, steps) and __call__(state); see stablemo.hooks)")
+        if not isinstance(request.control_guidance, bool):
+            raise StableMoError(f"control_guidance: expected True or False, got {request.control_guidance!r}")
         dtype = self.dtype if request.dtype is None else resolve_dtype(request.dtype, self.device)
         inpaint = self._per_prompt(request.inpaint, Inpaint, "inpaint", lengths,
                                    lambda spec, n, what: spec.resolve(n, self.mean.shape[0], what))
@@ -383,11 +390,16 @@ class Pipeline:
         x_T = noise(torch.empty(B, T, D)).to(self.device)
         sampler = self.samplers[req.sampler]
         timesteps = sampler.timesteps(self.schedule, req.steps)
-        denoise = factory(self, list(texts), mask, req.cfg, req.dtype, timesteps)
+        targets = None if control is None else self._control_targets(control, T)
+        # a factory that ignores control (a benchmark baseline) is only asked for it when there is some
+        extra_args = {} if targets is None else {"control": targets}
+        denoise = factory(self, list(texts), mask, req.cfg, req.dtype, timesteps, **extra_args)
 
         hooks = list(req.hooks)
-        if control is not None:  # joint targets last: after the other hooks (e.g. foot skating) moved the body
-            hooks.append(self._joint_guidance(control, T))
+        if targets is not None and req.control_guidance:  # last: after the other hooks (e.g. foot skating) moved the body
+            from stablemo.control.guidance import JointGuidance
+
+            hooks.append(JointGuidance(targets.targets, targets.mask, self.mean, self.std, self.skeleton))
         extra = {}
         if inpaint is not None:
             extra["inpaint"] = self._inpainting(inpaint, x_T)
@@ -418,9 +430,8 @@ class Pipeline:
                 known[i, :n] = keep
         return Inpainting(values, known, x_T)
 
-    def _joint_guidance(self, specs: list, T: int):
-        """The batch's JointGuidance hook: targets (B, T, J, 3) and mask (B, T, J), padded."""
-        from stablemo.control.guidance import JointGuidance
+    def _control_targets(self, specs: list, T: int) -> ControlTargets:
+        """The batch's joint targets: targets (B, T, J, 3) and mask (B, T, J), padded, on the device."""
         from stablemo.motion.skeleton import get_skeleton
 
         J = get_skeleton(self.skeleton).num_joints
@@ -430,7 +441,7 @@ class Pipeline:
                 pos, keep = spec
                 targets[i, :pos.shape[0]] = torch.from_numpy(pos)
                 mask[i, :keep.shape[0]] = torch.from_numpy(keep)
-        return JointGuidance(targets.to(self.device), mask.to(self.device), self.mean, self.std, self.skeleton)
+        return ControlTargets(targets.to(self.device), mask.to(self.device))
 
 
 def _check_stats(config: dict, source: str) -> None:

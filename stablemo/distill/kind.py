@@ -22,7 +22,7 @@ class ConsistencyKind:
 
         return consistency_samplers(config["consistency"], schedule)
 
-    def make_denoiser(self, pipeline, text, text_mask, motion_mask, cfg, dtype, timesteps):
+    def make_denoiser(self, pipeline, text, text_mask, motion_mask, cfg, dtype, timesteps, control=None):
         from stablemo.distill.student import StudentDenoiser
 
         # guidance is embedded in the student: LCM's w = cfg - 1

@@ -1,0 +1,196 @@
+"""A motion ControlNet for CondUNet1D (MotionLCM's control, in motion space; facts-distillation §4).
+
+- `HintEncoder`: per-frame hint (masked global joint positions + the mask, (B, T, 4 J)) ->
+  convolutions over time -> a zero-initialised 1x1 projection to the feature width. In motion
+  space the hint already has a time axis, so MotionLCM's trajectory transformer with its global
+  token (needed for MLD's time-less latent) is not needed.
+- `ControlNet`: a trainable copy of the frozen UNet's encoder half (time/text embeddings, down
+  stages, down-samplings, middle stage), fed x_t plus the encoded hint, and one zero-initialised
+  1x1 convolution per down stage and for the middle stage. Their outputs are added to the frozen
+  network's skip features and middle output (`controlled_forward`).
+- `ControlledModel`: the frozen base (a MotionDiffusionModel or a ConsistencyStudent) and its
+  ControlNet, with the base's `prepare`/`denoise` contract plus a hint.
+
+At initialisation every injection is exactly zero, so a controlled model is its base. Every
+operator masks padded frames, so the controlled model stays exactly padding invariant.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from stablemo.errors import StableMoError
+from stablemo.nets.conditioning import Conditioning
+from stablemo.nets.layers import zero_pad_bct
+from stablemo.nets.unet import CondUNet1D
+
+
+def _zero_conv(channels_in: int, channels_out: int) -> nn.Conv1d:
+    conv = nn.Conv1d(channels_in, channels_out, 1)
+    nn.init.zeros_(conv.weight)
+    nn.init.zeros_(conv.bias)
+    return conv
+
+
+class HintEncoder(nn.Module):
+    """hint (B, T, hint_dim), motion_mask (B, T) -> (B, out_dim, T), zero on padding (and, at
+    initialisation, everywhere: the last layer is a zero 1x1 convolution)."""
+
+    def __init__(self, hint_dim: int, out_dim: int, channels: int = 64, layers: int = 3, kernel_size: int = 3):
+        super().__init__()
+        dims = [hint_dim] + [channels] * layers
+        self.convs = nn.ModuleList(nn.Conv1d(dims[i], dims[i + 1], kernel_size, padding=kernel_size // 2)
+                                   for i in range(layers))
+        self.out = _zero_conv(channels, out_dim)
+
+    def forward(self, hint: torch.Tensor, motion_mask: torch.Tensor) -> torch.Tensor:
+        h = zero_pad_bct(hint.transpose(1, 2), motion_mask)  # (B, hint_dim, T)
+        for conv in self.convs:  # padded frames zero before every temporal convolution
+            h = zero_pad_bct(F.mish(conv(h)), motion_mask)
+        return zero_pad_bct(self.out(h), motion_mask)
+
+
+def _encoder_copy(unet: CondUNet1D) -> CondUNet1D:
+    """A trainable copy of `unet` with its decoder removed: its `stages()` are then the down stages
+    and the middle, so its own `prepare`/`step_adagn` cover exactly the encoder half. It trains
+    (dropout on) even when the base was frozen in eval mode."""
+    enc = copy.deepcopy(unet)
+    enc.up, enc.upsample = nn.ModuleList(), nn.ModuleList()
+    enc.final_conv = enc.final_norm = None
+    enc.out = nn.Identity()
+    return enc.requires_grad_(True).train()
+
+
+@dataclass
+class ControlConditioning(Conditioning):
+    """A controlled step's per-request inputs: the frozen network's context, the copy's, and the
+    encoded hint (B, D, T) (constant over the steps of a request, so encoded once)."""
+
+    base: Conditioning
+    copy: Conditioning
+    hint: torch.Tensor
+
+
+class ControlNet(nn.Module):
+    """unet: the frozen network to control (its encoder half is copied now, with its weights);
+    joints: J of the skeleton (hint width 4 J); channels/layers: the hint encoder's."""
+
+    def __init__(self, unet: CondUNet1D, joints: int, channels: int = 64, layers: int = 3):
+        super().__init__()
+        if not isinstance(unet, CondUNet1D):
+            raise StableMoError(f"controlnet: only the unet denoiser can be controlled, got {type(unet).__name__}")
+        self.joints = int(joints)
+        self.encoder = _encoder_copy(unet)
+        self.hint_encoder = HintEncoder(4 * self.joints, unet.input_dim, channels, layers)
+        widths = [stage.blocks[-1].conv2.out_channels for stage in unet.down]
+        self.skip_convs = nn.ModuleList(_zero_conv(c, c) for c in widths)
+        self.mid_conv = _zero_conv(widths[-1], widths[-1])
+
+    def prepare(self, text, text_mask, motion_mask, time_cond, timesteps, hint) -> tuple[Conditioning, torch.Tensor]:
+        """(the copy's context, the encoded hint (B, D, T)); hint: (B, T, 4 J)."""
+        if hint.shape != (*motion_mask.shape, 4 * self.joints):
+            raise StableMoError(f"hint: expected shape {(*motion_mask.shape, 4 * self.joints)}, got {tuple(hint.shape)}")
+        ctx = self.encoder.prepare(text, text_mask, motion_mask, time_cond, timesteps)
+        return ctx, self.hint_encoder(hint.to(text.dtype), motion_mask)
+
+    def residuals(self, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning, hint: torch.Tensor) -> list[torch.Tensor]:
+        """The injections: one (B, C_i, T_i) per down stage (into its skip), then the middle's."""
+        enc = self.encoder
+        adagn = enc.step_adagn(t, ctx)
+        h = zero_pad_bct(x.transpose(1, 2), ctx.masks[0]) + hint  # (B, D, T)
+        out = []
+        for i, stage in enumerate(enc.down):
+            h = stage(h, adagn[i], ctx.text_contexts[i], ctx.masks[i])
+            out.append(zero_pad_bct(self.skip_convs[i](h), ctx.masks[i]))
+            if i < len(enc.downsample):
+                h = enc.resample(enc.downsample[i], h, ctx.masks[i + 1])
+        n = len(enc.down)
+        h = enc.mid(h, adagn[n], ctx.text_contexts[n], ctx.masks[-1])
+        out.append(zero_pad_bct(self.mid_conv(h), ctx.masks[-1]))
+        return out
+
+
+def controlled_forward(unet: CondUNet1D, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning,
+                       residuals: list[torch.Tensor]) -> torch.Tensor:
+    """CondUNet1D.forward with the ControlNet's residuals added to each skip and to the middle
+    output (the same named steps, so a fast network keeps its fused pieces). x: (B, T, D)."""
+    adagn = unet.step_adagn(t, ctx)
+    n = len(unet.down)
+    h = zero_pad_bct(x.transpose(1, 2), ctx.masks[0])
+    skips = []
+    for i, stage in enumerate(unet.down):
+        h = stage(h, adagn[i], ctx.text_contexts[i], ctx.masks[i])
+        skips.append(h + residuals[i])
+        if i < len(unet.downsample):
+            h = unet.resample(unet.downsample[i], h, ctx.masks[i + 1])
+    h = unet.mid(h, adagn[n], ctx.text_contexts[n], ctx.masks[-1]) + residuals[n]
+    for j, stage in enumerate(unet.up):
+        level = n - 1 - j
+        if unet.upsample_first:
+            h = unet.resample(unet.upsample[j], h, ctx.masks[level])
+        h = stage(unet.merge_skip(h, skips.pop()), adagn[n + 1 + j], ctx.text_contexts[n + 1 + j], ctx.masks[level])
+        if not unet.upsample_first and j < len(unet.upsample):
+            h = unet.resample(unet.upsample[j], h, ctx.masks[level - 1])
+    return unet.head(h, ctx.masks[0]).transpose(1, 2)
+
+
+class ControlledModel(nn.Module):
+    """A frozen base model plus its ControlNet.
+
+    base: a MotionDiffusionModel ("diffusion") or a ConsistencyStudent ("consistency"); control:
+    the ControlNet's kwargs (channels, layers); joints: J. `prepare(text, text_mask, motion_mask,
+    cond, timesteps, hint)` takes the base's own condition (`time_cond` for a diffusion model, the
+    guidance w (B,) for a student) and the hint (B, T, 4 J); `denoise(x, t, ctx)` as the base's.
+    """
+
+    def __init__(self, base: nn.Module, base_kind: str, joints: int, control: dict | None = None):
+        super().__init__()
+        if base_kind not in ("diffusion", "consistency"):
+            raise StableMoError(f"controlnet.base_kind: expected 'diffusion' or 'consistency', got {base_kind!r}")
+        self.base, self.base_kind = base, base_kind
+        self.control = ControlNet(self.unet, joints, **dict(control or {}))
+
+    @property
+    def net(self) -> nn.Module:
+        """The base's MotionDiffusionModel (a student wraps its teacher's network)."""
+        return self.base.model if self.base_kind == "consistency" else self.base
+
+    @property
+    def unet(self) -> CondUNet1D:
+        return self.net.denoiser
+
+    @property
+    def length_multiple(self) -> int:
+        return self.net.length_multiple
+
+    @property
+    def joints(self) -> int:
+        return self.control.joints
+
+    def encode_text(self, texts: list[str]):
+        return self.base.encode_text(texts)
+
+    def time_cond(self, cond: torch.Tensor | None) -> torch.Tensor | None:
+        """The features added to the timestep's: a student's embedded guidance w, else cond itself."""
+        return self.base.guidance_features(cond) if self.base_kind == "consistency" else cond
+
+    def prepare(self, text, text_mask, motion_mask, cond=None, timesteps=(), hint=None) -> ControlConditioning:
+        if hint is None:
+            raise StableMoError("hint: a controlled model needs a hint (B, T, 4 J); see stablemo.controlnet.hints")
+        time_cond = self.time_cond(cond)
+        base = self.net.prepare(text, text_mask, motion_mask, time_cond, timesteps)
+        copy_ctx, encoded = self.control.prepare(text, text_mask, motion_mask, time_cond, timesteps, hint)
+        return ControlConditioning(motion_mask, time_cond, base.timesteps, base, copy_ctx, encoded)
+
+    def denoise(self, x, t, ctx: ControlConditioning) -> torch.Tensor:
+        residuals = self.control.residuals(x, t, ctx.copy, ctx.hint)
+        return controlled_forward(self.unet, x, t, ctx.base, residuals)
+
+    def forward(self, x, t, text, text_mask, motion_mask, hint, cond=None) -> torch.Tensor:
+        """One call with its own conditioning (training)."""
+        return self.denoise(x, t, self.prepare(text, text_mask, motion_mask, cond, (), hint))

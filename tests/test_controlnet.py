@@ -1,0 +1,321 @@
+"""Motion ControlNet: zero start, exact padding invariance, hint draws, training step, bundle kind,
+pipeline (hint + optional guidance refinement), export of the EMA weights, the Lightning CLI."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from stablemo.bundle import save_bundle
+from stablemo.controlnet.hints import TRAIN_JOINTS, hint_input, sample_hint_mask
+from stablemo.controlnet.network import ControlledModel
+from stablemo.diffusion.schedule import NoiseSchedule
+from stablemo.errors import StableMoError
+from stablemo.model import MotionDiffusionModel
+
+D, J = 263, 22
+REPO = Path(__file__).resolve().parents[1]
+
+
+def tiny_model(variant: str = "stablemo") -> dict:
+    return {
+        "denoiser": {"name": "unet", "input_dim": D, "base_channels": 16, "channel_mults": [1, 2], "time_dim": 32,
+                     "num_groups": 4, "num_heads": 2, "dropout": 0.0, "variant": variant},
+        "text": {"encoder": "minilm", "latent_dim": 32, "num_layers": 1, "num_heads": 2, "ff_dim": 64, "dropout": 0.0},
+    }
+
+
+def tiny_base(variant: str = "stablemo", seed: int = 0) -> MotionDiffusionModel:
+    torch.manual_seed(seed)
+    model = MotionDiffusionModel(**tiny_model(variant))
+    torch.nn.init.normal_(model.denoiser.out.weight, std=0.05)  # zero-initialised; make its output vary
+    return model.eval()
+
+
+def perturb(control: torch.nn.Module, seed: int = 1, std: float = 0.05) -> None:
+    """Give the zero-initialised injections weights, as training would."""
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in control.parameters():
+            p.add_(torch.randn(p.shape, generator=gen) * std)
+
+
+@pytest.fixture(scope="module")
+def teacher_bundle(tmp_path_factory):
+    config = {"kind": "diffusion", "model": tiny_model(), "schedule": NoiseSchedule().config(),
+              "prediction_type": "sample", "dataset": "humanml3d", "skeleton": "humanml3d", "fps": 20,
+              "mean": [0.0] * D, "std": [1.0] * D, "min_length": 16, "max_length": 196}
+    return save_bundle(tmp_path_factory.mktemp("b") / "teacher", config, tiny_base().state_dict())
+
+
+@pytest.fixture(scope="module")
+def student_bundle(teacher_bundle, tmp_path_factory):
+    from stablemo.distill.module import ConsistencyDistillation
+
+    config, state = ConsistencyDistillation(teacher=str(teacher_bundle), mode="lcm", ddim_steps=50).bundle()
+    return save_bundle(tmp_path_factory.mktemp("b") / "student", config, state)
+
+
+def inputs(lengths=(32, 24), T=32, seed=0):
+    gen = torch.Generator().manual_seed(seed)
+    B = len(lengths)
+    mask = torch.arange(T)[None] < torch.tensor(lengths)[:, None]
+    targets = torch.randn(B, T, J, 3, generator=gen)
+    hint = hint_input(targets, torch.rand(B, T, J, generator=gen) < 0.2)
+    return torch.randn(B, T, D, generator=gen), torch.tensor([999, 400]), mask, hint
+
+
+def close(actual, expected, rtol=1e-5):
+    """1e-5 relative to the output's scale (the padding-invariance tolerance of tests/test_nets.py)."""
+    torch.testing.assert_close(actual, expected, rtol=rtol, atol=rtol * float(expected.abs().max()))
+
+
+@pytest.mark.parametrize("variant", ["stablemo", "official"])
+def test_controlnet_starts_as_its_base_and_is_exactly_padding_invariant(variant):
+    base = tiny_base(variant)
+    model = ControlledModel(base, "diffusion", J, {"channels": 16, "layers": 2}).eval()
+    text, text_mask = base.encode_text(["a person walks", "a person jumps"])
+    x, t, mask, hint = inputs()
+    with torch.no_grad():
+        ref = base(x, t, text, text_mask, mask)
+        assert torch.equal(model(x, t, text, text_mask, mask, hint), ref)  # zero injections: the base exactly
+        perturb(model.control)
+        out = model(x, t, text, text_mask, mask, hint)
+        assert (out - ref).abs().max() > 1e-2  # the hint now acts
+        # padded frames hold garbage, the batch is longer, the other sample differs: same valid output
+        x2, hint2 = x.clone(), hint.clone()
+        x2[1, 24:], hint2[1, 24:] = 1e3, -1e3
+        pad = torch.randn(2, 16, D), torch.randn(2, 16, 4 * J)
+        mask2 = torch.arange(48)[None] < torch.tensor([32, 24])[:, None]
+        longer = model(torch.cat([x2, pad[0]], 1), t, text, text_mask, mask2, torch.cat([hint2, pad[1]], 1))
+        alone = model(x2[1:, :24], t[1:], text[1:], text_mask[1:], mask[1:, :24], hint2[1:, :24])
+    close(longer[0, :32], out[0])
+    close(longer[1, :24], out[1, :24])
+    close(alone[0], out[1, :24])
+    assert torch.all(out[1, 24:] == 0) and torch.all(longer[:, 32:] == 0)
+
+
+def test_only_unet_denoisers_can_be_controlled():
+    model = MotionDiffusionModel(denoiser={"name": "dit", "input_dim": D, "latent_dim": 32, "num_layers": 1,
+                                           "num_heads": 2, "ff_dim": 64},
+                                 text=tiny_model()["text"])
+    with pytest.raises(StableMoError, match="only the unet"):
+        ControlledModel(model, "diffusion", J)
+
+
+def test_hint_draws_follow_the_recipe():
+    B, T = 400, 40
+    lengths = torch.randint(10, T + 1, (B,), generator=torch.Generator().manual_seed(0))
+    motion_mask = torch.arange(T)[None] < lengths[:, None]
+    a = sample_hint_mask(motion_mask, J, torch.Generator().manual_seed(3), dense_prob=0.25, empty_prob=0.1)
+    b = sample_hint_mask(motion_mask, J, torch.Generator().manual_seed(3), dense_prob=0.25, empty_prob=0.1)
+    assert torch.equal(a, b) and a.shape == (B, T, J)
+    assert not (a & ~motion_mask[..., None]).any()  # never on padding
+    joints_used = a.any(1)  # (B, J)
+    assert (joints_used.sum(1) <= 1).all()  # one joint per sample
+    assert set(torch.nonzero(joints_used)[:, 1].tolist()) == set(TRAIN_JOINTS)
+    empty = ~a.flatten(1).any(1)
+    dense = a.any(2).sum(1) == lengths
+    assert 0.04 < empty.float().mean() < 0.17
+    assert 0.2 < dense.float().mean() < 0.45
+    sparse = ~empty & ~dense
+    assert (a.any(2).sum(1)[sparse] >= 1).all() and (a.any(2).sum(1)[sparse] < lengths[sparse]).all()
+    hint = hint_input(torch.full((1, 2, J, 3), 2.0), torch.tensor([[[True] + [False] * (J - 1)] * 2]), scale=2.0)
+    assert hint.shape == (1, 2, 4 * J) and hint[0, 0, :3].tolist() == [1.0, 1.0, 1.0]
+    assert hint[0, 0, 3:3 * J].abs().sum() == 0 and hint[0, 0, 3 * J:].tolist() == [1.0] + [0.0] * (J - 1)
+
+
+def test_training_step_moves_only_the_controlnet_and_learns(student_bundle):
+    from stablemo.controlnet.module import ControlNetTraining
+
+    module = ControlNetTraining(str(student_bundle), control={"channels": 16, "layers": 2}, train_timesteps=[999],
+                                dense_prob=1.0, empty_prob=0.0, lr=3e-3)
+    module.train()
+    assert not module.model.base.training and module.model.control.training
+    gen = torch.Generator().manual_seed(0)
+    batch = {"motion": torch.randn(4, 24, D, generator=gen) * 0.3, "mask": torch.ones(4, 24, dtype=torch.bool),
+             "text": ["a person walks", "a person jumps", "a person waves", "a person runs"]}
+    batch["mask"][2, 16:] = False
+    batch["motion"][2, 16:] = 0
+    opt = torch.optim.Adam([p for p in module.model.control.parameters()], lr=3e-3)
+    before = {k: v.clone() for k, v in module.model.base.state_dict().items()}
+    errors = []
+    for _ in range(25):
+        out = module.losses(batch, torch.Generator().manual_seed(1))
+        opt.zero_grad()
+        out["loss"].backward()
+        opt.step()
+        errors.append(out["joint_err"].item())
+    assert all(p.grad is None for p in module.model.base.parameters())
+    assert all(torch.equal(v, before[k]) for k, v in module.model.base.state_dict().items())
+    assert errors[-1] < 0.7 * errors[0], errors
+
+
+def controlled_bundle(base_bundle, tmp_path, name, trained=True):
+    from stablemo.controlnet.module import ControlNetTraining
+
+    module = ControlNetTraining(str(base_bundle), control={"channels": 16, "layers": 2})
+    if trained:
+        perturb(module.model.control, std=0.02)
+    config = module.bundle_config()
+    state = module.model.state_dict()
+    return save_bundle(tmp_path / name, config, state), config
+
+
+def pelvis_path(T=40):
+    pos = np.zeros((T, J, 3), np.float32)
+    pos[:, 0, 2] = np.linspace(0, 2.0, T)  # 2 m forward
+    pos[:, 0, 1] = 0.9
+    pos[0, 0] = [0.0, 0.9, 0.0]
+    mask = np.zeros((T, J), bool)
+    mask[:, 0] = True
+    return pos, mask
+
+
+def test_controlled_bundle_serves_through_the_pipeline(student_bundle, teacher_bundle, tmp_path):
+    from stablemo.control.spec import JointControl
+    from stablemo.pipeline import Pipeline
+
+    untrained, config = controlled_bundle(student_bundle, tmp_path, "zero", trained=False)
+    assert config["kind"] == "controlnet" and config["inference"]["sampler"] == "lcm"
+    pos, mask = pelvis_path()
+    control = JointControl(pos, mask)
+    plain = Pipeline.from_bundle(student_bundle).generate(["a person walks"], [40], seed=3, control=control,
+                                                          control_guidance=False)
+    zero = Pipeline.from_bundle(untrained).generate(["a person walks"], [40], seed=3, control=control,
+                                                    control_guidance=False)
+    torch.testing.assert_close(zero.features, plain.features)  # zero injections: the student itself
+
+    path, _ = controlled_bundle(student_bundle, tmp_path, "trained")
+    pipe = Pipeline.from_bundle(path)
+    texts, lengths = ["a person walks", "a person jumps"], [40, 32]
+    both = pipe.generate(texts, lengths, seed=[3, 4], control=[control, None], control_guidance=False)
+    first = pipe.generate(texts[:1], [40], seed=3, control=control, control_guidance=False)
+    second = pipe.generate(texts[1:], [32], seed=4)
+    free = pipe.generate(texts[:1], [40], seed=3)
+    torch.testing.assert_close(both.features[0], first.features[0], rtol=1e-4, atol=1e-5)
+    torch.testing.assert_close(both.features[1, :32], second.features[0], rtol=1e-4, atol=1e-5)
+    assert (first.features - free.features).abs().max() > 1e-3  # the hint reaches the network
+    refined = pipe.generate(texts[:1], [40], seed=3, control=control)  # + the guidance refinement (default)
+    miss = lambda g: np.linalg.norm(g.joints[0, :, 0].numpy() - pos[:, 0], axis=-1).mean()
+    assert miss(refined) < 0.01 < miss(first)
+    with pytest.raises(StableMoError, match="control_guidance"):
+        pipe.generate(texts[:1], [40], control=control, control_guidance="yes")
+
+    teacher_path, teacher_config = controlled_bundle(teacher_bundle, tmp_path, "teacher")
+    assert teacher_config["controlnet"]["base_kind"] == "diffusion"
+    out = Pipeline.from_bundle(teacher_path).generate(texts, lengths, steps=2, seed=0, control=[control, None],
+                                                     control_guidance=False)
+    assert torch.isfinite(out.features).all()
+
+
+def test_export_writes_the_controlnet_ema_over_the_frozen_base(student_bundle, tmp_path):
+    from stablemo.controlnet.module import ControlNetTraining
+    from stablemo.lit.export import bundle_from_checkpoint
+
+    module = ControlNetTraining(str(student_bundle), control={"channels": 16, "layers": 2}, ema_decay=0.5, ema_warmup=0)
+    perturb(module.model.control)
+    module.ema.update(module.model.control)  # the average now lies halfway
+    checkpoint = {"state_dict": module.state_dict(), "global_step": 7}
+    module.on_save_checkpoint(checkpoint)
+    config, state = bundle_from_checkpoint(checkpoint, source="x.ckpt")
+    assert config["kind"] == "controlnet" and config["training"]["global_step"] == 7
+    assert state.keys() == module.model.state_dict().keys()
+    for k, v in module.model.base.state_dict().items():
+        assert torch.equal(state["base." + k], v)
+    raw = module.model.control.state_dict()
+    key = "control.skip_convs.0.weight"
+    torch.testing.assert_close(state[key], raw["skip_convs.0.weight"] * 0.5)  # EMA of zero and the raw weight
+
+
+def test_bad_bundles_and_bases_are_named(teacher_bundle, student_bundle, tmp_path):
+    from stablemo.controlnet.module import ControlNetTraining
+    from stablemo.pipeline import Pipeline
+
+    path, config = controlled_bundle(student_bundle, tmp_path, "ok")
+    broken = dict(config)
+    broken.pop("controlnet")
+    bad = save_bundle(tmp_path / "bad", broken, Pipeline.from_bundle(path, fast=False).model.state_dict())
+    with pytest.raises(StableMoError, match="config.json: a controlnet bundle needs a 'controlnet' section"):
+        Pipeline.from_bundle(bad)
+    with pytest.raises(StableMoError, match="hint_joints"):
+        ControlNetTraining(str(teacher_bundle), hint_joints=[0, 40])
+    with pytest.raises(StableMoError, match="a ControlNet controls"):
+        ControlNetTraining(str(path))
+
+
+@pytest.mark.parametrize("name", ["controlnet_lcm_synth.yaml", "controlnet_teacher_synth.yaml"])
+def test_shipped_control_configs_parse(name, capsys):
+    import yaml
+
+    from stablemo.lit.cli import main_fit
+
+    with pytest.raises(SystemExit) as exit_:
+        main_fit(["--config", str(REPO / "configs" / "control" / name), "--print_config"])
+    assert exit_.value.code in (0, None)
+    printed = yaml.safe_load(capsys.readouterr().out)
+    assert printed["model"]["class_path"] == "stablemo.controlnet.module.ControlNetTraining"
+    assert printed["model"]["init_args"]["joint_weight"] == 1.0
+    assert printed["model"]["init_args"]["hint_joints"] == list(TRAIN_JOINTS)
+
+
+@pytest.mark.slow
+def test_fit_resume_and_export_through_the_cli(student_bundle, tmp_path):
+    """3 + 3 steps resumed == 6 straight (weights, EMA, optimiser), then export serves."""
+    import yaml
+
+    from stablemo.lit.checkpoint_io import load_checkpoint_file
+    from stablemo.lit.cli import main_fit
+    from stablemo.lit.export import export
+    from stablemo.pipeline import Pipeline
+    from tests.test_training import write_random_dataset
+
+    data = write_random_dataset(tmp_path / "data")
+    from stablemo.data import MotionDataModule
+
+    dm = MotionDataModule(data_dir=str(data), batch_size=4, pad_multiple=2, max_length=64)
+    dm.setup("fit")
+    stats = {k: [float(v) for v in getattr(dm, k)] for k in ("mean", "std")}  # the base's dataset
+    import json
+
+    cfg_file = Path(student_bundle) / "config.json"
+    base_config = json.loads(cfg_file.read_text())
+    base_config.update(stats)
+    from stablemo.bundle import load_bundle
+
+    base = save_bundle(tmp_path / "base", base_config, load_bundle(student_bundle).state_dict)
+
+    def config(root: Path) -> Path:
+        cfg = {"seed_everything": 0,
+               "trainer": {"accelerator": "cpu", "devices": 1, "max_steps": 6, "limit_val_batches": 0,
+                           "log_every_n_steps": 1, "default_root_dir": str(root), "enable_progress_bar": False,
+                           "enable_model_summary": False},
+               "checkpoint": {"every_n_train_steps": 3, "save_last": True},
+               "model": {"class_path": "stablemo.controlnet.module.ControlNetTraining",
+                         "init_args": {"base": str(base), "control": {"channels": 16, "layers": 2},
+                                       "train_timesteps": [999], "ema_decay": 0.9, "lr": 1e-3}},
+               "data": {"data_dir": str(data), "batch_size": 4, "pad_multiple": 2, "max_length": 64}}
+        root.mkdir(parents=True)
+        (root / "c.yaml").write_text(yaml.safe_dump(cfg))
+        return root / "c.yaml"
+
+    straight, split = config(tmp_path / "straight"), config(tmp_path / "split")
+    assert main_fit(["--config", str(straight)]) == 0
+    assert main_fit(["--config", str(split), "--trainer.max_steps=3"]) == 0
+    assert main_fit(["--config", str(split), "--ckpt_path=last"]) == 0
+    a = load_checkpoint_file(tmp_path / "straight" / "checkpoints" / "last.ckpt")
+    b = load_checkpoint_file(tmp_path / "split" / "checkpoints" / "last.ckpt")
+    assert a["global_step"] == b["global_step"] == 6
+    for key in a["state_dict"]:
+        assert torch.equal(a["state_dict"][key], b["state_dict"][key]), key
+    for key, value in a["stablemo"]["ema"]["shadow"].items():
+        assert torch.equal(value, b["stablemo"]["ema"]["shadow"][key]), key
+    out = export(tmp_path / "split" / "checkpoints" / "last.ckpt", tmp_path / "bundle")
+    pos, mask = pelvis_path()
+    from stablemo.control.spec import JointControl
+
+    gen = Pipeline.from_bundle(out).generate(["a person walks"], [40], control=JointControl(pos, mask))
+    assert torch.isfinite(gen.joints).all()
