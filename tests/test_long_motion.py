@@ -207,6 +207,7 @@ def test_generate_timeline_cli_writes_one_motion_of_the_whole_length(tmp_path, c
     assert feats.shape == (90, 263) and joints.shape == (90, 22, 3)
     info = json.loads((tmp_path / "out" / "walk-jump.timeline.json").read_text())
     assert [s["frames"] for s in info["segments"]] == [[0, 50], [50, 90]] and len(info["windows"]) == 2
+    assert [j["frame"] for j in info["seams"]["joins"]] == [50] and info["seams"]["inside_p99"]["root"] > 0
 
 
 @pytest.mark.parametrize("text, extra, message", [

@@ -3,7 +3,8 @@
     stablemo generate --timeline walk_jump.txt --out outputs --format gif --format bvh
 
 Writes <stem>.features.npy, <stem>.joints.npy and each --format (as `stablemo generate`), plus
-<stem>.timeline.json (segments with their frames, and the windows the motion was made of).
+<stem>.timeline.json (segments with their frames, the windows the motion was made of, and the root
+and foot acceleration at each join beside the motion's inside 99th percentile).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ def run_timeline(args, bundle: Path, out: Path) -> int:
     from stablemo.io import check_output_file, write_text
     from stablemo.pipeline import Pipeline
     from stablemo.timeline import generate_timeline, read_timeline
+    from stablemo.timeline.seams import seam_report
 
     for flag, value in (("prompt", args.prompt), ("--prompts", args.prompts), ("--seconds", args.seconds),
                         ("--frames", args.frames), ("--control", args.control)):
@@ -41,7 +43,9 @@ def run_timeline(args, bundle: Path, out: Path) -> int:
     info = {"fps": pipe.fps, "frames": len(motion.features),
             "segments": [{"start_s": s.start_s, "end_s": s.end_s, "text": s.text, "frames": list(f)}
                          for s, f in zip(segments, motion.frames)],
-            "windows": [vars(w) for w in motion.windows]}
+            "windows": [vars(w) for w in motion.windows],
+            # acceleration peaks at each join (m/s^2) and the motion's own inside 99th percentile
+            "seams": seam_report(motion.joints, motion.join_spans, pipe.fps, pipe.skeleton)}
     write_text(out / f"{slug}.timeline.json", json.dumps(info, indent=1) + "\n")
     written.append(f"{slug}.timeline.json")
     print(f"{args.timeline}: {len(segments)} segments, {len(motion.features)} frames "
