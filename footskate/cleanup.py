@@ -49,9 +49,9 @@ class CleanupConfig:
     max_offset: float = 0.25     # m; ranges whose joint strays further from the target are not anchored
     sink: float = float("inf")   # m; an anchor pulls its joint down by at most this much below the input's height
     split_travel: float = float("inf")  # m; contacts along which the joint travels further are cut into pieces (off)
-    # refresh the (linearised) vGRF gradient every k iterations: the net dominates the cost. 25 (4
-    # refreshes) and 10 gave the same sliding removal, acceleration and F1 on every benchmark type
-    # (tuning seed), and the term costs about half of the cleanup at 10 (scripts/footskate_speed.py)
+    # refresh the (linearised) vGRF gradient every k iterations: the net dominates the cost (one
+    # forward + backward of the 32 x 196 batch ~0.4-0.7 s on one thread). 25 (4 refreshes) and 10
+    # gave the same sliding removal, acceleration and F1 on every benchmark type (tuning seed)
     vgrf_every: int = 25
     # contacts when none are given: "gated" (the vGRF network's contacts, kept where the joint is
     # within contact_margin of its own lowest point: the force says when a foot bears weight, the

@@ -116,7 +116,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output .npy (same kind as the input)")
     p.add_argument("--joints-out", default=None, help="also write the corrected joint positions here")
     p.add_argument("--weights", default=None,
-                   help="vGRF weights: our .safetensors or your UnderPressure pretrained.tar (default: shipped V22)")
+                   help="vGRF weights: our .safetensors or your UnderPressure pretrained.tar (default: the shipped "
+                        "V22, or V21 for --skeleton kit)")
     p.add_argument("--contacts", choices=["auto", "gated", "vgrf", "heuristic"], default=CleanupConfig.detect,
                    help="contact detection: gated (the vGRF network's contacts where the joint is near its lowest "
                         "point), vgrf (the network alone), heuristic (height and speed), or auto (gated when there "

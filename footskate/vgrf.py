@@ -34,6 +34,8 @@ ATTRIBUTION = (
 NUM_FEET = 2
 NUM_CELLS = 16
 DEFAULT_WEIGHTS = Path(__file__).with_name("weights") / "v22_synth.safetensors"
+# the shipped network per skeleton (V21: KIT-ML, issue #22); a skeleton without one gets the rule
+SHIPPED = {"humanml3d": DEFAULT_WEIGHTS, "kit": Path(__file__).with_name("weights") / "v21_synth.safetensors"}
 
 
 class Transpose(nn.Module):
@@ -190,11 +192,12 @@ def load_vgrf(path: str | os.PathLike | None = None, map_location: str = "cpu", 
 
 def resolve_vgrf(weights: str | None, topo: "Topology") -> VGRFNet | torch.nn.Module | None:
     """The vGRF model for `topo`: user weights (ours, or a UnderPressure V23 behind the retargeting
-    adapter for HumanML3D), else the shipped V22 for HumanML3D, else None."""
+    adapter for HumanML3D), else the shipped V22 for HumanML3D / V21 for KIT-ML, else None."""
     if weights is None:
-        if topo.name != "humanml3d" or not DEFAULT_WEIGHTS.is_file():
+        shipped = SHIPPED.get(topo.name)
+        if shipped is None or not shipped.is_file():
             return None
-        return load_vgrf(DEFAULT_WEIGHTS)
+        return load_vgrf(shipped)
     model = load_vgrf(weights)
     if model.num_joints == 23 and topo.num_joints == 22:
         from footskate.retarget import UPAdapter

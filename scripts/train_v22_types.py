@@ -1,4 +1,5 @@
-"""Fine-tune the V22 vGRF network on every motion type, sliding feet included (issue #22).
+"""Fine-tune the V22 vGRF network on every motion type, sliding feet included (issue #22); with
+`--skeleton kit`, train the KIT-ML V21 the same way from the same motions mapped to KIT.
 
     python scripts/train_v22_types.py --out footskate/weights/v22_synth.safetensors \
         [--init footskate/weights/v22_synth.safetensors] [--motions 1200] [--per-type 60] \
@@ -13,6 +14,11 @@ are 1000-1999, so neither is trained on. Every motion is also added
   noise): the force labels stay those of the clean motion, so the network learns that a foot
   carrying weight is a contact even when the generator lets it slide;
 - time-resampled by U(0.75, 1.33) (speed augmentation; labels recomputed).
+
+`--skeleton kit`: every sequence is mapped to the KIT-ML skeleton at 12.5 fps
+(stablemo.footskate_bench.to_kit: a joint map, the metatarsal 2/3 of the way from ankle to toe)
+and the network starts from the V22 with its first convolution's inputs mapped joint by joint
+(stablemo.footskate_bench.kit_from_v22).
 
 Labels: footskate.forces from the ground-truth contacts. Heading, position and ±10 % scale
 augmentation as footskate.train. At the end, contact F1 per motion type of the network, the gated
@@ -43,11 +49,17 @@ def _resample(joints: np.ndarray, contacts: np.ndarray, factor: float) -> tuple[
     return (joints[lo] * (1 - a) + joints[hi] * a).astype(np.float32), contacts[np.rint(src).astype(int)]
 
 
-def build_training_set(motions: int, per_type: int, seed: int, log) -> tuple[list, list]:
-    from footskate import HUMANML3D
+def build_training_set(motions: int, per_type: int, seed: int, log, skeleton: str = "humanml3d") -> tuple[list, list]:
+    from footskate import HUMANML3D, KIT
     from footskate.forces import forces_from_contacts
     from stablemo.data.synth import generate_motion
-    from stablemo.footskate_bench import TYPES, build_motion, inject_sliding
+    from stablemo.footskate_bench import (
+        KIT_FPS,
+        TYPES,
+        build_motion,
+        inject_sliding,
+        to_kit,
+    )
 
     rng = np.random.default_rng(seed)
     clean = []
@@ -61,8 +73,13 @@ def build_training_set(motions: int, per_type: int, seed: int, log) -> tuple[lis
     joints, forces = [], []
 
     def add(j: np.ndarray, c: np.ndarray, labels_from: np.ndarray | None = None) -> None:
+        topo, fps = HUMANML3D, 20.0
+        if skeleton == "kit":
+            topo, fps = KIT, KIT_FPS
+            labels_from = None if labels_from is None else to_kit(labels_from, c)[0]
+            j, c = to_kit(j, c)
         src = torch.from_numpy(labels_from if labels_from is not None else j)[None]
-        f = forces_from_contacts(src, torch.from_numpy(c)[None], HUMANML3D.feet, 20.0, 1)[0]
+        f = forces_from_contacts(src, torch.from_numpy(c)[None], topo.feet, fps, 1)[0]
         joints.append(torch.from_numpy(j)), forces.append(f)
 
     for j, c in clean:
@@ -75,18 +92,19 @@ def build_training_set(motions: int, per_type: int, seed: int, log) -> tuple[lis
     return joints, forces
 
 
-def heldout_f1(model, seed: int = 1000, per_type: int = 6) -> dict:
+def heldout_f1(model, seed: int = 1000, per_type: int = 6, skeleton: str = "humanml3d") -> dict:
     from footskate.cleanup import detect_contacts
-    from stablemo.footskate_bench import FEET, _f1_score, build_set, f1
+    from stablemo.footskate_bench import _f1_score, _skeleton, build_set, f1
 
-    data = build_set(seed, per_type)
+    data = build_set(seed, per_type, skeleton=skeleton)
+    FEET, fps, _ = _skeleton(data)
     out = {}
     for source in ("sliding", "clean"):
         x, lengths, truth = data[source], data["lengths"], data["contacts"]
         valid = torch.arange(x.shape[1])[None] < lengths[:, None]
-        preds = {"rule": detect_contacts(x, lengths, FEET, 20.0, 1)[0],
-                 "vgrf": detect_contacts(x, lengths, FEET, 20.0, 1, model)[0],
-                 "gated": detect_contacts(x, lengths, FEET, 20.0, 1, model, gate=True)[0]}
+        preds = {"rule": detect_contacts(x, lengths, FEET, fps, 1)[0],
+                 "vgrf": detect_contacts(x, lengths, FEET, fps, 1, model)[0],
+                 "gated": detect_contacts(x, lengths, FEET, fps, 1, model, gate=True)[0]}
         kinds = np.array(data["kinds"])
         for kind in [*dict.fromkeys(data["kinds"]), "all"]:
             sel = torch.from_numpy(kinds == kind) if kind != "all" else torch.ones(len(kinds), dtype=torch.bool)
@@ -109,6 +127,7 @@ def main(argv=None) -> int:
     p.add_argument("--lr", type=float, default=1e-4)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--skeleton", choices=("humanml3d", "kit"), default="humanml3d")
     p.add_argument("--log", default=None)
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -121,10 +140,14 @@ def main(argv=None) -> int:
 
     log("$ python scripts/train_v22_types.py " + " ".join(argv if argv is not None else sys.argv[1:]))
     started = time.time()
-    joints, forces = build_training_set(args.motions, args.per_type, args.seed, log)
+    joints, forces = build_training_set(args.motions, args.per_type, args.seed, log, args.skeleton)
     log(f"{len(joints)} training sequences ({sum(len(j) for j in joints)} frames) in {time.time() - started:.0f}s")
     model = load_vgrf(args.init, quiet=True)
-    before = heldout_f1(model.eval())
+    if args.skeleton == "kit" and model.num_joints == 22:
+        from stablemo.footskate_bench import kit_from_v22
+
+        model = kit_from_v22(model)
+    before = heldout_f1(model.eval(), skeleton=args.skeleton)
     opt = torch.optim.Adam(model.parameters(), lr=args.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, args.steps, eta_min=args.lr * 0.05)
     gen = torch.Generator().manual_seed(args.seed)
@@ -146,13 +169,15 @@ def main(argv=None) -> int:
                 f"lr {sched.get_last_lr()[0]:.2e}  {time.time() - started:.0f}s")
             running = 0.0
     model.eval()
-    after = heldout_f1(model)
+    after = heldout_f1(model, skeleton=args.skeleton)
     for key in after:
         log(f"{key:24s} rule {after[key]['rule']:.3f}  vgrf {before[key]['vgrf']:.3f} -> {after[key]['vgrf']:.3f}  "
             f"gated {before[key]['gated']:.3f} -> {after[key]['gated']:.3f}")
-    save_vgrf(model, args.out, {"trained_on": "synthetic generator mix + footskate_bench types (issue #22)",
+    save_vgrf(model, args.out, {"trained_on": "synthetic generator mix + footskate_bench types (issue #22)"
+                                              + (", mapped to KIT-ML at 12.5 fps" if args.skeleton == "kit" else ""),
                                 "init": args.init or "shipped v22_synth", "steps": args.steps, "batch": args.batch,
-                                "window": args.window, "lr": args.lr, "seed": args.seed, "fps": 20.0, "up_axis": "y",
+                                "window": args.window, "lr": args.lr, "seed": args.seed,
+                                "fps": 12.5 if args.skeleton == "kit" else 20.0, "up_axis": "y",
                                 "augment": "sliding (overshoot<=35%, drift<=1 m/s, 5 mm noise), speed x0.75-1.33",
                                 "labels": "footskate.forces (kinematics + contact labels)",
                                 "heldout_f1": after})

@@ -67,6 +67,52 @@ def build_motion(kind: str, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return built.joints.astype(np.float32), built.contacts.astype(bool)
 
 
+# HumanML3D joint -> KIT-ML joint (stablemo.motion.skeleton.KIT names). The KIT foot has an extra
+# metatarsal joint between ankle and toe; it is placed 2/3 of the way from ankle to toe.
+KIT_FROM_HUMANML3D = (0, 3, 6, 12, 15, 17, 19, 21, 16, 18, 20, 2, 5, 8, None, 11, 1, 4, 7, None, 10)
+KIT_FEET = [19, 20, 14, 15]              # [L_metatarsal, L_toe, R_metatarsal, R_toe], the KIT contact joints
+KIT_FPS = 12.5
+
+
+def to_kit(joints: np.ndarray, contacts: np.ndarray, fps: float = FPS) -> tuple[np.ndarray, np.ndarray]:
+    """A HumanML3D-skeleton motion (T, 22, 3) metres at `fps` + contacts (T, 4) -> the same motion on
+    the KIT-ML topology (T', 21, 3) metres at 12.5 fps + KIT contacts (T', 4). A joint map, not a
+    refit: the proportions stay the synthetic body's. Ankle contacts become metatarsal contacts."""
+    src = joints.astype(np.float64)
+    out = np.zeros((len(src), 21, 3))
+    for k, j in enumerate(KIT_FROM_HUMANML3D):
+        if j is not None:
+            out[:, k] = src[:, j]
+    out[:, 14] = src[:, 8] + (src[:, 11] - src[:, 8]) * 2 / 3
+    out[:, 19] = src[:, 7] + (src[:, 10] - src[:, 7]) * 2 / 3
+    t = len(out)
+    n = max(2, int(np.floor((t - 1) * KIT_FPS / fps)) + 1)
+    time = np.arange(n) * fps / KIT_FPS                                       # source frame of each output frame
+    lo = np.minimum(np.floor(time).astype(int), t - 1)
+    hi = np.minimum(lo + 1, t - 1)
+    a = (time - lo)[:, None, None]
+    return (out[lo] * (1 - a) + out[hi] * a).astype(np.float32), contacts[np.minimum(np.rint(time).astype(int), t - 1)]
+
+
+def kit_from_v22(v22):
+    """A KIT-ML (21-joint) network starting from `v22`: its first convolution reads each KIT joint
+    with the weights of the HumanML3D joint it was mapped from (the metatarsal and the HumanML3D
+    joints KIT lacks — spine3, collars — get none); every later layer is copied."""
+    from footskate.vgrf import VGRFNet
+
+    cfg = dict(v22.config, num_joints=21)
+    kit = VGRFNet(**cfg)
+    state = v22.net.state_dict()
+    w = state["3.weight"]                                                     # (C, 3 * 22, K)
+    new = torch.zeros(w.shape[0], 3 * 21, w.shape[2])
+    for k, j in enumerate(KIT_FROM_HUMANML3D):
+        if j is not None:
+            new[:, 3 * k:3 * k + 3] = w[:, 3 * j:3 * j + 3]
+    state["3.weight"] = new
+    kit.net.load_state_dict(state)
+    return kit
+
+
 def inject_sliding(joints: np.ndarray, contacts: np.ndarray, rng: np.random.Generator, overshoot: float = 0.25,
                    drift: float = 0.7, clamp: float = 0.12, fps: float = FPS) -> np.ndarray:
     """joints (T, 22, 3), contacts (T, 4) -> sliding joints (T, 22, 3) (see the module doc)."""
@@ -95,18 +141,22 @@ def inject_sliding(joints: np.ndarray, contacts: np.ndarray, rng: np.random.Gene
     return out.astype(np.float32)
 
 
-def build_set(seed: int, per_type: int, types=TYPES) -> dict:
-    """The benchmark batch: clean and sliding joints (B, T, 22, 3), contacts (B, T, 4), lengths, kinds."""
+def build_set(seed: int, per_type: int, types=TYPES, skeleton: str = "humanml3d") -> dict:
+    """The benchmark batch: clean and sliding joints (B, T, J, 3), contacts (B, T, 4), lengths, kinds.
+    skeleton "kit": the same motions (sliding injected at 20 fps) mapped to KIT-ML at 12.5 fps."""
     clean, contacts, kinds, seeds = [], [], [], []
     for kind in types:
         for i in range(per_type):
             j, c = build_motion(kind, seed + i)
             clean.append(j), contacts.append(c), kinds.append(kind), seeds.append(seed + i)
+    sliding = [inject_sliding(j, c, np.random.default_rng([s, 7, k])) for k, (j, c, s) in enumerate(zip(clean, contacts, seeds))]
+    if skeleton == "kit":
+        sliding = [to_kit(j, c)[0] for j, c in zip(sliding, contacts)]
+        clean, contacts = map(list, zip(*[to_kit(j, c) for j, c in zip(clean, contacts)]))
     lengths = np.array([len(j) for j in clean])
     t = int(lengths.max())
     pad = lambda a: np.concatenate([a, np.repeat(a[-1:], t - len(a), 0)])
-    sliding = [inject_sliding(j, c, np.random.default_rng([s, 7, k])) for k, (j, c, s) in enumerate(zip(clean, contacts, seeds))]
-    return {"clean": torch.from_numpy(np.stack([pad(j) for j in clean])),
+    return {"skeleton": skeleton, "clean": torch.from_numpy(np.stack([pad(j) for j in clean])),
             "sliding": torch.from_numpy(np.stack([pad(j) for j in sliding])),
             "contacts": torch.from_numpy(np.stack([pad(c) & (np.arange(t) < len(c))[:, None] for c in contacts])),
             "lengths": torch.from_numpy(lengths), "kinds": kinds}
@@ -116,18 +166,28 @@ def _valid(lengths: torch.Tensor, t: int) -> torch.Tensor:
     return torch.arange(t)[None, :] < lengths[:, None]
 
 
-def stance_speed(joints: torch.Tensor, contacts: torch.Tensor, lengths: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def _skeleton(data_or_name) -> tuple[list[int], float, list[int]]:
+    """(contact joints, fps, parents) of a benchmark batch's skeleton."""
+    from footskate import HUMANML3D, KIT
+
+    name = data_or_name.get("skeleton", "humanml3d") if isinstance(data_or_name, dict) else data_or_name
+    return (KIT_FEET, KIT_FPS, list(KIT.parents)) if name == "kit" else (FEET, FPS, list(HUMANML3D.parents))
+
+
+def stance_speed(joints: torch.Tensor, contacts: torch.Tensor, lengths: torch.Tensor, feet_idx=FEET,
+                 fps: float = FPS) -> tuple[torch.Tensor, torch.Tensor]:
     """Per sample: summed horizontal speed (m/s) of foot joints over frame pairs inside contacts, and the pair count."""
-    feet = joints[:, :, FEET][..., [0, 2]].double()                            # (B, T, 4, 2)
-    v = (feet[:, 1:] - feet[:, :-1]).norm(dim=-1) * FPS                        # (B, T-1, 4)
+    feet = joints[:, :, feet_idx][..., [0, 2]].double()                        # (B, T, 4, 2)
+    v = (feet[:, 1:] - feet[:, :-1]).norm(dim=-1) * fps                        # (B, T-1, 4)
     pairs = contacts[:, 1:] & contacts[:, :-1] & _valid(lengths - 1, joints.shape[1] - 1)[..., None]
     return (v * pairs).sum((1, 2)), pairs.sum((1, 2)).double()
 
 
-def foot_acceleration(joints: torch.Tensor, lengths: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Per sample: summed |second difference| (m/s², per coordinate) of ankles and toes, and the count."""
-    feet = joints[:, :, FEET].double()
-    acc = (feet[:, 2:] - 2 * feet[:, 1:-1] + feet[:, :-2]).abs() * FPS * FPS  # (B, T-2, 4, 3)
+def foot_acceleration(joints: torch.Tensor, lengths: torch.Tensor, feet_idx=FEET,
+                      fps: float = FPS) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per sample: summed |second difference| (m/s², per coordinate) of the contact joints, and the count."""
+    feet = joints[:, :, feet_idx].double()
+    acc = (feet[:, 2:] - 2 * feet[:, 1:-1] + feet[:, :-2]).abs() * fps * fps  # (B, T-2, 4, 3)
     valid = _valid(lengths - 2, joints.shape[1] - 2)[..., None, None].expand_as(acc)
     return (acc * valid).sum((1, 2, 3)), valid.sum((1, 2, 3)).double()
 
@@ -144,21 +204,20 @@ def _f1_score(tp: int, fp: int, fn: int) -> float:
 
 def table(data: dict, result_joints: torch.Tensor, detected: dict[str, torch.Tensor] | None = None) -> dict:
     """Per type and overall: the measurements named in the module doc."""
-    from footskate import HUMANML3D
     from footskate.cleanup import leg_joints
 
-    parents = list(HUMANML3D.parents)
+    feet_idx, fps, parents = _skeleton(data)
     lengths, contacts = data["lengths"], data["contacts"]
     valid = _valid(lengths, result_joints.shape[1])
-    legs = set(leg_joints(parents, FEET)) | {parents[j] for j in leg_joints(parents, FEET)}
-    others = [j for j in range(22) if j not in legs]
+    legs = set(leg_joints(parents, feet_idx)) | {parents[j] for j in leg_joints(parents, feet_idx)}
+    others = [j for j in range(len(parents)) if j not in legs]
     bones = lambda x: (x[..., 1:, :] - x[..., parents[1:], :]).norm(dim=-1)
-    s_clean = stance_speed(data["clean"], contacts, lengths)
-    s_before = stance_speed(data["sliding"], contacts, lengths)
-    s_after = stance_speed(result_joints, contacts, lengths)
-    a_clean = foot_acceleration(data["clean"], lengths)
-    a_before = foot_acceleration(data["sliding"], lengths)
-    a_after = foot_acceleration(result_joints, lengths)
+    s_clean = stance_speed(data["clean"], contacts, lengths, feet_idx, fps)
+    s_before = stance_speed(data["sliding"], contacts, lengths, feet_idx, fps)
+    s_after = stance_speed(result_joints, contacts, lengths, feet_idx, fps)
+    a_clean = foot_acceleration(data["clean"], lengths, feet_idx, fps)
+    a_before = foot_acceleration(data["sliding"], lengths, feet_idx, fps)
+    a_after = foot_acceleration(result_joints, lengths, feet_idx, fps)
     moved = (result_joints - data["sliding"])[:, :, others].norm(dim=-1)      # (B, T, J')
     bone_err = (bones(result_joints) - bones(data["sliding"])).abs().amax(-1)  # (B, T)
     kinds = np.array(data["kinds"])
@@ -222,24 +281,26 @@ def real_clip_f1(path: Path, vgrf, seeds=(0, 1, 2, 3)) -> dict:
     return out
 
 
-def run(seed: int = 1000, per_type: int = 6, contacts: str = "heuristic", vgrf=None, config=None, types=TYPES) -> dict:
-    from footskate import HUMANML3D, CleanupConfig, cleanup
+def run(seed: int = 1000, per_type: int = 6, contacts: str = "heuristic", vgrf=None, config=None, types=TYPES,
+        skeleton: str = "humanml3d") -> dict:
+    from footskate import CleanupConfig, cleanup
     from footskate.cleanup import detect_contacts
 
-    data = build_set(seed, per_type, types)
+    data = build_set(seed, per_type, types, skeleton)
+    feet_idx, fps, parents = _skeleton(data)
     x, lengths = data["sliding"], data["lengths"]
-    detected = {"rule": detect_contacts(x, lengths, FEET, FPS, 1)[0]}
+    detected = {"rule": detect_contacts(x, lengths, feet_idx, fps, 1)[0]}
     if vgrf is not None:
-        detected["vgrf"] = detect_contacts(x, lengths, FEET, FPS, 1, vgrf)[0]
-        detected["gated"] = detect_contacts(x, lengths, FEET, FPS, 1, vgrf, gate=True)[0]
-    cfg = config or CleanupConfig()
+        detected["vgrf"] = detect_contacts(x, lengths, feet_idx, fps, 1, vgrf)[0]
+        detected["gated"] = detect_contacts(x, lengths, feet_idx, fps, 1, vgrf, gate=True)[0]
+    cfg = config or CleanupConfig(fps=fps)
     if contacts != "gt":
         cfg.detect = contacts
-    res = cleanup(x, list(HUMANML3D.parents), FEET, lengths=lengths, vgrf=vgrf,
+    res = cleanup(x, parents, feet_idx, lengths=lengths, vgrf=vgrf,
                   contacts=data["contacts"] if contacts == "gt" else None, config=cfg)
     detected["used"] = res.contacts
     rows = table(data, res.joints, detected)
-    return {"seed": seed, "per_type": per_type, "contacts": contacts, "seconds": res.info["seconds"],
+    return {"seed": seed, "per_type": per_type, "contacts": contacts, "skeleton": skeleton, "seconds": res.info["seconds"],
             "anchored_ranges": res.info["anchored_ranges"], "ranges": res.info["ranges"], "types": rows}
 
 
@@ -267,15 +328,19 @@ def main(argv=None) -> dict:
     p.add_argument("--per-type", type=int, default=6)
     p.add_argument("--contacts", choices=("heuristic", "gated", "vgrf", "gt"), default="heuristic")
     p.add_argument("--no-vgrf", action="store_true", help="no network (no vGRF term, no vGRF F1)")
-    p.add_argument("--weights", default=None, help="vGRF weights (default: the shipped V22)")
+    p.add_argument("--weights", default=None, help="vGRF weights (default: the shipped V22, or V21 for kit)")
+    p.add_argument("--skeleton", choices=("humanml3d", "kit"), default="humanml3d",
+                   help="kit: the motions mapped to the KIT-ML skeleton at 12.5 fps (stablemo.footskate_bench.to_kit)")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--json", default=None)
     p.add_argument("--real", default=None, help="also: contact F1 on this real clip (new_joints .npy), labelled "
                                                 "by label_real_contacts")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
-    vgrf = None if args.no_vgrf else load_vgrf_model(args.weights)
-    report = run(args.seed, args.per_type, args.contacts, vgrf)
+    vgrf = None if args.no_vgrf else load_vgrf_model(args.weights, args.skeleton)
+    if args.contacts in ("gated", "vgrf") and vgrf is None:
+        raise StableMoError(f"--contacts {args.contacts}: no vGRF network for skeleton {args.skeleton} (give --weights)")
+    report = run(args.seed, args.per_type, args.contacts, vgrf, skeleton=args.skeleton)
     if args.real:
         if not Path(args.real).is_file():
             raise StableMoError(f"--real: {args.real} is not a file")

@@ -75,9 +75,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="output format, may repeat: gif (default), mp4 (needs ffmpeg), bvh (for Blender and game engines, docs/bvh.md)")
     p.add_argument("--no-render", action="store_true", help="write the .npy files only")
     p.add_argument("--footskate", action="store_true",
-                   help="remove foot skating inside the last denoising steps (StableMoFusion*, vGRF-guided)")
+                   help="remove foot skating at the last denoising step (StableMoFusion*, vGRF-guided)")
     p.add_argument("--footskate-weights", default=None,
-                   help="vGRF weights for --footskate (default: StableMo's own V22; or a V22 distilled by you)")
+                   help="vGRF weights for --footskate (default: StableMo's own V22, V21 for KIT-ML; or one distilled by you)")
     p.add_argument("--control", metavar="FILE.npz", default=None,
                    help="joint targets for every prompt: positions (T, J, 3) and mask (T, J) (docs/control.md); "
                         "the length defaults to the file's T")

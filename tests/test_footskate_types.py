@@ -107,3 +107,40 @@ def test_a_short_force_dip_mid_stance_does_not_split_the_contact():
     plain, _ = detect_contacts(x, None, FEET, 20.0, 1, Dip())
     assert not plain[0, 9:12].any()                               # the network alone splits the stance
     assert gated[0].all()
+
+
+def test_kit_mapping_and_the_v21_starting_point():
+    """The KIT-ML benchmark motions, and the V21's start: the V22 with its inputs mapped joint by
+    joint computes on the mapped body what the V22 computes on the original (frame rate aside),
+    up to the joints KIT does not have (spine3, collars), whose inputs are zeroed here."""
+    import numpy as np
+
+    from footskate import KIT
+    from footskate.vgrf import VGRFNet
+    from stablemo.footskate_bench import KIT_FEET, build_motion, kit_from_v22, to_kit
+
+    joints, contacts = build_motion("walk", 5)
+    kit, kit_contacts = to_kit(joints, contacts)
+    assert kit.shape == (int((len(joints) - 1) * 12.5 / 20) + 1, 21, 3) and kit_contacts.shape == (len(kit), 4)
+    bones = np.linalg.norm(kit[:, 1:] - kit[:, list(KIT.parents[1:])], axis=-1)
+    assert (bones > 0.02).all() and kit[:, KIT_FEET, 1].min() < 0.02         # a connected body on the floor
+    torch.manual_seed(0)
+    v22 = VGRFNet(22, conv_channels=(8, 8, 8, 8), hidden=8).eval()
+    with torch.no_grad():
+        for j in (9, 13, 14):
+            v22.net[3].weight[:, 3 * j:3 * j + 3] = 0.0
+    v21 = kit_from_v22(v22).eval()
+    same = torch.from_numpy(to_kit(joints, contacts, fps=12.5)[0])           # same frame count: no resampling
+    with torch.no_grad():
+        torch.testing.assert_close(v21(same[None]), v22(torch.from_numpy(joints)[None]), atol=1e-5, rtol=1e-5)
+
+
+def test_each_skeleton_gets_its_shipped_network():
+    from footskate import HUMANML3D, KIT
+    from footskate.vgrf import SHIPPED, resolve_vgrf
+
+    for topo, joints in ((HUMANML3D, 22), (KIT, 21)):
+        if not SHIPPED[topo.name].is_file():
+            continue
+        model = resolve_vgrf(None, topo)
+        assert model.num_joints == joints and "metrics" in model.metadata

@@ -26,7 +26,7 @@ DEFAULT_HOOK_STEPS = (-1,)
 
 class FootskateHook(AtSteps):
     """Clean the predicted motion at the chosen steps. `calls` keeps each call's cleanup info
-    (timings, anchored ranges); `vgrf="auto"` loads `weights` or the shipped V22."""
+    (timings, anchored ranges); `vgrf="auto"` loads `weights` or the shipped V22 (V21 for KIT-ML)."""
 
     def __init__(self, pipeline, weights: str | Path | None = None, iters: int | None = None, vgrf="auto",
                  steps: Sequence[int] | None = DEFAULT_HOOK_STEPS):
