@@ -71,6 +71,8 @@ PROMPTS = [
 
 
 STUDENT_ROW = "1-step LCM student (fp32)"
+CONTROLNET_ROW = "1-step + ControlNet (fp32)"  # dense pelvis targets
+CONTROLNET_GUIDED_ROW = "1-step + ControlNet + guidance (fp32)"  # and one guidance refinement
 TEACHER_ROW = "+ parallel CFG"
 # A test set's spread of motion lengths (HumanML3D keeps 40-196 frames): AITS is defined over a
 # test set, where every sentence may bring a length (a row count) the kernels have not seen yet.
@@ -159,13 +161,47 @@ def _student_pipeline(pipe, fast: bool):
                     device=pipe.device, config=config, inference=inference, fast=fast)
 
 
+def _controlled_pipeline(student, fast: bool):
+    """`student` (a 1-step LCM pipeline) with a ControlNet on its network (stablemo.controlnet; its
+    injections start at zero, so the timing is a trained one's) and a dense pelvis path to follow."""
+    from stablemo.controlnet.network import ControlledModel
+    from stablemo.motion.skeleton import get_skeleton
+    from stablemo.pipeline import Pipeline
+
+    J = get_skeleton(student.skeleton).num_joints
+    model = ControlledModel(student.model, "consistency", J)
+    config = {**student.config, "controlnet": {"base_kind": "consistency", "joints": J, "hint_scale": 1.0}}
+    pipe = Pipeline(model, student.schedule, mean=student.mean.numpy(), std=student.std.numpy(),
+                    prediction_type=student.prediction_type, skeleton=student.skeleton, kind="controlnet",
+                    device=student.device, config=config, inference=student.inference, fast=fast)
+    return pipe
+
+
+def _pelvis_path(frames: int, skeleton):
+    """Dense pelvis targets: 1 m/s forward at hip height, from the origin (MotionLCM's test setting)."""
+    import numpy as np
+
+    from stablemo.control.spec import JointControl
+    from stablemo.motion.skeleton import get_skeleton
+
+    J = get_skeleton(skeleton).num_joints
+    pos = np.zeros((frames, J, 3), np.float32)
+    pos[:, 0, 1] = 0.9
+    pos[:, 0, 2] = np.arange(frames) / 20.0
+    mask = np.zeros((frames, J), bool)
+    mask[:, 0] = True
+    return JointControl(pos, mask)
+
+
 def time_sentences(pipe, args, sampler: str, steps: int, text_cache: bool, parallel_cfg: bool, dtype,
-                   max_steps: int | None = None) -> tuple[list[float], list[float], int]:
-    """`args.repeats` timed sentences (wall s, CPU s each) and how many sampler steps each ran."""
+                   max_steps: int | None = None, **control) -> tuple[list[float], list[float], int]:
+    """`args.repeats` timed sentences (wall s, CPU s each) and how many sampler steps each ran;
+    control: `control=` and `control_guidance=` of every request."""
     seconds, cpu_seconds, measured = [], [], steps
     for r in range(args.repeats):
         elapsed, cpu, measured = time_generation(pipe, PROMPTS[r % len(PROMPTS)], args.frames, sampler, steps,
-                                                 args.cfg, text_cache, parallel_cfg, dtype, args.seed + r, max_steps)
+                                                 args.cfg, text_cache, parallel_cfg, dtype, args.seed + r, max_steps,
+                                                 **control)
         seconds.append(elapsed)
         cpu_seconds.append(cpu)
     return seconds, cpu_seconds, measured
@@ -215,6 +251,15 @@ def _run_aits(args) -> dict:
         time_generation(student, "warm up", args.frames, "lcm", 2, args.cfg, True, True, "fp32", 0)  # 2 calls: packs
         seconds, cpu_seconds, _ = time_sentences(student, args, "lcm", 1, True, True, "fp32")
         rows.append(Row(STUDENT_ROW, "lcm", 1, True, False, "fp32", seconds, cpu_seconds, 1, flops_one))
+        if not args.skip_controlnet:
+            controlled = _controlled_pipeline(student, fast=not args.stock)
+            spec = _pelvis_path(args.frames, pipe.skeleton)
+            flops_control = denoiser_flops(controlled, args.frames, B)
+            time_generation(controlled, "warm up", args.frames, "lcm", 2, args.cfg, True, True, "fp32", 0, control=spec)
+            for name, refine in ((CONTROLNET_ROW, False), (CONTROLNET_GUIDED_ROW, True)):
+                seconds, cpu_seconds, _ = time_sentences(controlled, args, "lcm", 1, True, True, "fp32",
+                                                         control=spec, control_guidance=refine)
+                rows.append(Row(name, "lcm", 1, True, False, "fp32", seconds, cpu_seconds, 1, flops_control))
         varied = varied_length_aits(pipe, student, args)
         print(f"  measured varied lengths: teacher {varied['teacher']:.2f} s, student {varied['student']:.2f} s",
               file=sys.stderr)
@@ -290,6 +335,10 @@ def format_report(result: dict) -> str:
     if STUDENT_ROW in by_name and TEACHER_ROW in by_name:
         notes.append(f"1-step student AITS / teacher's {by_name[TEACHER_ROW].steps}-step AITS ('{TEACHER_ROW}' row): "
                      f"{by_name[STUDENT_ROW].aits / by_name[TEACHER_ROW].aits:.3f}")
+    for name in (CONTROLNET_ROW, CONTROLNET_GUIDED_ROW):
+        if name in by_name and STUDENT_ROW in by_name:
+            notes.append(f"'{name}' AITS / plain 1-step AITS: {by_name[name].aits / by_name[STUDENT_ROW].aits:.2f} "
+                         "(dense pelvis path; the ControlNet's copy is the student's encoder half)")
     varied = result.get("varied_lengths")
     if varied:
         notes.append(f"the same two over {len(varied['lengths'])} sentences of varied lengths "
@@ -319,6 +368,8 @@ def _aits_parser() -> argparse.ArgumentParser:
                    help="run only this many of the 1000 DDPM steps and extrapolate (label shown in the table)")
     p.add_argument("--skip-ddpm", action="store_true", help="leave out the DDPM baseline row")
     p.add_argument("--skip-student", action="store_true", help="leave out the 1-step consistency student row")
+    p.add_argument("--skip-controlnet", action="store_true",
+                   help="leave out the 1-step student + ControlNet rows (with and without a guidance refinement)")
     p.add_argument("--stock", action="store_true", help="stock PyTorch convolutions (no stablemo.fast)")
     p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
     p.add_argument("--device", default="cpu")

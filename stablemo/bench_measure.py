@@ -115,11 +115,13 @@ def baseline_denoiser(text_cache: bool, parallel_cfg: bool):
 
 
 def time_generation(pipe, prompt: str, frames: int, sampler: str, steps: int, cfg: float, text_cache: bool,
-                    parallel_cfg: bool, dtype, seed: int, max_steps: int | None = None) -> tuple[float, float, int]:
-    """Wall and CPU time of one generate() call, and how many sampler steps it ran (max_steps stops early)."""
+                    parallel_cfg: bool, dtype, seed: int, max_steps: int | None = None, control=None,
+                    control_guidance: bool = True) -> tuple[float, float, int]:
+    """Wall and CPU time of one generate() call, and how many sampler steps it ran (max_steps stops early);
+    control: a JointControl for the prompt (control_guidance: with the guidance refinement)."""
     counter = _StepCounter(max_steps) if max_steps is not None and max_steps < steps else None
     request = Request([prompt], [frames], seed=seed, sampler=sampler, steps=steps, cfg=cfg, dtype=dtype,
-                      hooks=[counter] if counter else [])
+                      hooks=[counter] if counter else [], control=control, control_guidance=control_guidance)
     pipe.clear_text_caches(keep_null=True)  # every timed sentence encodes its text; the null prompt is the model's
     start, start_cpu = time.perf_counter(), time.process_time()
     try:

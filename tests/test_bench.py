@@ -35,12 +35,16 @@ def test_aits_table_and_json(tiny_config, tmp_path, capsys):
         assert name in text
     data = json.loads(out.read_text())
     rows = data["rows"]
-    assert [r["steps"] for r in rows] == [1000, 3, 3, 3, 3, 1]
+    assert [r["steps"] for r in rows] == [1000, 3, 3, 3, 3, 1, 1, 1]
     assert rows[0]["measured_steps"] == 2 and rows[0]["aits"] == pytest.approx(rows[0]["seconds"][0] * 500)
-    assert [(r["text_cache"], r["parallel_cfg"], r["dtype"]) for r in rows[1:]] == [
+    assert [(r["text_cache"], r["parallel_cfg"], r["dtype"]) for r in rows[1:6]] == [
         (False, False, "fp32"), (True, False, "fp32"), (True, True, "fp32"), (True, True, "bf16"), (True, False, "fp32")]
     # the student runs its network once on batch 1: half the FLOPs of a CFG step
-    assert rows[-1]["sampler"] == "lcm" and rows[-1]["flops_per_step"] == pytest.approx(rows[1]["flops_per_step"] / 2)
+    assert rows[5]["sampler"] == "lcm" and rows[5]["flops_per_step"] == pytest.approx(rows[1]["flops_per_step"] / 2)
+    # + ControlNet (the encoder half again, the hint encoder): more than the student's, less than twice
+    assert [r["name"] for r in rows[6:]] == [bench.CONTROLNET_ROW, bench.CONTROLNET_GUIDED_ROW]
+    assert rows[5]["flops_per_step"] < rows[6]["flops_per_step"] < 2 * rows[5]["flops_per_step"]
+    assert f"'{bench.CONTROLNET_ROW}' AITS / plain 1-step AITS" in text
     assert data["matmul_fp32_gflops"] > 0 and data["frames"] == 12
     # the distillation speed-up again over a test set's varied lengths, side by side
     varied = data["varied_lengths"]

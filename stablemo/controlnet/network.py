@@ -177,11 +177,12 @@ class ControlledModel(nn.Module):
 
     def time_cond(self, cond: torch.Tensor | None) -> torch.Tensor | None:
         """The features added to the timestep's: a student's embedded guidance w, else cond itself."""
-        return self.base.guidance_features(cond) if self.base_kind == "consistency" else cond
+        return self.base.guidance_features(cond) if self.base_kind == "consistency" and cond is not None else cond
 
     def prepare(self, text, text_mask, motion_mask, cond=None, timesteps=(), hint=None) -> ControlConditioning:
+        """hint None: the empty hint (no targets), as for a prompt without control."""
         if hint is None:
-            raise StableMoError("hint: a controlled model needs a hint (B, T, 4 J); see stablemo.controlnet.hints")
+            hint = torch.zeros(*motion_mask.shape, 4 * self.joints, device=motion_mask.device)
         time_cond = self.time_cond(cond)
         base = self.net.prepare(text, text_mask, motion_mask, time_cond, timesteps)
         copy_ctx, encoded = self.control.prepare(text, text_mask, motion_mask, time_cond, timesteps, hint)
