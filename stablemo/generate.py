@@ -81,6 +81,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--control", metavar="FILE.npz", default=None,
                    help="joint targets for every prompt: positions (T, J, 3) and mask (T, J) (docs/control.md); "
                         "the length defaults to the file's T")
+    p.add_argument("--no-control-guidance", dest="control_guidance", action="store_false",
+                   help="with --control: no guidance refinement of x0 towards the targets (a ControlNet bundle "
+                        "then follows them by its hint alone; other bundles ignore the targets)")
     p.add_argument("--timeline", metavar="FILE", default=None,
                    help="lines 'start_s end_s text' (contiguous from 0): one motion of the whole length, its "
                         "windows joined by in-painting (docs/long_motion.md)")
@@ -156,7 +159,8 @@ def main(argv: list[str] | None = None) -> int:
         targets = control.resolve(frames, pipe.skeleton, what=f"--control {args.control}")
     hooks = make_hooks(pipe, footskate=args.footskate, footskate_weights=args.footskate_weights)
     request = Request(prompts, frames, seed=args.seed, sampler=args.sampler, steps=args.steps, cfg=args.cfg,
-                      hooks=hooks, progress=True, control=[control] * len(prompts) if control else None)
+                      hooks=hooks, progress=True, control=[control] * len(prompts) if control else None,
+                      control_guidance=args.control_guidance)
     # generate() checks every setting before its first network call, and raises, writing nothing,
     # if any motion is not finite
     result = pipe.generate(request)

@@ -288,6 +288,8 @@ def _parser() -> argparse.ArgumentParser:
                         "('all': the six together; 'keyframes': whole poses); reports Traj./Loc./Avg. err, the "
                         "share of hinted frames with an acceleration spike, foot acceleration and skating")
     p.add_argument("--density", default="100%", help="with --control: share of frames (100%%, 25%%) or a count (5, 2, 1)")
+    p.add_argument("--no-control-guidance", dest="control_guidance", action="store_false",
+                   help="with --control: no guidance refinement (a ControlNet bundle follows the hints alone)")
     p.add_argument("--multimodality", action="store_true", help="also report MultiModality (100 captions × 30)")
     p.add_argument("--mm-captions", type=int, default=metrics.MM_CAPTIONS)
     p.add_argument("--mm-generations", type=int, default=metrics.MM_GENERATIONS)
@@ -401,7 +403,7 @@ def main(argv: list[str]) -> int:
             from stablemo.eval.control import ControlProtocol
 
             control = ControlProtocol(args.control, args.density, pipe.skeleton)
-            row_name += f" + control {args.control} {args.density}"
+            row_name += f" + control {args.control} {args.density}" + ("" if args.control_guidance else " (no guidance)")
         lo, hi = pipe.min_length, pipe.max_length
         hooks = make_hooks(pipe, footskate=args.footskate)  # StableMoFusion*: correction inside denoising
 
@@ -410,7 +412,7 @@ def main(argv: list[str]) -> int:
             # keep the first `length` frames (the scored length is always the requested one).
             gen_lengths = [min(max(n, lo), hi) for n in lengths]
             out = pipe.generate(Request(texts, gen_lengths, seed=seeds, sampler=sampler, steps=steps, cfg=cfg,
-                                        hooks=hooks, control=controls))
+                                        hooks=hooks, control=controls, control_guidance=args.control_guidance))
             return out.features, out.joints
 
     result = evaluate(data, evaluator, generate, replications=args.replications, seed=args.seed,
