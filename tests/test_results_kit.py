@@ -152,9 +152,13 @@ def test_precision_table_pairs_replications_and_checks_the_target():
 
 
 @pytest.mark.slow
-def test_make_results_quick_end_to_end(synth, tmp_path):
-    """--quick on 40 clips: every table that applies is written, checksums and environment recorded,
-    and --resume keeps every row (no rescoring) on an unchanged setup."""
+def test_make_results_quick_end_to_end(tmp_path):
+    """--quick on 240 clips (36 test items): every table that applies is written, checksums and
+    environment recorded, and --resume keeps every row (no rescoring) on an unchanged setup."""
+    from stablemo.cli import main
+
+    synth = tmp_path / "synth"
+    assert main(["data", "synth", "--out", str(synth), "--num", "240", "--seed", "0"]) == 0
     out = tmp_path / "results.md"
     argv = ["--quick", "--data", str(synth), "--student", "LCM=" + str(tmp_path / "no_student"),
             "--max-items", "32", "--replications", "1", "--aits-sentences", "2", "--out", str(out)]
