@@ -119,7 +119,7 @@ class JointGuidance:
     """
 
     def __init__(self, targets: torch.Tensor, mask: torch.Tensor, mean: torch.Tensor, std: torch.Tensor,
-                 skeleton, iters: int = 10, final_iters: int = 100, smooth: float = 2.0, follow: float = 0.5):
+                 skeleton, iters: int = 10, final_iters: int = 40, smooth: float = 2.0, follow: float = 0.5):
         self.targets, self.mask = targets.float(), mask.bool()
         self.mean, self.std = mean.float(), std.float()
         self.skeleton = get_skeleton(skeleton)
