@@ -4,6 +4,10 @@ Builds the model and data exactly as `stablemo fit --config FILE` would, then ru
 (no validation, no checkpoints, no logger) and times the optimiser steps after a warm-up. Timed
 steps include data loading, text encoding, forward, backward, clipping, the optimiser and the EMA
 update: what a real run pays per step.
+
+`stablemo bench train --paired [--config FILE]` instead times the denoiser's training step alone
+(forward, masked x0 MSE, backward, AdamW) on random inputs for several implementations of the same
+network side by side in one process (stablemo.lit.bench_paired): what the step costs, not the data.
 """
 
 from __future__ import annotations
@@ -42,19 +46,36 @@ def peak_memory_mb(device: torch.device) -> tuple[str, float]:
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="stablemo bench train", description=__doc__.splitlines()[0])
-    parser.add_argument("--config", required=True, help="training YAML (as for `stablemo fit --config`)")
+    parser.add_argument("--config", default=None,
+                        help="training YAML (as for `stablemo fit --config`); --paired: default configs/humanml3d.yaml")
     parser.add_argument("--steps", type=int, default=20, help="timed optimiser steps (default 20)")
     parser.add_argument("--warmup", type=int, default=3, help="untimed steps first, >= 1 (default 3)")
     parser.add_argument("--batch-size", type=int, default=None, help="override data.batch_size")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
     parser.add_argument("--json", default=None, help="also write the result to this JSON file")
+    parser.add_argument("--paired", action="store_true",
+                        help="time the denoiser step of stock PyTorch, StableMo (fp32, bf16-mixed) and, with "
+                             "STABLEMO_OFFICIAL_SRC, the official network, alternating (see --rounds)")
+    parser.add_argument("--rounds", type=int, default=5, help="--paired: timed rounds, one step of each row per round")
+    parser.add_argument("--frames", type=int, default=196, help="--paired: motion length (padded as the network needs)")
+    parser.add_argument("--rows", default=None,
+                        help="--paired: comma-separated rows to run (default all available: stock,stablemo,"
+                             "stablemo-bf16,official-variant,official)")
+    parser.add_argument("--optimizer", choices=("adamw", "none"), default="adamw",
+                        help="--paired: include the AdamW step (default) or time forward + backward only")
     parser.add_argument("overrides", nargs="*", help="extra LightningCLI overrides, e.g. --model.lr=1e-4 (after --)")
     args = parser.parse_args(argv)
+    if args.config is None and not args.paired:
+        raise StableMoError("--config: a training YAML is required (or --paired)")
     if args.steps < 1 or args.warmup < 1:
         raise StableMoError("--steps and --warmup must be >= 1")
     if args.threads:
         torch.set_num_threads(args.threads)
+    if args.paired:
+        from stablemo.lit.bench_paired import run_paired
+
+        return run_paired(args)
 
     from stablemo.lit.cli import run_cli
     from stablemo.lit.module import DiffusionModule

@@ -57,6 +57,9 @@ class DiffusionModule(LightningModule):
         val_timesteps: validation loss is measured at these timesteps with per-clip fixed noise,
             so it is comparable between runs, architectures and world sizes.
         seed: seeds timesteps, noise, caption dropout and dropout layers at every step.
+        fast_training: train through stablemo.fast.train's layers (GEMM convolutions and a vectorised
+            Mish backward, gradients equal to stock PyTorch's to float rounding; same parameters and
+            state_dict) and a fused AdamW; False: stock layers and AdamW (docs/training.md).
     """
 
     def __init__(
@@ -73,6 +76,7 @@ class DiffusionModule(LightningModule):
         lr_gamma: float = 0.9,
         val_timesteps: Sequence[int] = (50, 250, 500, 750, 950),
         seed: int = 0,
+        fast_training: bool = True,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -86,6 +90,10 @@ class DiffusionModule(LightningModule):
         from stablemo.model import MotionDiffusionModel
 
         self.model = MotionDiffusionModel(**model)
+        if fast_training:
+            from stablemo.fast.train import accelerate_training
+
+            accelerate_training(self.model)
         self.schedule = NoiseSchedule(**(schedule or {}))
         num_t = self.schedule.num_train_timesteps
         bad = [t for t in val_timesteps if not 0 <= int(t) < num_t]
@@ -179,7 +187,12 @@ class DiffusionModule(LightningModule):
 
     def configure_optimizers(self):
         params = [p for p in self.model.parameters() if p.requires_grad]
-        optimizer = torch.optim.AdamW(params, lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
+        # the fused kernel: one pass over the weights instead of ~7 (4x faster on the CPU); not under
+        # Lightning's mixed precision, which refuses to clip the gradients of a fused optimiser
+        precision = str(self.trainer.precision) if self._trainer is not None else ""
+        fused = self.hparams.get("fast_training", True) and not precision.endswith("mixed") and precision not in ("16", "bf16")
+        optimizer = torch.optim.AdamW(params, lr=self.hparams.lr, weight_decay=self.hparams.weight_decay,
+                                      **({"fused": True} if fused else {}))
         scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=self.hparams.lr_step, gamma=self.hparams.lr_gamma)
         return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step", "frequency": 1}}
 

@@ -1,0 +1,184 @@
+"""Training speed-ups that change no gradient beyond float rounding (issue #28).
+
+Profiled on the paper UNet (batch 8 x 196, one CPU thread, docs/training.md), the stock training
+step spends ~48 % of its time in oneDNN's convolution backward (3.2x its forward for the same
+FLOPs), ~7 % in PyTorch's scalar Mish backward and ~13 % in the per-parameter AdamW loop. This
+module replaces the first two with autograd Functions built on plain GEMMs and vectorised passes:
+
+- `GemmConv1dFunction`: a Conv1d as one GEMM over unfolded frames (as stablemo.fast.gemm does for
+  inference) with its backward as two more GEMMs: grad_weight = grad_rows^T @ cols and
+  grad_cols = grad_rows @ weight, folded back onto the frames by k strided adds. The unfolded
+  matrix (k times the input) is not kept for the backward: it is made again there from the input,
+  so the saved tensors are the stock convolution's (input and weight);
+- `MishFunction`: mish(x) = x n / (n + 2) with n = e^x (e^x + 2) forward (stablemo.fast.blocks)
+  and its derivative n / (n + 2) + 4 x e^x (1 + e^x) / (n + 2)^2 backward, from the saved input.
+
+`accelerate_training(model)` swaps nn.Conv1d / nn.Mish modules and the UNet's residual blocks for
+versions that use these under autograd (and exactly the stock computation when no gradient is
+recorded), holding the same Parameter objects under the same names: `state_dict()` is unchanged,
+so checkpoints, EMA and export see the stock model.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from stablemo.fast.blocks import adopt
+from stablemo.nets.layers import zero_pad_bct
+from stablemo.nets.unet import ResBlock1D
+
+# exp clamp: for x > 20, n / (n + 2) is exactly 1 in float32 (mish(x) = x, mish'(x) = 1)
+_EXP_MAX = 20.0
+
+
+def _mish_parts(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(e, n) with e = e^min(x, 20), n = e (e + 2) = (1 + e)^2 - 1, formed without cancellation."""
+    e = x.clamp(max=_EXP_MAX).exp()
+    return e, torch.addcmul(e, e, e).add_(e)
+
+
+class MishFunction(torch.autograd.Function):
+    """mish with a vectorised backward (PyTorch's CPU mish_backward is ~10x slower at UNet sizes)."""
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor) -> torch.Tensor:
+        ctx.save_for_backward(x)
+        e, n = _mish_parts(x)
+        return n.div_(e.copy_(n).add_(2.0)).mul_(x)
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
+        (x,) = ctx.saved_tensors
+        e, n = _mish_parts(x)
+        d = n.add(2.0)  # n + 2
+        # d/dx [x tanh(softplus(x))] = tanh(sp) + x sech^2(sp) sigmoid(x), with tanh(sp) = n / d and
+        # sech^2(sp) sigmoid(x) = 4 (n + 1) / d^2 * e / (1 + e) = 4 e (1 + e) / d^2
+        slope = torch.addcmul(e, e, e).mul_(4.0).mul_(x).div_(d.square())
+        return grad * n.div_(d).add_(slope)
+
+
+def train_mish(x: torch.Tensor) -> torch.Tensor:
+    """F.mish, through MishFunction when a gradient is recorded for a float32/float64 x."""
+    if torch.is_grad_enabled() and x.requires_grad and x.dtype in (torch.float32, torch.float64):
+        return MishFunction.apply(x)
+    return F.mish(x)
+
+
+def _unfold(frames: torch.Tensor, k: int, s: int, p: int, T_out: int) -> torch.Tensor:
+    """(B, T, C) frames -> (B * T_out, k * C) im2col rows (zero outside the frames)."""
+    B, _, C = frames.shape
+    padded = F.pad(frames, (0, 0, p, p)) if p else frames.contiguous()
+    return padded.as_strided((B, T_out, k * C), (padded.stride(0), s * C, 1)).reshape(B * T_out, k * C)
+
+
+class GemmConv1dFunction(torch.autograd.Function):
+    """conv1d(x, weight, bias, stride, padding) as GEMMs forward and backward (see module docstring).
+
+    x: (B, C, T) (frames-major or not), weight: (O, C, k) -> (B, O, T_out), returned as a view of a
+    frames-major (B, T_out, O) buffer so that the next layer's unfold needs no transpose copy."""
+
+    @staticmethod
+    def forward(ctx, x, weight, bias, stride: int, padding: int):
+        B, C, T = x.shape
+        O, _, k = weight.shape
+        T_out = (T + 2 * padding - k) // stride + 1
+        frames = x.transpose(1, 2)  # (B, T, C)
+        w_rows = weight.permute(0, 2, 1).reshape(O, k * C)  # (O, k*C): tap-major, as the unfolded rows
+        cols = _unfold(frames, k, stride, padding, T_out)
+        y = torch.addmm(bias, cols, w_rows.t()) if bias is not None else cols @ w_rows.t()
+        ctx.save_for_backward(x, w_rows)
+        ctx.conf = (k, stride, padding, T_out, bias is not None)
+        return y.view(B, T_out, O).transpose(1, 2)
+
+    @staticmethod
+    def backward(ctx, grad_y):
+        x, w_rows = ctx.saved_tensors
+        k, s, p, T_out, has_bias = ctx.conf
+        B, C, T = x.shape
+        O = w_rows.shape[0]
+        g_rows = grad_y.transpose(1, 2).reshape(B * T_out, O)  # (B*T_out, O), a view when frames-major
+        grad_x = grad_w = grad_b = None
+        if ctx.needs_input_grad[1]:
+            cols = _unfold(x.transpose(1, 2), k, s, p, T_out)  # made again: not kept from the forward
+            grad_w = (g_rows.t() @ cols).view(O, k, C).permute(0, 2, 1)  # (O, C, k)
+        if has_bias and ctx.needs_input_grad[2]:
+            grad_b = g_rows.sum(dim=0)
+        if ctx.needs_input_grad[0]:
+            g_cols = (g_rows @ w_rows).view(B, T_out, k, C)
+            # col2im: output row o read input frames o*s - p + j; add each tap back onto them
+            full = torch.zeros(B, T + 2 * p, C, dtype=g_cols.dtype, device=g_cols.device)
+            span = (T_out - 1) * s + 1
+            for j in range(k):
+                full[:, j : j + span : s] += g_cols[:, :, j]
+            grad_x = full[:, p : p + T].transpose(1, 2)
+        return grad_x, grad_w, grad_b, None, None
+
+
+class TrainConv1d(nn.Conv1d):
+    """nn.Conv1d through GemmConv1dFunction while a gradient is recorded (float32/float64, groups 1,
+    no dilation, zero padding); the stock forward otherwise (inference, autocast, other layouts)."""
+
+    @classmethod
+    def from_stock(cls, conv: nn.Conv1d) -> TrainConv1d:
+        fast = cls(conv.in_channels, conv.out_channels, conv.kernel_size, conv.stride, conv.padding, conv.dilation,
+                   conv.groups, conv.bias is not None, conv.padding_mode, device="meta")
+        fast.weight, fast.bias = conv.weight, conv.bias
+        return fast.train(conv.training)
+
+    def _gemm_ok(self, x: torch.Tensor) -> bool:
+        return (torch.is_grad_enabled() and (x.requires_grad or self.weight.requires_grad)
+                and x.dim() == 3 and x.dtype in (torch.float32, torch.float64) and x.dtype == self.weight.dtype
+                and not torch.is_autocast_enabled(x.device.type)
+                and self.groups == 1 and self.dilation == (1,) and self.padding_mode == "zeros"
+                and not isinstance(self.padding, str))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if not self._gemm_ok(x):
+            return super().forward(x)
+        return GemmConv1dFunction.apply(x, self.weight, self.bias, self.stride[0], self.padding[0])
+
+
+class TrainMish(nn.Mish):
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return train_mish(x)
+
+
+def _all_valid(mask: torch.Tensor) -> bool:
+    """True when no frame is padding, so zeroing the padded frames would only copy the tensor. Only
+    asked on the CPU, where it costs a few microseconds (on a GPU it would be a synchronisation)."""
+    return mask.device.type == "cpu" and bool(mask.all())
+
+
+def pad_zero(x: torch.Tensor, mask: torch.Tensor, full: bool) -> torch.Tensor:
+    """zero_pad_bct, skipped (x itself) when the batch has no padding (`full`)."""
+    return x if full else zero_pad_bct(x, mask)
+
+
+class TrainResBlock1D(ResBlock1D):
+    """ResBlock1D with the vectorised Mish backward and no masking pass for a batch without padding;
+    the same children and parameters (state_dict unchanged)."""
+
+    def __init__(self, stock: ResBlock1D):
+        nn.Module.__init__(self)
+        adopt(self, stock)
+
+    def forward(self, x: torch.Tensor, adagn: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        full = _all_valid(mask)
+        scale, shift = adagn[:, :, None].chunk(2, dim=1)  # (B, C_out, 1) each
+        h = pad_zero(train_mish(self.norm1(self.conv1(x), mask, 1 + scale, shift)), mask, full)
+        return pad_zero(train_mish(self.norm2(self.conv2(self.dropout(h)), mask)) + self.skip(x), mask, full)
+
+
+def accelerate_training(model: nn.Module) -> nn.Module:
+    """Swap, in place and children first, nn.Conv1d -> TrainConv1d, nn.Mish -> TrainMish and the
+    UNet's ResBlock1D -> TrainResBlock1D (exact types only: an already swapped or subclassed layer is
+    left alone). Returns the model. Parameters and state_dict keys are unchanged."""
+    swaps = {nn.Conv1d: TrainConv1d.from_stock, nn.Mish: lambda stock: TrainMish(), ResBlock1D: TrainResBlock1D}
+    for name, child in list(model.named_children()):
+        fast = accelerate_training(child)
+        if fast is not child:
+            setattr(model, name, fast)
+    factory = swaps.get(type(model))
+    return factory(model) if factory is not None else model

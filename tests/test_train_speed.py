@@ -1,0 +1,221 @@
+"""Training speed-ups (stablemo.fast.train, issue #28): exact against stock PyTorch.
+
+Speed itself is measured by `stablemo bench train --paired` (never timed in tests); here: the
+fast layers' gradients equal stock's (<= 1e-5 relative, float32), their analytic backward passes
+gradcheck in float64, the model's parameters and state_dict are untouched, padding invariance
+holds, and the fast path is really taken (a check that the swap happened).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+
+import pytest
+import torch
+import torch.nn.functional as F
+from test_training import TINY_MODEL, _fit, tiny_config, write_random_dataset
+
+from stablemo.errors import StableMoError
+from stablemo.fast.train import (
+    GemmConv1dFunction,
+    MishFunction,
+    TrainConv1d,
+    TrainResBlock1D,
+    accelerate_training,
+)
+from stablemo.lit.checkpoint_io import load_checkpoint_file
+from stablemo.nets import build_denoiser
+
+D, C = 12, 16
+SMALL = {"base_channels": 16, "channel_mults": [1, 2, 2], "time_dim": 32, "num_groups": 2, "num_heads": 2,
+         "cross_attention": True, "norm": "frame", "dropout": 0.0}
+
+
+@pytest.mark.parametrize("k,stride,padding,T", [(5, 1, 2, 13), (3, 2, 1, 16), (1, 1, 0, 9), (4, 2, 1, 10)])
+def test_gemm_conv_backward_gradchecks(k, stride, padding, T):
+    g = torch.Generator().manual_seed(k * 10 + stride)
+    x = torch.randn(2, 5, T, dtype=torch.float64, generator=g, requires_grad=True)
+    w = torch.randn(4, 5, k, dtype=torch.float64, generator=g, requires_grad=True)
+    b = torch.randn(4, dtype=torch.float64, generator=g, requires_grad=True)
+    out = GemmConv1dFunction.apply(x, w, b, stride, padding)
+    torch.testing.assert_close(out, F.conv1d(x, w, b, stride=stride, padding=padding))
+    assert torch.autograd.gradcheck(lambda x, w, b: GemmConv1dFunction.apply(x, w, b, stride, padding), (x, w, b))
+
+
+def test_mish_backward_gradchecks_and_matches_stock_in_float32():
+    x = (torch.linspace(-30, 30, 301, dtype=torch.float64)).requires_grad_()
+    assert torch.autograd.gradcheck(MishFunction.apply, (x,))
+    g = torch.Generator().manual_seed(0)
+    x32 = (8 * torch.randn(10000, generator=g)).requires_grad_()
+    grad = torch.randn(10000, generator=g)
+    ours = torch.autograd.grad(MishFunction.apply(x32), x32, grad)[0]
+    stock = torch.autograd.grad(F.mish(x32), x32, grad)[0]
+    torch.testing.assert_close(MishFunction.apply(x32), F.mish(x32), rtol=1e-6, atol=1e-6)
+    assert float((ours - stock).norm() / stock.norm()) < 1e-6
+
+
+def _unet(variant: str = "stablemo", seed: int = 0) -> torch.nn.Module:
+    torch.manual_seed(seed)
+    net = build_denoiser("unet", input_dim=D, text_dim=C, variant=variant, **SMALL)
+    with torch.no_grad():  # zero-initialised layers randomised, else the output (and most gradients) are 0
+        for p in net.parameters():
+            if not p.any():
+                p.normal_(0, 0.2)
+    return net
+
+
+def _batch(lengths, total, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    B = len(lengths)
+    x = torch.randn(B, total, D, generator=g)
+    mask = torch.arange(total)[None] < torch.tensor(lengths)[:, None]
+    text = torch.randn(B, 5, C, generator=g)
+    text_mask = torch.arange(5)[None] < torch.tensor([5, 3, 4, 2][:B])[:, None]
+    t = torch.randint(0, 1000, (B,), generator=g)
+    target = torch.randn(B, total, D, generator=g)
+    return x, t, text, text_mask, mask, target
+
+
+def _grads(net, batch):
+    x, t, text, text_mask, mask, target = batch
+    net.zero_grad(set_to_none=True)
+    pred = net(x, t, net.prepare(text, text_mask, mask))
+    loss = ((pred - target).square().mean(-1) * mask).sum() / mask.sum()
+    loss.backward()
+    return loss.detach(), {n: p.grad.clone() for n, p in net.named_parameters()}
+
+
+@pytest.mark.parametrize("variant", ["stablemo", "official"])
+@pytest.mark.parametrize("lengths", [[16, 16, 16], [16, 9, 4]], ids=["no_padding", "padding"])
+def test_training_gradients_equal_stock(variant, lengths):
+    stock = _unet(variant)
+    fast = accelerate_training(copy.deepcopy(stock))
+    # the swap happened (else this test would compare stock with stock)
+    assert any(isinstance(m, TrainConv1d) for m in fast.modules())
+    assert any(isinstance(m, TrainResBlock1D) for m in fast.modules())
+    assert fast.state_dict().keys() == stock.state_dict().keys()
+    batch = _batch(lengths, 16)
+    loss_s, grads_s = _grads(stock, batch)
+    loss_f, grads_f = _grads(fast, batch)
+    torch.testing.assert_close(loss_f, loss_s, rtol=1e-6, atol=0)
+    # every parameter's gradient within 1e-5 relative of stock's; the attention key biases are
+    # excluded from the per-parameter check: their exact gradient is 0 (the keys' softmax over
+    # tokens ignores a per-feature shift), so both sides hold only rounding noise (~1e-10 here)
+    total = torch.cat([g.flatten() for g in grads_s.values()]).norm()
+    diff = torch.cat([(grads_f[n] - g).flatten() for n, g in grads_s.items()]).norm()
+    assert float(diff / total) <= 1e-5
+    checked = {n: g for n, g in grads_s.items() if not n.endswith("key.bias")}
+    assert len(checked) > 0.9 * len(grads_s)
+    worst = max(float((grads_f[n] - g).norm() / g.norm().clamp(min=1e-30)) for n, g in checked.items() if g.any())
+    assert worst <= 1e-5, worst
+    for n, g in checked.items():
+        if not g.any():  # exactly-zero gradients stay exactly zero
+            assert not grads_f[n].any(), n
+
+
+def test_padding_still_gets_no_gradient_and_changes_nothing():
+    """Exact padding invariance with the training layers: the valid frames' loss and the weights'
+    gradients do not depend on how much padding the batch carries or what it holds."""
+    fast = accelerate_training(_unet())
+    x, t, text, text_mask, mask, target = _batch([16, 9, 4], 16)
+    loss_a, grads_a = _grads(fast, (x, t, text, text_mask, mask, target))
+    pad = 8  # a longer batch, padding filled with large values
+
+    def big(a):
+        return torch.cat([a, 1e4 * torch.ones(a.shape[0], pad, a.shape[2])], dim=1)
+
+    mask_b = torch.cat([mask, torch.zeros(3, pad, dtype=torch.bool)], dim=1)
+    xb = big(x).requires_grad_()
+    fast.zero_grad(set_to_none=True)
+    pred = fast(xb, t, fast.prepare(text, text_mask, mask_b))
+    loss_b = ((pred - big(target)).square().mean(-1) * mask_b).sum() / mask_b.sum()
+    loss_b.backward()
+    torch.testing.assert_close(loss_b.detach(), loss_a, rtol=1e-6, atol=0)
+    assert not xb.grad[:, 16:].any()
+    for n, p in fast.named_parameters():
+        torch.testing.assert_close(p.grad, grads_a[n], rtol=1e-5, atol=1e-7)
+
+
+def test_inference_is_the_stock_computation():
+    stock = _unet().eval()
+    fast = accelerate_training(copy.deepcopy(stock)).eval()
+    x, t, text, text_mask, mask, _ = _batch([16, 9, 4], 16)
+    with torch.no_grad():
+        a = stock(x, t, stock.prepare(text, text_mask, mask))
+        b = fast(x, t, fast.prepare(text, text_mask, mask))
+    assert torch.equal(a, b)
+
+
+# ----------------------------------------------------------------------------- the Lightning module
+
+@pytest.fixture(scope="module")
+def tiny_data(tmp_path_factory) -> Path:
+    return write_random_dataset(tmp_path_factory.mktemp("data") / "tiny")
+
+
+def _read_losses(run: Path) -> list[float]:
+    import csv
+
+    (metrics,) = run.glob("logs/version_*/metrics.csv")
+    with metrics.open() as f:
+        return [float(r["train/loss"]) for r in csv.DictReader(f) if r.get("train/loss")]
+
+
+def test_module_trains_through_the_fast_layers_with_the_stock_losses(tiny_data, tmp_path):
+    """fit with fast_training (the default) and without: the same losses step by step (the fp32
+    fast path changes rounding only), the fast layers and the fused AdamW really in use."""
+    from stablemo.lit.module import DiffusionModule
+
+    module = DiffusionModule(model=TINY_MODEL)
+    assert any(isinstance(m, TrainConv1d) for m in module.model.modules())
+    assert not any(isinstance(m, TrainConv1d) for m in DiffusionModule(model=TINY_MODEL, fast_training=False).model.modules())
+    fast_run, stock_run = tmp_path / "fast", tmp_path / "stock"
+    _fit(tiny_config(fast_run, tiny_data))
+    _fit(tiny_config(stock_run, tiny_data), "--model.fast_training=false")
+    fast, stock = _read_losses(fast_run), _read_losses(stock_run)
+    assert len(fast) == len(stock) == 6
+    torch.testing.assert_close(torch.tensor(fast), torch.tensor(stock), rtol=1e-4, atol=0)
+    ckpt = load_checkpoint_file(fast_run / "checkpoints" / "last.ckpt")
+    assert ckpt["optimizer_states"][0]["param_groups"][0]["fused"] is True
+    assert ckpt["state_dict"].keys() == load_checkpoint_file(stock_run / "checkpoints" / "last.ckpt")["state_dict"].keys()
+
+
+def test_bf16_mixed_trains_with_float32_weights_and_ema(tiny_data, tmp_path):
+    """Lightning's precision=bf16-mixed with our module: finite losses near the fp32 run's, weights,
+    gradients' optimiser state and EMA kept in float32 (autocast casts per op)."""
+    _fit(tiny_config(tmp_path / "bf16", tiny_data), "--trainer.precision=bf16-mixed")
+    _fit(tiny_config(tmp_path / "fp32", tiny_data))
+    bf16, fp32 = _read_losses(tmp_path / "bf16"), _read_losses(tmp_path / "fp32")
+    assert len(bf16) == 6 and all(math.isfinite(v) for v in bf16)
+    torch.testing.assert_close(torch.tensor(bf16), torch.tensor(fp32), rtol=0.05, atol=0)
+    ckpt = load_checkpoint_file(tmp_path / "bf16" / "checkpoints" / "last.ckpt")
+    assert all(v.dtype == torch.float32 for v in ckpt["state_dict"].values() if v.is_floating_point())
+    assert all(v.dtype == torch.float32 for v in ckpt["stablemo"]["ema"]["shadow"].values())
+    assert all(s["exp_avg"].dtype == torch.float32 for s in ckpt["optimizer_states"][0]["state"].values())
+
+
+# ----------------------------------------------------------------------------- the paired benchmark
+
+def test_paired_bench_rows_ratios_and_memory(tmp_path, capsys):
+    import json
+
+    from stablemo.lit.bench_train import main as bench_main
+
+    config = tmp_path / "net.yaml"
+    config.write_text("model:\n  model:\n    denoiser: {name: unet, input_dim: 12, base_channels: 16, channel_mults: [1, 2],"
+                      " time_dim: 32, num_groups: 4, num_heads: 2}\n    text: {latent_dim: 16}\n")
+    out = tmp_path / "paired.json"
+    assert bench_main(["--paired", "--config", str(config), "--rows", "stock,stablemo,stablemo-bf16,official-variant",
+                       "--batch-size", "2", "--frames", "20", "--rounds", "2", "--warmup", "1", "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    rows = result["rows"]
+    assert set(rows) == {"stock", "stablemo", "stablemo-bf16", "official-variant"}
+    assert rows["stock"]["cpu_ratio_stock"] == 1.0 and rows["stablemo"]["cpu_ratio_stock"] > 0
+    assert rows["stablemo"]["params"] == rows["stock"]["params"] != rows["official-variant"]["params"]
+    assert all(r["memory_mb"] > 0 for r in rows.values())
+    assert rows["stablemo-bf16"]["memory_mb"] < rows["stablemo"]["memory_mb"]  # bf16 activations saved
+    assert "/stock CPU" in capsys.readouterr().out
+    with pytest.raises(StableMoError, match="--rows: unknown row"):
+        bench_main(["--paired", "--config", str(config), "--rows", "stock,fastest"])
