@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import base64
 import json
+import os
 import socket
 import statistics
 import subprocess
@@ -113,6 +114,7 @@ def latency(args) -> dict:
                 "const gl = document.createElement('canvas').getContext('webgl2');"
                 "const e = gl.getExtension('WEBGL_debug_renderer_info');"
                 "return e ? gl.getParameter(e.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER)")
+            default_hold = driver.execute_script("return window.stablemo.holdWhileComputing")
             for model in info["models"]:
                 name = model["name"]
                 driver.execute_script("const m = document.getElementById('model'); m.value = arguments[0];"
@@ -121,22 +123,32 @@ def latency(args) -> dict:
                 rows = []
                 for i in range(args.prompts + 1):
                     text = f"{PROMPTS[i % len(PROMPTS)]} ({name} {i})"  # new to the server's cache
+                    # A/B in one run: even prompts with the page's default, odd ones with the figure
+                    # animating while the request is computed (the default under software WebGL holds it)
+                    hold = default_hold if i % 2 == 0 else False
+                    driver.execute_script("window.stablemo.holdWhileComputing = arguments[0];", hold)
                     driver.execute_script("const p = document.getElementById('prompt'); p.value = arguments[0];"
                                           "p.dispatchEvent(new Event('input'));", text)
                     rec = wait(driver, "return window.stablemo.timings.find(t => t.text === arguments[0] && t.drawn)", text)
                     if i == 0:
                         continue  # the first request after a model switch is not counted
-                    rows.append({"send_to_drawn_ms": rec["drawn"] - rec["send"], "input_to_drawn_ms": rec["drawn"] - rec["input"],
+                    rows.append({"hold": hold, "send_to_drawn_ms": rec["drawn"] - rec["send"],
+                                 "input_to_drawn_ms": rec["drawn"] - rec["input"],
                                  "send_to_response_ms": rec["response"] - rec["send"],
                                  "response_to_drawn_ms": rec["drawn"] - rec["response"],
                                  "model_ms": rec["server"]["compute_ms"]})
                     time.sleep(0.3)
-                results[name] = {"steps": model["defaults"]["steps"], "label": model["label"], "rows": rows,
-                                 **{f"median_{k}": statistics.median(r[k] for r in rows) for k in rows[0]},
-                                 **{f"max_{k}": max(r[k] for r in rows) for k in rows[0]}}
+                keys = [k for k in rows[0] if k.endswith("_ms")]
+                out = {"steps": model["defaults"]["steps"], "label": model["label"], "rows": rows}
+                for label, sel in (("default", [r for r in rows if r["hold"] == default_hold]),
+                                   ("animating", [r for r in rows if not r["hold"]])):
+                    if sel and (label == "default" or default_hold):
+                        out[label] = {"n": len(sel), **{f"median_{k}": statistics.median(r[k] for r in sel) for k in keys},
+                                      **{f"max_{k}": max(r[k] for r in sel) for k in keys}}
+                results[name] = out
         finally:
             driver.quit()
-    return {"renderer": renderer, "models": results}
+    return {"renderer": renderer, "hold_by_default": default_hold, "load_average": os.getloadavg(), "models": results}
 
 
 def wait(driver, script: str, *args, timeout: float = 120.0):
@@ -191,7 +203,8 @@ def load(args) -> dict:
             "frames": frames, "wall_s": wall, "throughput_rps": args.requests / wall,
             "p50_ms": percentile(lat, 50), "p95_ms": percentile(lat, 95), "max_ms": max(lat),
             "model_p50_ms": percentile(compute, 50) if compute else None, "errors": len(errors),
-            "error_messages": sorted({a["data"].get("error", "") for a in errors}), "mismatched": mismatched}
+            "error_messages": sorted({a["data"].get("error", "") for a in errors}), "mismatched": mismatched,
+            "load_average": os.getloadavg()}
 
 
 def decode(arr: dict) -> np.ndarray:
@@ -221,7 +234,8 @@ def main(argv: list[str] | None = None) -> int:
     summary = {k: v for k, v in result.items() if k != "models"}
     if args.what == "latency":
         for name, r in result["models"].items():
-            summary[name] = {k: round(v, 1) for k, v in r.items() if k.startswith(("median", "max"))}
+            summary[name] = {label: {k: round(v, 1) for k, v in r[label].items()}
+                             for label in ("default", "animating") if label in r}
     print(json.dumps(summary, indent=1))
     return 0
 

@@ -44,6 +44,7 @@ function softwareWebGL() {
 }
 const SOFTWARE = softwareWebGL();
 S.softwareWebGL = SOFTWARE;
+S.holdWhileComputing = SOFTWARE;
 const canvas = $('canvas');
 const renderer = new THREE.WebGLRenderer({ canvas, antialias: !SOFTWARE });
 renderer.setPixelRatio(SOFTWARE ? 1 : window.devicePixelRatio);
@@ -195,18 +196,28 @@ let presented = null;   // timing record drawn by the previous tick (shown on sc
 function tick() {
   requestAnimationFrame(tick);
   const now = performance.now();
-  if (presented) {  // the frame rendered in the previous callback has gone to the screen
+  if (presented) {  // the frame rendered before this callback has gone to the screen
     presented.drawn = now;
     showTiming(presented);
     presented = null;
   }
   const dt = Math.min((now - lastTick) / 1000, 0.1);
   lastTick = now;
+  const m = S.motion;
+  if (m && m.available > 0 && S.playing) framePos += dt * m.fps * S.speed;
+  draw();
+}
+
+// Pose the figure at the current frame and render, if anything changed. Called by the animation
+// loop, and at once when a motion arrives (not a display frame later).
+function draw() {
+  // software WebGL renders on the cores the model runs on: from a keystroke until its motion is
+  // drawn the figure holds still instead of taking CPU from the request (docs/serve.md, measured)
+  if (S.holdWhileComputing && (inflight || pendingSend) && !firstDraw) return;
   if (resize()) dirtyView = true;
   const m = S.motion;
   let f = -1;
   if (m && m.available > 0) {
-    if (S.playing) framePos += dt * m.fps * S.speed;
     // a stream still arriving holds at its last frame (buffering); a complete motion loops
     framePos = m.streaming ? Math.min(framePos, m.available - 1) : framePos % m.frames;
     f = Math.min(Math.floor(framePos), m.available - 1);
@@ -242,7 +253,7 @@ function recordPose() {
 
 // ---- requests -----------------------------------------------------------------------------
 
-let inflight = false, dirty = false, debounce = null, lastInput = performance.now(), seq = 0;
+let inflight = false, dirty = false, debounce = null, lastInput = performance.now(), seq = 0, pendingSend = false;
 
 function modelInfo(name) { return S.info.models.find((m) => m.name === name); }
 
@@ -266,10 +277,12 @@ function currentSpec() {
 function schedule(delay = DEBOUNCE_MS) {
   lastInput = performance.now();
   clearTimeout(debounce);
+  pendingSend = true;
   debounce = setTimeout(submit, delay);
 }
 
 async function submit() {
+  pendingSend = false;
   if (inflight) { dirty = true; return; }
   if (streamAbort) streamAbort.abort();  // a new prompt replaces a timeline being streamed
   inflight = true;
@@ -311,6 +324,7 @@ function setMotion(data, spec, rec) {
   framePos = S.playing ? 0 : Math.min(framePos, T - 1);
   $('scrub').max = T - 1;
   firstDraw = rec;
+  draw();
   S.error = null;
   setStatus('');
   document.querySelectorAll('#downloads button').forEach((b) => { b.disabled = false; });
@@ -641,6 +655,7 @@ function appendChunk(m, msg, rec) {
   if (msg.index === 0) {
     rec.response = performance.now();
     firstDraw = rec;
+    draw();
   }
   $('stream-info').textContent = `${m.chunks} / ${m.texts.length} chunks · now: ${msg.text}`;
 }
