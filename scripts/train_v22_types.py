@@ -139,10 +139,10 @@ def main(argv=None) -> int:
         lines.append(msg)
 
     log("$ python scripts/train_v22_types.py " + " ".join(argv if argv is not None else sys.argv[1:]))
+    model = load_vgrf(args.init, quiet=True)  # a bad --init is named before the data is built
     started = time.time()
     joints, forces = build_training_set(args.motions, args.per_type, args.seed, log, args.skeleton)
     log(f"{len(joints)} training sequences ({sum(len(j) for j in joints)} frames) in {time.time() - started:.0f}s")
-    model = load_vgrf(args.init, quiet=True)
     if args.skeleton == "kit" and model.num_joints == 22:
         from stablemo.footskate_bench import kit_from_v22
 
@@ -191,4 +191,13 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from footskate.errors import FootskateError
+    from stablemo.errors import StableMoError, run_script
+
+    def _main(argv):
+        try:
+            return main(argv)
+        except FootskateError as err:  # bad --init weights: one line, exit 2
+            raise StableMoError(str(err)) from None
+
+    sys.exit(run_script(_main, Path(__file__).name, sys.argv[1:]))
