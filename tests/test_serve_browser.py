@@ -40,9 +40,11 @@ PROMPT = "a person jumps, then turns left"
 LIMBS = np.array([[0x1F, 0x6F, 0xD1], [0xD6, 0x2F, 0x2F], [0x44, 0x44, 0x44]], dtype=float)
 
 
-def chrome_driver():
+def chrome_driver(downloads: Path):
     opts = webdriver.ChromeOptions()
     opts.binary_location = CHROMIUM
+    opts.add_experimental_option("prefs", {"download.default_directory": str(downloads),
+                                           "download.prompt_for_download": False})
     for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1100,750",
                 "--disable-gpu-sandbox", "--enable-unsafe-swiftshader"):
         opts.add_argument(arg)
@@ -60,11 +62,16 @@ def wait_for(driver, script: str, timeout: float = 60.0):
 
 
 @pytest.fixture(scope="module")
-def page():
+def downloads(tmp_path_factory):
+    return tmp_path_factory.mktemp("downloads")
+
+
+@pytest.fixture(scope="module")
+def page(downloads):
     # the demo student (1 step) keeps the page tests quick; the page is the same for any model
     models = ModelSet({"student": ASSETS / "demo_student"})
     with serving(create_app(models)) as url:
-        driver = chrome_driver()
+        driver = chrome_driver(downloads)
         try:
             driver.get(url + "/")
             wait_for(driver, "return window.stablemo && window.stablemo.ready")
@@ -80,7 +87,7 @@ def limb_coloured(rgb: np.ndarray) -> np.ndarray:
     return (dist < 70).any(-1)
 
 
-def test_typed_prompt_is_drawn_and_moves_then_empty_prompt_shows_the_error(page, tmp_path):
+def test_typed_prompt_is_drawn_and_moves_then_empty_prompt_shows_the_error(page, tmp_path, downloads):
     box = page.find_element(By.ID, "prompt")
     box.send_keys(PROMPT)
     # typing sends partial prompts too (generation follows typing): wait for the whole one
@@ -119,6 +126,23 @@ def test_typed_prompt_is_drawn_and_moves_then_empty_prompt_shows_the_error(page,
     canvas = shot[int(top * ratio):, :int((left + page.execute_script(
         "return document.getElementById('canvas').clientWidth")) * ratio)]
     assert 0.001 < limb_coloured(canvas).mean() < 0.2
+
+    # every resource the page loaded came from this server (three.js included: vendored)
+    origins = page.execute_script("return [location.origin, performance.getEntriesByType('resource')"
+                                  ".map(e => new URL(e.name).origin)]")
+    assert origins[1] and set(origins[1]) == {origins[0]}
+
+    # the BVH button downloads the motion on screen
+    page.find_element(By.CSS_SELECTOR, "#downloads button[data-format=bvh]").click()
+    deadline = time.monotonic() + 60
+    while not list(downloads.glob("*.bvh")) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    (bvh,) = downloads.glob("*.bvh")
+    assert bvh.name == "a-person-jumps-then-turns-left-seed0.bvh"
+    from stablemo.bvh import read_bvh
+
+    anim = read_bvh(bvh)
+    assert anim.num_frames == 120 and anim.fps == 20.0
 
     # an empty prompt: the server's one-line error is shown on the page
     box.send_keys(Keys.CONTROL, "a")
