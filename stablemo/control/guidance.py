@@ -158,6 +158,8 @@ class JointGuidance:
             root, root_mask = self._root_targets(feats, targets, mask)
             feats = project_root(feats, root, root_mask, lengths)
         iters = self.final_iters if state.step == state.steps - 1 else self.iters
+        if not mask[:, :, 1:].any():
+            iters = 0  # root targets only (a pelvis path): the projection above met them; every pose step would be zero
         # With the root fixed, joint j >= 1 sits at R_t^T ric_j + o_t (R_t the heading, o_t the root's
         # horizontal place): half the squared miss has the gradient R_t (joint - target) in ric_j, a
         # unit step lands the joint on its target, and no autograd is needed.
