@@ -194,6 +194,7 @@ def test_bf16_mixed_trains_with_float32_weights_and_ema(tiny_data, tmp_path):
     assert all(v.dtype == torch.float32 for v in ckpt["state_dict"].values() if v.is_floating_point())
     assert all(v.dtype == torch.float32 for v in ckpt["stablemo"]["ema"]["shadow"].values())
     assert all(s["exp_avg"].dtype == torch.float32 for s in ckpt["optimizer_states"][0]["state"].values())
+    assert ckpt["optimizer_states"][0]["param_groups"][0]["fused"] is True  # clipped by Lightning all the same
 
 
 # ----------------------------------------------------------------------------- the paired benchmark

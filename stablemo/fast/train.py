@@ -88,16 +88,17 @@ class GemmConv1dFunction(torch.autograd.Function):
         w_rows = weight.permute(0, 2, 1).reshape(O, k * C)  # (O, k*C): tap-major, as the unfolded rows
         cols = _unfold(frames, k, stride, padding, T_out)
         y = torch.addmm(bias, cols, w_rows.t()) if bias is not None else cols @ w_rows.t()
-        ctx.save_for_backward(x, w_rows)
+        # the weight itself, not w_rows (a copy): saving it would keep ~1 GB more for the paper UNet
+        ctx.save_for_backward(x, weight)
         ctx.conf = (k, stride, padding, T_out, bias is not None)
         return y.view(B, T_out, O).transpose(1, 2)
 
     @staticmethod
     def backward(ctx, grad_y):
-        x, w_rows = ctx.saved_tensors
+        x, weight = ctx.saved_tensors
         k, s, p, T_out, has_bias = ctx.conf
         B, C, T = x.shape
-        O = w_rows.shape[0]
+        O = weight.shape[0]
         g_rows = grad_y.transpose(1, 2).reshape(B * T_out, O)  # (B*T_out, O), a view when frames-major
         grad_x = grad_w = grad_b = None
         if ctx.needs_input_grad[1]:
@@ -106,7 +107,7 @@ class GemmConv1dFunction(torch.autograd.Function):
         if has_bias and ctx.needs_input_grad[2]:
             grad_b = g_rows.sum(dim=0)
         if ctx.needs_input_grad[0]:
-            g_cols = (g_rows @ w_rows).view(B, T_out, k, C)
+            g_cols = (g_rows @ weight.permute(0, 2, 1).reshape(O, k * C)).view(B, T_out, k, C)
             # col2im: output row o read input frames o*s - p + j; add each tap back onto them
             full = torch.zeros(B, T + 2 * p, C, dtype=g_cols.dtype, device=g_cols.device)
             span = (T_out - 1) * s + 1

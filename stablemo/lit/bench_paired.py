@@ -11,8 +11,7 @@ x0 MSE, backward, AdamW. Rows:
 - stock:            the config's network in plain PyTorch layers, torch's default AdamW;
 - stablemo:         the same weights through stablemo.fast.train, fused AdamW (what `fit` runs);
 - stablemo-bf16:    that under torch.autocast(bfloat16) (Lightning's `precision: bf16-mixed`; on
-                    CUDA the row is fp16, `16-mixed`) with torch's default AdamW, as `fit` runs it
-                    (Lightning will not clip a fused optimiser's gradients under mixed precision);
+                    CUDA the row is fp16, `16-mixed`, with torch's default AdamW as `fit` then uses);
 - official-variant: our network in the published T2MUnet layout (`variant: official`), fast path;
 - official:         the published CondUnet1D itself, loaded from $STABLEMO_OFFICIAL_SRC (its own
                     `models/unet.py`), stock AdamW, its input padded to a multiple of 16 as its
@@ -140,7 +139,8 @@ def _ours_row(name: str, net: torch.nn.Module, inputs: dict, device: torch.devic
     mask_pad = F.pad(mask, (0, T_pad - T))
 
     def step() -> torch.Tensor:
-        with torch.autocast(device.type, dtype=autocast, enabled=autocast is not None):
+        # cache_enabled=False as Lightning's MixedPrecision: weights cast where used, every step
+        with torch.autocast(device.type, dtype=autocast, enabled=autocast is not None, cache_enabled=False):
             pred = net(x_t_pad, t, net.prepare(text, text_mask, mask_pad))[:, :T]
         # the loss in float32, as DiffusionModule's masked_mse does
         return ((pred.float() - x0).square().mean(-1) * mask).sum() / mask.sum()
@@ -202,7 +202,7 @@ def build_rows(kwargs: dict, names: list[str], batch: int, frames: int, seed: in
     if "stablemo-bf16" in names:
         low = torch.bfloat16 if device.type == "cpu" else torch.float16
         ours.append(_ours_row(f"stablemo-{'bf16' if low == torch.bfloat16 else 'fp16'}",
-                              accelerate_training(twin()), inputs, device, False, low, optimizer))  # as fit: no fused AdamW under -mixed
+                              accelerate_training(twin()), inputs, device, device.type == "cpu", low, optimizer))
     if device.type == "cpu":  # one set of AdamW moments for the shared weights (CUDA: fused wants its own)
         for row in ours[1:]:
             row.optimizer.state = ours[0].optimizer.state
