@@ -209,7 +209,8 @@ def test_paired_bench_rows_ratios_and_memory(tmp_path, capsys):
                       " time_dim: 32, num_groups: 4, num_heads: 2}\n    text: {latent_dim: 16}\n")
     out = tmp_path / "paired.json"
     assert bench_main(["--paired", "--config", str(config), "--rows", "stock,stablemo,stablemo-bf16,official-variant",
-                       "--batch-size", "2", "--frames", "20", "--rounds", "2", "--warmup", "1", "--json", str(out)]) == 0
+                       "--batch-size", "2", "--frames", "20", "--rounds", "2", "--warmup", "1", "--profile",
+                       "--json", str(out)]) == 0
     result = json.loads(out.read_text())
     rows = result["rows"]
     assert set(rows) == {"stock", "stablemo", "stablemo-bf16", "official-variant"}
@@ -217,6 +218,8 @@ def test_paired_bench_rows_ratios_and_memory(tmp_path, capsys):
     assert rows["stablemo"]["params"] == rows["stock"]["params"] != rows["official-variant"]["params"]
     assert all(r["memory_mb"] > 0 for r in rows.values())
     assert rows["stablemo-bf16"]["memory_mb"] < rows["stablemo"]["memory_mb"]  # bf16 activations saved
-    assert "/stock CPU" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "/stock CPU" in printed
+    assert "profile of one step: stablemo" in printed and "backward GemmConv1dFunctionBackward" in printed
     with pytest.raises(StableMoError, match="--rows: unknown row"):
         bench_main(["--paired", "--config", str(config), "--rows", "stock,fastest"])

@@ -219,6 +219,35 @@ def build_rows(kwargs: dict, names: list[str], batch: int, frames: int, seed: in
     return rows
 
 
+def profile_row(row: Row, top: int = 12) -> str:
+    """One step of `row` under torch.profiler: forward / backward / optimiser CPU time, the ops
+    with the most self CPU time, and the backward by autograd node. -> printable text."""
+    from torch.profiler import ProfilerActivity, profile, record_function
+
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        with record_function("phase: forward"):
+            loss = row.step_fn()
+        with record_function("phase: backward"):
+            loss.backward()
+        with record_function("phase: optimizer"):
+            row.optimizer.step()
+            row.optimizer.zero_grad(set_to_none=True)
+    events = prof.key_averages()
+    total = sum(e.self_cpu_time_total for e in events) / 1e6
+    lines = [f"profile of one step: {row.name} ({total:.2f} CPU-s under the profiler)"]
+    for e in events:
+        if e.key.startswith("phase: "):
+            lines.append(f"  {e.key:44s} {e.cpu_time_total / 1e6:8.2f} s")
+    ops = sorted((e for e in events if not e.key.startswith(("phase: ", "autograd::"))),
+                 key=lambda e: -e.self_cpu_time_total)[:top]
+    lines += [f"  op {e.key:41s} {e.self_cpu_time_total / 1e6:8.2f} s  {100 * e.self_cpu_time_total / 1e6 / total:5.1f} %  x{e.count}"
+              for e in ops]
+    backward = sorted((e for e in events if e.key.startswith("autograd::engine::evaluate_function: ")),
+                      key=lambda e: -e.cpu_time_total)[:top]
+    lines += [f"  backward {e.key.split(': ', 1)[1]:35s} {e.cpu_time_total / 1e6:8.2f} s" for e in backward]
+    return "\n".join(lines)
+
+
 def _ratio(rows_by: dict[str, Row], name: str, ref: str, field: str) -> float:
     a, b = getattr(rows_by[name], field), getattr(rows_by[ref], field)
     return statistics.median(x / y for x, y in zip(a, b))
@@ -275,6 +304,9 @@ def run_paired(args) -> int:
     print("ratios: median over rounds of the row's step time / the reference's in the same round; memory: "
           + ("CUDA max allocated in a step" if device.type == "cuda" else
              "activations autograd saves for the backward (weights, gradients and AdamW moments come on top)"))
+    if args.profile:
+        for row in rows:
+            print(profile_row(row))
     if args.json:
         from stablemo.io import write_text
 

@@ -62,6 +62,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--rows", default=None,
                         help="--paired: comma-separated rows to run (default all available: stock,stablemo,"
                              "stablemo-bf16,official-variant,official)")
+    parser.add_argument("--profile", action="store_true",
+                        help="--paired: then profile one step of each row (torch.profiler: phases, top ops, backward nodes)")
     parser.add_argument("--optimizer", choices=("adamw", "none"), default="adamw",
                         help="--paired: include the AdamW step (default) or time forward + backward only")
     parser.add_argument("overrides", nargs="*", help="extra LightningCLI overrides, e.g. --model.lr=1e-4 (after --)")
