@@ -14,8 +14,8 @@ module replaces the first two with autograd Functions built on plain GEMMs and v
   and its derivative n / (n + 2) + 4 x e^x (1 + e^x) / (n + 2)^2 backward, from the saved input.
 
 `accelerate_training(model)` swaps nn.Conv1d / nn.Mish modules and the UNet's residual blocks for
-versions that use these under autograd (and exactly the stock computation when no gradient is
-recorded), holding the same Parameter objects under the same names: `state_dict()` is unchanged,
+versions that use these under autograd on the CPU (and exactly the stock computation when no
+gradient is recorded, under autocast and on CUDA, where they were not measured), holding the same Parameter objects under the same names: `state_dict()` is unchanged,
 so checkpoints, EMA and export see the stock model.
 """
 
@@ -60,8 +60,9 @@ class MishFunction(torch.autograd.Function):
 
 
 def train_mish(x: torch.Tensor) -> torch.Tensor:
-    """F.mish, through MishFunction when a gradient is recorded for a float32/float64 x."""
-    if torch.is_grad_enabled() and x.requires_grad and x.dtype in (torch.float32, torch.float64):
+    """F.mish, through MishFunction when a gradient is recorded for a float32/float64 CPU x (CUDA's
+    mish kernel is fused already)."""
+    if torch.is_grad_enabled() and x.requires_grad and x.dtype in (torch.float32, torch.float64) and x.device.type == "cpu":
         return MishFunction.apply(x)
     return F.mish(x)
 
@@ -118,8 +119,9 @@ class GemmConv1dFunction(torch.autograd.Function):
 
 
 class TrainConv1d(nn.Conv1d):
-    """nn.Conv1d through GemmConv1dFunction while a gradient is recorded (float32/float64, groups 1,
-    no dilation, zero padding); the stock forward otherwise (inference, autocast, other layouts)."""
+    """nn.Conv1d through GemmConv1dFunction while a gradient is recorded (CPU, float32/float64,
+    groups 1, no dilation, zero padding); the stock forward otherwise (inference, autocast, CUDA,
+    other layouts)."""
 
     @classmethod
     def from_stock(cls, conv: nn.Conv1d) -> TrainConv1d:
@@ -129,8 +131,9 @@ class TrainConv1d(nn.Conv1d):
         return fast.train(conv.training)
 
     def _gemm_ok(self, x: torch.Tensor) -> bool:
+        # CPU only: measured against oneDNN's convolution here; cuDNN's is another matter (not measured)
         return (torch.is_grad_enabled() and (x.requires_grad or self.weight.requires_grad)
-                and x.dim() == 3 and x.dtype in (torch.float32, torch.float64) and x.dtype == self.weight.dtype
+                and x.device.type == "cpu" and x.dim() == 3 and x.dtype in (torch.float32, torch.float64) and x.dtype == self.weight.dtype
                 and not torch.is_autocast_enabled(x.device.type)
                 and self.groups == 1 and self.dilation == (1,) and self.padding_mode == "zeros"
                 and not isinstance(self.padding, str))
