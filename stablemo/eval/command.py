@@ -427,7 +427,12 @@ def main(argv: list[str]) -> int:
         picks = rng.choice(len(data), min(args.aits, len(data)), replace=False)
         items = [data[int(i)] for i in picks]
         sync = torch.cuda.synchronize if pipe.device.type == "cuda" else None
-        generate_one, reset = metrics.pipeline_method(pipe, steps, cfg, sampler, args.seed)
+        controls = None
+        if control is not None:  # AITS of controlled generation: each sentence with its own motion's hints
+            feats = [torch.as_tensor(it["motion"]) * torch.from_numpy(data.std) + torch.from_numpy(data.mean)
+                     for it in items]
+            controls = dict(zip([it["text"] for it in items], control.hints(feats, rng)))
+        generate_one, reset = metrics.pipeline_method(pipe, steps, cfg, sampler, args.seed, controls=controls)
         aits = metrics.average_inference_time(generate_one, [it["text"] for it in items],
                                               [it["length"] for it in items], synchronize=sync, reset=reset)
     result["settings"].update(

@@ -190,13 +190,16 @@ def average_inference_time(generate_one: Callable[[str, int], object], texts: Se
     return average_inference_times(methods, texts, lengths, warmup, synchronize)[""]
 
 
-def pipeline_method(pipe, steps: int, cfg: float, sampler: str | None = None, seed: int = 0):
+def pipeline_method(pipe, steps: int, cfg: float, sampler: str | None = None, seed: int = 0,
+                    controls: dict | None = None):
     """(generate_one, reset) of a stablemo Pipeline for average_inference_time(s): one sentence at
     its length clamped to the bundle's range, and a reset that clears the prompt caches but keeps
-    the null prompt (a property of the model, encoded once per pipeline)."""
+    the null prompt (a property of the model, encoded once per pipeline). controls: text ->
+    JointControl, for the AITS of controlled generation."""
     def generate_one(text: str, length: int):
+        control = None if controls is None else controls.get(text)
         return pipe.generate([text], [min(max(length, pipe.min_length), pipe.max_length)], steps=steps, cfg=cfg,
-                             sampler=sampler, seed=seed)
+                             sampler=sampler, seed=seed, control=control)
 
     return generate_one, lambda: pipe.clear_text_caches(keep_null=True)
 
