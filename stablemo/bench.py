@@ -161,15 +161,18 @@ def _student_pipeline(pipe, fast: bool):
                     device=pipe.device, config=config, inference=inference, fast=fast)
 
 
-def _controlled_pipeline(student, fast: bool):
-    """`student` (a 1-step LCM pipeline) with a ControlNet on its network (stablemo.controlnet; its
-    injections start at zero, so the timing is a trained one's) and a dense pelvis path to follow."""
+def _controlled_pipeline(pipe, student, fast: bool):
+    """`student` (a 1-step LCM pipeline of `pipe`'s network) with a ControlNet on its network
+    (stablemo.controlnet; its injections start at zero, so the timing is a trained one's)."""
     from stablemo.controlnet.network import ControlledModel
+    from stablemo.distill.student import ConsistencyStudent
     from stablemo.motion.skeleton import get_skeleton
     from stablemo.pipeline import Pipeline
 
     J = get_skeleton(student.skeleton).num_joints
-    model = ControlledModel(student.model, "consistency", J)
+    base = ConsistencyStudent(pipe.config["model"])  # stock modules: the ControlNet copies them (fast ones hold packed weights)
+    base.model.load_state_dict(pipe.model.state_dict())
+    model = ControlledModel(base, "consistency", J)
     config = {**student.config, "controlnet": {"base_kind": "consistency", "joints": J, "hint_scale": 1.0}}
     pipe = Pipeline(model, student.schedule, mean=student.mean.numpy(), std=student.std.numpy(),
                     prediction_type=student.prediction_type, skeleton=student.skeleton, kind="controlnet",
@@ -252,7 +255,7 @@ def _run_aits(args) -> dict:
         seconds, cpu_seconds, _ = time_sentences(student, args, "lcm", 1, True, True, "fp32")
         rows.append(Row(STUDENT_ROW, "lcm", 1, True, False, "fp32", seconds, cpu_seconds, 1, flops_one))
         if not args.skip_controlnet:
-            controlled = _controlled_pipeline(student, fast=not args.stock)
+            controlled = _controlled_pipeline(pipe, student, fast=not args.stock)
             spec = _pelvis_path(args.frames, pipe.skeleton)
             flops_control = denoiser_flops(controlled, args.frames, B)
             time_generation(controlled, "warm up", args.frames, "lcm", 2, args.cfg, True, True, "fp32", 0, control=spec)

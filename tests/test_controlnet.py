@@ -339,3 +339,27 @@ def test_generate_command_serves_a_controlled_bundle(student_bundle, tmp_path):
         assert got.shape == (40, J, 3)
         miss[bool(flag)] = np.linalg.norm(got[:, 0] - pos[:, 0], axis=-1).mean()
     assert miss[False] < 0.01 < miss[True]
+
+
+ASSET = REPO / "stablemo" / "assets" / "demo_controlnet"
+
+
+@pytest.mark.skipif(not (ASSET / "config.json").is_file(), reason="the controlled demo student is not shipped")
+def test_shipped_controlled_student_is_padding_invariant_and_follows_a_path():
+    from stablemo.control.spec import JointControl
+    from stablemo.pipeline import Pipeline
+
+    pipe = Pipeline.from_bundle(ASSET)
+    assert pipe.config["kind"] == "controlnet" and pipe.inference.steps == 1
+    pos, mask = pelvis_path(60)
+    control = JointControl(pos, mask)
+    texts = ["a person walks forward", "a person jumps in place"]
+    both = pipe.generate(texts, [60, 44], seed=[1, 2], control=[control, None], control_guidance=False)
+    alone = pipe.generate(texts[:1], [60], seed=1, control=control, control_guidance=False)
+    free = pipe.generate(texts[1:], [44], seed=2)
+    assert both.joints.shape == (2, 60, J, 3) and torch.isfinite(both.joints).all()
+    close(both.features[0], alone.features[0], rtol=1e-4)
+    close(both.features[1, :44], free.features[0], rtol=1e-4)
+    refined = pipe.generate(texts[:1], [60], seed=1, control=control)
+    miss = np.linalg.norm(refined.joints[0, :, 0].numpy() - pos[:, 0], axis=-1).mean()
+    assert miss < 0.03

@@ -114,6 +114,11 @@ class ControlNetTraining(LightningModule):
                     raise StableMoError(f"data: the dataset's {name} differs from the base bundle's; "
                                         "train the ControlNet on the base's dataset")
 
+    def on_train_start(self) -> None:
+        # no scheduler: the configured lr holds, also when a run resumes with a changed one
+        for group in self.trainer.optimizers[0].param_groups:
+            group["lr"] = self.hparams.lr
+
     def configure_optimizers(self):
         params = [p for p in self.model.control.parameters() if p.requires_grad]
         return torch.optim.AdamW(params, lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
