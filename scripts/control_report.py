@@ -3,6 +3,10 @@
     python scripts/control_report.py --bundle stablemo/assets/demo_bundle --student LCM=bundles/demo_lcm \
         --data data/synth --replications 3 --max-items 128 --out docs/control_results.json
 
+`--controlnet NAME=DIR` adds a ControlNet bundle (stablemo.controlnet; docs/control.md), scored at its
+own steps with the hint alone and with the hint plus the guidance refinement (Request.control_guidance);
+`--rows pelvis:100%,none:100%` limits the rows (default: all).
+
 For each model (the teacher at its 10 steps, each student at 1 step) it scores the uncontrolled
 model and the model with hints from the test motions (`stablemo evaluate --control J --density D`):
 pelvis at 100% / 25% / 5 / 2 / 1 frames, a wrist at 25%, whole-pose keyframes on 4 frames. The
@@ -28,21 +32,24 @@ COLS = [("fid", "FID"), ("r3", "R@3"), ("diversity", "Div."), ("skate_ratio", "S
         ("traj_err", "Traj. err"), ("loc_err", "Loc. err"), ("avg_err", "Avg. err (m)"), ("spikes", "Spikes")]
 
 
-def _rows(pipe, name: str, steps: int, data, evaluator, args) -> dict:
+def _rows(pipe, name: str, steps: int, data, evaluator, args, guidance: bool = True) -> dict:
     from stablemo.eval.command import evaluate
     from stablemo.eval.control import ControlProtocol
     from stablemo.pipeline import Request
 
     out = {}
     lo, hi = pipe.min_length, pipe.max_length
-    for joint, density in ROWS:
+    for joint, density in _selected(args.rows):
+        if joint == "none" and not guidance:
+            continue  # the uncontrolled row does not depend on the refinement: scored once, with the "+ guidance" model
         # the uncontrolled model is scored against the pelvis hints (errors: free generation vs the test motion)
         protocol = ControlProtocol("pelvis" if joint == "none" else joint, density, pipe.skeleton)
         use = joint != "none"
 
         def generate(texts, lengths, seeds, controls=None):
             gen = [min(max(n, lo), hi) for n in lengths]
-            res = pipe.generate(Request(texts, gen, seed=seeds, steps=steps, control=controls if use else None))
+            res = pipe.generate(Request(texts, gen, seed=seeds, steps=steps, control=controls if use else None,
+                                        control_guidance=guidance))
             return res.features, res.joints
 
         t0 = time.time()
@@ -55,7 +62,17 @@ def _rows(pipe, name: str, steps: int, data, evaluator, args) -> dict:
     return out
 
 
-def _aits_ratio(pipe, steps: int, texts: list[str], length: int, repeats: int) -> dict:
+def _selected(rows: str | None) -> list[tuple[str, str]]:
+    if not rows:
+        return ROWS
+    picked = [tuple(r.split(":", 1)) for r in rows.split(",")]
+    bad = [r for r in picked if r not in ROWS]
+    if bad:
+        raise SystemExit(f"--rows: {bad} not among {ROWS}")
+    return picked
+
+
+def _aits_ratio(pipe, steps: int, texts: list[str], length: int, repeats: int, guidance: bool = True) -> dict:
     """Controlled (dense pelvis from a generated circle) vs uncontrolled time per motion, alternating."""
     from stablemo.control.files import control_from_joints, density_frames
 
@@ -66,7 +83,8 @@ def _aits_ratio(pipe, steps: int, texts: list[str], length: int, repeats: int) -
         for text in texts:
             for mode in ("free", "control"):
                 t0 = time.perf_counter()
-                pipe.generate([text], length, seed=0, steps=steps, control=spec if mode == "control" else None)
+                pipe.generate([text], length, seed=0, steps=steps, control=spec if mode == "control" else None,
+                              control_guidance=guidance)
                 times[mode].append(time.perf_counter() - t0)
     free, ctl = float(np.median(times["free"])), float(np.median(times["control"]))
     return {"free_s": free, "control_s": ctl, "ratio": ctl / free}
@@ -83,6 +101,10 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--aits-repeats", type=int, default=3)
     p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--no-teacher", action="store_true", help="score only the students")
+    p.add_argument("--controlnet", action="append", default=[],
+                   help="NAME=DIR: a ControlNet bundle, scored at its own steps without and with the guidance refinement")
+    p.add_argument("--rows", default=None, help="comma-separated joint:density rows to score (default: all)")
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -94,17 +116,20 @@ def main(argv=None) -> int:
 
     data = MotionDataset.from_folder(args.data, "test", "humanml3d", crop="eval", seed=args.seed, progress=False)
     evaluator = load_text_motion_evaluator(args.evaluator or default_evaluator(args.data), "humanml3d", None)
-    models = [("teacher (10 steps)", args.bundle, None)]
+    models = [] if args.no_teacher else [("teacher (10 steps)", args.bundle, None)]
     models += [(f"{name} student (1 step)", path, 1) for name, path in (s.split("=", 1) for s in args.student)]
+    models = [(name, path, steps, True) for name, path, steps in models]
+    for name, path in (s.split("=", 1) for s in args.controlnet):
+        models += [(f"{name} + ControlNet", path, None, False), (f"{name} + ControlNet + guidance", path, None, True)]
     report = {"settings": vars(args), "rows": {}, "aits": {}}
     sentences = ["a person walks forward", "a person jumps in place twice", "a person waves with the right hand",
                  "a person runs forward", "a person turns left", "a person kicks with the left leg"]
-    for name, path, steps in models:
+    for name, path, steps, guidance in models:
         pipe = Pipeline.from_bundle(path)
         steps = steps or pipe.inference.steps
-        report["aits"][name] = _aits_ratio(pipe, steps, sentences, 120, args.aits_repeats)
+        report["aits"][name] = _aits_ratio(pipe, steps, sentences, 120, args.aits_repeats, guidance)
         print(f"{name}: AITS {report['aits'][name]}", flush=True)
-        report["rows"].update(_rows(pipe, name, steps, data, evaluator, args))
+        report["rows"].update(_rows(pipe, name, steps, data, evaluator, args, guidance))
         if args.out:
             from stablemo.io import write_text
 
