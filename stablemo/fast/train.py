@@ -40,7 +40,8 @@ def _mish_parts(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 class MishFunction(torch.autograd.Function):
-    """mish with a vectorised backward (PyTorch's CPU mish_backward is ~10x slower at UNet sizes)."""
+    """mish with a vectorised backward (PyTorch's CPU mish forward + backward took 77 ms against
+    21 ms here on a (8, 1024, 200) frames-major tensor, the layout the UNet's norms return)."""
 
     @staticmethod
     def forward(ctx, x: torch.Tensor) -> torch.Tensor:
@@ -70,7 +71,7 @@ def train_mish(x: torch.Tensor) -> torch.Tensor:
 def _unfold(frames: torch.Tensor, k: int, s: int, p: int, T_out: int) -> torch.Tensor:
     """(B, T, C) frames -> (B * T_out, k * C) im2col rows (zero outside the frames)."""
     B, _, C = frames.shape
-    padded = F.pad(frames, (0, 0, p, p)) if p else frames.contiguous()
+    padded = (F.pad(frames, (0, 0, p, p)) if p else frames).contiguous()  # (B, T + 2p, C), rows of C
     return padded.as_strided((B, T_out, k * C), (padded.stride(0), s * C, 1)).reshape(B * T_out, k * C)
 
 
