@@ -473,6 +473,38 @@ def render_provenance(raw: dict) -> str:
             "| What | File or folder | sha256 |\n|---|---|---|\n" + "\n".join(sums) + "\n")
 
 
+REPO_DOCS = Path(__file__).resolve().parents[1] / "docs"
+CONTROL_TABLES = [  # (JSON beside this file, heading, how it was made)
+    ("results_control.json", "Joint control by guidance (teacher and 1-step student)",
+     "`python scripts/control_report.py --student LCM=bundles/demo_lcm --replications 3 --max-items 96`; the "
+     "`+ --footskate` rows: `stablemo evaluate --bundle B --data data/synth --replications 3 --max-items 96 "
+     "--control pelvis --density 100% --footskate`. Method and reading: docs/control.md. The AITS lines are that "
+     "run's, with 100 pose iterations at the last step; with the 40 used since, measured side by side the same "
+     "way: 1.72x (teacher) and 2.39x (student)."),
+    ("controlnet_results.json", "Motion ControlNet on the 1-step student",
+     "`python scripts/control_report.py --no-teacher --student LCM=stablemo/assets/demo_student --controlnet "
+     "\"LCM 1-step=stablemo/assets/demo_controlnet\" --rows none:100%,pelvis:100%,pelvis:25%,pelvis:5,pelvis:1,"
+     "left_wrist:25% --replications 3 --max-items 96`. Training and reading: docs/control.md."),
+]
+
+
+def render_control(out_dir: Path) -> str:
+    """The joint-control tables, from the JSON that scripts/control_report.py wrote into docs/ (their
+    runs take hours here, so they are kept as measured, not re-run by this script)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from control_report import markdown
+
+    parts = []
+    for name, heading, how in CONTROL_TABLES:
+        path = out_dir / name
+        if path.is_file():
+            report = json.loads(path.read_text())
+            parts.append(f"\n## {heading}\n\n{how} Synthetic test split, hints from the scored motions "
+                         f"(OmniControl / MotionLCM protocol), mean ± 95% interval over 3 replications of 96 "
+                         f"items; errors in metres.\n\n{markdown(report)}\n")
+    return "".join(parts)
+
+
 def render(args, argv, raw: dict, runs: list[Run], pairs, minutes: float, done: int, total: int) -> str:
     cmd = "python scripts/make_results.py " + " ".join(argv)
     status = "" if done == total else (
@@ -501,7 +533,7 @@ model loaded, every sentence encoding its own text (cold caches), over {args.ait
 sentences timed round-robin across the rows. Items scored per replication: {args.max_items or 'the whole test split'}.
 Machine and versions: see Provenance at the end.
 
-{render_samplers(raw, runs)}{render_ratios(raw, runs)}{render_precision(raw, pairs, args)}{render_ddpm(raw, args)}{render_provenance(raw)}"""
+{render_samplers(raw, runs)}{render_ratios(raw, runs)}{render_precision(raw, pairs, args)}{render_ddpm(raw, args)}{render_control(REPO_DOCS)}{render_provenance(raw)}"""
 
 
 # ----------------------------------------------------------------------------- main
