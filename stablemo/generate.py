@@ -40,15 +40,10 @@ def unique_slugs(texts: list[str]) -> list[str]:
 
 def read_prompts(path: str) -> list[str]:
     """One prompt per line; blank lines and lines starting with '#' are skipped."""
+    from stablemo.io import read_text
+
     file = Path(path)
-    if not file.is_file():
-        raise StableMoError(f"{file}: prompts file not found")
-    try:
-        content = file.read_text(encoding="utf-8")
-    except UnicodeDecodeError as err:
-        raise StableMoError(f"{file}: not UTF-8 text (byte {err.start}); save the prompts file as UTF-8") from None
-    except OSError as err:
-        raise StableMoError(f"{file}: cannot read ({err.strerror})") from None
+    content = read_text(file, "prompts file")
     prompts = [line.strip() for line in content.splitlines()]
     prompts = [p for p in prompts if p and not p.startswith("#")]
     if not prompts:

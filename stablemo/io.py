@@ -57,6 +57,19 @@ def check_output_dir(path: str | os.PathLike, flag: str) -> Path:
     return Path(path)
 
 
+def read_text(path: str | os.PathLike, what: str) -> str:
+    """A UTF-8 text file (`what`: "prompts file", "timeline file", …); errors name the file."""
+    file = Path(path)
+    if not file.is_file():
+        raise StableMoError(f"{file}: {what} not found")
+    try:
+        return file.read_text(encoding="utf-8")
+    except UnicodeDecodeError as err:
+        raise StableMoError(f"{file}: not UTF-8 text (byte {err.start}); save the {what} as UTF-8") from None
+    except OSError as err:
+        raise StableMoError(f"{file}: cannot read ({err.strerror})") from None
+
+
 def load_npy(path: str | os.PathLike, *, mmap: bool = False) -> np.ndarray:
     """Load a numeric .npy without pickle; errors name the file."""
     path = Path(path)

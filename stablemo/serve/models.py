@@ -21,7 +21,7 @@ import numpy as np
 
 from stablemo.errors import StableMoError
 from stablemo.inference_config import check_finite, check_positive_int, check_seed
-from stablemo.pipeline import Request
+from stablemo.pipeline import Pipeline, Request
 
 DEFAULT_SECONDS = 6.0
 MAX_TEXT_CHARS = 1000  # the text encoders keep far fewer tokens; longer is a pasting accident
@@ -95,8 +95,6 @@ class ModelSet:
     (one worker calls it); the result cache is locked because downloads read it from another."""
 
     def __init__(self, bundles: dict[str, str | Path], device: str | None = None, cache_size: int = 16):
-        from stablemo.pipeline import Pipeline
-
         if not bundles:
             raise StableMoError("--bundle: no model to serve")
         self.models: dict[str, ServedModel] = {}
@@ -111,19 +109,22 @@ class ModelSet:
 
     # ---- request checking --------------------------------------------------------------------
 
-    def parse(self, body: Any) -> tuple[Spec, dict]:
-        """A JSON request body -> (Spec, transport options). Every error names the field, one line."""
+    def _model_of(self, body: Any, known: set[str]) -> tuple[str, Pipeline]:
+        """(model name, its pipeline) of a JSON request object whose fields are all in `known`."""
         if not isinstance(body, dict):
             raise StableMoError("request: expected a JSON object")
-        known = {"text", "seconds", "frames", "seed", "model", "sampler", "steps", "cfg", "footskate", "control",
-                 "encoding", "features", "format"}
         unknown = sorted(set(body) - known)
         if unknown:
             raise StableMoError(f"{unknown[0]}: unknown field (known: {', '.join(sorted(known))})")
         name = body.get("model") or self.default
         if name not in self.models:
             raise StableMoError(f"model: unknown {name!r}; served: {', '.join(self.models)}")
-        pipe = self.models[name].pipeline
+        return name, self.models[name].pipeline
+
+    def parse(self, body: Any) -> tuple[Spec, dict]:
+        """A JSON request body -> (Spec, transport options). Every error names the field, one line."""
+        name, pipe = self._model_of(body, {"text", "seconds", "frames", "seed", "model", "sampler", "steps", "cfg",
+                                            "footskate", "control", "encoding", "features", "format"})
         text = body.get("text")
         if not isinstance(text, str):
             raise StableMoError(f"text: expected a string, got {_json_type(text)}")
@@ -179,16 +180,8 @@ class ModelSet:
     def parse_stream(self, body: Any) -> StreamJob:
         """A JSON timeline request -> a StreamJob whose chunks are computed when pulled. Every error
         (fields, the timeline, the chunk settings against the model) is raised here, before any chunk."""
-        if not isinstance(body, dict):
-            raise StableMoError("request: expected a JSON object")
-        known = {"timeline", "chunk_seconds", "seed", "model", "sampler", "steps", "cfg", "encoding"}
-        unknown = sorted(set(body) - known)
-        if unknown:
-            raise StableMoError(f"{unknown[0]}: unknown field (known: {', '.join(sorted(known))})")
-        name = body.get("model") or self.default
-        if name not in self.models:
-            raise StableMoError(f"model: unknown {name!r}; served: {', '.join(self.models)}")
-        pipe = self.models[name].pipeline
+        name, pipe = self._model_of(body, {"timeline", "chunk_seconds", "seed", "model", "sampler", "steps", "cfg",
+                                            "encoding"})
         timeline = body.get("timeline")
         if not isinstance(timeline, list) or not timeline:
             raise StableMoError('timeline: expected a non-empty list of {"text", "seconds"}')

@@ -97,16 +97,9 @@ def parse_timeline(text: str, source: str = "timeline") -> list[Segment]:
 
 def read_timeline(path: str | Path) -> list[Segment]:
     """A timeline file -> checked segments (UTF-8; errors name the file and line)."""
-    file = Path(path)
-    if not file.is_file():
-        raise StableMoError(f"{file}: timeline file not found")
-    try:
-        content = file.read_text(encoding="utf-8")
-    except UnicodeDecodeError as err:
-        raise StableMoError(f"{file}: not UTF-8 text (byte {err.start})") from None
-    except OSError as err:
-        raise StableMoError(f"{file}: cannot read ({err.strerror})") from None
-    return parse_timeline(content, str(file))
+    from stablemo.io import read_text
+
+    return parse_timeline(read_text(path, "timeline file"), str(path))
 
 
 def segment_frames(segments: Sequence[Segment], fps: float, source: str = "segments") -> list[tuple[int, int]]:
