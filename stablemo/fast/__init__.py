@@ -62,15 +62,21 @@ FAST_LAYERS: dict[type, Callable[[nn.Module], nn.Module]] = {
 }
 
 
+def swap_layers(model: nn.Module, table: dict) -> nn.Module:
+    """Replace, children first, every module whose exact type is in `table` by table[type](module);
+    returns the model (a replacement when `model` itself is such a layer)."""
+    for name, child in list(model.named_children()):
+        fast = swap_layers(child, table)
+        if fast is not child:
+            setattr(model, name, fast)
+    factory = table.get(type(model))
+    return factory(model) if factory is not None else model
+
+
 def accelerate(model: nn.Module) -> nn.Module:
     """Replace every layer of `model` listed in FAST_LAYERS by its fast version, children first;
     returns the model (a replacement when `model` itself is such a layer)."""
-    for name, child in list(model.named_children()):
-        fast = accelerate(child)
-        if fast is not child:
-            setattr(model, name, fast)
-    factory = FAST_LAYERS.get(type(model))
-    return factory(model) if factory is not None else model
+    return swap_layers(model, FAST_LAYERS)
 
 
 __all__ = ["FAST_LAYERS", "accelerate", "gemm_backend"]

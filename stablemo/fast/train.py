@@ -180,10 +180,7 @@ def accelerate_training(model: nn.Module) -> nn.Module:
     """Swap, in place and children first, nn.Conv1d -> TrainConv1d, nn.Mish -> TrainMish and the
     UNet's ResBlock1D -> TrainResBlock1D (exact types only: an already swapped or subclassed layer is
     left alone). Returns the model. Parameters and state_dict keys are unchanged."""
-    swaps = {nn.Conv1d: TrainConv1d.from_stock, nn.Mish: lambda stock: TrainMish(), ResBlock1D: TrainResBlock1D}
-    for name, child in list(model.named_children()):
-        fast = accelerate_training(child)
-        if fast is not child:
-            setattr(model, name, fast)
-    factory = swaps.get(type(model))
-    return factory(model) if factory is not None else model
+    from stablemo.fast import swap_layers
+
+    return swap_layers(model, {nn.Conv1d: TrainConv1d.from_stock, nn.Mish: lambda stock: TrainMish(),
+                               ResBlock1D: TrainResBlock1D})
