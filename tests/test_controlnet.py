@@ -98,6 +98,22 @@ def test_controlnet_starts_as_its_base_and_is_exactly_padding_invariant(variant)
     assert torch.all(out[1, 24:] == 0) and torch.all(longer[:, 32:] == 0)
 
 
+def test_a_sample_without_targets_is_its_base_exactly_beside_controlled_ones():
+    base = tiny_base()
+    model = ControlledModel(base, "diffusion", J, {"channels": 16, "layers": 2}).eval()
+    perturb(model.control)  # trained injections: non-zero wherever they act
+    text, text_mask = base.encode_text(["a person walks", "a person jumps"])
+    x, t, mask, hint = inputs()
+    free = hint.clone()
+    free[1] = 0.0  # no targets for the second sample ...
+    free[1, 24:] = 1.0  # ... but garbage on its padded frames, mask channels included
+    with torch.no_grad():
+        ref = base(x, t, text, text_mask, mask)
+        out = model(x, t, text, text_mask, mask, free)
+    assert torch.equal(out[1], ref[1])  # the gate: no injection at all
+    assert (out[0] - ref[0]).abs().max() > 1e-2  # its neighbour is controlled
+
+
 def test_only_unet_denoisers_can_be_controlled():
     model = MotionDiffusionModel(denoiser={"name": "dit", "input_dim": D, "latent_dim": 32, "num_layers": 1,
                                            "num_heads": 2, "ff_dim": 64},

@@ -23,10 +23,11 @@ def hint_input(targets: torch.Tensor, mask: torch.Tensor, scale: float = 1.0) ->
 
 def sample_hint_mask(motion_mask: torch.Tensor, joints: int, generator: torch.Generator,
                      choices: tuple[int, ...] = TRAIN_JOINTS, dense_prob: float = 0.25,
-                     empty_prob: float = 0.1) -> torch.Tensor:
+                     empty_prob: float = 0.0) -> torch.Tensor:
     """Which (frame, joint) entries of each clip are hints: (B, T, J) bool.
 
-    Per sample: with `empty_prob` no hint (the model must still behave without one); else one joint
+    Per sample: with `empty_prob` no hint (such a sample gets no injection, so it teaches nothing:
+    the gate in `network.ControlNet`; kept for ablations); else one joint
     from `choices`, and with `dense_prob` all its valid frames, otherwise each valid frame kept
     with a probability drawn log-uniformly between 1 / length and 1 (from one keyframe to nearly
     dense), at least one frame. Draws come from `generator` only (CPU), so a resumed run repeats them.

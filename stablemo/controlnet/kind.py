@@ -60,7 +60,7 @@ class ControlNetKind:
         model = pipeline.model
         section = _section(pipeline.config, "config")
         B, T = motion_mask.shape
-        if control is None:  # a free prompt: the ControlNet sees an empty hint (trained for it)
+        if control is None:  # a free prompt: the empty hint, which the gate turns into no injection (the base)
             control = ControlTargets(torch.zeros(B, T, model.joints, 3), torch.zeros(B, T, model.joints, dtype=torch.bool))
         hint = hint_input(control.targets, control.mask, float(section.get("hint_scale", 1.0))).to(motion_mask.device)
         network = HintedNetwork(model, hint)

@@ -57,7 +57,7 @@ class ControlNetTraining(LightningModule):
         hint_joints: Sequence[int] = TRAIN_JOINTS,
         hint_scale: float = 1.0,
         dense_prob: float = 0.25,
-        empty_prob: float = 0.1,
+        empty_prob: float = 0.0,
         joint_weight: float = 1.0,
         train_timesteps: Sequence[int] | None = None,
         cond_drop_prob: float = 0.0,

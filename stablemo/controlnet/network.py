@@ -11,8 +11,11 @@
 - `ControlledModel`: the frozen base (a MotionDiffusionModel or a ConsistencyStudent) and its
   ControlNet, with the base's `prepare`/`denoise` contract plus a hint.
 
-At initialisation every injection is exactly zero, so a controlled model is its base. Every
-operator masks padded frames, so the controlled model stays exactly padding invariant.
+At initialisation every injection is exactly zero, so a controlled model is its base. A sample
+whose hint has no target gets no injection at all (a per-sample gate), so a free prompt served by a
+controlled bundle is exactly its base's motion, and a batch mixing free and controlled prompts
+gives each the motion it would get alone. Every operator masks padded frames, so the controlled
+model stays exactly padding invariant.
 """
 
 from __future__ import annotations
@@ -68,12 +71,14 @@ def _encoder_copy(unet: CondUNet1D) -> CondUNet1D:
 
 @dataclass
 class ControlConditioning(Conditioning):
-    """A controlled step's per-request inputs: the frozen network's context, the copy's, and the
-    encoded hint (B, D, T) (constant over the steps of a request, so encoded once)."""
+    """A controlled step's per-request inputs: the frozen network's context, the copy's, the
+    encoded hint (B, D, T) (constant over the steps of a request, so encoded once) and the gate
+    (B, 1, 1): 1 where the sample has at least one target, else 0 (no injection)."""
 
     base: Conditioning
     copy: Conditioning
     hint: torch.Tensor
+    gate: torch.Tensor
 
 
 class ControlNet(nn.Module):
@@ -91,27 +96,32 @@ class ControlNet(nn.Module):
         self.skip_convs = nn.ModuleList(_zero_conv(c, c) for c in widths)
         self.mid_conv = _zero_conv(widths[-1], widths[-1])
 
-    def prepare(self, text, text_mask, motion_mask, time_cond, timesteps, hint) -> tuple[Conditioning, torch.Tensor]:
-        """(the copy's context, the encoded hint (B, D, T)); hint: (B, T, 4 J)."""
+    def prepare(self, text, text_mask, motion_mask, time_cond, timesteps,
+                hint) -> tuple[Conditioning, torch.Tensor, torch.Tensor]:
+        """(the copy's context, the encoded hint (B, D, T), the gate (B, 1, 1)); hint: (B, T, 4 J)."""
         if hint.shape != (*motion_mask.shape, 4 * self.joints):
             raise StableMoError(f"hint: expected shape {(*motion_mask.shape, 4 * self.joints)}, got {tuple(hint.shape)}")
         ctx = self.encoder.prepare(text, text_mask, motion_mask, time_cond, timesteps)
-        return ctx, self.hint_encoder(hint.to(text.dtype), motion_mask)
+        targets = hint[..., 3 * self.joints:] * motion_mask[..., None]  # (B, T, J): the mask channels on valid frames
+        gate = (targets.flatten(1) > 0).any(1).to(text.dtype)[:, None, None]  # (B, 1, 1)
+        return ctx, self.hint_encoder(hint.to(text.dtype), motion_mask), gate
 
-    def residuals(self, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning, hint: torch.Tensor) -> list[torch.Tensor]:
-        """The injections: one (B, C_i, T_i) per down stage (into its skip), then the middle's."""
+    def residuals(self, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning, hint: torch.Tensor,
+                  gate: torch.Tensor) -> list[torch.Tensor]:
+        """The injections: one (B, C_i, T_i) per down stage (into its skip), then the middle's; each
+        times the gate (B, 1, 1), so a sample without targets gets exact zeros."""
         enc = self.encoder
         adagn = enc.step_adagn(t, ctx)
         h = zero_pad_bct(x.transpose(1, 2), ctx.masks[0]) + hint  # (B, D, T)
         out = []
         for i, stage in enumerate(enc.down):
             h = stage(h, adagn[i], ctx.text_contexts[i], ctx.masks[i])
-            out.append(zero_pad_bct(self.skip_convs[i](h), ctx.masks[i]))
+            out.append(zero_pad_bct(self.skip_convs[i](h), ctx.masks[i]) * gate)
             if i < len(enc.downsample):
                 h = enc.resample(enc.downsample[i], h, ctx.masks[i + 1])
         n = len(enc.down)
         h = enc.mid(h, adagn[n], ctx.text_contexts[n], ctx.masks[-1])
-        out.append(zero_pad_bct(self.mid_conv(h), ctx.masks[-1]))
+        out.append(zero_pad_bct(self.mid_conv(h), ctx.masks[-1]) * gate)
         return out
 
 
@@ -185,11 +195,11 @@ class ControlledModel(nn.Module):
             hint = torch.zeros(*motion_mask.shape, 4 * self.joints, device=motion_mask.device)
         time_cond = self.time_cond(cond)
         base = self.net.prepare(text, text_mask, motion_mask, time_cond, timesteps)
-        copy_ctx, encoded = self.control.prepare(text, text_mask, motion_mask, time_cond, timesteps, hint)
-        return ControlConditioning(motion_mask, time_cond, base.timesteps, base, copy_ctx, encoded)
+        copy_ctx, encoded, gate = self.control.prepare(text, text_mask, motion_mask, time_cond, timesteps, hint)
+        return ControlConditioning(motion_mask, time_cond, base.timesteps, base, copy_ctx, encoded, gate)
 
     def denoise(self, x, t, ctx: ControlConditioning) -> torch.Tensor:
-        residuals = self.control.residuals(x, t, ctx.copy, ctx.hint)
+        residuals = self.control.residuals(x, t, ctx.copy, ctx.hint, ctx.gate)
         return controlled_forward(self.unet, x, t, ctx.base, residuals)
 
     def forward(self, x, t, text, text_mask, motion_mask, hint, cond=None) -> torch.Tensor:
