@@ -263,7 +263,8 @@ def test_bad_bundles_and_bases_are_named(teacher_bundle, student_bundle, tmp_pat
         ControlNetTraining(str(path))
 
 
-@pytest.mark.parametrize("name", ["controlnet_lcm_synth.yaml", "controlnet_teacher_synth.yaml"])
+@pytest.mark.parametrize("name", ["controlnet_lcm_synth.yaml", "controlnet_teacher_synth.yaml",
+                                  "controlnet_lcm_pelvis_synth.yaml", "controlnet_teacher_pelvis_synth.yaml"])
 def test_shipped_control_configs_parse(name, capsys):
     import yaml
 
@@ -275,7 +276,7 @@ def test_shipped_control_configs_parse(name, capsys):
     printed = yaml.safe_load(capsys.readouterr().out)
     assert printed["model"]["class_path"] == "stablemo.controlnet.module.ControlNetTraining"
     assert printed["model"]["init_args"]["joint_weight"] == 1.0
-    assert printed["model"]["init_args"]["hint_joints"] == list(TRAIN_JOINTS)
+    assert printed["model"]["init_args"]["hint_joints"] == ([0] if "pelvis" in name else list(TRAIN_JOINTS))
 
 
 @pytest.mark.slow
