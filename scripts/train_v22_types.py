@@ -49,7 +49,45 @@ def _resample(joints: np.ndarray, contacts: np.ndarray, factor: float) -> tuple[
     return (joints[lo] * (1 - a) + joints[hi] * a).astype(np.float32), contacts[np.rint(src).astype(int)]
 
 
-def build_training_set(motions: int, per_type: int, seed: int, log, skeleton: str = "humanml3d") -> tuple[list, list]:
+def heel_raise(joints: np.ndarray, contacts: np.ndarray, rng: np.random.Generator, prob: float = 0.5,
+               lift=(0.03, 0.10), min_frames: int = 6) -> tuple[np.ndarray, np.ndarray]:
+    """Standing on the ball of the foot: in each flat-foot stance (heel and toe both down for at
+    least `min_frames`) picked with `prob`, the foot pitches about its toe joint so the heel rises
+    by U(`lift`) metres, ramped in and out over 2 frames; the knee moves with the ankle. Heel
+    contact is off where the heel is up by more than 1.5 cm, the toe stays down, so the force
+    labels put that foot's load on its front cells. The synthetic generator has almost no such
+    stances; a real clip (HumanML3D 012314) stands on the ball of its left foot for 16 frames."""
+    out, c = joints.astype(np.float64).copy(), contacts.copy()
+    for side, (knee, ankle, toe) in {0: (4, 7, 10), 1: (5, 8, 11)}.items():
+        flat = contacts[:, 2 * side] & contacts[:, 2 * side + 1]
+        starts = np.flatnonzero(flat & ~np.r_[False, flat[:-1]])
+        ends = np.flatnonzero(flat & ~np.r_[flat[1:], False])
+        for s, e in zip(starts, ends):
+            if e - s + 1 < min_frames or rng.random() >= prob:
+                continue
+            h = rng.uniform(*lift)
+            t = np.arange(s, e + 1)
+            ramp = np.clip(np.minimum(t - s + 1, e + 1 - t) / 3.0, 0, 1)       # 1/3, 2/3, 1, ..., 2/3, 1/3
+            for k, tt in enumerate(t):
+                v = out[tt, ankle] - out[tt, toe]                              # toe -> heel, length kept
+                length = np.linalg.norm(v)
+                flat_len = np.linalg.norm(v[[0, 2]])
+                if length < 1e-6 or flat_len < 1e-6:
+                    continue
+                rise = min(h * ramp[k], 0.9 * length)
+                new_y = v[1] + rise
+                horiz = np.sqrt(max(length ** 2 - new_y ** 2, 0.0))
+                nv = np.array([v[0] / flat_len * horiz, new_y, v[2] / flat_len * horiz])
+                delta = nv - v
+                out[tt, ankle] += delta
+                out[tt, knee] += delta
+                if rise > 0.015:
+                    c[tt, 2 * side] = False
+    return out.astype(np.float32), c
+
+
+def build_training_set(motions: int, per_type: int, seed: int, log, skeleton: str = "humanml3d",
+                       heel: float = 0.0) -> tuple[list, list]:
     from footskate import HUMANML3D, KIT
     from footskate.forces import forces_from_contacts
     from stablemo.data.synth import generate_motion
@@ -89,6 +127,10 @@ def build_training_set(motions: int, per_type: int, seed: int, log, skeleton: st
         add(slid, c, labels_from=j)
         rj, rc = _resample(j, c, float(np.exp(rng.uniform(np.log(0.75), np.log(1.33)))))
         add(rj, rc)
+        if heel > 0:
+            hj, hc = heel_raise(j, c, rng, prob=heel)
+            if not np.array_equal(hc, c):
+                add(hj + rng.normal(0, 0.005, hj.shape).astype(np.float32), hc)
     return joints, forces
 
 
@@ -129,6 +171,9 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--skeleton", choices=("humanml3d", "kit"), default="humanml3d")
     p.add_argument("--log", default=None)
+    p.add_argument("--heel-raise", type=float, default=0.0,
+                   help="also add each motion with this share of its flat-foot stances on the ball of the foot "
+                        "(heel_raise; 0: off)")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
@@ -141,7 +186,7 @@ def main(argv=None) -> int:
     log("$ python scripts/train_v22_types.py " + " ".join(argv if argv is not None else sys.argv[1:]))
     model = load_vgrf(args.init, quiet=True)  # a bad --init is named before the data is built
     started = time.time()
-    joints, forces = build_training_set(args.motions, args.per_type, args.seed, log, args.skeleton)
+    joints, forces = build_training_set(args.motions, args.per_type, args.seed, log, args.skeleton, args.heel_raise)
     log(f"{len(joints)} training sequences ({sum(len(j) for j in joints)} frames) in {time.time() - started:.0f}s")
     if args.skeleton == "kit" and model.num_joints == 22:
         from stablemo.footskate_bench import kit_from_v22
@@ -178,7 +223,8 @@ def main(argv=None) -> int:
                                 "init": args.init or "shipped v22_synth", "steps": args.steps, "batch": args.batch,
                                 "window": args.window, "lr": args.lr, "seed": args.seed,
                                 "fps": 12.5 if args.skeleton == "kit" else 20.0, "up_axis": "y",
-                                "augment": "sliding (overshoot<=35%, drift<=1 m/s, 5 mm noise), speed x0.75-1.33",
+                                "augment": "sliding (overshoot<=35%, drift<=1 m/s, 5 mm noise), speed x0.75-1.33"
+                                           + (f", heel raise {args.heel_raise}" if args.heel_raise else ""),
                                 "labels": "footskate.forces (kinematics + contact labels)",
                                 "heldout_f1": after})
     log(f"saved {args.out}")
