@@ -21,8 +21,8 @@ from footskate.errors import FootskateError
 from footskate.vgrf import VGRFNet, msle
 
 
-GATE_MARGIN = 0.05   # m; see CleanupConfig.gate_margin
-GATE_FORCE = 0.10    # body weights; see CleanupConfig.gate_force
+GATE_MARGIN = 0.03   # m; see CleanupConfig.gate_margin
+GATE_FORCE = 0.25    # body weights; see CleanupConfig.gate_force
 
 
 @dataclass

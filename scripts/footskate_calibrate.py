@@ -27,18 +27,19 @@ MARGINS = (0.03, 0.035, 0.04, 0.05)
 SPEEDS = (2.5, 3.0, 4.0)
 
 
-def calibrate(vgrf, seeds=(3000, 4000), per_type: int = 8) -> dict:
+def calibrate(vgrf, seeds=(3000, 4000), per_type: int = 8, skeleton: str = "humanml3d") -> dict:
     from footskate.cleanup import detect_contacts
-    from stablemo.footskate_bench import FEET, FPS, TYPES, _f1_score, build_set, f1
+    from stablemo.footskate_bench import TYPES, _f1_score, _skeleton, build_set, f1
 
-    sets = [build_set(s, per_type) for s in seeds]
+    sets = [build_set(s, per_type, skeleton=skeleton) for s in seeds]
+    feet, fps, _ = _skeleton(skeleton)
 
     def score(**kw) -> dict:
         counts = {k: np.zeros(3, dtype=np.int64) for k in (*TYPES, "all")}
         for data in sets:
             x, lengths, truth = data["sliding"], data["lengths"], data["contacts"]
             valid = torch.arange(x.shape[1])[None] < lengths[:, None]
-            pred = detect_contacts(x, lengths, FEET, FPS, 1, **kw)[0]
+            pred = detect_contacts(x, lengths, feet, fps, 1, **kw)[0]
             kinds = np.array(data["kinds"])
             for k in TYPES:
                 sel = torch.from_numpy(kinds == k)
@@ -54,7 +55,7 @@ def calibrate(vgrf, seeds=(3000, 4000), per_type: int = 8) -> dict:
         rows.append({"gate_force": force, "gate_margin": margin, "gate_speed": speed,
                      "min_margin": min(s[k] - rule[k] for k in TYPES), "f1": s})
     rows.sort(key=lambda r: (-r["min_margin"], -r["f1"]["all"]))
-    return {"seeds": list(seeds), "per_type": per_type, "rule": rule, "best": rows[0], "grid": rows}
+    return {"skeleton": skeleton, "seeds": list(seeds), "per_type": per_type, "rule": rule, "best": rows[0], "grid": rows}
 
 
 def main(argv=None) -> int:
@@ -62,14 +63,16 @@ def main(argv=None) -> int:
     from stablemo.io import write_text
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--weights", default=None, help="vGRF weights (default: the shipped V22)")
+    p.add_argument("--weights", default=None, help="vGRF weights (default: the shipped V22, or V21 for kit)")
     p.add_argument("--seeds", default="3000,4000")
     p.add_argument("--per-type", type=int, default=8)
+    p.add_argument("--skeleton", choices=("humanml3d", "kit"), default="humanml3d")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
-    out = calibrate(load_vgrf_model(args.weights), tuple(int(s) for s in args.seeds.split(",")), args.per_type)
+    out = calibrate(load_vgrf_model(args.weights, args.skeleton), tuple(int(s) for s in args.seeds.split(",")),
+                    args.per_type, args.skeleton)
     fmt = lambda f: " ".join(f"{k} {v:.4f}" for k, v in f.items())
     print("rule  ", fmt(out["rule"]))
     for r in out["grid"][:8]:
