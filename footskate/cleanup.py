@@ -21,7 +21,7 @@ from footskate.errors import FootskateError
 from footskate.vgrf import VGRFNet, msle
 
 
-GATE_MARGIN = 0.03   # m; see CleanupConfig.gate_margin
+GATE_MARGIN = 0.05   # m; see CleanupConfig.gate_margin
 GATE_FORCE = 0.25    # body weights; see CleanupConfig.gate_force
 
 
@@ -77,9 +77,12 @@ class CleanupConfig:
     # (synthetic run 92 -> 88 % sliding removed)
     gate_speed: float = 3.0
     # gated: the height gate (m above the joint's own lowest point) and the per-foot force the
-    # network's contacts need (body weights; UnderPressure's rule: 0.10). Calibrated on synthetic
-    # validation motions (seeds 3000 and 4000, 8 per type, sliding injected), never on the
-    # benchmark's test seeds or the real clip: scripts/footskate_calibrate.py
+    # network's contacts need (body weights; UnderPressure's rule: 0.10). The force is calibrated
+    # on synthetic validation motions (seeds 3000 and 4000, 8 per type, sliding injected), never on
+    # the benchmark's test seeds or the real clip: scripts/footskate_calibrate.py (0.25: smallest
+    # per-type F1 margin over the rule +0.0051, 0.10: +0.0015). The height gate stays 5 cm: 3 cm
+    # scores higher there but leaves the demo model's generated stances, which sit at different
+    # heights, unanchored (see MARGINS in that script)
     gate_margin: float = GATE_MARGIN
     gate_force: float = GATE_FORCE
 
