@@ -35,6 +35,20 @@ def tiny_base(variant: str = "stablemo", seed: int = 0) -> MotionDiffusionModel:
     return model.eval()
 
 
+def tiny_transformer(name: str, cross_attention: bool, seed: int = 0) -> MotionDiffusionModel:
+    """A tiny DiT or RetNet with its zero-initialised output and modulation given weights."""
+    torch.manual_seed(seed)
+    model = MotionDiffusionModel(denoiser={"name": name, "input_dim": D, "latent_dim": 32, "num_layers": 3,
+                                           "num_heads": 2, "ff_dim": 64, "dropout": 0.0,
+                                           "cross_attention": cross_attention},
+                                 text=tiny_model()["text"])
+    with torch.no_grad():
+        for name_, p in model.denoiser.named_parameters():
+            if name_.startswith(("out.", "final_ada", "blocks")) and p.abs().max() == 0:
+                p.normal_(0, 0.05)
+    return model.eval()
+
+
 def perturb(control: torch.nn.Module, seed: int = 1, std: float = 0.05) -> None:
     """Give the zero-initialised injections weights, as training would."""
     gen = torch.Generator().manual_seed(seed)
@@ -114,12 +128,46 @@ def test_a_sample_without_targets_is_its_base_exactly_beside_controlled_ones():
     assert (out[0] - ref[0]).abs().max() > 1e-2  # its neighbour is controlled
 
 
-def test_only_unet_denoisers_can_be_controlled():
-    model = MotionDiffusionModel(denoiser={"name": "dit", "input_dim": D, "latent_dim": 32, "num_layers": 1,
-                                           "num_heads": 2, "ff_dim": 64},
-                                 text=tiny_model()["text"])
-    with pytest.raises(StableMoError, match="only the unet"):
+@pytest.mark.parametrize("name,cross", [("dit", True), ("dit", False), ("retnet", True), ("retnet", False)])
+def test_transformer_controlnet_starts_as_its_base_and_is_exactly_padding_invariant(name, cross):
+    base = tiny_transformer(name, cross)
+    model = ControlledModel(base, "diffusion", J, {"channels": 16, "layers": 2}).eval()
+    assert len(model.control.encoder.blocks) == 2 and len(model.control.block_out) == 2  # half of 3, rounded up
+    text, text_mask = base.encode_text(["a person walks", "a person jumps"])
+    x, t, mask, hint = inputs()
+    with torch.no_grad():
+        ref = base(x, t, text, text_mask, mask)
+        assert torch.equal(model(x, t, text, text_mask, mask, hint), ref)
+        perturb(model.control)
+        out = model(x, t, text, text_mask, mask, hint)
+        assert (out - ref).abs().max() > 1e-2
+        x2, hint2 = x.clone(), hint.clone()
+        x2[1, 24:], hint2[1, 24:] = 1e3, -1e3
+        pad = torch.randn(2, 16, D), torch.randn(2, 16, 4 * J)
+        mask2 = torch.arange(48)[None] < torch.tensor([32, 24])[:, None]
+        longer = model(torch.cat([x2, pad[0]], 1), t, text, text_mask, mask2, torch.cat([hint2, pad[1]], 1))
+        alone = model(x2[1:, :24], t[1:], text[1:], text_mask[1:], mask[1:, :24], hint2[1:, :24])
+    close(longer[0, :32], out[0])
+    close(longer[1, :24], out[1, :24])
+    close(alone[0], out[1, :24])
+    assert torch.all(out[1, 24:] == 0)
+    # training reaches the hint encoder and every injection, never the frozen base
+    base.requires_grad_(False)
+    model(x, t, text, text_mask, mask, hint).square().sum().backward()
+    assert float(model.control.hint_encoder.out.weight.grad.abs().sum()) > 0
+    assert all(float(layer.weight.grad.abs().sum()) > 0 for layer in model.control.block_out)
+
+
+def test_other_denoisers_and_block_counts_are_named():
+    class Other(torch.nn.Module):
+        pass
+
+    model = tiny_base()
+    model.denoiser = Other()
+    with pytest.raises(StableMoError, match="Other denoiser cannot be controlled"):
         ControlledModel(model, "diffusion", J)
+    with pytest.raises(StableMoError, match="controlnet.blocks: need 1..3"):
+        ControlledModel(tiny_transformer("dit", True), "diffusion", J, {"blocks": 4})
 
 
 def test_hint_draws_follow_the_recipe():

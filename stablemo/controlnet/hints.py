@@ -27,7 +27,7 @@ def sample_hint_mask(motion_mask: torch.Tensor, joints: int, generator: torch.Ge
     """Which (frame, joint) entries of each clip are hints: (B, T, J) bool.
 
     Per sample: with `empty_prob` no hint (such a sample gets no injection, so it teaches nothing:
-    the gate in `network.ControlNet`; kept for ablations); else one joint
+    the per-sample gate in network.py; kept for ablations); else one joint
     from `choices`, and with `dense_prob` all its valid frames, otherwise each valid frame kept
     with a probability drawn log-uniformly between 1 / length and 1 (from one keyframe to nearly
     dense), at least one frame. Draws come from `generator` only (CPU), so a resumed run repeats them.

@@ -37,7 +37,7 @@ from stablemo.motion.skeleton import get_skeleton
 class ControlNetTraining(LightningModule):
     """Args:
         base: inference bundle to control (kind "diffusion" or "consistency"), frozen.
-        control: ControlNet kwargs (hint encoder channels, layers).
+        control: ControlNet kwargs (hint encoder channels, layers; for a DiT/RetNet also blocks, the copied count).
         hint_joints: joints a training hint is drawn from (HumanML3D indices).
         hint_scale: target positions are divided by this in the hint (dataset units).
         dense_prob, empty_prob: share of dense hints and of samples without a hint.

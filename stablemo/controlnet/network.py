@@ -1,13 +1,19 @@
-"""A motion ControlNet for CondUNet1D (MotionLCM's control, in motion space; facts-distillation §4).
+"""A motion ControlNet for every denoiser (MotionLCM's control, in motion space; facts-distillation §4).
 
 - `HintEncoder`: per-frame hint (masked global joint positions + the mask, (B, T, 4 J)) ->
   convolutions over time -> a zero-initialised 1x1 projection to the feature width. In motion
   space the hint already has a time axis, so MotionLCM's trajectory transformer with its global
   token (needed for MLD's time-less latent) is not needed.
-- `ControlNet`: a trainable copy of the frozen UNet's encoder half (time/text embeddings, down
-  stages, down-samplings, middle stage), fed x_t plus the encoded hint, and one zero-initialised
-  1x1 convolution per down stage and for the middle stage. Their outputs are added to the frozen
-  network's skip features and middle output (`controlled_forward`).
+- `UNetControlNet` (CondUNet1D): a trainable copy of the frozen UNet's encoder half (time/text
+  embeddings, down stages, down-samplings, middle stage), fed x_t plus the encoded hint, and one
+  zero-initialised 1x1 convolution per down stage and for the middle stage. Their outputs are
+  added to the frozen network's skip features and middle output.
+- `TokenControlNet` (DiT, RetNet): a trainable copy of the input embedding and of the first half
+  of the blocks, its frame tokens plus the encoded hint, and one zero-initialised linear layer per
+  copied block; their outputs are added to the frame tokens the frozen blocks put out (the
+  ControlNet-Transformer form: the transformers have no skips to inject into).
+- `make_controlnet(denoiser, ...)` picks the form; each has `prepare`, `residuals` and `run_base`
+  (the frozen network's forward with the residuals added, through the network's named steps).
 - `ControlledModel`: the frozen base (a MotionDiffusionModel or a ConsistencyStudent) and its
   ControlNet, with the base's `prepare`/`denoise` contract plus a hint.
 
@@ -29,7 +35,9 @@ from torch import nn
 
 from stablemo.errors import StableMoError
 from stablemo.nets.conditioning import Conditioning
-from stablemo.nets.layers import zero_pad_bct
+from stablemo.nets.dit import DiT
+from stablemo.nets.layers import zero_pad_bct, zero_pad_btc
+from stablemo.nets.retnet import RetNet
 from stablemo.nets.unet import CondUNet1D
 
 
@@ -81,30 +89,38 @@ class ControlConditioning(Conditioning):
     gate: torch.Tensor
 
 
-class ControlNet(nn.Module):
-    """unet: the frozen network to control (its encoder half is copied now, with its weights);
-    joints: J of the skeleton (hint width 4 J); channels/layers: the hint encoder's."""
+class _ControlNetBase(nn.Module):
+    """What both forms share: the hint encoder, the hint check and the per-sample gate. Subclasses
+    set `self.encoder` (the trainable copy, with the base's `prepare`)."""
 
-    def __init__(self, unet: CondUNet1D, joints: int, channels: int = 64, layers: int = 3):
+    encoder: nn.Module
+
+    def __init__(self, joints: int, hint_width: int, channels: int, layers: int):
         super().__init__()
-        if not isinstance(unet, CondUNet1D):
-            raise StableMoError(f"controlnet: only the unet denoiser can be controlled, got {type(unet).__name__}")
         self.joints = int(joints)
-        self.encoder = _encoder_copy(unet)
-        self.hint_encoder = HintEncoder(4 * self.joints, unet.input_dim, channels, layers)
-        widths = [stage.blocks[-1].conv2.out_channels for stage in unet.down]
-        self.skip_convs = nn.ModuleList(_zero_conv(c, c) for c in widths)
-        self.mid_conv = _zero_conv(widths[-1], widths[-1])
+        self.hint_encoder = HintEncoder(4 * self.joints, hint_width, channels, layers)
 
     def prepare(self, text, text_mask, motion_mask, time_cond, timesteps,
                 hint) -> tuple[Conditioning, torch.Tensor, torch.Tensor]:
-        """(the copy's context, the encoded hint (B, D, T), the gate (B, 1, 1)); hint: (B, T, 4 J)."""
+        """(the copy's context, the encoded hint (B, C, T), the gate (B, 1, 1)); hint: (B, T, 4 J)."""
         if hint.shape != (*motion_mask.shape, 4 * self.joints):
             raise StableMoError(f"hint: expected shape {(*motion_mask.shape, 4 * self.joints)}, got {tuple(hint.shape)}")
         ctx = self.encoder.prepare(text, text_mask, motion_mask, time_cond, timesteps)
         targets = hint[..., 3 * self.joints:] * motion_mask[..., None]  # (B, T, J): the mask channels on valid frames
         gate = (targets.flatten(1) > 0).any(1).to(text.dtype)[:, None, None]  # (B, 1, 1)
         return ctx, self.hint_encoder(hint.to(text.dtype), motion_mask), gate
+
+
+class UNetControlNet(_ControlNetBase):
+    """unet: the frozen network to control (its encoder half is copied now, with its weights);
+    joints: J of the skeleton (hint width 4 J); channels/layers: the hint encoder's."""
+
+    def __init__(self, unet: CondUNet1D, joints: int, channels: int = 64, layers: int = 3):
+        super().__init__(joints, unet.input_dim, channels, layers)
+        self.encoder = _encoder_copy(unet)
+        widths = [stage.blocks[-1].conv2.out_channels for stage in unet.down]
+        self.skip_convs = nn.ModuleList(_zero_conv(c, c) for c in widths)
+        self.mid_conv = _zero_conv(widths[-1], widths[-1])
 
     def residuals(self, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning, hint: torch.Tensor,
                   gate: torch.Tensor) -> list[torch.Tensor]:
@@ -124,29 +140,101 @@ class ControlNet(nn.Module):
         out.append(zero_pad_bct(self.mid_conv(h), ctx.masks[-1]) * gate)
         return out
 
+    @staticmethod
+    def run_base(unet: CondUNet1D, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning,
+                 residuals: list[torch.Tensor]) -> torch.Tensor:
+        """CondUNet1D.forward with the residuals added to each skip and to the middle output (the
+        same named steps, so a fast network keeps its fused pieces). x: (B, T, D)."""
+        adagn = unet.step_adagn(t, ctx)
+        n = len(unet.down)
+        h = zero_pad_bct(x.transpose(1, 2), ctx.masks[0])
+        skips = []
+        for i, stage in enumerate(unet.down):
+            h = stage(h, adagn[i], ctx.text_contexts[i], ctx.masks[i])
+            skips.append(h + residuals[i])
+            if i < len(unet.downsample):
+                h = unet.resample(unet.downsample[i], h, ctx.masks[i + 1])
+        h = unet.mid(h, adagn[n], ctx.text_contexts[n], ctx.masks[-1]) + residuals[n]
+        for j, stage in enumerate(unet.up):
+            level = n - 1 - j
+            if unet.upsample_first:
+                h = unet.resample(unet.upsample[j], h, ctx.masks[level])
+            h = stage(unet.merge_skip(h, skips.pop()), adagn[n + 1 + j], ctx.text_contexts[n + 1 + j], ctx.masks[level])
+            if not unet.upsample_first and j < len(unet.upsample):
+                h = unet.resample(unet.upsample[j], h, ctx.masks[level - 1])
+        return unet.head(h, ctx.masks[0]).transpose(1, 2)
 
-def controlled_forward(unet: CondUNet1D, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning,
-                       residuals: list[torch.Tensor]) -> torch.Tensor:
-    """CondUNet1D.forward with the ControlNet's residuals added to each skip and to the middle
-    output (the same named steps, so a fast network keeps its fused pieces). x: (B, T, D)."""
-    adagn = unet.step_adagn(t, ctx)
-    n = len(unet.down)
-    h = zero_pad_bct(x.transpose(1, 2), ctx.masks[0])
-    skips = []
-    for i, stage in enumerate(unet.down):
-        h = stage(h, adagn[i], ctx.text_contexts[i], ctx.masks[i])
-        skips.append(h + residuals[i])
-        if i < len(unet.downsample):
-            h = unet.resample(unet.downsample[i], h, ctx.masks[i + 1])
-    h = unet.mid(h, adagn[n], ctx.text_contexts[n], ctx.masks[-1]) + residuals[n]
-    for j, stage in enumerate(unet.up):
-        level = n - 1 - j
-        if unet.upsample_first:
-            h = unet.resample(unet.upsample[j], h, ctx.masks[level])
-        h = stage(unet.merge_skip(h, skips.pop()), adagn[n + 1 + j], ctx.text_contexts[n + 1 + j], ctx.masks[level])
-        if not unet.upsample_first and j < len(unet.upsample):
-            h = unet.resample(unet.upsample[j], h, ctx.masks[level - 1])
-    return unet.head(h, ctx.masks[0]).transpose(1, 2)
+
+def _block_copy(net: nn.Module, blocks: int) -> nn.Module:
+    """A trainable copy of a DiT/RetNet keeping its input embedding and its first `blocks` blocks
+    (its own `prepare` then plans just those blocks' text contexts); no read-out."""
+    enc = copy.deepcopy(net)
+    enc.blocks = enc.blocks[:blocks]
+    enc.final_norm = enc.out = None
+    if hasattr(enc, "final_ada"):
+        enc.final_ada = None
+    return enc.requires_grad_(True).train()
+
+
+class TokenControlNet(_ControlNetBase):
+    """net: the frozen DiT or RetNet (its embedding and first `blocks` blocks, default half, are
+    copied now); joints, channels, layers as for the UNet. The hint is added to the copy's frame
+    tokens; residual i goes onto the frame tokens of the frozen block i's output."""
+
+    def __init__(self, net: nn.Module, joints: int, channels: int = 64, layers: int = 3, blocks: int | None = None):
+        super().__init__(joints, net.latent_dim, channels, layers)
+        n = len(net.blocks)
+        blocks = (n + 1) // 2 if blocks is None else int(blocks)
+        if not 1 <= blocks <= n:
+            raise StableMoError(f"controlnet.blocks: need 1..{n} for this network, got {blocks}")
+        self.encoder = _block_copy(net, blocks)
+        self.block_out = nn.ModuleList(_zero_linear(net.latent_dim) for _ in range(blocks))
+
+    def residuals(self, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning, hint: torch.Tensor,
+                  gate: torch.Tensor) -> list[torch.Tensor]:
+        """One (B, T, C) per copied block, times the gate; hint: (B, C, T) encoded."""
+        enc, mask = self.encoder, ctx.motion_mask
+        h, layout = enc.embed(x, t, ctx)
+        h = _add_to_frames(h, hint.transpose(1, 2))
+        out = []
+        for i in range(len(enc.blocks)):
+            h = enc.block(i, h, layout, ctx)
+            out.append(zero_pad_btc(self.block_out[i](h[:, -mask.shape[1]:]), mask) * gate)
+        return out
+
+    @staticmethod
+    def run_base(net: nn.Module, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning,
+                 residuals: list[torch.Tensor]) -> torch.Tensor:
+        """The frozen network's forward with residual i added to block i's frame tokens. x: (B, T, D)."""
+        h, layout = net.embed(x, t, ctx)
+        for i in range(len(net.blocks)):
+            h = net.block(i, h, layout, ctx)
+            if i < len(residuals):
+                h = _add_to_frames(h, residuals[i])
+        return net.readout(h, layout, ctx)
+
+
+def _zero_linear(dim: int) -> nn.Linear:
+    layer = nn.Linear(dim, dim)
+    nn.init.zeros_(layer.weight)
+    nn.init.zeros_(layer.bias)
+    return layer
+
+
+def _add_to_frames(h: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
+    """h: (B, S, C) tokens whose last T are the frames; frames: (B, T, C) added to those."""
+    T = frames.shape[1]
+    return torch.cat([h[:, :-T], h[:, -T:] + frames], dim=1) if h.shape[1] > T else h + frames
+
+
+def make_controlnet(denoiser: nn.Module, joints: int, **control) -> _ControlNetBase:
+    """The ControlNet form for `denoiser` (a CondUNet1D, DiT or RetNet), with its copy made now."""
+    if isinstance(denoiser, CondUNet1D):
+        return UNetControlNet(denoiser, joints, **control)
+    if isinstance(denoiser, (DiT, RetNet)):
+        return TokenControlNet(denoiser, joints, **control)
+    raise StableMoError(f"controlnet: a {type(denoiser).__name__} denoiser cannot be controlled "
+                        "(supported: unet, dit, retnet)")
 
 
 class ControlledModel(nn.Module):
@@ -163,7 +251,7 @@ class ControlledModel(nn.Module):
         if base_kind not in ("diffusion", "consistency"):
             raise StableMoError(f"controlnet.base_kind: expected 'diffusion' or 'consistency', got {base_kind!r}")
         self.base, self.base_kind = base, base_kind
-        self.control = ControlNet(self.unet, joints, **dict(control or {}))
+        self.control = make_controlnet(self.denoiser, joints, **dict(control or {}))
 
     @property
     def net(self) -> nn.Module:
@@ -171,7 +259,7 @@ class ControlledModel(nn.Module):
         return self.base.model if self.base_kind == "consistency" else self.base
 
     @property
-    def unet(self) -> CondUNet1D:
+    def denoiser(self) -> nn.Module:
         return self.net.denoiser
 
     @property
@@ -200,7 +288,7 @@ class ControlledModel(nn.Module):
 
     def denoise(self, x, t, ctx: ControlConditioning) -> torch.Tensor:
         residuals = self.control.residuals(x, t, ctx.copy, ctx.hint, ctx.gate)
-        return controlled_forward(self.unet, x, t, ctx.base, residuals)
+        return self.control.run_base(self.denoiser, x, t, ctx.base, residuals)
 
     def forward(self, x, t, text, text_mask, motion_mask, hint, cond=None) -> torch.Tensor:
         """One call with its own conditioning (training)."""

@@ -104,21 +104,35 @@ class DiT(nn.Module):
         return DiTConditioning(motion_mask, time_cond, (), contexts, tokens, mask)
 
     def forward(self, x, t, ctx: "DiTConditioning"):
+        h, emb = self.embed(x, t, ctx)
+        for i in range(len(self.blocks)):
+            h = self.block(i, h, emb, ctx)
+        return self.readout(h, emb, ctx)
+
+    # Named steps of `forward`, so a ControlNet (stablemo.controlnet) can run a copy of the first
+    # blocks and add to the outputs of the frozen ones. The frame tokens are always the last T of h.
+
+    def embed(self, x, t, ctx: "DiTConditioning") -> tuple[torch.Tensor, torch.Tensor]:
+        """x: (B, T, D) -> (the first block's tokens h (B, S, C), the timestep embedding (B, C))."""
         check_step(x, t, ctx, self.input_dim, self.length_multiple)
-        motion_mask = ctx.motion_mask
-        B, T, _ = x.shape
+        T = x.shape[1]
         emb = self.time_embed(t, ctx.time_cond)  # (B, C)
-        h = self.motion_in(zero_pad_btc(x, motion_mask))
+        h = self.motion_in(zero_pad_btc(x, ctx.motion_mask))
         h = h + sinusoidal_embedding(torch.arange(T, device=x.device), self.latent_dim).to(h.dtype)[None]
-        h = zero_pad_btc(h, motion_mask)
+        h = zero_pad_btc(h, ctx.motion_mask)
         if ctx.text_tokens is not None:
             h = torch.cat([ctx.text_tokens.to(h.dtype), h], dim=1)
-        for block, context in zip(self.blocks, ctx.text_contexts):
-            h = block(h, ctx.sequence_mask, emb, context)
-        h = h[:, -T:]
+        return h, emb
+
+    def block(self, i: int, h: torch.Tensor, emb: torch.Tensor, ctx: "DiTConditioning") -> torch.Tensor:
+        return self.blocks[i](h, ctx.sequence_mask, emb, ctx.text_contexts[i])
+
+    def readout(self, h: torch.Tensor, emb: torch.Tensor, ctx: "DiTConditioning") -> torch.Tensor:
+        """The last block's tokens -> the output (B, T, D)."""
+        T = ctx.motion_mask.shape[1]
         shift, scale = self.final_ada(emb).chunk(2, dim=-1)
-        out = self.out(modulate(self.final_norm(h), shift, scale))
-        return zero_pad_btc(out, motion_mask)
+        out = self.out(modulate(self.final_norm(h[:, -T:]), shift, scale))
+        return zero_pad_btc(out, ctx.motion_mask)
 
 
 @dataclass

@@ -153,6 +153,16 @@ class RetNet(nn.Module):
         return RetNetConditioning(motion_mask, time_cond, (), contexts, tokens, text_mask)
 
     def forward(self, x, t, ctx: "RetNetConditioning"):
+        h, seq = self.embed(x, t, ctx)
+        for i in range(len(self.blocks)):
+            h = self.block(i, h, seq, ctx)
+        return self.readout(h, seq, ctx)
+
+    # Named steps of `forward`, so a ControlNet (stablemo.controlnet) can run a copy of the first
+    # blocks and add to the outputs of the frozen ones. The frame tokens are always the last T of h.
+
+    def embed(self, x, t, ctx: "RetNetConditioning") -> tuple[torch.Tensor, "RetNetSequence"]:
+        """x: (B, T, D) -> (the first block's tokens h (B, S, C): [timestep | text |] frames, their layout)."""
         check_step(x, t, ctx, self.input_dim, self.length_multiple)
         motion_mask = ctx.motion_mask
         B, T, _ = x.shape
@@ -167,10 +177,25 @@ class RetNet(nn.Module):
         h, mask = torch.cat(tokens, dim=1), torch.cat(masks, dim=1)
         positions = torch.cat([torch.zeros(n_cond, device=x.device), torch.arange(T, device=x.device).float()])
         is_frame = torch.arange(n_cond + T, device=x.device) >= n_cond
-        for block, context in zip(self.blocks, ctx.text_contexts):
-            h = block(h, mask, positions, is_frame, context)
-        out = self.out(self.final_norm(h[:, n_cond:]))
-        return zero_pad_btc(out, motion_mask)
+        return h, RetNetSequence(mask, positions, is_frame)
+
+    def block(self, i: int, h: torch.Tensor, seq: "RetNetSequence", ctx: "RetNetConditioning") -> torch.Tensor:
+        return self.blocks[i](h, seq.mask, seq.positions, seq.is_frame, ctx.text_contexts[i])
+
+    def readout(self, h: torch.Tensor, seq: "RetNetSequence", ctx: "RetNetConditioning") -> torch.Tensor:
+        """The last block's tokens -> the output (B, T, D)."""
+        T = ctx.motion_mask.shape[1]
+        return zero_pad_btc(self.out(self.final_norm(h[:, -T:])), ctx.motion_mask)
+
+
+@dataclass
+class RetNetSequence:
+    """One step's token layout: mask (B, S) valid tokens, positions (S,) frame index (0 for the
+    condition tokens), is_frame (S,) bool."""
+
+    mask: torch.Tensor
+    positions: torch.Tensor
+    is_frame: torch.Tensor
 
 
 @dataclass
