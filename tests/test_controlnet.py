@@ -192,11 +192,37 @@ def test_hint_draws_follow_the_recipe():
     assert hint[0, 0, 3:3 * J].abs().sum() == 0 and hint[0, 0, 3 * J:].tolist() == [1.0] + [0.0] * (J - 1)
 
 
+def test_path_channels_read_speed_direction_and_turning_off_a_circle():
+    """A pelvis on a circle of radius 2 m at 0.5 rad/s (1 m/s), 20 fps, one frame missing: the path
+    channels give the speed, the direction of travel and a constant turning rate; none are made up
+    across the gap or off the mask, and the layout keeps the mask at [3 J, 4 J)."""
+    T, w, r = 40, 0.5, 2.0
+    ang = w * torch.arange(T) / 20.0
+    pos = torch.zeros(1, T, J, 3)
+    pos[0, :, 0, 0], pos[0, :, 0, 1], pos[0, :, 0, 2] = r * torch.sin(ang), 0.9, r * (1 - torch.cos(ang))
+    mask = torch.zeros(1, T, J, dtype=torch.bool)
+    mask[0, :, 0] = True
+    mask[0, 20, 0] = False
+    hint = hint_input(pos, mask, path=True)
+    assert hint.shape == (1, T, 12 * J)
+    assert torch.equal(hint[..., :4 * J], hint_input(pos, mask))  # positions and mask as without path channels
+    f = hint[0, :, 4 * J:].reshape(T, J, 8)[:, 0]  # the pelvis: vel (3), has_vel, speed, dir (2), turning
+    inside = [t for t in range(2, T - 2) if abs(t - 20) > 2]
+    torch.testing.assert_close(f[inside, 4], torch.full((len(inside),), r * w), atol=2e-3, rtol=0)
+    torch.testing.assert_close(f[inside, 7].abs(), torch.full((len(inside),), w), atol=2e-3, rtol=0)
+    assert f[inside, 7].sign().unique().numel() == 1  # one turning direction all along
+    expected_dir = torch.stack([torch.cos(ang), torch.sin(ang)], -1)  # d/dt of (sin, 1 - cos): (x, z)
+    torch.testing.assert_close(f[inside, 5:7], expected_dir[inside], atol=2e-3, rtol=0)
+    assert f[20].abs().sum() == 0  # the missing frame has nothing
+    assert f[19, 3] == 1 and f[19, 7] == 0  # its neighbours: a one-sided velocity, no turning across the gap
+    assert hint[0, :, 4 * J:].reshape(T, J, 8)[:, 1:].abs().sum() == 0  # joints without targets: zeros
+
+
 def test_training_step_moves_only_the_controlnet_and_learns(student_bundle):
     from stablemo.controlnet.module import ControlNetTraining
 
-    module = ControlNetTraining(str(student_bundle), control={"channels": 16, "layers": 2}, train_timesteps=[999],
-                                dense_prob=1.0, empty_prob=0.0, lr=3e-3)
+    module = ControlNetTraining(str(student_bundle), control={"channels": 16, "layers": 2, "path": True},
+                                train_timesteps=[999], dense_prob=1.0, empty_prob=0.0, lr=3e-3)
     module.train()
     assert not module.model.base.training and module.model.control.training
     gen = torch.Generator().manual_seed(0)
@@ -221,7 +247,7 @@ def test_training_step_moves_only_the_controlnet_and_learns(student_bundle):
 def controlled_bundle(base_bundle, tmp_path, name, trained=True):
     from stablemo.controlnet.module import ControlNetTraining
 
-    module = ControlNetTraining(str(base_bundle), control={"channels": 16, "layers": 2})
+    module = ControlNetTraining(str(base_bundle), control={"channels": 16, "layers": 2, "path": True})
     if trained:
         perturb(module.model.control, std=0.02)
     config = module.bundle_config()
@@ -263,6 +289,8 @@ def test_controlled_bundle_serves_through_the_pipeline(student_bundle, teacher_b
     torch.testing.assert_close(both.features[0], first.features[0], rtol=1e-4, atol=1e-5)
     torch.testing.assert_close(both.features[1, :32], second.features[0], rtol=1e-4, atol=1e-5)
     assert (first.features - free.features).abs().max() > 1e-3  # the hint reaches the network
+    base_free = Pipeline.from_bundle(student_bundle).generate(texts[:1], [40], seed=3)
+    assert torch.equal(free.features, base_free.features)  # no targets: the gate leaves the student exactly
     refined = pipe.generate(texts[:1], [40], seed=3, control=control)  # + the guidance refinement (default)
     miss = lambda g: np.linalg.norm(g.joints[0, :, 0].numpy() - pos[:, 0], axis=-1).mean()
     assert miss(refined) < 0.01 < miss(first)

@@ -2,7 +2,7 @@
 ControlNet. Samplers are the base kind's; the request's resolved joint targets become the hint.
 
 Bundle config: the base bundle's config with `kind: "controlnet"` and a section
-`controlnet: {base_kind, joints, hint_scale, control: {channels, layers}}`.
+`controlnet: {base_kind, joints, hint_scale, control: {channels, layers, path[, blocks]}}`.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ def _section(config: dict, source: str) -> dict:
 
 class HintedNetwork:
     """The controlled model seen as its base network (`prepare(text, text_mask, motion_mask, cond,
-    timesteps)`, `denoise`), with one request's hint (B, T, 4 J) bound; a batch that doubled for
+    timesteps)`, `denoise`), with one request's hint (B, T, 4 J or 12 J) bound; a batch that doubled for
     classifier-free guidance (cond + uncond) gets the hint on both halves."""
 
     def __init__(self, model: nn.Module, hint: torch.Tensor):
@@ -62,7 +62,8 @@ class ControlNetKind:
         B, T = motion_mask.shape
         if control is None:  # a free prompt: the empty hint, which the gate turns into no injection (the base)
             control = ControlTargets(torch.zeros(B, T, model.joints, 3), torch.zeros(B, T, model.joints, dtype=torch.bool))
-        hint = hint_input(control.targets, control.mask, float(section.get("hint_scale", 1.0))).to(motion_mask.device)
+        hint = hint_input(control.targets, control.mask, float(section.get("hint_scale", 1.0)),
+                          path=model.control.path).to(motion_mask.device)
         network = HintedNetwork(model, hint)
         if model.base_kind == "consistency":
             from stablemo.distill.student import StudentDenoiser

@@ -37,7 +37,8 @@ from stablemo.motion.skeleton import get_skeleton
 class ControlNetTraining(LightningModule):
     """Args:
         base: inference bundle to control (kind "diffusion" or "consistency"), frozen.
-        control: ControlNet kwargs (hint encoder channels, layers; for a DiT/RetNet also blocks, the copied count).
+        control: ControlNet kwargs (hint encoder channels, layers, path: the hint's path channels; for a
+            DiT/RetNet also blocks, the copied count).
         hint_joints: joints a training hint is drawn from (HumanML3D indices).
         hint_scale: target positions are divided by this in the hint (dataset units).
         dense_prob, empty_prob: share of dense hints and of samples without a hint.
@@ -160,7 +161,7 @@ class ControlNetTraining(LightningModule):
         with torch.no_grad():
             true_joints = self.joints(x0)  # (B, T, J, 3)
             text, text_mask = self.model.encode_text(texts)
-        hint = hint_input(true_joints, hint_mask, hp.hint_scale)
+        hint = hint_input(true_joints, hint_mask, hp.hint_scale, path=self.model.control.path)
         x_t = self.schedule.q_sample(x0, t, noise)
         cond = None if self.w is None else torch.full((B,), self.w, device=device)
         out = self.model(x_t, t, text, text_mask, mask, hint, cond)

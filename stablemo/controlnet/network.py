@@ -1,6 +1,7 @@
 """A motion ControlNet for every denoiser (MotionLCM's control, in motion space; facts-distillation §4).
 
-- `HintEncoder`: per-frame hint (masked global joint positions + the mask, (B, T, 4 J)) ->
+- `HintEncoder`: per-frame hint (masked global joint positions + the mask, (B, T, 4 J), and with
+  `path=True` the targets' path channels, (B, T, 12 J): hints.py) ->
   convolutions over time -> a zero-initialised 1x1 projection to the feature width. In motion
   space the hint already has a time axis, so MotionLCM's trajectory transformer with its global
   token (needed for MLD's time-less latent) is not needed.
@@ -33,6 +34,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from stablemo.controlnet.hints import hint_channels
 from stablemo.errors import StableMoError
 from stablemo.nets.conditioning import Conditioning
 from stablemo.nets.dit import DiT
@@ -95,16 +97,18 @@ class _ControlNetBase(nn.Module):
 
     encoder: nn.Module
 
-    def __init__(self, joints: int, hint_width: int, channels: int, layers: int):
+    def __init__(self, joints: int, hint_width: int, channels: int, layers: int, path: bool):
         super().__init__()
-        self.joints = int(joints)
-        self.hint_encoder = HintEncoder(4 * self.joints, hint_width, channels, layers)
+        self.joints, self.path = int(joints), bool(path)
+        self.hint_width = hint_channels(self.joints, self.path)
+        self.hint_encoder = HintEncoder(self.hint_width, hint_width, channels, layers)
 
     def prepare(self, text, text_mask, motion_mask, time_cond, timesteps,
                 hint) -> tuple[Conditioning, torch.Tensor, torch.Tensor]:
-        """(the copy's context, the encoded hint (B, C, T), the gate (B, 1, 1)); hint: (B, T, 4 J)."""
-        if hint.shape != (*motion_mask.shape, 4 * self.joints):
-            raise StableMoError(f"hint: expected shape {(*motion_mask.shape, 4 * self.joints)}, got {tuple(hint.shape)}")
+        """(the copy's context, the encoded hint (B, C, T), the gate (B, 1, 1)); hint: (B, T, 4 J) or
+        (B, T, 12 J) with the path channels."""
+        if hint.shape != (*motion_mask.shape, self.hint_width):
+            raise StableMoError(f"hint: expected shape {(*motion_mask.shape, self.hint_width)}, got {tuple(hint.shape)}")
         ctx = self.encoder.prepare(text, text_mask, motion_mask, time_cond, timesteps)
         targets = hint[..., 3 * self.joints:] * motion_mask[..., None]  # (B, T, J): the mask channels on valid frames
         gate = (targets.flatten(1) > 0).any(1).to(text.dtype)[:, None, None]  # (B, 1, 1)
@@ -113,10 +117,11 @@ class _ControlNetBase(nn.Module):
 
 class UNetControlNet(_ControlNetBase):
     """unet: the frozen network to control (its encoder half is copied now, with its weights);
-    joints: J of the skeleton (hint width 4 J); channels/layers: the hint encoder's."""
+    joints: J of the skeleton; channels/layers: the hint encoder's; path: the hint carries the
+    targets' path channels (hints.py)."""
 
-    def __init__(self, unet: CondUNet1D, joints: int, channels: int = 64, layers: int = 3):
-        super().__init__(joints, unet.input_dim, channels, layers)
+    def __init__(self, unet: CondUNet1D, joints: int, channels: int = 64, layers: int = 3, path: bool = False):
+        super().__init__(joints, unet.input_dim, channels, layers, path)
         self.encoder = _encoder_copy(unet)
         widths = [stage.blocks[-1].conv2.out_channels for stage in unet.down]
         self.skip_convs = nn.ModuleList(_zero_conv(c, c) for c in widths)
@@ -178,11 +183,12 @@ def _block_copy(net: nn.Module, blocks: int) -> nn.Module:
 
 class TokenControlNet(_ControlNetBase):
     """net: the frozen DiT or RetNet (its embedding and first `blocks` blocks, default half, are
-    copied now); joints, channels, layers as for the UNet. The hint is added to the copy's frame
-    tokens; residual i goes onto the frame tokens of the frozen block i's output."""
+    copied now); joints, channels, layers, path as for the UNet. The hint is added to the copy's
+    frame tokens; residual i goes onto the frame tokens of the frozen block i's output."""
 
-    def __init__(self, net: nn.Module, joints: int, channels: int = 64, layers: int = 3, blocks: int | None = None):
-        super().__init__(joints, net.latent_dim, channels, layers)
+    def __init__(self, net: nn.Module, joints: int, channels: int = 64, layers: int = 3, path: bool = False,
+                 blocks: int | None = None):
+        super().__init__(joints, net.latent_dim, channels, layers, path)
         n = len(net.blocks)
         blocks = (n + 1) // 2 if blocks is None else int(blocks)
         if not 1 <= blocks <= n:
@@ -243,7 +249,7 @@ class ControlledModel(nn.Module):
     base: a MotionDiffusionModel ("diffusion") or a ConsistencyStudent ("consistency"); control:
     the ControlNet's kwargs (channels, layers); joints: J. `prepare(text, text_mask, motion_mask,
     cond, timesteps, hint)` takes the base's own condition (`time_cond` for a diffusion model, the
-    guidance w (B,) for a student) and the hint (B, T, 4 J); `denoise(x, t, ctx)` as the base's.
+    guidance w (B,) for a student) and the hint (B, T, 4 J or 12 J); `denoise(x, t, ctx)` as the base's.
     """
 
     def __init__(self, base: nn.Module, base_kind: str, joints: int, control: dict | None = None):
@@ -280,7 +286,7 @@ class ControlledModel(nn.Module):
     def prepare(self, text, text_mask, motion_mask, cond=None, timesteps=(), hint=None) -> ControlConditioning:
         """hint None: the empty hint (no targets), as for a prompt without control."""
         if hint is None:
-            hint = torch.zeros(*motion_mask.shape, 4 * self.joints, device=motion_mask.device)
+            hint = torch.zeros(*motion_mask.shape, self.control.hint_width, device=motion_mask.device)
         time_cond = self.time_cond(cond)
         base = self.net.prepare(text, text_mask, motion_mask, time_cond, timesteps)
         copy_ctx, encoded, gate = self.control.prepare(text, text_mask, motion_mask, time_cond, timesteps, hint)
