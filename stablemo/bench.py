@@ -172,8 +172,10 @@ def _controlled_pipeline(pipe, student, fast: bool):
     J = get_skeleton(student.skeleton).num_joints
     base = ConsistencyStudent(pipe.config["model"])  # stock modules: the ControlNet copies them (fast ones hold packed weights)
     base.model.load_state_dict(pipe.model.state_dict())
-    model = ControlledModel(base, "consistency", J)
-    config = {**student.config, "controlnet": {"base_kind": "consistency", "joints": J, "hint_scale": 1.0}}
+    control = {"channels": 64, "layers": 3, "path": True}  # as the shipped pelvis ControlNet
+    model = ControlledModel(base, "consistency", J, control)
+    config = {**student.config, "controlnet": {"base_kind": "consistency", "joints": J, "hint_scale": 1.0,
+                                               "control": control}}
     pipe = Pipeline(model, student.schedule, mean=student.mean.numpy(), std=student.std.numpy(),
                     prediction_type=student.prediction_type, skeleton=student.skeleton, kind="controlnet",
                     device=student.device, config=config, inference=student.inference, fast=fast)
