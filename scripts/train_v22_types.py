@@ -3,7 +3,7 @@
 
     python scripts/train_v22_types.py --out footskate/weights/v22_synth.safetensors \
         [--init footskate/weights/v22_synth.safetensors] [--motions 1200] [--per-type 60] \
-        [--steps 3000] [--batch 32] [--window 64] [--lr 1e-4] [--seed 0] [--threads 1] [--log train.log]
+        [--steps 3000] [--batch 32] [--window 64] [--lr 1e-4] [--seed 0] [--heel-raise 0.5] [--threads 1] [--log train.log]
 
 Training motions: `--motions` from the synthetic dataset's generator (its usual mix of actions,
 seed `--seed`) plus `--per-type` motions of each benchmark type (stablemo.footskate_bench.TYPES,
@@ -13,7 +13,9 @@ are 1000-1999, so neither is trained on. Every motion is also added
 - with injected sliding (root overshoot U(0, 35 %), per-foot drift U(0, 1) m/s, 5 mm joint
   noise): the force labels stay those of the clean motion, so the network learns that a foot
   carrying weight is a contact even when the generator lets it slide;
-- time-resampled by U(0.75, 1.33) (speed augmentation; labels recomputed).
+- time-resampled by U(0.75, 1.33) (speed augmentation; labels recomputed);
+- with `--heel-raise P`: with a share P of its flat-foot stances on the ball of the foot
+  (heel_raise; heel contact off, labels recomputed), plus 5 mm joint noise.
 
 `--skeleton kit`: every sequence is mapped to the KIT-ML skeleton at 12.5 fps
 (stablemo.footskate_bench.to_kit: a joint map, the metatarsal 2/3 of the way from ankle to toe)

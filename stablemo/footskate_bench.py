@@ -14,9 +14,10 @@ The cleanup then sees only the sliding motion (contacts detected from it unless 
 
 Reported per type: stance-foot speed (mean horizontal speed of ankle and toe joints over frame
 pairs inside the ground-truth contacts) before / after and its reduction, non-leg joints moved
-(mean and max), bone-length change (max), foot acceleration (mean |second difference| of ankles
-and toes) before / after, and contact-detection F1 of the height rule and the vGRF network on the
-sliding input against the synthetic labels.
+(every joint but hips, knees, ankles, toes; mean, p95 and max), knees moved (the leg IK's), bone-length change
+(max), foot acceleration (mean |second difference| of ankles and toes) before / after, and
+contact-detection F1 of the height rule and the vGRF network on the sliding input against the
+synthetic labels. `--real` adds F1 on a real clip against its hand labels (REAL_CONTACTS).
 """
 
 from __future__ import annotations

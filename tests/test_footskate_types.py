@@ -170,3 +170,45 @@ def test_hand_labels_of_the_real_clip_and_the_detectors_on_it():
     assert f1["labels"].startswith("hand")
     assert f1["clean"]["rule"] > 0.88 and f1["clean"]["gated"] > 0.86 and f1["sliding"]["gated"] > 0.86, f1
     assert f1["clean"]["gated"] > f1["clean"]["vgrf"] + 0.03       # the gate is what makes the network usable here
+
+
+def test_heel_raise_stands_on_the_ball_of_the_foot():
+    import importlib.util
+    from pathlib import Path
+
+    import numpy as np
+
+    from stablemo.footskate_bench import build_motion
+
+    spec = importlib.util.spec_from_file_location("train_v22_types", Path(__file__).parents[1] / "scripts/train_v22_types.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    joints, contacts = build_motion("walk", 10000)
+    raised, labels = mod.heel_raise(joints, contacts, np.random.default_rng(0), prob=1.0)
+    length = lambda x, a, b: np.linalg.norm(x[:, a] - x[:, b], axis=-1)
+    for a, b in ((10, 7), (11, 8), (7, 4), (8, 5)):                  # foot and shin keep their length
+        np.testing.assert_allclose(length(raised, a, b), length(joints, a, b), atol=1e-5)
+    np.testing.assert_array_equal(raised[:, [10, 11]], joints[:, [10, 11]])   # the toes stay put
+    lifted = raised[:, [7, 8], 1] - joints[:, [7, 8], 1]               # heel rise (T, 2)
+    assert lifted.max() > 0.03
+    assert (labels[:, [1, 3]] == contacts[:, [1, 3]]).all()            # toe labels unchanged
+    heel_off = contacts[:, [0, 2]] & ~labels[:, [0, 2]]
+    assert heel_off.sum() > 10 and (lifted[heel_off] > 0.015).all()    # heel contact off only where it is up
+    assert not (labels[:, [0, 2]] & ~contacts[:, [0, 2]]).any()
+
+
+def test_calibration_picks_the_setting_with_the_largest_smallest_margin():
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("footskate_calibrate", Path(__file__).parents[1] / "scripts/footskate_calibrate.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    torch.set_num_threads(1)
+    out = mod.calibrate(_Forces(), seeds=(3000,), per_type=1)
+    margins = [r["min_margin"] for r in out["grid"]]
+    assert out["best"] == out["grid"][0] and margins == sorted(margins, reverse=True)
+    assert len(out["grid"]) == len(mod.FORCES) * len(mod.MARGINS) * len(mod.SPEEDS)
+    # the stand-in network says "full weight on both feet" everywhere: the gate alone decides, and
+    # then the force threshold makes no difference
+    assert len({round(r["f1"]["all"], 6) for r in out["grid"] if r["gate_speed"] == 3.0}) == 1
