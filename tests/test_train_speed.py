@@ -19,9 +19,12 @@ from test_training import TINY_MODEL, _fit, tiny_config, write_random_dataset
 
 from stablemo.errors import StableMoError
 from stablemo.fast.train import (
+    DropoutFunction,
     GemmConv1dFunction,
     MishFunction,
+    NormMishFunction,
     TrainConv1d,
+    TrainDropout,
     TrainResBlock1D,
     accelerate_training,
 )
@@ -56,9 +59,61 @@ def test_mish_backward_gradchecks_and_matches_stock_in_float32():
     assert float((ours - stock).norm() / stock.norm()) < 1e-6
 
 
-def _unet(variant: str = "stablemo", seed: int = 0) -> torch.nn.Module:
+def test_norm_mish_backward_gradchecks_and_matches_stock():
+    """NormMishFunction (keeps only its input) against MaskedGroupNorm + AdaGN + mish: the same
+    forward as the unfused training layers' (norm, then MishFunction) bit for bit in float32, a
+    gradcheck in float64, gradients within 1e-6 of autograd's through the stock ops."""
+    from stablemo.fast.train import train_mish, train_norm_mish
+    from stablemo.nets.layers import MaskedGroupNorm
+
+    g = torch.Generator().manual_seed(0)
+    norm = MaskedGroupNorm(2, 6, "frame")
+    with torch.no_grad():
+        norm.weight.normal_(1, 0.3, generator=g)
+        norm.bias.normal_(0, 0.3, generator=g)
+    x = torch.randn(3, 6, 7, generator=g, requires_grad=True)
+    scale = torch.randn(3, 6, 1, generator=g, requires_grad=True)
+    shift = torch.randn(3, 6, 1, generator=g, requires_grad=True)
+    mask = torch.ones(3, 7, dtype=torch.bool)
+    grad = torch.randn(3, 6, 7, generator=g)
+    ours = train_norm_mish(norm, x, mask, scale, shift)
+    stock = F.mish(norm(x, mask, scale, shift))
+    assert torch.equal(ours, train_mish(norm(x, mask, scale, shift)))
+    torch.testing.assert_close(ours, stock, rtol=1e-6, atol=1e-6)
+    inputs = (x, norm.weight, norm.bias, scale, shift)
+    a = torch.autograd.grad(ours, inputs, grad)
+    b = torch.autograd.grad(stock, inputs, grad)
+    for u, v in zip(a, b):
+        assert float((u - v).norm() / v.norm()) < 1e-6
+    w64, b64 = (torch.randn(3, 1, 6, dtype=torch.float64, generator=g, requires_grad=True) for _ in range(2))
+    x64 = torch.randn(3, 6, 7, dtype=torch.float64, generator=g, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda x, w, b: NormMishFunction.apply(x, w, b, 2, 1e-5), (x64, w64, b64))
+
+
+def test_dropout_draws_as_stock_and_keeps_a_bool_mask():
+    x = torch.randn(4, 8, 50, requires_grad=True)
+    grad = torch.randn(4, 8, 50)
+    torch.manual_seed(3)
+    stock = F.dropout(x, 0.1, training=True)
+    (g_stock,) = torch.autograd.grad(stock, x, grad)
+    torch.manual_seed(3)
+    saved = []
+    with torch.autograd.graph.saved_tensors_hooks(lambda t: saved.append(t) or t, lambda t: t):
+        ours = TrainDropout(0.1).train()(x)
+    assert torch.equal(ours, stock)  # the same draw from the same generator
+    assert [t.dtype for t in saved] == [torch.bool]
+    (g_ours,) = torch.autograd.grad(ours, x, grad)
+    assert torch.equal(g_ours, g_stock)
+    torch.manual_seed(0)
+    x64 = torch.randn(30, dtype=torch.float64, requires_grad=True)
+    out = DropoutFunction.apply(x64, 0.5)
+    (g,) = torch.autograd.grad(out, x64, torch.ones_like(out))
+    assert torch.equal(g, out / x64)  # d out / d x = the kept entries' 1 / (1 - p), 0 elsewhere
+
+
+def _unet(variant: str = "stablemo", seed: int = 0, **overrides) -> torch.nn.Module:
     torch.manual_seed(seed)
-    net = build_denoiser("unet", input_dim=D, text_dim=C, variant=variant, **SMALL)
+    net = build_denoiser("unet", input_dim=D, text_dim=C, variant=variant, **{**SMALL, **overrides})
     with torch.no_grad():  # zero-initialised layers randomised, else the output (and most gradients) are 0
         for p in net.parameters():
             if not p.any():
@@ -89,15 +144,19 @@ def _grads(net, batch):
 
 @pytest.mark.parametrize("variant", ["stablemo", "official"])
 @pytest.mark.parametrize("lengths", [[16, 16, 16], [16, 9, 4]], ids=["no_padding", "padding"])
-def test_training_gradients_equal_stock(variant, lengths):
-    stock = _unet(variant)
+@pytest.mark.parametrize("dropout", [0.0, 0.1], ids=["no_dropout", "dropout"])
+def test_training_gradients_equal_stock(variant, lengths, dropout):
+    stock = _unet(variant, dropout=dropout)
     fast = accelerate_training(copy.deepcopy(stock))
     # the swap happened (else this test would compare stock with stock)
     assert any(isinstance(m, TrainConv1d) for m in fast.modules())
     assert any(isinstance(m, TrainResBlock1D) for m in fast.modules())
+    assert any(isinstance(m, TrainDropout) for m in fast.modules())
     assert fast.state_dict().keys() == stock.state_dict().keys()
     batch = _batch(lengths, 16)
+    torch.manual_seed(7)  # the dropout layers draw the same masks from the same generator state
     loss_s, grads_s = _grads(stock, batch)
+    torch.manual_seed(7)
     loss_f, grads_f = _grads(fast, batch)
     torch.testing.assert_close(loss_f, loss_s, rtol=1e-6, atol=0)
     # every parameter's gradient within 1e-5 relative of stock's; the attention key biases are
@@ -216,8 +275,12 @@ def test_paired_bench_rows_ratios_and_memory(tmp_path, capsys):
     assert set(rows) == {"stock", "stablemo", "stablemo-bf16", "official-variant"}
     assert rows["stock"]["cpu_ratio_stock"] == 1.0 and rows["stablemo"]["cpu_ratio_stock"] > 0
     assert rows["stablemo"]["params"] == rows["stock"]["params"] != rows["official-variant"]["params"]
-    assert all(r["memory_mb"] > 0 for r in rows.values())
-    assert rows["stablemo-bf16"]["memory_mb"] < rows["stablemo"]["memory_mb"]  # bf16 activations saved
+    # the peak holds at least the weights, gradients and AdamW moments (16 bytes a parameter)
+    assert all(r["peak_mb"] * 2**20 > 16 * r["params"] and r["saved_mb"] > 0 for r in rows.values())
+    # the training layers keep fewer activations than stock (bool dropout masks, norm + Mish
+    # recomputed), and so peak lower with the same weights
+    assert rows["stablemo"]["saved_mb"] < rows["stock"]["saved_mb"]
+    assert rows["stablemo"]["peak_mb"] < rows["stock"]["peak_mb"]
     printed = capsys.readouterr().out
     assert "/stock CPU" in printed
     assert "profile of one step: stablemo" in printed and "backward GemmConv1dFunctionBackward" in printed

@@ -26,8 +26,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from stablemo.fast.blocks import adopt
-from stablemo.nets.layers import zero_pad_bct
-from stablemo.nets.unet import ResBlock1D
+from stablemo.nets.layers import LinearCrossAttention, MaskedGroupNorm, zero_pad_bct
+from stablemo.nets.unet import CondUNet1D, ResBlock1D
 
 # exp clamp: for x > 20, n / (n + 2) is exactly 1 in float32 (mish(x) = x, mish'(x) = 1)
 _EXP_MAX = 20.0
@@ -39,6 +39,23 @@ def _mish_parts(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return e, torch.addcmul(e, e, e).add_(e)
 
 
+def _mish_grad(x: torch.Tensor) -> torch.Tensor:
+    """mish'(x) = n / (n + 2) + 4 x e^x (1 + e^x) / (n + 2)^2, a new tensor shaped like x.
+
+    d/dx [x tanh(softplus(x))] = tanh(sp) + x sech^2(sp) sigmoid(x), with tanh(sp) = n / d and
+    sech^2(sp) sigmoid(x) = 4 (n + 1) / d^2 * e / (1 + e) = 4 e (1 + e) / d^2, d = n + 2."""
+    e, n = _mish_parts(x)
+    d = n.add(2.0)
+    slope = torch.addcmul(e, e, e).mul_(4.0).mul_(x).div_(d.square())
+    return n.div_(d).add_(slope)
+
+
+def _mish_values(x: torch.Tensor) -> torch.Tensor:
+    """mish(x) = x n / (n + 2), a new tensor (x is not changed)."""
+    e, n = _mish_parts(x)
+    return n.div_(e.copy_(n).add_(2.0)).mul_(x)
+
+
 class MishFunction(torch.autograd.Function):
     """mish with a vectorised backward (PyTorch's CPU mish forward + backward took 77 ms against
     21 ms here on a (8, 1024, 200) frames-major tensor, the layout the UNet's norms return)."""
@@ -46,18 +63,12 @@ class MishFunction(torch.autograd.Function):
     @staticmethod
     def forward(ctx, x: torch.Tensor) -> torch.Tensor:
         ctx.save_for_backward(x)
-        e, n = _mish_parts(x)
-        return n.div_(e.copy_(n).add_(2.0)).mul_(x)
+        return _mish_values(x)
 
     @staticmethod
     def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
         (x,) = ctx.saved_tensors
-        e, n = _mish_parts(x)
-        d = n.add(2.0)  # n + 2
-        # d/dx [x tanh(softplus(x))] = tanh(sp) + x sech^2(sp) sigmoid(x), with tanh(sp) = n / d and
-        # sech^2(sp) sigmoid(x) = 4 (n + 1) / d^2 * e / (1 + e) = 4 e (1 + e) / d^2
-        slope = torch.addcmul(e, e, e).mul_(4.0).mul_(x).div_(d.square())
-        return grad * n.div_(d).add_(slope)
+        return grad * _mish_grad(x)
 
 
 def train_mish(x: torch.Tensor) -> torch.Tensor:
@@ -150,6 +161,143 @@ class TrainMish(nn.Mish):
         return train_mish(x)
 
 
+def _low_memory_ok(x: torch.Tensor) -> bool:
+    """The recomputing layers below apply: a gradient is recorded for a float32/float64 CPU tensor
+    outside autocast (elsewhere the stock computation runs)."""
+    return (torch.is_grad_enabled() and x.requires_grad and x.device.type == "cpu"
+            and x.dtype in (torch.float32, torch.float64) and not torch.is_autocast_enabled("cpu"))
+
+
+class NormMishFunction(torch.autograd.Function):
+    """mish(frame_norm(x) * weight + bias) keeping only x for the backward.
+
+    The stock chain (layer_norm over each frame's channel groups, the affine with AdaGN folded in,
+    Mish) saves three tensors of x's size: the norm's input, its normalised output (for the
+    affine's weight gradient) and the affine's output (for Mish). This saves the input alone and
+    makes the other two again in the backward from it (one layer_norm and one affine pass, ~1 % of
+    the paper UNet's step): the forward is the stock ops' (bit for bit), the backward PyTorch's
+    own layer_norm backward plus the affine's and Mish's derivatives.
+
+    x: (B, C, T); weight, bias: (B or 1, 1, C), the affine per frame and channel (frames-major) ->
+    (B, C, T), a view of a frames-major (B, T, C) tensor."""
+
+    @staticmethod
+    def forward(ctx, x, weight, bias, groups: int, eps: float):
+        B, C, T = x.shape
+        y, _, _ = torch.native_layer_norm(x.transpose(1, 2).reshape(B, T, groups, C // groups), (C // groups,),
+                                          None, None, eps)
+        ctx.save_for_backward(x, weight, bias)
+        ctx.conf = (groups, eps)
+        return _mish_values(torch.addcmul(bias, y.view(B, T, C), weight)).transpose(1, 2)
+
+    @staticmethod
+    def backward(ctx, grad):
+        x, weight, bias = ctx.saved_tensors
+        groups, eps = ctx.conf
+        B, C, T = x.shape
+        frames = x.transpose(1, 2).reshape(B, T, groups, C // groups)  # a view when x is frames-major
+        y, mean, rstd = torch.native_layer_norm(frames, (C // groups,), None, None, eps)  # made again
+        y = y.view(B, T, C)
+        g_z = _mish_grad(torch.addcmul(bias, y, weight)).mul_(grad.transpose(1, 2))  # (B, T, C)
+        g_w = (g_z * y).sum_to_size(weight.shape) if ctx.needs_input_grad[1] else None
+        g_b = g_z.sum_to_size(bias.shape) if ctx.needs_input_grad[2] else None
+        g_x = None
+        if ctx.needs_input_grad[0]:
+            g_y = g_z.mul_(weight).view(B, T, groups, C // groups)
+            g_x = torch.ops.aten.native_layer_norm_backward(g_y, frames, [C // groups], mean, rstd, None, None,
+                                                            [True, False, False])[0]
+            g_x = g_x.view(B, T, C).transpose(1, 2)
+        return g_x, g_w, g_b, None, None
+
+
+def train_norm_mish(norm: MaskedGroupNorm, x: torch.Tensor, mask: torch.Tensor, scale: torch.Tensor | None = None,
+                    shift: torch.Tensor | None = None) -> torch.Tensor:
+    """mish(norm(x, mask, scale, shift)) (AdaGN: scale, shift (B, C, 1)); through NormMishFunction
+    for the frame norm while a gradient is recorded on the CPU, the stock ops otherwise."""
+    if norm.mode != "frame" or not _low_memory_ok(x) or x.dtype != norm.weight.dtype:
+        return train_mish(norm(x, mask, scale, shift))
+    weight, bias = norm.weight[:, None], norm.bias[:, None]  # (C, 1), as MaskedGroupNorm folds them
+    if scale is not None:
+        weight, bias = weight * scale, torch.addcmul(shift, bias, scale)  # (B, C, 1)
+    return NormMishFunction.apply(x, weight.transpose(-1, -2), bias.transpose(-1, -2), norm.num_groups, norm.eps)
+
+
+class DropoutFunction(torch.autograd.Function):
+    """Dropout saving a bool mask (1 byte per element) for the backward instead of the float
+    noise (4 bytes) PyTorch's CPU dropout keeps; the same draw (empty_like(x).bernoulli_(1 - p),
+    divided by 1 - p, times x) and so the same output, bit for bit, from the same generator."""
+
+    @staticmethod
+    def forward(ctx, x, p: float):
+        noise = torch.empty_like(x).bernoulli_(1 - p).div_(1 - p)
+        ctx.save_for_backward(noise != 0)
+        ctx.scale = torch.ones((), dtype=x.dtype).div_(1 - p)  # the kept entries' factor, as in noise
+        return x * noise
+
+    @staticmethod
+    def backward(ctx, grad):
+        (keep,) = ctx.saved_tensors
+        return grad * keep * ctx.scale, None
+
+
+class TrainDropout(nn.Dropout):
+    """nn.Dropout through DropoutFunction while a gradient is recorded on the CPU (training mode,
+    0 < p < 1, not in place); the stock dropout otherwise."""
+
+    @classmethod
+    def from_stock(cls, stock: nn.Dropout) -> TrainDropout:
+        return cls(stock.p, stock.inplace).train(stock.training)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if (self.training and 0.0 < self.p < 1.0 and not self.inplace and torch.is_grad_enabled()
+                and x.requires_grad and x.device.type == "cpu" and x.is_floating_point()):
+            return DropoutFunction.apply(x, self.p)
+        return super().forward(x)
+
+
+class DeferredContext:
+    """A cross-attention's text context, made where the attention first reads it instead of in
+    `prepare` (same ops, same inputs, same values).
+
+    Why: `CondUNet1D.prepare` makes all 18 contexts of the paper UNet before the forward, so their
+    autograd nodes are the oldest of the step, and the backward (which runs the newest ready node
+    first) leaves them, their saved tensors and their incoming gradients until the very end, when
+    every weight gradient is alive too: ~130 MiB of saved tensors and 72 MiB of (B, H, d, d)
+    gradients at the paper config, batch 8, at the step's peak. Made at the read, each context's
+    backward runs right after its attention's. The context is made under the grad mode of
+    `prepare` (with grad, outside autocast: the only case deferred) and kept, so several readers
+    share one, as they would share the tensor."""
+
+    def __init__(self, attn: LinearCrossAttention, text: torch.Tensor, text_mask: torch.Tensor):
+        self.attn, self.text, self.text_mask = attn, text, text_mask
+        self.value: torch.Tensor | None = None
+
+    def get(self) -> torch.Tensor:
+        if self.value is None:
+            with torch.enable_grad(), torch.autocast("cpu", enabled=False):
+                self.value = LinearCrossAttention.context(self.attn, self.text, self.text_mask)
+        return self.value
+
+
+class TrainLinearCrossAttention(LinearCrossAttention):
+    """LinearCrossAttention whose `context` is a DeferredContext while a gradient is recorded on
+    the CPU outside autocast (stock otherwise); the same children and parameters."""
+
+    def __init__(self, stock: LinearCrossAttention):
+        nn.Module.__init__(self)
+        adopt(self, stock)
+        self.num_heads = stock.num_heads
+
+    def context(self, text: torch.Tensor, text_mask: torch.Tensor):
+        if (torch.is_grad_enabled() and text.device.type == "cpu" and not torch.is_autocast_enabled("cpu")
+                and (text.requires_grad or any(p.requires_grad for p in self.parameters()))):
+            return DeferredContext(self, text, text_mask)
+        return super().context(text, text_mask)
+
+    def read(self, q_logits: torch.Tensor, context) -> torch.Tensor:
+        return super().read(q_logits, context.get() if isinstance(context, DeferredContext) else context)
+
+
 def _all_valid(mask: torch.Tensor) -> bool:
     """True when no frame is padding, so zeroing the padded frames would only copy the tensor. Only
     asked on the CPU, where it costs a few microseconds (on a GPU it would be a synchronisation)."""
@@ -172,8 +320,24 @@ class TrainResBlock1D(ResBlock1D):
     def forward(self, x: torch.Tensor, adagn: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         full = _all_valid(mask)
         scale, shift = adagn[:, :, None].chunk(2, dim=1)  # (B, C_out, 1) each
-        h = pad_zero(train_mish(self.norm1(self.conv1(x), mask, 1 + scale, shift)), mask, full)
-        return pad_zero(train_mish(self.norm2(self.conv2(self.dropout(h)), mask)) + self.skip(x), mask, full)
+        h = pad_zero(train_norm_mish(self.norm1, self.conv1(x), mask, 1 + scale, shift), mask, full)
+        return pad_zero(train_norm_mish(self.norm2, self.conv2(self.dropout(h)), mask) + self.skip(x), mask, full)
+
+
+class TrainCondUNet1D(CondUNet1D):
+    """CondUNet1D whose output head's norm + Mish is train_norm_mish; same children and parameters."""
+
+    def __init__(self, stock: CondUNet1D):
+        nn.Module.__init__(self)
+        adopt(self, stock)
+        self.input_dim, self.text_dim, self.length_multiple = stock.input_dim, stock.text_dim, stock.length_multiple
+        self.variant, self.upsample_first = stock.variant, stock.upsample_first
+        self.text_embed, self.final_conv, self.final_norm = stock.text_embed, stock.final_conv, stock.final_norm
+
+    def head(self, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        if self.final_conv is not None:  # the official layout's head is the 1x1 convolution alone
+            h = zero_pad_bct(train_norm_mish(self.final_norm, self.final_conv(h), mask), mask)
+        return zero_pad_bct(self.out(h), mask)
 
 
 def accelerate_training(model: nn.Module) -> nn.Module:
@@ -183,4 +347,5 @@ def accelerate_training(model: nn.Module) -> nn.Module:
     from stablemo.fast import swap_layers
 
     return swap_layers(model, {nn.Conv1d: TrainConv1d.from_stock, nn.Mish: lambda stock: TrainMish(),
-                               ResBlock1D: TrainResBlock1D})
+                               nn.Dropout: TrainDropout.from_stock, ResBlock1D: TrainResBlock1D,
+                               LinearCrossAttention: TrainLinearCrossAttention, CondUNet1D: TrainCondUNet1D})

@@ -16,9 +16,10 @@ x0 MSE, backward, AdamW. Rows:
 - official:         the published CondUnet1D itself, loaded from $STABLEMO_OFFICIAL_SRC (its own
                     `models/unet.py`), stock AdamW, its input padded to a multiple of 16 as its
                     T2MUnet does.
-Memory: CUDA max allocated per row; on the CPU the bytes autograd saves for the backward (the
-activations, unique storages), which with the weights, gradients and AdamW moments (the same
-for every row but the official one's own count) make the step's peak.
+Memory: the step's peak, CUDA's max allocated per row, or on the CPU the most tensor memory alive
+during one step as the CPU allocator reports it to torch.profiler (weights, gradients, AdamW
+moments, activations, temporaries); and, on the CPU, the activations autograd saves for the
+backward (unique storages).
 """
 
 from __future__ import annotations
@@ -67,7 +68,7 @@ class Row:
         self.wall: list[float] = []
         self.cpu: list[float] = []
         self.saved_mb = float("nan")
-        self.peak_mb = float("nan")
+        self.peak_mb = float("nan")  # CUDA: max allocated; CPU: measure_peak
         self.params = sum(p.numel() for p in net.parameters())
 
     def step(self, device: torch.device, record: bool = True) -> float:
@@ -102,6 +103,31 @@ class Row:
             loss = self.step_fn()
         del loss
         self.saved_mb = sum(n for ptr, n in seen.items() if ptr not in params) / 2**20
+
+    def measure_peak(self) -> None:
+        """CPU: the most tensor memory alive at any moment of one whole step (forward, backward,
+        AdamW, zero_grad), in MiB: what is alive when it starts (weights, AdamW moments) plus the peak of the allocations and frees the CPU allocator
+        reports to torch.profiler during the step (every tensor, temporaries included; the inputs,
+        made before, ~2 MiB at the paper config, are not counted)."""
+        from torch.profiler import ProfilerActivity, profile
+
+        tensors = [*self.net.parameters(), *(p.grad for p in self.net.parameters() if p.grad is not None),
+                   *(v for state in self.optimizer.state.values() for v in state.values() if torch.is_tensor(v))]
+        alive = {t.untyped_storage().data_ptr(): t.untyped_storage().nbytes() for t in tensors}
+        with profile(activities=[ProfilerActivity.CPU], profile_memory=True) as prof:
+            self.step(torch.device("cpu"), record=False)
+        events, stack = [], list(prof.profiler.kineto_results.experimental_event_tree())
+        while stack:
+            node = stack.pop()
+            stack.extend(node.children)
+            fields = node.extra_fields
+            if type(fields).__name__ == "_ExtraFields_Allocation" and fields.device.type == "cpu":
+                events.append((node.start_time_ns, fields.alloc_size))
+        live = peak = 0
+        for _, size in sorted(events, key=lambda e: e[0]):
+            live += size
+            peak = max(peak, live)
+        self.peak_mb = (sum(alive.values()) + peak) / 2**20
 
 
 def _official_row(kwargs: dict, inputs: dict, device: torch.device, optimizer: str) -> Row | None:
@@ -273,6 +299,7 @@ def run_paired(args) -> int:
             row.step(device, record=False)
         if device.type == "cpu":
             row.measure_saved()
+            row.measure_peak()
     for r in range(args.rounds):
         for row in rows[r % len(rows):] + rows[: r % len(rows)]:  # rotate: no row always first
             row.step(device)
@@ -286,7 +313,7 @@ def run_paired(args) -> int:
     head = f"{'row':17s} {'params':>8s} {'wall s':>8s} {'CPU s':>8s}"
     for ref in refs:
         head += f" {'/' + ref + ' CPU':>14s} {'/' + ref + ' wall':>15s}"
-    head += f" {'memory MiB':>11s}"
+    head += f" {'peak MiB':>9s} {'saved MiB':>10s}"
     print(head)
     for row in rows:
         entry = {"params": row.params, "wall_s": statistics.median(row.wall), "cpu_s": statistics.median(row.cpu)}
@@ -295,15 +322,16 @@ def run_paired(args) -> int:
             entry[f"cpu_ratio_{ref}"] = _ratio(by, row.name, ref, "cpu")
             entry[f"wall_ratio_{ref}"] = _ratio(by, row.name, ref, "wall")
             line += f" {entry[f'cpu_ratio_{ref}']:14.3f} {entry[f'wall_ratio_{ref}']:15.3f}"
-        memory = row.peak_mb if device.type == "cuda" else row.saved_mb
-        entry["memory_mb"] = memory
-        entry["memory_kind"] = "cuda max allocated" if device.type == "cuda" else "autograd saved tensors"
-        line += f" {memory:11.0f}"
+        entry["peak_mb"], entry["saved_mb"] = row.peak_mb, row.saved_mb
+        entry["peak_kind"] = "cuda max allocated" if device.type == "cuda" else "cpu allocator (torch.profiler)"
+        line += f" {row.peak_mb:9.0f} {row.saved_mb:10.0f}"
         print(line)
         result["rows"][row.name] = entry
-    print("ratios: median over rounds of the row's step time / the reference's in the same round; memory: "
+    print("ratios: median over rounds of the row's step time / the reference's in the same round; peak: "
           + ("CUDA max allocated in a step" if device.type == "cuda" else
-             "activations autograd saves for the backward (weights, gradients and AdamW moments come on top)"))
+             "the most tensor memory alive during a step (weights, gradients, AdamW moments, activations, "
+             "temporaries; CPU allocator, torch.profiler)")
+          + "; saved: activations autograd keeps for the backward" + (" (CPU only)" if device.type == "cuda" else ""))
     if args.profile:
         for row in rows:
             print(profile_row(row))
