@@ -15,7 +15,10 @@ are 1000-1999, so neither is trained on. Every motion is also added
   carrying weight is a contact even when the generator lets it slide;
 - time-resampled by U(0.75, 1.33) (speed augmentation; labels recomputed);
 - with `--heel-raise P`: with a share P of its flat-foot stances on the ball of the foot
-  (heel_raise; heel contact off, labels recomputed), plus 5 mm joint noise.
+  (heel_raise; heel contact off, labels recomputed), plus 5 mm joint noise;
+- with `--shuffle P`: with a share P of its double-support stances shuffling a foot (foot_shuffle:
+  lifted 1.5-4 cm for 4-8 frames, contacts off), plus 5 mm joint noise. Tried in issue #22
+  (session 9) and not shipped: validation margin +0.0041 against +0.0051 without it.
 
 `--skeleton kit`: every sequence is mapped to the KIT-ML skeleton at 12.5 fps
 (stablemo.footskate_bench.to_kit: a joint map, the metatarsal 2/3 of the way from ankle to toe)
@@ -88,8 +91,44 @@ def heel_raise(joints: np.ndarray, contacts: np.ndarray, rng: np.random.Generato
     return out.astype(np.float32), c
 
 
+def foot_shuffle(joints: np.ndarray, contacts: np.ndarray, rng: np.random.Generator, prob: float = 0.5,
+                 lift=(0.015, 0.04), min_frames: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """Weight shifts while standing: in each flat-foot stance of at least `min_frames` while the
+    other foot is down too (double support), picked with `prob`, the foot is lifted by U(`lift`)
+    metres for 4-8 frames (a half-sine bump, the knee moving with it) and set down up to 4 cm
+    away; its contacts are off where it is up by more than 1 cm, so the force labels put the
+    weight on the other foot. Standing people shuffle their feet; the generator's stances never
+    leave the floor."""
+    out, c = joints.astype(np.float64).copy(), contacts.copy()
+    t_all = len(out)
+    for side, (knee, ankle, toe) in {0: (4, 7, 10), 1: (5, 8, 11)}.items():
+        other = contacts[:, 2 - 2 * side:4 - 2 * side].any(-1)
+        flat = contacts[:, 2 * side] & contacts[:, 2 * side + 1] & other
+        starts = np.flatnonzero(flat & ~np.r_[False, flat[:-1]])
+        ends = np.flatnonzero(flat & ~np.r_[flat[1:], False])
+        for s, e in zip(starts, ends):
+            if e - s + 1 < min_frames or rng.random() >= prob:
+                continue
+            n = int(rng.integers(4, 9))
+            a = int(rng.integers(s + 2, max(s + 3, e - n - 1)))
+            if a + n > min(e, t_all - 1):
+                continue
+            h = rng.uniform(*lift)
+            angle = rng.uniform(0, 2 * np.pi)
+            step = rng.uniform(0, 0.04) * np.array([np.cos(angle), np.sin(angle)])
+            phase = np.arange(n + 1) / n                                        # 0 .. 1 over the bump
+            bump = np.sin(np.pi * phase)
+            for k, tt in enumerate(range(a, a + n + 1)):
+                delta = np.array([step[0] * phase[k], h * bump[k], step[1] * phase[k]])
+                out[tt, [knee, ankle, toe]] += delta
+                if h * bump[k] > 0.01:
+                    c[tt, 2 * side:2 * side + 2] = False
+            out[a + n + 1:e + 1, [knee, ankle, toe]] += np.array([step[0], 0.0, step[1]])   # set down there
+    return out.astype(np.float32), c
+
+
 def build_training_set(motions: int, per_type: int, seed: int, log, skeleton: str = "humanml3d",
-                       heel: float = 0.0) -> tuple[list, list]:
+                       heel: float = 0.0, shuffle: float = 0.0) -> tuple[list, list]:
     from footskate import HUMANML3D, KIT
     from footskate.forces import forces_from_contacts
     from stablemo.data.synth import generate_motion
@@ -133,6 +172,10 @@ def build_training_set(motions: int, per_type: int, seed: int, log, skeleton: st
             hj, hc = heel_raise(j, c, rng, prob=heel)
             if not np.array_equal(hc, c):
                 add(hj + rng.normal(0, 0.005, hj.shape).astype(np.float32), hc)
+        if shuffle > 0:
+            sj, sc = foot_shuffle(j, c, rng, prob=shuffle)
+            if not np.array_equal(sc, c):
+                add(sj + rng.normal(0, 0.005, sj.shape).astype(np.float32), sc)
     return joints, forces
 
 
@@ -173,6 +216,9 @@ def main(argv=None) -> int:
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--skeleton", choices=("humanml3d", "kit"), default="humanml3d")
     p.add_argument("--log", default=None)
+    p.add_argument("--shuffle", type=float, default=0.0,
+                   help="also add each motion with this share of its double-support stances shuffling a foot "
+                        "(foot_shuffle; 0: off)")
     p.add_argument("--heel-raise", type=float, default=0.0,
                    help="also add each motion with this share of its flat-foot stances on the ball of the foot "
                         "(heel_raise; 0: off)")
@@ -188,7 +234,8 @@ def main(argv=None) -> int:
     log("$ python scripts/train_v22_types.py " + " ".join(argv if argv is not None else sys.argv[1:]))
     model = load_vgrf(args.init, quiet=True)  # a bad --init is named before the data is built
     started = time.time()
-    joints, forces = build_training_set(args.motions, args.per_type, args.seed, log, args.skeleton, args.heel_raise)
+    joints, forces = build_training_set(args.motions, args.per_type, args.seed, log, args.skeleton, args.heel_raise,
+                                        args.shuffle)
     log(f"{len(joints)} training sequences ({sum(len(j) for j in joints)} frames) in {time.time() - started:.0f}s")
     if args.skeleton == "kit" and model.num_joints == 22:
         from stablemo.footskate_bench import kit_from_v22
@@ -226,7 +273,8 @@ def main(argv=None) -> int:
                                 "window": args.window, "lr": args.lr, "seed": args.seed,
                                 "fps": 12.5 if args.skeleton == "kit" else 20.0, "up_axis": "y",
                                 "augment": "sliding (overshoot<=35%, drift<=1 m/s, 5 mm noise), speed x0.75-1.33"
-                                           + (f", heel raise {args.heel_raise}" if args.heel_raise else ""),
+                                           + (f", heel raise {args.heel_raise}" if args.heel_raise else "")
+                                           + (f", foot shuffle {args.shuffle}" if args.shuffle else ""),
                                 "labels": "footskate.forces (kinematics + contact labels)",
                                 "heldout_f1": after})
     log(f"saved {args.out}")

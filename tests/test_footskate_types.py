@@ -212,3 +212,30 @@ def test_calibration_picks_the_setting_with_the_largest_smallest_margin():
     # the stand-in network says "full weight on both feet" everywhere: the gate alone decides, and
     # then the force threshold makes no difference
     assert len({round(r["f1"]["all"], 6) for r in out["grid"] if r["gate_speed"] == 3.0}) == 1
+
+
+def test_foot_shuffle_lifts_a_standing_foot_and_takes_its_contact():
+    import importlib.util
+    from pathlib import Path
+
+    import numpy as np
+
+    from stablemo.data.synth import generate_motion
+
+    spec = importlib.util.spec_from_file_location("train_v22_types", Path(__file__).parents[1] / "scripts/train_v22_types.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    rng = np.random.default_rng(0)
+    m = generate_motion(rng)
+    joints, contacts = m.joints.astype(np.float32), m.contacts.astype(bool)
+    moved, labels = mod.foot_shuffle(joints, contacts, np.random.default_rng(0), prob=1.0)
+    assert not np.array_equal(labels, contacts)
+    assert not (labels & ~contacts).any()                              # contacts are only taken away
+    off = contacts & ~labels                                            # (T, 4)
+    rise = moved[:, [7, 10, 8, 11], 1] - joints[:, [7, 10, 8, 11], 1]
+    assert (rise[off] > 0.01).all() and rise.max() < 0.041
+    untouched = [j for j in range(22) if j not in (4, 5, 7, 8, 10, 11)]
+    np.testing.assert_array_equal(moved[:, untouched], joints[:, untouched])
+    length = lambda x, a, b: np.linalg.norm(x[:, a] - x[:, b], axis=-1)
+    for a, b in ((10, 7), (11, 8), (7, 4), (8, 5)):                    # the lifted part moves rigidly
+        np.testing.assert_allclose(length(moved, a, b), length(joints, a, b), atol=1e-5)
