@@ -18,6 +18,10 @@ from test_motion import random_motion
 
 SAMPLE = Path(__file__).resolve().parents[2] / "shared/data/humanml3d-sample"
 TOL = 1e-9  # float64; KIT is in millimetres, its values ~1e3 (measured errors ~1e-12 there)
+# A real clip turned by 180 degrees faces away from +z: the root rotation is the quaternion between
+# nearly opposite vectors, whose tiny cross product carries the rounding of either implementation
+# (7.3e-8 measured on this AMD EPYC; the earlier Intel machines passed 1e-9): 1e5 below the features' scale.
+TOL_OPPOSITE = 1e-6
 
 
 def _real_clip() -> np.ndarray:
@@ -46,7 +50,7 @@ def _pad(motions: list[np.ndarray], fill: float = np.nan) -> tuple[torch.Tensor,
     return torch.from_numpy(out), [len(m) for m in motions]
 
 
-def _check_batch(motions: list[np.ndarray], skel, fill: float = np.nan) -> None:
+def _check_batch(motions: list[np.ndarray], skel, fill: float = np.nan, tol: float = TOL) -> None:
     """Batched torch == numpy per sample (features and canonical joints, refit on and off); rows
     and frames past a sample's end are zero."""
     batch, lengths = _pad(motions, fill)
@@ -56,8 +60,8 @@ def _check_batch(motions: list[np.ndarray], skel, fill: float = np.nan) -> None:
         assert feats.dtype == canon.dtype == torch.float64
         for i, (m, n) in enumerate(zip(motions, lengths)):
             ref = joints_to_features_f64(m, skel, refit=refit)                   # (n-1, D)
-            assert np.abs(feats[i, : n - 1].numpy() - ref).max() <= TOL, (i, refit)
-            assert np.abs(canon[i, :n].numpy() - canonicalize_joints(m, skel, refit=refit)).max() <= TOL
+            assert np.abs(feats[i, : n - 1].numpy() - ref).max() <= tol, (i, refit)
+            assert np.abs(canon[i, :n].numpy() - canonicalize_joints(m, skel, refit=refit)).max() <= tol
             assert (feats[i, n - 1 :] == 0).all() and (canon[i, n:] == 0).all()
 
 
@@ -66,7 +70,7 @@ def test_real_clip_at_four_headings_and_lengths():
     # each heading with another length: padding, the floor and the facing smoothing per sample
     motions = [_yaw(clip, deg)[: len(clip) - 23 * k] + np.array([0.3 * k, 0.0, -0.2 * k])
                for k, deg in enumerate((0, 90, 180, 270))]
-    _check_batch(motions, HUMANML3D)
+    _check_batch(motions, HUMANML3D, tol=TOL_OPPOSITE)
 
 
 def test_synthetic_motions_batched_with_padding():
