@@ -112,10 +112,12 @@ def check_zero_start_and_padding_invariance(base, model) -> tuple:
     return x, t, text, text_mask, mask, hint
 
 
-@pytest.mark.parametrize("variant", ["stablemo", "official"])
-def test_controlnet_starts_as_its_base_and_is_exactly_padding_invariant(variant):
+@pytest.mark.parametrize("variant,output", [("stablemo", False), ("official", False), ("stablemo", True)])
+def test_controlnet_starts_as_its_base_and_is_exactly_padding_invariant(variant, output):
     base = tiny_base(variant)
-    check_zero_start_and_padding_invariance(base, ControlledModel(base, "diffusion", J, {"channels": 16, "layers": 2}).eval())
+    model = ControlledModel(base, "diffusion", J, {"channels": 16, "layers": 2, "output": output}).eval()
+    check_zero_start_and_padding_invariance(base, model)
+    assert (model.control.out_conv is not None) == output
 
 
 def test_a_sample_without_targets_is_its_base_exactly_beside_controlled_ones():
@@ -134,10 +136,11 @@ def test_a_sample_without_targets_is_its_base_exactly_beside_controlled_ones():
     assert (out[0] - ref[0]).abs().max() > 1e-2  # its neighbour is controlled
 
 
-@pytest.mark.parametrize("name,cross", [("dit", True), ("dit", False), ("retnet", True), ("retnet", False)])
-def test_transformer_controlnet_starts_as_its_base_and_is_exactly_padding_invariant(name, cross):
+@pytest.mark.parametrize("name,cross,output", [("dit", True, False), ("dit", False, True), ("retnet", True, True),
+                                               ("retnet", False, False)])
+def test_transformer_controlnet_starts_as_its_base_and_is_exactly_padding_invariant(name, cross, output):
     base = tiny_transformer(name, cross)
-    model = ControlledModel(base, "diffusion", J, {"channels": 16, "layers": 2}).eval()
+    model = ControlledModel(base, "diffusion", J, {"channels": 16, "layers": 2, "output": output}).eval()
     assert len(model.control.encoder.blocks) == 2 and len(model.control.block_out) == 2  # half of 3, rounded up
     x, t, text, text_mask, mask, hint = check_zero_start_and_padding_invariance(base, model)
     # training reaches the hint encoder and every injection, never the frozen base
@@ -145,6 +148,8 @@ def test_transformer_controlnet_starts_as_its_base_and_is_exactly_padding_invari
     model(x, t, text, text_mask, mask, hint).square().sum().backward()
     assert float(model.control.hint_encoder.out.weight.grad.abs().sum()) > 0
     assert all(float(layer.weight.grad.abs().sum()) > 0 for layer in model.control.block_out)
+    if output:
+        assert float(model.control.out_linear.weight.grad.abs().sum()) > 0
 
 
 def test_other_denoisers_and_block_counts_are_named():
@@ -210,7 +215,7 @@ def test_path_channels_read_speed_direction_and_turning_off_a_circle():
 def test_training_step_moves_only_the_controlnet_and_learns(student_bundle):
     from stablemo.controlnet.module import ControlNetTraining
 
-    module = ControlNetTraining(str(student_bundle), control={"channels": 16, "layers": 2, "path": True},
+    module = ControlNetTraining(str(student_bundle), control={"channels": 16, "layers": 2, "path": True, "output": True},
                                 train_timesteps=[999], dense_prob=1.0, empty_prob=0.0, lr=3e-3)
     module.train()
     assert not module.model.base.training and module.model.control.training
@@ -236,7 +241,7 @@ def test_training_step_moves_only_the_controlnet_and_learns(student_bundle):
 def controlled_bundle(base_bundle, tmp_path, name, trained=True):
     from stablemo.controlnet.module import ControlNetTraining
 
-    module = ControlNetTraining(str(base_bundle), control={"channels": 16, "layers": 2, "path": True})
+    module = ControlNetTraining(str(base_bundle), control={"channels": 16, "layers": 2, "path": True, "output": True})
     if trained:
         perturb(module.model.control, std=0.02)
     config = module.bundle_config()

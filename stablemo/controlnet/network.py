@@ -80,6 +80,16 @@ def _encoder_copy(unet: CondUNet1D) -> CondUNet1D:
 
 
 @dataclass
+class Residuals:
+    """What a ControlNet adds to its frozen network at one step: `inner`, one tensor per injection
+    point inside the network (UNet: each skip (B, C_i, T_i), then the middle; DiT/RetNet: each copied
+    block's frame tokens (B, T, C)), and `output` (B, T, D) onto its output, or None."""
+
+    inner: list[torch.Tensor]
+    output: torch.Tensor | None = None
+
+
+@dataclass
 class ControlConditioning(Conditioning):
     """A controlled step's per-request inputs: the frozen network's context, the copy's, the
     encoded hint (B, D, T) (constant over the steps of a request, so encoded once) and the gate
@@ -118,48 +128,56 @@ class _ControlNetBase(nn.Module):
 class UNetControlNet(_ControlNetBase):
     """unet: the frozen network to control (its encoder half is copied now, with its weights);
     joints: J of the skeleton; channels/layers: the hint encoder's; path: the hint carries the
-    targets' path channels (hints.py)."""
+    targets' path channels (hints.py); output: one more zero-initialised 1x1 convolution, from the
+    copy's full-resolution features straight onto the network's output, so the hint can set output
+    channels (the root's) by a near-linear path instead of only through the frozen decoder."""
 
-    def __init__(self, unet: CondUNet1D, joints: int, channels: int = 64, layers: int = 3, path: bool = False):
+    def __init__(self, unet: CondUNet1D, joints: int, channels: int = 64, layers: int = 3, path: bool = False,
+                 output: bool = False):
         super().__init__(joints, unet.input_dim, channels, layers, path)
         self.encoder = _encoder_copy(unet)
         widths = [stage.blocks[-1].conv2.out_channels for stage in unet.down]
         self.skip_convs = nn.ModuleList(_zero_conv(c, c) for c in widths)
         self.mid_conv = _zero_conv(widths[-1], widths[-1])
+        self.out_conv = _zero_conv(widths[0], unet.input_dim) if output else None
 
     def residuals(self, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning, hint: torch.Tensor,
-                  gate: torch.Tensor) -> list[torch.Tensor]:
-        """The injections: one (B, C_i, T_i) per down stage (into its skip), then the middle's; each
-        times the gate (B, 1, 1), so a sample without targets gets exact zeros."""
+                  gate: torch.Tensor) -> Residuals:
+        """The injections: one (B, C_i, T_i) per down stage (into its skip), then the middle's, and
+        (with `output`) the output's (B, T, D); each times the gate (B, 1, 1), so a sample without
+        targets gets exact zeros."""
         enc = self.encoder
         adagn = enc.step_adagn(t, ctx)
         h = zero_pad_bct(x.transpose(1, 2), ctx.masks[0]) + hint  # (B, D, T)
-        out = []
+        out, to_output = [], None
         for i, stage in enumerate(enc.down):
             h = stage(h, adagn[i], ctx.text_contexts[i], ctx.masks[i])
             out.append(zero_pad_bct(self.skip_convs[i](h), ctx.masks[i]) * gate)
+            if i == 0 and self.out_conv is not None:
+                to_output = (zero_pad_bct(self.out_conv(h), ctx.masks[0]) * gate).transpose(1, 2)
             if i < len(enc.downsample):
                 h = enc.resample(enc.downsample[i], h, ctx.masks[i + 1])
         n = len(enc.down)
         h = enc.mid(h, adagn[n], ctx.text_contexts[n], ctx.masks[-1])
         out.append(zero_pad_bct(self.mid_conv(h), ctx.masks[-1]) * gate)
-        return out
+        return Residuals(out, to_output)
 
     @staticmethod
     def run_base(unet: CondUNet1D, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning,
-                 residuals: list[torch.Tensor]) -> torch.Tensor:
-        """CondUNet1D.forward with the residuals added to each skip and to the middle output (the
-        same named steps, so a fast network keeps its fused pieces). x: (B, T, D)."""
+                 residuals: Residuals) -> torch.Tensor:
+        """CondUNet1D.forward with the residuals added to each skip, to the middle output and to
+        the output (the same named steps, so a fast network keeps its fused pieces). x: (B, T, D)."""
+        inner = residuals.inner
         adagn = unet.step_adagn(t, ctx)
         n = len(unet.down)
         h = zero_pad_bct(x.transpose(1, 2), ctx.masks[0])
         skips = []
         for i, stage in enumerate(unet.down):
             h = stage(h, adagn[i], ctx.text_contexts[i], ctx.masks[i])
-            skips.append(h + residuals[i])
+            skips.append(h + inner[i])
             if i < len(unet.downsample):
                 h = unet.resample(unet.downsample[i], h, ctx.masks[i + 1])
-        h = unet.mid(h, adagn[n], ctx.text_contexts[n], ctx.masks[-1]) + residuals[n]
+        h = unet.mid(h, adagn[n], ctx.text_contexts[n], ctx.masks[-1]) + inner[n]
         for j, stage in enumerate(unet.up):
             level = n - 1 - j
             if unet.upsample_first:
@@ -167,7 +185,8 @@ class UNetControlNet(_ControlNetBase):
             h = stage(unet.merge_skip(h, skips.pop()), adagn[n + 1 + j], ctx.text_contexts[n + 1 + j], ctx.masks[level])
             if not unet.upsample_first and j < len(unet.upsample):
                 h = unet.resample(unet.upsample[j], h, ctx.masks[level - 1])
-        return unet.head(h, ctx.masks[0]).transpose(1, 2)
+        out = unet.head(h, ctx.masks[0]).transpose(1, 2)  # (B, T, D)
+        return out if residuals.output is None else out + residuals.output
 
 
 def _block_copy(net: nn.Module, blocks: int) -> nn.Module:
@@ -183,11 +202,12 @@ def _block_copy(net: nn.Module, blocks: int) -> nn.Module:
 
 class TokenControlNet(_ControlNetBase):
     """net: the frozen DiT or RetNet (its embedding and first `blocks` blocks, default half, are
-    copied now); joints, channels, layers, path as for the UNet. The hint is added to the copy's
-    frame tokens; residual i goes onto the frame tokens of the frozen block i's output."""
+    copied now); joints, channels, layers, path, output as for the UNet (output: from the last
+    copied block's frame tokens). The hint is added to the copy's frame tokens; residual i goes onto
+    the frame tokens of the frozen block i's output."""
 
     def __init__(self, net: nn.Module, joints: int, channels: int = 64, layers: int = 3, path: bool = False,
-                 blocks: int | None = None):
+                 output: bool = False, blocks: int | None = None):
         super().__init__(joints, net.latent_dim, channels, layers, path)
         n = len(net.blocks)
         blocks = (n + 1) // 2 if blocks is None else int(blocks)
@@ -195,10 +215,12 @@ class TokenControlNet(_ControlNetBase):
             raise StableMoError(f"controlnet.blocks: need 1..{n} for this network, got {blocks}")
         self.encoder = _block_copy(net, blocks)
         self.block_out = nn.ModuleList(_zero_linear(net.latent_dim) for _ in range(blocks))
+        self.out_linear = _zero_linear(net.latent_dim, net.input_dim) if output else None
 
     def residuals(self, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning, hint: torch.Tensor,
-                  gate: torch.Tensor) -> list[torch.Tensor]:
-        """One (B, T, C) per copied block, times the gate; hint: (B, C, T) encoded."""
+                  gate: torch.Tensor) -> Residuals:
+        """One (B, T, C) per copied block and (with `output`) the output's (B, T, D), times the
+        gate; hint: (B, C, T) encoded."""
         enc, mask = self.encoder, ctx.motion_mask
         h, layout = enc.embed(x, t, ctx)
         h = _add_to_frames(h, hint.transpose(1, 2))
@@ -206,22 +228,27 @@ class TokenControlNet(_ControlNetBase):
         for i in range(len(enc.blocks)):
             h = enc.block(i, h, layout, ctx)
             out.append(zero_pad_btc(self.block_out[i](h[:, -mask.shape[1]:]), mask) * gate)
-        return out
+        to_output = None
+        if self.out_linear is not None:
+            to_output = zero_pad_btc(self.out_linear(h[:, -mask.shape[1]:]), mask) * gate
+        return Residuals(out, to_output)
 
     @staticmethod
     def run_base(net: nn.Module, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning,
-                 residuals: list[torch.Tensor]) -> torch.Tensor:
-        """The frozen network's forward with residual i added to block i's frame tokens. x: (B, T, D)."""
+                 residuals: Residuals) -> torch.Tensor:
+        """The frozen network's forward with residual i added to block i's frame tokens and the
+        output residual to its output. x: (B, T, D)."""
         h, layout = net.embed(x, t, ctx)
         for i in range(len(net.blocks)):
             h = net.block(i, h, layout, ctx)
-            if i < len(residuals):
-                h = _add_to_frames(h, residuals[i])
-        return net.readout(h, layout, ctx)
+            if i < len(residuals.inner):
+                h = _add_to_frames(h, residuals.inner[i])
+        out = net.readout(h, layout, ctx)
+        return out if residuals.output is None else out + residuals.output
 
 
-def _zero_linear(dim: int) -> nn.Linear:
-    layer = nn.Linear(dim, dim)
+def _zero_linear(dim: int, dim_out: int | None = None) -> nn.Linear:
+    layer = nn.Linear(dim, dim_out or dim)
     nn.init.zeros_(layer.weight)
     nn.init.zeros_(layer.bias)
     return layer
