@@ -174,6 +174,22 @@ def test_training_gradients_equal_stock(variant, lengths, dropout):
             assert not grads_f[n].any(), n
 
 
+def test_training_layers_with_stock_convolutions_equal_stock():
+    """accelerate_training(gemm_conv=False): the oneDNN convolutions, the other training layers."""
+    stock = _unet(dropout=0.1)
+    fast = accelerate_training(copy.deepcopy(stock), gemm_conv=False)
+    assert not any(isinstance(m, TrainConv1d) for m in fast.modules())
+    assert any(isinstance(m, TrainResBlock1D) for m in fast.modules())
+    batch = _batch([16, 9, 4], 16)
+    torch.manual_seed(7)
+    loss_s, grads_s = _grads(stock, batch)
+    torch.manual_seed(7)
+    loss_f, grads_f = _grads(fast, batch)
+    torch.testing.assert_close(loss_f, loss_s, rtol=1e-6, atol=0)
+    total = torch.cat([g.flatten() for g in grads_s.values()]).norm()
+    assert float(torch.cat([(grads_f[n] - g).flatten() for n, g in grads_s.items()]).norm() / total) <= 1e-5
+
+
 def test_padding_still_gets_no_gradient_and_changes_nothing():
     """Exact padding invariance with the training layers: the valid frames' loss and the weights'
     gradients do not depend on how much padding the batch carries or what it holds."""

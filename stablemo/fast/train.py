@@ -340,12 +340,17 @@ class TrainCondUNet1D(CondUNet1D):
         return zero_pad_bct(self.out(h), mask)
 
 
-def accelerate_training(model: nn.Module) -> nn.Module:
-    """Swap, in place and children first, nn.Conv1d -> TrainConv1d, nn.Mish -> TrainMish and the
-    UNet's ResBlock1D -> TrainResBlock1D (exact types only: an already swapped or subclassed layer is
-    left alone). Returns the model. Parameters and state_dict keys are unchanged."""
+def accelerate_training(model: nn.Module, gemm_conv: bool = True) -> nn.Module:
+    """Swap, in place and children first, nn.Conv1d -> TrainConv1d (unless `gemm_conv` is False:
+    the stock oneDNN convolution, the faster one on some CPUs, docs/training.md), nn.Mish ->
+    TrainMish, nn.Dropout -> TrainDropout, LinearCrossAttention -> TrainLinearCrossAttention and the
+    UNet's ResBlock1D / CondUNet1D -> TrainResBlock1D / TrainCondUNet1D (exact types only: an
+    already swapped or subclassed layer is left alone). Returns the model (a replacement when
+    `model` itself is such a layer). Parameters and state_dict keys are unchanged."""
     from stablemo.fast import swap_layers
 
-    return swap_layers(model, {nn.Conv1d: TrainConv1d.from_stock, nn.Mish: lambda stock: TrainMish(),
-                               nn.Dropout: TrainDropout.from_stock, ResBlock1D: TrainResBlock1D,
-                               LinearCrossAttention: TrainLinearCrossAttention, CondUNet1D: TrainCondUNet1D})
+    table = {nn.Mish: lambda stock: TrainMish(), nn.Dropout: TrainDropout.from_stock, ResBlock1D: TrainResBlock1D,
+             LinearCrossAttention: TrainLinearCrossAttention, CondUNet1D: TrainCondUNet1D}
+    if gemm_conv:
+        table[nn.Conv1d] = TrainConv1d.from_stock
+    return swap_layers(model, table)

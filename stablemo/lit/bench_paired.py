@@ -10,6 +10,7 @@ A step: forward on (B, T, D) noisy motion with random text features (B, 77, text
 x0 MSE, backward, AdamW. Rows:
 - stock:            the config's network in plain PyTorch layers, torch's default AdamW;
 - stablemo:         the same weights through stablemo.fast.train, fused AdamW (what `fit` runs);
+- stablemo-onednn:  that with the stock (oneDNN) convolutions instead of the GEMM ones;
 - stablemo-bf16:    that under torch.autocast(bfloat16) (Lightning's `precision: bf16-mixed`; on
                     CUDA the row is fp16, `16-mixed`, with torch's default AdamW as `fit` then uses);
 - official-variant: our network in the published T2MUnet layout (`variant: official`), fast path;
@@ -36,7 +37,7 @@ import torch.nn.functional as F
 
 from stablemo.errors import StableMoError
 
-ROWS = ("stock", "stablemo", "stablemo-bf16", "official-variant", "official")
+ROWS = ("stock", "stablemo", "stablemo-onednn", "stablemo-bf16", "official-variant", "official")
 TEXT_TOKENS = 77
 
 
@@ -225,6 +226,9 @@ def build_rows(kwargs: dict, names: list[str], batch: int, frames: int, seed: in
         ours.append(_ours_row("stock", twin(), inputs, device, fused=False, autocast=None, optimizer=optimizer))
     if "stablemo" in names:
         ours.append(_ours_row("stablemo", accelerate_training(twin()), inputs, device, True, None, optimizer))
+    if "stablemo-onednn" in names:  # the training layers but the stock (oneDNN) convolutions
+        ours.append(_ours_row("stablemo-onednn", accelerate_training(twin(), gemm_conv=False), inputs, device, True,
+                              None, optimizer))
     if "stablemo-bf16" in names:
         low = torch.bfloat16 if device.type == "cpu" else torch.float16
         ours.append(_ours_row(f"stablemo-{'bf16' if low == torch.bfloat16 else 'fp16'}",
