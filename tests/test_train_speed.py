@@ -246,6 +246,9 @@ def test_module_trains_through_the_fast_layers_with_the_stock_losses(tiny_data, 
     module = DiffusionModule(model=TINY_MODEL)
     assert any(isinstance(m, TrainConv1d) for m in module.model.modules())
     assert not any(isinstance(m, TrainConv1d) for m in DiffusionModule(model=TINY_MODEL, fast_training=False).model.modules())
+    onednn = DiffusionModule(model=TINY_MODEL, gemm_conv=False).model
+    assert not any(isinstance(m, TrainConv1d) for m in onednn.modules())
+    assert any(isinstance(m, TrainResBlock1D) for m in onednn.modules())
     fast_run, stock_run = tmp_path / "fast", tmp_path / "stock"
     _fit(tiny_config(fast_run, tiny_data))
     _fit(tiny_config(stock_run, tiny_data), "--model.fast_training=false")

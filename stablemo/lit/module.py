@@ -60,6 +60,9 @@ class DiffusionModule(LightningModule):
         fast_training: train through stablemo.fast.train's layers (GEMM convolutions and a vectorised
             Mish backward, gradients equal to stock PyTorch's to float rounding; same parameters and
             state_dict) and a fused AdamW; False: stock layers and AdamW (docs/training.md).
+        gemm_conv: with fast_training, the GEMM convolutions (the faster ones on the Xeon measured);
+            False keeps oneDNN's (the faster ones on the AMD EPYC measured; `stablemo bench train
+            --paired --rows stablemo,stablemo-onednn` compares them on yours). Same gradients either way.
     """
 
     def __init__(
@@ -77,6 +80,7 @@ class DiffusionModule(LightningModule):
         val_timesteps: Sequence[int] = (50, 250, 500, 750, 950),
         seed: int = 0,
         fast_training: bool = True,
+        gemm_conv: bool = True,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -93,7 +97,7 @@ class DiffusionModule(LightningModule):
         if fast_training:
             from stablemo.fast.train import accelerate_training
 
-            accelerate_training(self.model)
+            accelerate_training(self.model, gemm_conv=gemm_conv)
         self.schedule = NoiseSchedule(**(schedule or {}))
         num_t = self.schedule.num_train_timesteps
         bad = [t for t in val_timesteps if not 0 <= int(t) < num_t]
