@@ -8,11 +8,14 @@ final step; save_last on) and
 say otherwise. Checkpoints are written atomically and loaded with weights_only=True
 (AtomicCheckpointIO) unless the config names another CheckpointIO plugin.
 A config whose `model:` has a `class_path` trains that LightningModule instead of DiffusionModule
-(e.g. `stablemo.eval.evaluator.EvaluatorModule` in configs/evaluator_*.yaml).
+(e.g. `stablemo.eval.evaluator.EvaluatorModule` in configs/evaluator_*.yaml), with that class's own
+defaults for every argument the config does not set; DiffusionModule is the default class only for
+a command line whose configs and flags name none (see `names_model_class`).
 """
 
 from __future__ import annotations
 
+import inspect
 import sys
 import warnings
 from pathlib import Path
@@ -32,6 +35,9 @@ class StableMoCLI(LightningCLI):
         # `stablemo fit ...` hands LightningCLI its own argv; sys.argv must stay intact for DDP's
         # re-launch of the same command, so the "args and sys.argv both given" warning is noise here.
         warnings.filterwarnings("ignore", message="LightningCLI's args parameter is intended")
+        argv = inspect.signature(LightningCLI.__init__).bind_partial(self, *args, **kwargs).arguments.get("args")
+        # read by add_arguments_to_parser, which LightningCLI calls from its __init__
+        self._default_model_class = not names_model_class(sys.argv[1:] if argv is None else argv)
         super().__init__(*args, **kwargs)
 
     def _parse_ckpt_path(self) -> None:
@@ -72,9 +78,12 @@ class StableMoCLI(LightningCLI):
             # a resumed run (even with other checkpoint settings) keeps writing last.ckpt, not last-v1.ckpt
             "checkpoint.enable_version_counter": False,
         })
-        if self.subclass_mode_model:
-            # any LightningModule by `model.class_path` (e.g. ConsistencyDistillation); a config that
-            # gives only init arguments trains the diffusion model
+        if self.subclass_mode_model and self._default_model_class:
+            # any LightningModule by `model.class_path` (e.g. ConsistencyDistillation); a command line
+            # that gives only init arguments trains the diffusion model. Only then: jsonargparse keeps
+            # a default class's init_args (filled with its defaults) that the class a config switches
+            # to also accepts, so ControlNetTraining trained with DiffusionModule's cond_drop_prob=0.1
+            # and weight_decay=0.01 instead of its own 0.0 while this default was always set.
             parser.set_defaults({"model": {"class_path": f"{DiffusionModule.__module__}.{DiffusionModule.__qualname__}"}})
         parser.add_lightning_class_args(NonFiniteGuard, "guard")
 
@@ -102,6 +111,65 @@ class StableMoCLI(LightningCLI):
             plugins.append(AtomicCheckpointIO())
         kwargs.setdefault("plugins", plugins)
         return super().instantiate_trainer(**kwargs)
+
+
+def names_model_class(argv) -> bool:
+    """Whether a command line names the model's class itself: a `--config`/`-c` file (or YAML
+    string) whose `model:` has a `class_path` (or is a class name), or a `--model.class_path` /
+    `--model` flag that gives one. Anything unreadable counts as naming none (jsonargparse then
+    reports it as before)."""
+    argv = [str(a) for a in argv or []]
+    i = 0
+    while i < len(argv):
+        arg = argv[i]
+        key, eq, value = arg.partition("=")
+        if key in ("--config", "-c", "--model", "--model.class_path"):
+            if not eq:
+                if i + 1 >= len(argv):
+                    break
+                value = argv[i + 1]
+                i += 1
+            if key == "--model.class_path":
+                return True
+            if key == "--model" and _model_value_names_class(value):
+                return True
+            if key in ("--config", "-c") and _config_names_model_class(_load_yaml(value)):
+                return True
+        i += 1
+    return False
+
+
+def _load_yaml(value: str):
+    """A config file's content, or `value` itself as YAML (jsonargparse takes both); None if neither."""
+    import yaml
+
+    try:
+        path = Path(value)
+        text = path.read_text() if path.is_file() else value
+        return yaml.safe_load(text)
+    except (OSError, ValueError, yaml.YAMLError):
+        return None
+
+
+def _model_value_names_class(value) -> bool:
+    if isinstance(value, dict):
+        return bool(value.get("class_path"))
+    if isinstance(value, str) and value.strip():
+        loaded = _load_yaml(value)
+        if isinstance(loaded, dict):
+            return bool(loaded.get("class_path"))
+        return isinstance(loaded, str)  # a class name (full or short)
+    return False
+
+
+def _config_names_model_class(config) -> bool:
+    if not isinstance(config, dict):
+        return False
+    if "model" in config and _model_value_names_class(config["model"]):
+        return True
+    # a top-level config (before the subcommand) holds each subcommand's settings under its name
+    return any(isinstance(config.get(sub), dict) and _model_value_names_class(config[sub].get("model"))
+               for sub in ("fit", "validate", "test", "predict"))
 
 
 def run_cli(model_class, argv: list[str], **kwargs) -> StableMoCLI:
