@@ -483,26 +483,82 @@ CONTROL_TABLES = [  # (JSON beside this file, heading, how it was made)
      "way: 1.72x (teacher) and 2.39x (student)."),
     ("controlnet_results.json", "Motion ControlNet on the 1-step student",
      "`python scripts/control_report.py --no-teacher --student LCM=stablemo/assets/demo_student --controlnet "
-     "\"LCM 1-step=stablemo/assets/demo_controlnet\" --rows none:100%,pelvis:100%,pelvis:25%,pelvis:5,pelvis:1,"
-     "left_wrist:25% --replications 3 --max-items 96`. Training and reading: docs/control.md."),
+     "\"LCM 1-step=stablemo/assets/demo_controlnet\" --rows none:100%,pelvis:100%,pelvis:25%,pelvis:5,pelvis:1 "
+     "--replications 3 --max-items 96 --out docs/controlnet_results.json` (the shipped pelvis ControlNet, "
+     "`configs/control/controlnet_lcm_pelvis_synth.yaml`). Training and reading: docs/control.md."),
+    ("controlnet_teacher_results.json", "Motion ControlNet on the teacher (10 steps)",
+     "`python scripts/control_report.py --no-teacher --controlnet \"teacher 10-step=bundles/demo_pelvis_control\" "
+     "--rows pelvis:100%,pelvis:5 --replications 2 --max-items 64 --out docs/controlnet_teacher_results.json` "
+     "(`configs/control/controlnet_teacher_pelvis_synth.yaml`, exported to bundles/demo_pelvis_control). "
+     "Training and reading: docs/control.md."),
 ]
 
 
 def render_control(out_dir: Path) -> str:
     """The joint-control tables, from the JSON that scripts/control_report.py wrote into docs/ (their
-    runs take hours here, so they are kept as measured, not re-run by this script)."""
+    runs take hours here, so they are kept as measured, not re-run by this script), then the
+    dense-pelvis summary the ControlNet issue asks for."""
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from control_report import markdown
 
-    parts = []
+    parts, reports = [], {}
     for name, heading, how in CONTROL_TABLES:
         path = out_dir / name
         if path.is_file():
-            report = json.loads(path.read_text())
+            report = reports[name] = json.loads(path.read_text())
+            settings = report.get("settings", {})
             parts.append(f"\n## {heading}\n\n{how} Synthetic test split, hints from the scored motions "
-                         f"(OmniControl / MotionLCM protocol), mean ± 95% interval over 3 replications of 96 "
+                         f"(OmniControl / MotionLCM protocol), mean ± 95% interval over "
+                         f"{settings.get('replications', 3)} replications of {settings.get('max_items', 96)} "
                          f"items; errors in metres.\n\n{markdown(report)}\n")
-    return "".join(parts)
+    return "".join(parts) + render_control_summary(reports)
+
+
+# (JSON, row key, label) of the dense-pelvis summary: guidance only, ControlNet teacher, ControlNet 1-step (+ guidance)
+CONTROL_SUMMARY = [
+    ("results_control.json", "teacher (10 steps) | pelvis 100%", "guidance only, teacher (10 steps)"),
+    ("controlnet_teacher_results.json", "teacher 10-step + ControlNet | pelvis 100%", "ControlNet, teacher (10 steps)"),
+    ("controlnet_results.json", "LCM student (1 step) | uncontrolled", "1-step student, uncontrolled"),
+    ("controlnet_results.json", "LCM 1-step + ControlNet | pelvis 100%", "ControlNet, 1-step student"),
+    ("controlnet_results.json", "LCM 1-step + ControlNet + guidance | pelvis 100%",
+     "ControlNet + one guidance refinement, 1-step student"),
+]
+
+
+def render_control_summary(reports: dict) -> str:
+    """One table, dense pelvis paths: each way of controlling, its control errors, quality and AITS."""
+    cols = [("avg_err", "Avg. err (m)"), ("traj_err", "Traj. err"), ("loc_err", "Loc. err"), ("fid", "FID"),
+            ("r3", "R@3"), ("skate_ratio", "Skate")]
+    lines = []
+    for name, key, label in CONTROL_SUMMARY:
+        row = reports.get(name, {}).get("rows", {}).get(key)
+        if row is None:
+            continue
+        cells = [f"{row['model'][c]['mean']:.3f} ± {row['model'][c]['conf95']:.3f}" if c in row["model"] else "-"
+                 for c, _ in cols]
+        aits = reports[name].get("aits", {}).get(key.split(" | ")[0])
+        timing = "-" if aits is None else f"{aits['free_s' if 'uncontrolled' in key else 'control_s']:.3f}"
+        settings = reports[name].get("settings", {})
+        lines.append(f"| {label} | " + " | ".join(cells) + f" | {timing} | "
+                     f"{settings.get('replications', 3)} x {settings.get('max_items', 96)} |")
+    if not lines:
+        return ""
+    head = "| control (pelvis, 100% of frames) | " + " | ".join(h for _, h in cols) + " | AITS (s) | scored |"
+    return ("\n## Dense pelvis control: guidance, ControlNet, both\n\nFrom the tables above (each row keeps its own "
+            "run's protocol, in the last column: replications x items); AITS: 120 frames, batch 1, the demo "
+            "network on this CPU, median of alternating runs inside that run. `stablemo bench aits` gives the "
+            "paper UNet's ratios (docs/control.md).\n\n" + head + "\n|" + "---|" * (len(cols) + 3) + "\n"
+            + "\n".join(lines) + "\n")
+
+
+def rewrite_control_sections(out: Path) -> None:
+    """Replace the joint-control sections of an existing results file by a fresh render of the JSON
+    in docs/ (`--control-tables`), leaving every other section as it was measured."""
+    text = out.read_text()
+    start, end = text.find("\n## Joint control by guidance"), text.find("\n## Provenance")
+    if start < 0 or end < start:
+        raise StableMoError(f"{out}: no joint-control sections to replace (run make_results first)")
+    write_text(out, text[:start] + render_control(REPO_DOCS) + text[end:])
 
 
 def render(args, argv, raw: dict, runs: list[Run], pairs, minutes: float, done: int, total: int) -> str:
@@ -566,6 +622,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None, help="default: docs/results.md (outputs/results_quick.md with --quick)")
     p.add_argument("--resume", action="store_true", help="keep the rows of OUT's .json whose settings are unchanged")
+    p.add_argument("--control-tables", action="store_true",
+                   help="only re-render OUT's joint-control sections from the JSON in docs/ (control_report.py "
+                        "writes them); every other section stays as measured")
     p.add_argument("--budget-min", type=float, default=None,
                    help="start no new row after this many minutes; the rows done get their AITS and tables "
                         "(marked partial) and a later --resume scores the rest")
@@ -606,6 +665,9 @@ def check_args(args) -> None:
 
 def main(argv: list[str]) -> int:
     args = parse_args(argv)
+    if args.control_tables:
+        rewrite_control_sections(Path(args.out))
+        return 0
     check_args(args)
     torch.manual_seed(args.seed)
     started = time.time()
