@@ -151,6 +151,24 @@ def test_precision_table_pairs_replications_and_checks_the_target():
     assert "fp32 3.000 s, bf16 1.500 s per sentence (0.50× the fp32 time)" in text
 
 
+def test_control_tables_rewrite_only_the_control_sections(tmp_path):
+    """--control-tables: the joint-control sections come from docs/*.json again (with the dense-pelvis
+    summary); the measured sections around them are kept byte for byte; a file without them is one error."""
+    mr = _make_results()
+    out = tmp_path / "results.md"
+    before, after = "# Results\n\n## Samplers\n\n| a | b |\n", "\n## Provenance\n\n| env | x |\n"
+    out.write_text(before + "\n## Joint control by guidance (old)\n\nstale numbers\n" + after)
+    assert mr.main(["--control-tables", "--out", str(out)]) == 0
+    text = out.read_text()
+    assert text.startswith(before) and text.endswith(after) and "stale numbers" not in text
+    summary = text[text.index("## Dense pelvis control"):]
+    assert "| guidance only, teacher (10 steps) |" in summary and "| ControlNet, 1-step student |" in summary
+    bare = tmp_path / "bare.md"
+    bare.write_text(before + after)
+    with pytest.raises(StableMoError, match="no joint-control sections"):
+        mr.main(["--control-tables", "--out", str(bare)])
+
+
 @pytest.mark.slow
 def test_make_results_quick_end_to_end(tmp_path):
     """--quick on 240 clips (36 test items): every table that applies is written, checksums and
