@@ -13,8 +13,15 @@ module replaces the first two with autograd Functions built on plain GEMMs and v
 - `MishFunction`: mish(x) = x n / (n + 2) with n = e^x (e^x + 2) forward (stablemo.fast.blocks)
   and its derivative n / (n + 2) + 4 x e^x (1 + e^x) / (n + 2)^2 backward, from the saved input.
 
-`accelerate_training(model)` swaps nn.Conv1d / nn.Mish modules and the UNet's residual blocks for
-versions that use these under autograd on the CPU (and exactly the stock computation when no
+Three more keep fewer activations for the backward (the step's peak memory, docs/training.md):
+`NormMishFunction` (norm + AdaGN + Mish keeping only its input, the rest made again in the
+backward), `DropoutFunction` (a bool mask instead of the float noise, the same draw) and
+`DeferredContext` (each cross-attention's text context made where it is read, not in `prepare`, so
+its backward runs with its attention's instead of at the step's end).
+
+`accelerate_training(model)` swaps nn.Conv1d / nn.Mish / nn.Dropout modules, the cross-attentions,
+the UNet's residual blocks and the UNet itself (its head) for versions that use these under
+autograd on the CPU (and exactly the stock computation when no
 gradient is recorded, under autocast and on CUDA, where they were not measured), holding the same Parameter objects under the same names: `state_dict()` is unchanged,
 so checkpoints, EMA and export see the stock model.
 """
@@ -174,9 +181,9 @@ class NormMishFunction(torch.autograd.Function):
     The stock chain (layer_norm over each frame's channel groups, the affine with AdaGN folded in,
     Mish) saves three tensors of x's size: the norm's input, its normalised output (for the
     affine's weight gradient) and the affine's output (for Mish). This saves the input alone and
-    makes the other two again in the backward from it (one layer_norm and one affine pass, ~1 % of
-    the paper UNet's step): the forward is the stock ops' (bit for bit), the backward PyTorch's
-    own layer_norm backward plus the affine's and Mish's derivatives.
+    makes the other two again in the backward from it (one layer_norm and one affine pass): the
+    forward is the unfused training layers' (norm, then MishFunction) bit for bit, the backward
+    PyTorch's own layer_norm backward plus the affine's and Mish's derivatives.
 
     x: (B, C, T); weight, bias: (B or 1, 1, C), the affine per frame and channel (frames-major) ->
     (B, C, T), a view of a frames-major (B, T, C) tensor."""
