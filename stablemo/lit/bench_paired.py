@@ -14,6 +14,7 @@ x0 MSE, backward, AdamW. Rows:
 - stablemo-bf16:    that under torch.autocast(bfloat16) (Lightning's `precision: bf16-mixed`; on
                     CUDA the row is fp16, `16-mixed`, with torch's default AdamW as `fit` then uses);
 - official-variant: our network in the published T2MUnet layout (`variant: official`), fast path;
+- official-variant-onednn: that with the stock (oneDNN) convolutions;
 - official:         the published CondUnet1D itself, loaded from $STABLEMO_OFFICIAL_SRC (its own
                     `models/unet.py`), stock AdamW, its input padded to a multiple of 16 as its
                     T2MUnet does.
@@ -37,7 +38,8 @@ import torch.nn.functional as F
 
 from stablemo.errors import StableMoError
 
-ROWS = ("stock", "stablemo", "stablemo-onednn", "stablemo-bf16", "official-variant", "official")
+ROWS = ("stock", "stablemo", "stablemo-onednn", "stablemo-bf16", "official-variant", "official-variant-onednn",
+        "official")
 TEXT_TOKENS = 77
 
 
@@ -237,11 +239,13 @@ def build_rows(kwargs: dict, names: list[str], batch: int, frames: int, seed: in
         for row in ours[1:]:
             row.optimizer.state = ours[0].optimizer.state
     rows += ours
-    if "official-variant" in names and kwargs.get("variant", "stablemo") != "official":
-        torch.manual_seed(seed)
-        net = CondUNet1D(**{**kwargs, "variant": "official"}).to(device).train()
-        _randomize_zero_layers(net)
-        rows.append(_ours_row("official-variant", accelerate_training(net), inputs, device, True, None, optimizer))
+    for name in ("official-variant", "official-variant-onednn"):
+        if name in names and kwargs.get("variant", "stablemo") != "official":
+            torch.manual_seed(seed)
+            net = CondUNet1D(**{**kwargs, "variant": "official"}).to(device).train()
+            _randomize_zero_layers(net)
+            net = accelerate_training(net, gemm_conv=not name.endswith("onednn"))
+            rows.append(_ours_row(name, net, inputs, device, True, None, optimizer))
     if "official" in names:
         row = _official_row(kwargs, inputs, device, optimizer)
         if row is not None:
@@ -314,14 +318,14 @@ def run_paired(args) -> int:
     what = "forward + backward + AdamW" if args.optimizer == "adamw" else "forward + backward (no optimiser)"
     print(f"paired training step: {what} ({result['config']}, batch {batch} x {args.frames} frames, {device}, "
           f"{result['threads']} threads, {args.rounds} rounds)")
-    head = f"{'row':17s} {'params':>8s} {'wall s':>8s} {'CPU s':>8s}"
+    head = f"{'row':24s} {'params':>8s} {'wall s':>8s} {'CPU s':>8s}"
     for ref in refs:
         head += f" {'/' + ref + ' CPU':>14s} {'/' + ref + ' wall':>15s}"
     head += f" {'peak MiB':>9s} {'saved MiB':>10s}"
     print(head)
     for row in rows:
         entry = {"params": row.params, "wall_s": statistics.median(row.wall), "cpu_s": statistics.median(row.cpu)}
-        line = f"{row.name:17s} {row.params / 1e6:7.1f}M {entry['wall_s']:8.3f} {entry['cpu_s']:8.3f}"
+        line = f"{row.name:24s} {row.params / 1e6:7.1f}M {entry['wall_s']:8.3f} {entry['cpu_s']:8.3f}"
         for ref in refs:
             entry[f"cpu_ratio_{ref}"] = _ratio(by, row.name, ref, "cpu")
             entry[f"wall_ratio_{ref}"] = _ratio(by, row.name, ref, "wall")

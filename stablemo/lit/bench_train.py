@@ -61,7 +61,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--frames", type=int, default=196, help="--paired: motion length (padded as the network needs)")
     parser.add_argument("--rows", default=None,
                         help="--paired: comma-separated rows to run (default all available: stock,stablemo,"
-                             "stablemo-bf16,official-variant,official)")
+                             "stablemo-onednn,stablemo-bf16,official-variant,official-variant-onednn,official)")
     parser.add_argument("--profile", action="store_true",
                         help="--paired: then profile one step of each row (torch.profiler: phases, top ops, backward nodes)")
     parser.add_argument("--optimizer", choices=("adamw", "none"), default="adamw",
