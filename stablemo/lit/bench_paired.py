@@ -239,13 +239,18 @@ def build_rows(kwargs: dict, names: list[str], batch: int, frames: int, seed: in
         for row in ours[1:]:
             row.optimizer.state = ours[0].optimizer.state
     rows += ours
-    for name in ("official-variant", "official-variant-onednn"):
-        if name in names and kwargs.get("variant", "stablemo") != "official":
-            torch.manual_seed(seed)
-            net = CondUNet1D(**{**kwargs, "variant": "official"}).to(device).train()
-            _randomize_zero_layers(net)
-            net = accelerate_training(net, gemm_conv=not name.endswith("onednn"))
-            rows.append(_ours_row(name, net, inputs, device, True, None, optimizer))
+    variant_names = [n for n in ("official-variant", "official-variant-onednn") if n in names]
+    if variant_names and kwargs.get("variant", "stablemo") != "official":
+        torch.manual_seed(seed)
+        published = CondUNet1D(**{**kwargs, "variant": "official"}).to(device).train()
+        _randomize_zero_layers(published)
+        variants = [_ours_row(name, accelerate_training(copy.deepcopy(published, memo={id(p): p for p in published.parameters()}),
+                                                        gemm_conv=not name.endswith("onednn")),
+                              inputs, device, True, None, optimizer) for name in variant_names]
+        if device.type == "cpu":  # one set of weights and AdamW moments, as for ours
+            for row in variants[1:]:
+                row.optimizer.state = variants[0].optimizer.state
+        rows += variants
     if "official" in names:
         row = _official_row(kwargs, inputs, device, optimizer)
         if row is not None:
