@@ -546,8 +546,9 @@ def render_control_summary(reports: dict) -> str:
     head = "| control (pelvis, 100% of frames) | " + " | ".join(h for _, h in cols) + " | AITS (s) | scored |"
     return ("\n## Dense pelvis control: guidance, ControlNet, both\n\nFrom the tables above (each row keeps its own "
             "run's protocol, in the last column: replications x items); AITS: 120 frames, batch 1, the demo "
-            "network on this CPU, median of alternating runs inside that run. `stablemo bench aits` gives the "
-            "paper UNet's ratios (docs/control.md).\n\n" + head + "\n|" + "---|" * (len(cols) + 3) + "\n"
+            "network, median of alternating runs inside that run. Times from different runs (machine, load) "
+            "are not comparable across rows: the ratios inside each run are, and `stablemo bench aits` gives "
+            "the paper UNet's side by side (docs/control.md).\n\n" + head + "\n|" + "---|" * (len(cols) + 3) + "\n"
             + "\n".join(lines) + "\n")
 
 
