@@ -448,5 +448,7 @@ def test_shipped_controlled_student_is_padding_invariant_and_follows_a_path():
     close(both.features[0], alone.features[0], rtol=1e-4)
     close(both.features[1, :44], free.features[0], rtol=1e-4)
     refined = pipe.generate(texts[:1], [60], seed=1, control=control)
-    miss = np.linalg.norm(refined.joints[0, :, 0].numpy() - pos[:, 0], axis=-1).mean()
-    assert miss < 0.03
+    miss = lambda g: np.linalg.norm(g.joints[0, :, 0].numpy() - pos[:, 0], axis=-1).mean()
+    assert miss(refined) < 0.03
+    # the hint alone: 0.13 m here against 0.28 m for the student's own walk (measured at 1800 steps)
+    assert miss(alone) < 0.6 * miss(pipe.generate(texts[:1], [60], seed=1))
