@@ -86,6 +86,15 @@ def adopt(fast: nn.Module, stock: nn.Module) -> None:
     fast.train(stock.training)
 
 
+def adopt_unet(fast: CondUNet1D, stock: CondUNet1D) -> None:
+    """`adopt` for a CondUNet1D subclass, plus the stock network's plain attributes."""
+    nn.Module.__init__(fast)
+    adopt(fast, stock)
+    fast.input_dim, fast.text_dim, fast.length_multiple = stock.input_dim, stock.text_dim, stock.length_multiple
+    fast.variant, fast.upsample_first = stock.variant, stock.upsample_first
+    fast.text_embed, fast.final_conv, fast.final_norm = stock.text_embed, stock.final_conv, stock.final_norm
+
+
 def norm_mish(norm: MaskedGroupNorm, x: torch.Tensor, mask: torch.Tensor, fused_ok: bool,
               scale: torch.Tensor | None = None, shift: torch.Tensor | None = None,
               residual: torch.Tensor | None = None) -> torch.Tensor:
@@ -159,11 +168,7 @@ class FastCondUNet1D(CondUNet1D):
     stock concatenation and padding."""
 
     def __init__(self, stock: CondUNet1D):
-        nn.Module.__init__(self)
-        adopt(self, stock)
-        self.input_dim, self.text_dim, self.length_multiple = stock.input_dim, stock.text_dim, stock.length_multiple
-        self.variant, self.upsample_first = stock.variant, stock.upsample_first
-        self.text_embed, self.final_conv, self.final_norm = stock.text_embed, stock.final_conv, stock.final_norm
+        adopt_unet(self, stock)
         self.fused_ok = self.final_norm is not None and self.final_norm.weight.numel() >= MIN_FUSED_CHANNELS
 
     def head(self, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

@@ -32,7 +32,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from stablemo.fast.blocks import adopt
+from stablemo.fast.blocks import adopt, adopt_unet
 from stablemo.nets.layers import LinearCrossAttention, MaskedGroupNorm, zero_pad_bct
 from stablemo.nets.unet import CondUNet1D, ResBlock1D
 
@@ -335,11 +335,7 @@ class TrainCondUNet1D(CondUNet1D):
     """CondUNet1D whose output head's norm + Mish is train_norm_mish; same children and parameters."""
 
     def __init__(self, stock: CondUNet1D):
-        nn.Module.__init__(self)
-        adopt(self, stock)
-        self.input_dim, self.text_dim, self.length_multiple = stock.input_dim, stock.text_dim, stock.length_multiple
-        self.variant, self.upsample_first = stock.variant, stock.upsample_first
-        self.text_embed, self.final_conv, self.final_norm = stock.text_embed, stock.final_conv, stock.final_norm
+        adopt_unet(self, stock)
 
     def head(self, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         if self.final_conv is not None:  # the official layout's head is the 1x1 convolution alone
