@@ -162,6 +162,8 @@ def test_other_denoisers_and_block_counts_are_named():
         ControlledModel(model, "diffusion", J)
     with pytest.raises(StableMoError, match="controlnet.blocks: need 1..3"):
         ControlledModel(tiny_transformer("dit", True), "diffusion", J, {"blocks": 4})
+    with pytest.raises(StableMoError, match=r"unknown key\(s\) \['blocks'\] for a CondUNet1D"):
+        ControlledModel(tiny_base(), "diffusion", J, {"blocks": 2})
 
 
 def test_hint_draws_follow_the_recipe():

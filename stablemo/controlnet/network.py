@@ -261,20 +261,27 @@ def _add_to_frames(h: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
 
 
 def make_controlnet(denoiser: nn.Module, joints: int, **control) -> _ControlNetBase:
-    """The ControlNet form for `denoiser` (a CondUNet1D, DiT or RetNet), with its copy made now."""
+    """The ControlNet form for `denoiser` (a CondUNet1D, DiT or RetNet), with its copy made now;
+    control: channels, layers, path, output (and blocks for a DiT/RetNet)."""
     if isinstance(denoiser, CondUNet1D):
-        return UNetControlNet(denoiser, joints, **control)
-    if isinstance(denoiser, (DiT, RetNet)):
-        return TokenControlNet(denoiser, joints, **control)
-    raise StableMoError(f"controlnet: a {type(denoiser).__name__} denoiser cannot be controlled "
-                        "(supported: unet, dit, retnet)")
+        form, known = UNetControlNet, {"channels", "layers", "path", "output"}
+    elif isinstance(denoiser, (DiT, RetNet)):
+        form, known = TokenControlNet, {"channels", "layers", "path", "output", "blocks"}
+    else:
+        raise StableMoError(f"controlnet: a {type(denoiser).__name__} denoiser cannot be controlled "
+                            "(supported: unet, dit, retnet)")
+    unknown = sorted(set(control) - known)
+    if unknown:
+        raise StableMoError(f"controlnet.control: unknown key(s) {unknown} for a {type(denoiser).__name__} "
+                            f"(known: {sorted(known)})")
+    return form(denoiser, joints, **control)
 
 
 class ControlledModel(nn.Module):
     """A frozen base model plus its ControlNet.
 
     base: a MotionDiffusionModel ("diffusion") or a ConsistencyStudent ("consistency"); control:
-    the ControlNet's kwargs (channels, layers); joints: J. `prepare(text, text_mask, motion_mask,
+    the ControlNet's kwargs (make_controlnet); joints: J. `prepare(text, text_mask, motion_mask,
     cond, timesteps, hint)` takes the base's own condition (`time_cond` for a diffusion model, the
     guidance w (B,) for a student) and the hint (B, T, 4 J or 12 J); `denoise(x, t, ctx)` as the base's.
     """
