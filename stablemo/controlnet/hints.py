@@ -70,8 +70,8 @@ def path_features(pos: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     sin = d_prev[..., 1] * d_next[..., 0] - d_prev[..., 0] * d_next[..., 1]
     cos = (d_prev * d_next).sum(-1)
     turning = torch.where(both, torch.atan2(sin, cos) / 2 * PATH_SCALE, torch.zeros_like(speed))
-    return torch.cat([vel, has_vel[..., None].float(), speed[..., None] * has_vel[..., None], direction,
-                      turning[..., None]], dim=-1)
+    # vel (so speed) is already zero where there is no velocity
+    return torch.cat([vel, has_vel[..., None].float(), speed[..., None], direction, turning[..., None]], dim=-1)
 
 
 def sample_hint_mask(motion_mask: torch.Tensor, joints: int, generator: torch.Generator,

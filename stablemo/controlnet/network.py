@@ -43,11 +43,11 @@ from stablemo.nets.retnet import RetNet
 from stablemo.nets.unet import CondUNet1D
 
 
-def _zero_conv(channels_in: int, channels_out: int) -> nn.Conv1d:
-    conv = nn.Conv1d(channels_in, channels_out, 1)
-    nn.init.zeros_(conv.weight)
-    nn.init.zeros_(conv.bias)
-    return conv
+def _zeroed(layer: nn.Module) -> nn.Module:
+    """A zero-initialised injection (weight and bias): the controlled model starts as its base."""
+    nn.init.zeros_(layer.weight)
+    nn.init.zeros_(layer.bias)
+    return layer
 
 
 class HintEncoder(nn.Module):
@@ -59,7 +59,7 @@ class HintEncoder(nn.Module):
         dims = [hint_dim] + [channels] * layers
         self.convs = nn.ModuleList(nn.Conv1d(dims[i], dims[i + 1], kernel_size, padding=kernel_size // 2)
                                    for i in range(layers))
-        self.out = _zero_conv(channels, out_dim)
+        self.out = _zeroed(nn.Conv1d(channels, out_dim, 1))
 
     def forward(self, hint: torch.Tensor, motion_mask: torch.Tensor) -> torch.Tensor:
         h = zero_pad_bct(hint.transpose(1, 2), motion_mask)  # (B, hint_dim, T)
@@ -137,9 +137,9 @@ class UNetControlNet(_ControlNetBase):
         super().__init__(joints, unet.input_dim, channels, layers, path)
         self.encoder = _encoder_copy(unet)
         widths = [stage.blocks[-1].conv2.out_channels for stage in unet.down]
-        self.skip_convs = nn.ModuleList(_zero_conv(c, c) for c in widths)
-        self.mid_conv = _zero_conv(widths[-1], widths[-1])
-        self.out_conv = _zero_conv(widths[0], unet.input_dim) if output else None
+        self.skip_convs = nn.ModuleList(_zeroed(nn.Conv1d(c, c, 1)) for c in widths)
+        self.mid_conv = _zeroed(nn.Conv1d(widths[-1], widths[-1], 1))
+        self.out_conv = _zeroed(nn.Conv1d(widths[0], unet.input_dim, 1)) if output else None
 
     def residuals(self, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning, hint: torch.Tensor,
                   gate: torch.Tensor) -> Residuals:
@@ -214,8 +214,8 @@ class TokenControlNet(_ControlNetBase):
         if not 1 <= blocks <= n:
             raise StableMoError(f"controlnet.blocks: need 1..{n} for this network, got {blocks}")
         self.encoder = _block_copy(net, blocks)
-        self.block_out = nn.ModuleList(_zero_linear(net.latent_dim) for _ in range(blocks))
-        self.out_linear = _zero_linear(net.latent_dim, net.input_dim) if output else None
+        self.block_out = nn.ModuleList(_zeroed(nn.Linear(net.latent_dim, net.latent_dim)) for _ in range(blocks))
+        self.out_linear = _zeroed(nn.Linear(net.latent_dim, net.input_dim)) if output else None
 
     def residuals(self, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning, hint: torch.Tensor,
                   gate: torch.Tensor) -> Residuals:
@@ -245,13 +245,6 @@ class TokenControlNet(_ControlNetBase):
                 h = _add_to_frames(h, residuals.inner[i])
         out = net.readout(h, layout, ctx)
         return out if residuals.output is None else out + residuals.output
-
-
-def _zero_linear(dim: int, dim_out: int | None = None) -> nn.Linear:
-    layer = nn.Linear(dim, dim_out or dim)
-    nn.init.zeros_(layer.weight)
-    nn.init.zeros_(layer.bias)
-    return layer
 
 
 def _add_to_frames(h: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
