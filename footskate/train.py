@@ -131,6 +131,31 @@ def evaluate(model: VGRFNet, joints, contacts, forces, fps: float) -> dict[str, 
             "contact_f1_labels_roundtrip": f1(label_c, true), "contact_f1_heuristic": f1(heur_c, true)}
 
 
+def fit(model: VGRFNet, joints, forces, steps: int, batch: int, window: int, lr: float, gen: torch.Generator,
+        log=print) -> VGRFNet:
+    """Train `model` in place on random windows of (joints, forces) (sample_batch, augmented): Adam,
+    cosine decay to 5 % of `lr`, MSLE; logs every 250 steps. A non-finite loss is a FootskateError."""
+    opt = torch.optim.Adam(model.parameters(), lr=lr)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps, eta_min=lr * 0.05)
+    started, running = time.time(), 0.0
+    for step in range(1, steps + 1):
+        model.train()
+        x, y, lengths = sample_batch(joints, forces, batch, window, gen)
+        loss = masked_msle(model(x, lengths), y, lengths)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        sched.step()
+        running += float(loss.detach())
+        if not math.isfinite(running):
+            raise FootskateError(f"vGRF training: the loss became non-finite at step {step}; lower the learning rate")
+        if step % 250 == 0 or step == steps:
+            log(f"step {step:5d}  train_msle {running / (250 if step % 250 == 0 else step % 250):.5f}  "
+                f"lr {sched.get_last_lr()[0]:.2e}  {time.time() - started:.0f}s")
+            running = 0.0
+    return model.eval()
+
+
 def train(data_dir: str, out: str, steps: int = 1500, batch: int = 16, window: int = 48, lr: float = 1.5e-4,
           width: str = "half", fps: float = 20.0, seed: int = 0, val_fraction: float = 0.1,
           log=print, label_fn=None, extra_meta: dict | None = None) -> dict:
@@ -143,25 +168,9 @@ def train(data_dir: str, out: str, steps: int = 1500, batch: int = 16, window: i
     pick = lambda seq, idx: [seq[i] for i in idx]
     channels, hidden = WIDTHS[width]
     model = VGRFNet(joints[0].shape[1], conv_channels=channels, hidden=hidden)
-    opt = torch.optim.Adam(model.parameters(), lr=lr)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps, eta_min=lr * 0.05)
     log(f"footskate.train: {len(tr)} train / {len(val)} val motions from {data_dir}; "
         f"{sum(p.numel() for p in model.parameters())} parameters ({width}); {steps} steps, batch {batch}, window {window}")
-    started = time.time()
-    running = 0.0
-    for step in range(1, steps + 1):
-        model.train()
-        x, y, lengths = sample_batch(pick(joints, tr), pick(forces, tr), batch, window, gen)
-        loss = masked_msle(model(x, lengths), y, lengths)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        sched.step()
-        running += float(loss.detach())
-        if step % 250 == 0 or step == steps:
-            log(f"step {step:5d}  train_msle {running / min(250, step - (step - 1) // 250 * 250):.5f}  "
-                f"lr {sched.get_last_lr()[0]:.2e}  {time.time() - started:.0f}s")
-            running = 0.0
+    fit(model, pick(joints, tr), pick(forces, tr), steps, batch, window, lr, gen, log)
     metrics = evaluate(model, pick(joints, val), pick(contacts, val), pick(forces, val), fps) if val else {}
     log("validation: " + "  ".join(f"{k} {v:.4f}" for k, v in metrics.items()))
     meta = {"trained_on": str(data_dir), "steps": steps, "batch": batch, "window": window, "lr": lr,

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -200,7 +199,7 @@ def heldout_f1(model, seed: int = 1000, per_type: int = 6, skeleton: str = "huma
 
 
 def main(argv=None) -> int:
-    from footskate.train import masked_msle, sample_batch
+    from footskate.train import fit
     from footskate.vgrf import load_vgrf, save_vgrf
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -242,27 +241,8 @@ def main(argv=None) -> int:
 
         model = kit_from_v22(model)
     before = heldout_f1(model.eval(), skeleton=args.skeleton)
-    opt = torch.optim.Adam(model.parameters(), lr=args.lr)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, args.steps, eta_min=args.lr * 0.05)
-    gen = torch.Generator().manual_seed(args.seed)
-    running, started = 0.0, time.time()
-    for step in range(1, args.steps + 1):
-        model.train()
-        x, y, lengths = sample_batch(joints, forces, args.batch, args.window, gen)
-        loss = masked_msle(model(x, lengths), y, lengths)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
-        sched.step()
-        running += float(loss.detach())
-        if not math.isfinite(running):
-            log(f"step {step}: non-finite loss")
-            return 1
-        if step % 250 == 0 or step == args.steps:
-            log(f"step {step:5d}  train_msle {running / (250 if step % 250 == 0 else step % 250):.5f}  "
-                f"lr {sched.get_last_lr()[0]:.2e}  {time.time() - started:.0f}s")
-            running = 0.0
-    model.eval()
+    fit(model, joints, forces, args.steps, args.batch, args.window, args.lr,
+        torch.Generator().manual_seed(args.seed), log)
     after = heldout_f1(model, skeleton=args.skeleton)
     for key in after:
         log(f"{key:24s} rule {after[key]['rule']:.3f}  vgrf {before[key]['vgrf']:.3f} -> {after[key]['vgrf']:.3f}  "

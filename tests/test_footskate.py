@@ -512,3 +512,32 @@ def test_long_travelling_contacts_can_be_split():
     targets, _, split = contact_ranges(c, pos, up_axis=1, ramp_frames=1, min_range=3, split_travel=0.1)
     assert whole["ranges"] == 4 and split["ranges"] == 16                 # 39 cm of path in 10 cm pieces
     assert (targets[0, :, 0, 0] - pos[0, :, 0, 0]).abs().max() <= 0.05 + 1e-6
+
+
+def test_vgrf_fit_learns_repeats_and_refuses_a_non_finite_loss():
+    """footskate.train.fit (the loop of `python -m footskate.train` and scripts/train_v22_types.py):
+    the loss falls on a fixed toy set, the same generator gives the same weights, and a loss that
+    turns non-finite is one FootskateError."""
+    from footskate.train import fit, masked_msle, sample_batch
+
+    g = torch.Generator().manual_seed(0)
+    joints = [torch.randn(40, 22, 3, generator=g) * 0.3 for _ in range(4)]
+    forces = [torch.rand(40, 2, 16, generator=g) for _ in range(4)]
+
+    def trained(steps: int, lr: float = 1e-3) -> VGRFNet:
+        torch.manual_seed(0)
+        model = VGRFNet(22, conv_channels=(8, 8, 8, 8), hidden=16)
+        return fit(model, joints, forces, steps, 4, 32, lr, torch.Generator().manual_seed(1), log=lambda _: None)
+
+    def loss(model: VGRFNet) -> float:
+        x, y, n = sample_batch(joints, forces, 8, 32, torch.Generator().manual_seed(2), augment=False)
+        with torch.no_grad():
+            return float(masked_msle(model(x, n), y, n))
+
+    a, b = trained(60), trained(60)
+    assert not a.training
+    for (name, p), q in zip(a.state_dict().items(), b.state_dict().values()):
+        assert torch.equal(p, q), name
+    assert loss(a) < 0.8 * loss(trained(0))
+    with pytest.raises(FootskateError, match="became non-finite at step"):
+        trained(3, lr=float("inf"))

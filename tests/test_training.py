@@ -416,6 +416,8 @@ def test_shipped_configs_parse(files, capsys):
         assert model["lr"] == 2e-4 and model["weight_decay"] == 0.01 and model["lr_step"] == 5000
         assert model["lr_gamma"] == 0.9 and model["ema_decay"] == 0.9999
         assert model["model"]["text"]["encoder"] == "openai/clip-vit-base-patch32"
+        # the paper configs train the published network (293.7 M), padded as its layout needs
+        assert model["model"]["denoiser"]["variant"] == "official" and printed["data"]["pad_multiple"] == 16
 
 
 @pytest.mark.parametrize("variant", ABLATION)

@@ -47,6 +47,8 @@ class ControlNetTraining(LightningModule):
         cond_drop_prob: captions replaced by "" (a diffusion base samples with CFG).
         ema_decay, ema_warmup: EMA of the ControlNet's weights (exported).
         lr, weight_decay: AdamW on the ControlNet.
+        lr_step, lr_gamma: the learning rate is multiplied by lr_gamma every lr_step optimiser steps
+            (None: a constant lr, which a resumed run may change).
         sample_steps, sample_cfg: the exported bundle's default steps and guidance (None: the base's).
         seed: seeds every draw.
     """
@@ -66,6 +68,8 @@ class ControlNetTraining(LightningModule):
         ema_warmup: float = 10.0,
         lr: float = 1e-4,
         weight_decay: float = 0.0,
+        lr_step: int | None = None,
+        lr_gamma: float = 0.1,
         sample_steps: int | None = None,
         sample_cfg: float | None = None,
         seed: int = 0,
@@ -80,6 +84,8 @@ class ControlNetTraining(LightningModule):
                                 "'diffusion' or 'consistency' bundle")
         if hint_scale <= 0 or not dense_prob + empty_prob <= 1 or min(dense_prob, empty_prob) < 0:
             raise StableMoError("hint_scale > 0 and dense_prob, empty_prob >= 0 with a sum <= 1 are required")
+        if lr_step is not None and (lr_step < 1 or not 0 < lr_gamma <= 1):
+            raise StableMoError(f"lr_step >= 1 and 0 < lr_gamma <= 1 are required, got {lr_step}, {lr_gamma}")
         self.base_config = config
         self.skeleton = get_skeleton(config.get("skeleton", "humanml3d"))
         bad = [j for j in hint_joints if not 0 <= int(j) < self.skeleton.num_joints]
@@ -116,13 +122,20 @@ class ControlNetTraining(LightningModule):
                                         "train the ControlNet on the base's dataset")
 
     def on_train_start(self) -> None:
-        # no scheduler: the configured lr holds, also when a run resumes with a changed one
-        for group in self.trainer.optimizers[0].param_groups:
-            group["lr"] = self.hparams.lr
+        # a constant lr holds as configured, also when a run resumes with a changed one; a decaying
+        # one resumes where its scheduler's state says
+        if self.hparams.lr_step is None:
+            for group in self.trainer.optimizers[0].param_groups:
+                group["lr"] = self.hparams.lr
 
     def configure_optimizers(self):
+        hp = self.hparams
         params = [p for p in self.model.control.parameters() if p.requires_grad]
-        return torch.optim.AdamW(params, lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
+        optimizer = torch.optim.AdamW(params, lr=hp.lr, weight_decay=hp.weight_decay)
+        if hp.lr_step is None:
+            return optimizer
+        scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=hp.lr_step, gamma=hp.lr_gamma)
+        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "step", "frequency": 1}}
 
     # ------------------------------------------------------------------ loss
 
