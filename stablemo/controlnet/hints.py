@@ -104,4 +104,4 @@ def sample_hint_mask(motion_mask: torch.Tensor, joints: int, generator: torch.Ge
     return out.to(motion_mask.device)
 
 
-__all__ = ["PATH_CHANNELS", "TRAIN_JOINTS", "hint_channels", "hint_input", "path_features", "sample_hint_mask"]
+__all__ = ["PATH_CHANNELS", "PATH_SCALE", "TRAIN_JOINTS", "hint_channels", "hint_input", "path_features", "sample_hint_mask"]

@@ -7,7 +7,10 @@ One step, per batch of clean clips x0 (B, T, D) (facts-distillation §4, MotionL
    only ever sees t = 999 at inference);
 3. the controlled model's x0 estimate (a student's through its consistency function);
 4. loss = masked MSE(x0_hat, x0) + lambda * sum m |R(x0_hat) - R(x0)|^2 / sum m, R = global joint
-   positions (differentiable recovery), m = the hint mask.
+   positions (differentiable recovery), m = the hint mask; optionally (velocity_weight > 0, ours,
+   not MotionLCM's) + mu * the same masked squared error of the hinted joints' per-frame velocities
+   (m/s) where two neighbouring frames are hints: a global position is the sum of every earlier
+   step, so its error's gradient couples all frames, while a step's error is local.
 Only the ControlNet trains; the base stays frozen and in eval mode. Its EMA is what export writes.
 Randomness comes from (seed, step, batch, rank), so a resumed run repeats the uninterrupted one.
 """
@@ -22,7 +25,7 @@ import torch
 from lightning.pytorch import LightningModule
 
 from stablemo.bundle import load_bundle
-from stablemo.controlnet.hints import TRAIN_JOINTS, hint_input, sample_hint_mask
+from stablemo.controlnet.hints import PATH_SCALE, TRAIN_JOINTS, hint_input, sample_hint_mask
 from stablemo.controlnet.network import ControlledModel
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.errors import StableMoError
@@ -43,6 +46,7 @@ class ControlNetTraining(LightningModule):
         hint_scale: target positions are divided by this in the hint (dataset units).
         dense_prob, empty_prob: share of dense hints and of samples without a hint.
         joint_weight: lambda of the joint-position loss (MotionLCM: 1).
+        velocity_weight: mu of the hinted joints' velocity loss (0: MotionLCM's loss alone).
         train_timesteps: timesteps drawn from (None: uniform over the schedule).
         cond_drop_prob: captions replaced by "" (a diffusion base samples with CFG).
         ema_decay, ema_warmup: EMA of the ControlNet's weights (exported).
@@ -62,6 +66,7 @@ class ControlNetTraining(LightningModule):
         dense_prob: float = 0.25,
         empty_prob: float = 0.0,
         joint_weight: float = 1.0,
+        velocity_weight: float = 0.0,
         train_timesteps: Sequence[int] | None = None,
         cond_drop_prob: float = 0.0,
         ema_decay: float = 0.999,
@@ -181,11 +186,19 @@ class ControlNetTraining(LightningModule):
         x0_hat = self._x0_estimate(out, x_t, t)
         frames = mask.float().sum(1)
         recon = (masked_mse(x0_hat, x0, mask) * frames).sum() / frames.sum().clamp(min=1.0)
-        sq = (self.joints(x0_hat) - true_joints).square().sum(-1)  # (B, T, J)
+        joints_hat = self.joints(x0_hat)  # (B, T, J, 3)
+        sq = (joints_hat - true_joints).square().sum(-1)  # (B, T, J)
         m = hint_mask.float()
         joint = (sq * m).sum() / m.sum().clamp(min=1.0)
         err = ((sq.detach().sqrt() * m).sum() / m.sum().clamp(min=1.0))
-        return {"loss": recon + hp.joint_weight * joint, "recon": recon, "joint": joint, "joint_err": err}
+        loss = recon + hp.joint_weight * joint
+        out = {"recon": recon, "joint": joint, "joint_err": err}
+        if hp.velocity_weight:
+            step_sq = (torch.diff(joints_hat - true_joints, dim=1) * PATH_SCALE).square().sum(-1)  # (B, T-1, J), (m/s)^2
+            pairs = m[:, 1:] * m[:, :-1]
+            out["velocity"] = (step_sq * pairs).sum() / pairs.sum().clamp(min=1.0)
+            loss = loss + hp.velocity_weight * out["velocity"]
+        return {"loss": loss, **out}
 
     # ------------------------------------------------------------------ loop
 
@@ -203,6 +216,8 @@ class ControlNetTraining(LightningModule):
         self.log("train/recon", out["recon"], batch_size=B)
         self.log("train/joint", out["joint"], batch_size=B)
         self.log("train/joint_err_m", out["joint_err"], prog_bar=True, batch_size=B)
+        if "velocity" in out:
+            self.log("train/velocity", out["velocity"], batch_size=B)
         return out["loss"]
 
     def optimizer_step(self, *args, **kwargs) -> None:
@@ -237,6 +252,7 @@ class ControlNetTraining(LightningModule):
         config["inference"] = replace(inference, **changes).to_dict()
         config["training"] = {"base": str(hp.base), "global_step": int(self.global_step), "ema_decay": hp.ema_decay,
                               "ema_updates": self.ema.num_updates, "joint_weight": hp.joint_weight,
+                              "velocity_weight": hp.velocity_weight,
                               "train_timesteps": None if hp.train_timesteps is None else list(hp.train_timesteps)}
         return config
 

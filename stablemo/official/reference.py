@@ -115,6 +115,9 @@ def official_unet_module(src: str | Path, clip_module: types.ModuleType) -> type
         spec = importlib.util.spec_from_file_location("stablemofusion_official_unet", path)
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
+    except ImportError as err:  # the official code's own dependencies (einops, ...) are not ours
+        raise StableMoError(f"{path}: importing it failed ({err}); install what the official code needs, "
+                            "e.g. pip install einops") from None
     finally:
         if before is None:
             sys.modules.pop("clip", None)
