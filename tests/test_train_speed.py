@@ -178,7 +178,8 @@ def test_training_layers_with_stock_convolutions_equal_stock():
     """accelerate_training(gemm_conv=False): the oneDNN convolutions, the other training layers."""
     stock = _unet(dropout=0.1)
     fast = accelerate_training(copy.deepcopy(stock), gemm_conv=False)
-    assert not any(isinstance(m, TrainConv1d) for m in fast.modules())
+    convs = [m for m in fast.modules() if isinstance(m, TrainConv1d)]
+    assert convs and not any(m.gemm for m in convs)  # swapped for their autocast path only
     assert any(isinstance(m, TrainResBlock1D) for m in fast.modules())
     batch = _batch([16, 9, 4], 16)
     torch.manual_seed(7)
@@ -188,6 +189,42 @@ def test_training_layers_with_stock_convolutions_equal_stock():
     torch.testing.assert_close(loss_f, loss_s, rtol=1e-6, atol=0)
     total = torch.cat([g.flatten() for g in grads_s.values()]).norm()
     assert float(torch.cat([(grads_f[n] - g).flatten() for n, g in grads_s.items()]).norm() / total) <= 1e-5
+
+
+@pytest.mark.parametrize("variant", ["stablemo", "official"])
+def test_bf16_autocast_equals_stock_autocast_without_keeping_weight_copies(variant):
+    """Under CPU autocast (bf16-mixed) the training layers give stock autocast's loss and gradients
+    bit for bit, and the backward keeps no bf16 copy of a convolution or linear weight (the float32
+    weight is cast again there): the copies stock autocast keeps are what the step's peak lacks."""
+    stock = _unet(variant, dropout=0.0)
+    fast = accelerate_training(copy.deepcopy(stock))
+    batch = _batch([16, 9, 4], 16)
+    weight_shapes = {tuple(p.shape) for n, p in stock.named_parameters() if n.endswith("weight") and p.dim() >= 2}
+
+    def run(net):
+        kept = []
+
+        def pack(t):
+            if t.dtype == torch.bfloat16 and tuple(t.shape) in weight_shapes:
+                kept.append(tuple(t.shape))
+            return t
+
+        with torch.autograd.graph.saved_tensors_hooks(pack, lambda t: t):
+            with torch.autocast("cpu", dtype=torch.bfloat16):
+                x, t, text, text_mask, mask, target = batch
+                pred = net(x, t, net.prepare(text, text_mask, mask))
+            loss = ((pred.float() - target).square().mean(-1) * mask).sum() / mask.sum()
+        net.zero_grad(set_to_none=True)
+        loss.backward()
+        return loss.detach(), {n: p.grad for n, p in net.named_parameters()}, kept
+
+    loss_s, grads_s, kept_s = run(stock)
+    loss_f, grads_f, kept_f = run(fast)
+    assert torch.equal(loss_f, loss_s)
+    for n, g in grads_s.items():
+        assert torch.equal(grads_f[n], g), n
+        assert grads_f[n].dtype == torch.float32
+    assert len(kept_s) > 10 and kept_f == []
 
 
 def test_padding_still_gets_no_gradient_and_changes_nothing():
@@ -247,7 +284,7 @@ def test_module_trains_through_the_fast_layers_with_the_stock_losses(tiny_data, 
     assert any(isinstance(m, TrainConv1d) for m in module.model.modules())
     assert not any(isinstance(m, TrainConv1d) for m in DiffusionModule(model=TINY_MODEL, fast_training=False).model.modules())
     onednn = DiffusionModule(model=TINY_MODEL, gemm_conv=False).model
-    assert not any(isinstance(m, TrainConv1d) for m in onednn.modules())
+    assert not any(m.gemm for m in onednn.modules() if isinstance(m, TrainConv1d))
     assert any(isinstance(m, TrainResBlock1D) for m in onednn.modules())
     fast_run, stock_run = tmp_path / "fast", tmp_path / "stock"
     _fit(tiny_config(fast_run, tiny_data))

@@ -137,27 +137,142 @@ class GemmConv1dFunction(torch.autograd.Function):
         return grad_x, grad_w, grad_b, None, None
 
 
-class TrainConv1d(nn.Conv1d):
-    """nn.Conv1d through GemmConv1dFunction while a gradient is recorded (CPU, float32/float64,
-    groups 1, no dilation, zero padding); the stock forward otherwise (inference, autocast, CUDA,
-    other layouts)."""
+class CastConv1dFunction(torch.autograd.Function):
+    """conv1d (or conv_transpose1d) under CPU autocast (bf16-mixed) computed as autocast computes
+    it -- input, weight and bias cast to the autocast dtype, oneDNN's convolution, the same
+    convolution_backward -- but keeping the float32 weight for the backward (cast again there)
+    instead of its copy. Autocast's cast is an autograd node that keeps the copy (2 B per weight)
+    until the layer's backward, and the down path's copies are still alive at the end of the
+    backward, where the step's memory peaks; the cast again costs one pass over the layer's weight."""
+
+    @staticmethod
+    def forward(ctx, x, weight, bias, stride: int, padding: int, output_padding: int, transposed: bool,
+                dtype: torch.dtype):
+        with torch.autocast("cpu", enabled=False):
+            xc = x.to(dtype)
+            w, b = weight.to(dtype), None if bias is None else bias.to(dtype)
+            y = (F.conv_transpose1d(xc, w, b, stride, padding, output_padding) if transposed
+                 else F.conv1d(xc, w, b, stride, padding))
+        ctx.save_for_backward(xc, weight)
+        ctx.conf = (stride, padding, output_padding, transposed, bias is not None, x.dtype)
+        return y
+
+    @staticmethod
+    def backward(ctx, grad_y):
+        xc, weight = ctx.saved_tensors
+        stride, padding, output_padding, transposed, has_bias, x_dtype = ctx.conf
+        need = [ctx.needs_input_grad[0], ctx.needs_input_grad[1], has_bias and ctx.needs_input_grad[2]]
+        bias_size = [weight.shape[1 if transposed else 0]] if has_bias else None
+        gx, gw, gb = torch.ops.aten.convolution_backward(
+            grad_y.to(xc.dtype), xc, weight.to(xc.dtype), bias_size, [stride], [padding], [1], transposed,
+            [output_padding], 1, need)
+        return (None if gx is None else gx.to(x_dtype), None if gw is None else gw.to(weight.dtype),
+                None if gb is None else gb.to(weight.dtype), None, None, None, None, None)
+
+
+def _cast_ok(layer: nn.Module, x: torch.Tensor) -> bool:
+    """CPU autocast with a gradient recorded, a float32 layer of the plain form (groups 1, no
+    dilation, zero padding): the layer goes through CastConv1dFunction."""
+    return (torch.is_grad_enabled() and (x.requires_grad or layer.weight.requires_grad) and x.device.type == "cpu"
+            and x.dim() == 3 and torch.is_autocast_enabled("cpu") and layer.weight.dtype == torch.float32
+            and layer.groups == 1 and layer.dilation == (1,) and layer.padding_mode == "zeros"
+            and not isinstance(layer.padding, str))
+
+
+class TrainConvTranspose1d(nn.ConvTranspose1d):
+    """nn.ConvTranspose1d through CastConv1dFunction under CPU autocast; the stock forward otherwise."""
 
     @classmethod
-    def from_stock(cls, conv: nn.Conv1d) -> TrainConv1d:
+    def from_stock(cls, conv: nn.ConvTranspose1d) -> TrainConvTranspose1d:
+        fast = cls(conv.in_channels, conv.out_channels, conv.kernel_size, conv.stride, conv.padding,
+                   conv.output_padding, conv.groups, conv.bias is not None, conv.dilation, conv.padding_mode,
+                   device="meta")
+        fast.weight, fast.bias = conv.weight, conv.bias
+        return fast.train(conv.training)
+
+    def forward(self, x: torch.Tensor, output_size=None) -> torch.Tensor:
+        if output_size is None and _cast_ok(self, x):
+            return CastConv1dFunction.apply(x, self.weight, self.bias, self.stride[0], self.padding[0],
+                                            self.output_padding[0], True, torch.get_autocast_dtype("cpu"))
+        return super().forward(x, output_size)
+
+
+class CastLinearFunction(torch.autograd.Function):
+    """F.linear under CPU autocast as autocast computes it (input, weight and bias cast, the same
+    products forward and backward), keeping the float32 weight for the backward instead of its
+    copy: CastConv1dFunction's saving for the attention and AdaGN projections."""
+
+    @staticmethod
+    def forward(ctx, x, weight, bias, dtype: torch.dtype):
+        with torch.autocast("cpu", enabled=False):
+            xc = x.to(dtype)
+            y = F.linear(xc, weight.to(dtype), None if bias is None else bias.to(dtype))
+        ctx.save_for_backward(xc, weight)
+        ctx.conf = (bias is not None, x.dtype)
+        return y
+
+    @staticmethod
+    def backward(ctx, grad_y):
+        xc, weight = ctx.saved_tensors
+        has_bias, x_dtype = ctx.conf
+        g = grad_y.to(xc.dtype)
+        gx = gw = gb = None
+        if ctx.needs_input_grad[0]:
+            gx = (g @ weight.to(xc.dtype)).to(x_dtype)
+        rows = g.reshape(-1, g.shape[-1])  # (N, O)
+        if ctx.needs_input_grad[1]:
+            gw = (rows.t() @ xc.reshape(-1, xc.shape[-1])).to(weight.dtype)
+        if has_bias and ctx.needs_input_grad[2]:
+            gb = rows.sum(0).to(weight.dtype)
+        return gx, gw, gb, None
+
+
+class TrainLinear(nn.Linear):
+    """nn.Linear through CastLinearFunction under CPU autocast with a gradient recorded; the stock
+    forward otherwise."""
+
+    @classmethod
+    def from_stock(cls, linear: nn.Linear) -> TrainLinear:
+        fast = cls(linear.in_features, linear.out_features, linear.bias is not None, device="meta")
+        fast.weight, fast.bias = linear.weight, linear.bias
+        return fast.train(linear.training)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if (torch.is_grad_enabled() and (x.requires_grad or self.weight.requires_grad) and x.device.type == "cpu"
+                and torch.is_autocast_enabled("cpu") and self.weight.dtype == torch.float32):
+            return CastLinearFunction.apply(x, self.weight, self.bias, torch.get_autocast_dtype("cpu"))
+        return super().forward(x)
+
+
+class TrainConv1d(nn.Conv1d):
+    """nn.Conv1d through GemmConv1dFunction while a gradient is recorded (CPU, float32/float64,
+    groups 1, no dilation, zero padding), through CastConv1dFunction under CPU autocast; the stock
+    forward otherwise (inference, CUDA, other layouts)."""
+
+    gemm = True
+
+    @classmethod
+    def from_stock(cls, conv: nn.Conv1d, gemm: bool = True) -> TrainConv1d:
+        """gemm False: oneDNN's convolution in float32 too (the faster one on some CPUs); the
+        autocast path is the same either way."""
         fast = cls(conv.in_channels, conv.out_channels, conv.kernel_size, conv.stride, conv.padding, conv.dilation,
                    conv.groups, conv.bias is not None, conv.padding_mode, device="meta")
         fast.weight, fast.bias = conv.weight, conv.bias
+        fast.gemm = bool(gemm)
         return fast.train(conv.training)
 
     def _gemm_ok(self, x: torch.Tensor) -> bool:
         # CPU only: measured against oneDNN's convolution here; cuDNN's is another matter (not measured)
-        return (torch.is_grad_enabled() and (x.requires_grad or self.weight.requires_grad)
+        return (self.gemm and torch.is_grad_enabled() and (x.requires_grad or self.weight.requires_grad)
                 and x.device.type == "cpu" and x.dim() == 3 and x.dtype in (torch.float32, torch.float64) and x.dtype == self.weight.dtype
                 and not torch.is_autocast_enabled(x.device.type)
                 and self.groups == 1 and self.dilation == (1,) and self.padding_mode == "zeros"
                 and not isinstance(self.padding, str))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if _cast_ok(self, x):
+            return CastConv1dFunction.apply(x, self.weight, self.bias, self.stride[0], self.padding[0], 0, False,
+                                            torch.get_autocast_dtype("cpu"))
         if not self._gemm_ok(x):
             return super().forward(x)
         return GemmConv1dFunction.apply(x, self.weight, self.bias, self.stride[0], self.padding[0])
@@ -344,8 +459,9 @@ class TrainCondUNet1D(CondUNet1D):
 
 
 def accelerate_training(model: nn.Module, gemm_conv: bool = True) -> nn.Module:
-    """Swap, in place and children first, nn.Conv1d -> TrainConv1d (unless `gemm_conv` is False:
-    the stock oneDNN convolution, the faster one on some CPUs, docs/training.md), nn.Mish ->
+    """Swap, in place and children first, nn.Conv1d -> TrainConv1d (its float32 GEMMs unless
+    `gemm_conv` is False: oneDNN's convolution, the faster one on some CPUs, docs/training.md),
+    nn.Linear -> TrainLinear and nn.ConvTranspose1d -> TrainConvTranspose1d (autocast only), nn.Mish ->
     TrainMish, nn.Dropout -> TrainDropout, LinearCrossAttention -> TrainLinearCrossAttention and the
     UNet's ResBlock1D / CondUNet1D -> TrainResBlock1D / TrainCondUNet1D (exact types only: an
     already swapped or subclassed layer is left alone). Returns the model (a replacement when
@@ -353,7 +469,7 @@ def accelerate_training(model: nn.Module, gemm_conv: bool = True) -> nn.Module:
     from stablemo.fast import swap_layers
 
     table = {nn.Mish: lambda stock: TrainMish(), nn.Dropout: TrainDropout.from_stock, ResBlock1D: TrainResBlock1D,
-             LinearCrossAttention: TrainLinearCrossAttention, CondUNet1D: TrainCondUNet1D}
-    if gemm_conv:
-        table[nn.Conv1d] = TrainConv1d.from_stock
+             LinearCrossAttention: TrainLinearCrossAttention, CondUNet1D: TrainCondUNet1D,
+             nn.Conv1d: lambda stock: TrainConv1d.from_stock(stock, gemm=gemm_conv), nn.Linear: TrainLinear.from_stock,
+             nn.ConvTranspose1d: TrainConvTranspose1d.from_stock}
     return swap_layers(model, table)
