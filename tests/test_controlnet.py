@@ -240,16 +240,18 @@ def test_training_step_moves_only_the_controlnet_and_learns(student_bundle):
     assert errors[-1] < 0.7 * errors[0], errors
 
 
-def test_velocity_loss_is_the_hinted_steps_squared_error(student_bundle, monkeypatch):
+def test_velocity_and_root_losses_are_what_they_say(student_bundle, monkeypatch):
     """velocity_weight adds mu * the mean squared error (m/s)^2 of the hinted joints' steps between
-    neighbouring hinted frames, recomputed here from the x0 estimate the step took."""
+    neighbouring hinted frames, root_weight nu * the squared error of the 4 root feature channels
+    on the frames whose pelvis is a hint; both recomputed here from the x0 estimate the step took."""
     from stablemo.controlnet.hints import PATH_SCALE
     from stablemo.controlnet.module import ControlNetTraining
 
-    kw = dict(control={"channels": 16, "layers": 2, "path": True}, train_timesteps=[999], dense_prob=0.5)
+    kw = dict(control={"channels": 16, "layers": 2, "path": True}, train_timesteps=[999], dense_prob=0.5,
+              hint_joints=[0, 0, 20])  # the pelvis mostly: the root term needs it
     plain = ControlNetTraining(str(student_bundle), **kw)
     perturb(plain.model.control, std=0.05)  # non-zero injections: the hint changes the motion
-    module = ControlNetTraining(str(student_bundle), **kw, joint_weight=3.0, velocity_weight=2.0)
+    module = ControlNetTraining(str(student_bundle), **kw, joint_weight=3.0, velocity_weight=2.0, root_weight=0.5)
     module.model.control.load_state_dict(plain.model.control.state_dict())
     gen = torch.Generator().manual_seed(0)
     batch = {"motion": torch.randn(3, 24, D, generator=gen) * 0.3, "mask": torch.ones(3, 24, dtype=torch.bool),
@@ -265,14 +267,18 @@ def test_velocity_loss_is_the_hinted_steps_squared_error(student_bundle, monkeyp
     monkeypatch.setattr(cn_module, "sample_hint_mask", lambda *a: seen.setdefault("hints", draw(*a)))
     out = module.losses(batch, torch.Generator().manual_seed(1))
     monkeypatch.setattr(cn_module, "sample_hint_mask", draw)
-    assert "velocity" not in plain.losses(batch, torch.Generator().manual_seed(1))
+    assert not {"velocity", "root"} & set(plain.losses(batch, torch.Generator().manual_seed(1)))
     hints = seen["hints"].float()
     diff = torch.diff(module.joints(seen["x0"]) - module.joints(batch["motion"]), dim=1) * PATH_SCALE
     pairs = hints[:, 1:] * hints[:, :-1]
     expected = (diff.square().sum(-1) * pairs).sum() / pairs.sum()
     close(out["velocity"], expected, rtol=1e-5)
-    close(out["loss"], out["recon"] + 3.0 * out["joint"] + 2.0 * out["velocity"], rtol=1e-6)
-    assert out["velocity"] > 0
+    pelvis = hints[..., 0]
+    assert pelvis.any()  # the draw gave some sample the pelvis (else the root term is not tested)
+    root = (seen["x0"][..., :4] - batch["motion"][..., :4]).square().mean(-1)
+    close(out["root"], (root * pelvis).sum() / pelvis.sum(), rtol=1e-5)
+    close(out["loss"], out["recon"] + 3.0 * out["joint"] + 2.0 * out["velocity"] + 0.5 * out["root"], rtol=1e-6)
+    assert out["velocity"] > 0 and out["root"] > 0
 
 
 def controlled_bundle(base_bundle, tmp_path, name, trained=True):

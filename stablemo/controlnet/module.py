@@ -36,6 +36,9 @@ from stablemo.lit.module import CHECKPOINT_KEY, derive_seed, masked_mse
 from stablemo.motion import features_to_joints
 from stablemo.motion.skeleton import get_skeleton
 
+# HumanML3D / KIT root features: rotation velocity (1), velocity in the body's frame (x, z), height
+ROOT_CHANNELS = 4
+
 
 class ControlNetTraining(LightningModule):
     """Args:
@@ -47,6 +50,7 @@ class ControlNetTraining(LightningModule):
         dense_prob, empty_prob: share of dense hints and of samples without a hint.
         joint_weight: lambda of the joint-position loss (MotionLCM: 1).
         velocity_weight: mu of the hinted joints' velocity loss (0: MotionLCM's loss alone).
+        root_weight: nu of the root-channel loss on pelvis-hinted frames (0: MotionLCM's loss alone).
         train_timesteps: timesteps drawn from (None: uniform over the schedule).
         cond_drop_prob: captions replaced by "" (a diffusion base samples with CFG).
         ema_decay, ema_warmup: EMA of the ControlNet's weights (exported).
@@ -67,6 +71,7 @@ class ControlNetTraining(LightningModule):
         empty_prob: float = 0.0,
         joint_weight: float = 1.0,
         velocity_weight: float = 0.0,
+        root_weight: float = 0.0,
         train_timesteps: Sequence[int] | None = None,
         cond_drop_prob: float = 0.0,
         ema_decay: float = 0.999,
@@ -198,6 +203,11 @@ class ControlNetTraining(LightningModule):
             pairs = m[:, 1:] * m[:, :-1]
             out["velocity"] = (step_sq * pairs).sum() / pairs.sum().clamp(min=1.0)
             loss = loss + hp.velocity_weight * out["velocity"]
+        if hp.root_weight:
+            pelvis = m[..., 0]  # (B, T): frames whose pelvis is a target
+            root_sq = (x0_hat[..., :ROOT_CHANNELS] - x0[..., :ROOT_CHANNELS]).square().mean(-1)
+            out["root"] = (root_sq * pelvis).sum() / pelvis.sum().clamp(min=1.0)
+            loss = loss + hp.root_weight * out["root"]
         return {"loss": loss, **out}
 
     # ------------------------------------------------------------------ loop
@@ -216,8 +226,9 @@ class ControlNetTraining(LightningModule):
         self.log("train/recon", out["recon"], batch_size=B)
         self.log("train/joint", out["joint"], batch_size=B)
         self.log("train/joint_err_m", out["joint_err"], prog_bar=True, batch_size=B)
-        if "velocity" in out:
-            self.log("train/velocity", out["velocity"], batch_size=B)
+        for name in ("velocity", "root"):
+            if name in out:
+                self.log(f"train/{name}", out[name], batch_size=B)
         return out["loss"]
 
     def optimizer_step(self, *args, **kwargs) -> None:
@@ -252,7 +263,7 @@ class ControlNetTraining(LightningModule):
         config["inference"] = replace(inference, **changes).to_dict()
         config["training"] = {"base": str(hp.base), "global_step": int(self.global_step), "ema_decay": hp.ema_decay,
                               "ema_updates": self.ema.num_updates, "joint_weight": hp.joint_weight,
-                              "velocity_weight": hp.velocity_weight,
+                              "velocity_weight": hp.velocity_weight, "root_weight": hp.root_weight,
                               "train_timesteps": None if hp.train_timesteps is None else list(hp.train_timesteps)}
         return config
 
