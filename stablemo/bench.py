@@ -119,7 +119,8 @@ def _model_kwargs(config_path: str | None) -> tuple[dict, str]:
     paper = load_model_config(PAPER_CONFIG)
     paper["text"]["encoder"] = STAND_IN_ENCODER
     if config_path is None:
-        return paper, f"paper UNet ({PAPER_CONFIG.name}, {STAND_IN_ENCODER} text encoder)"
+        layout = paper["denoiser"].get("variant", "stablemo")
+        return paper, f"paper UNet ({PAPER_CONFIG.name}: the {layout} layout, {STAND_IN_ENCODER} text encoder)"
     kwargs = load_model_config(config_path, "--config", text_defaults=paper["text"])
     kwargs["denoiser"].setdefault("input_dim", 263)
     kwargs["text"].setdefault("latent_dim", kwargs["denoiser"].get("text_dim", 256))
@@ -161,6 +162,18 @@ def _student_pipeline(pipe, fast: bool):
                     device=pipe.device, config=config, inference=inference, fast=fast)
 
 
+CONTROLNET_ASSET = Path(__file__).resolve().parent / "assets" / "demo_controlnet"
+
+
+def _shipped_control_form() -> dict:
+    """The shipped pelvis ControlNet's form (hint encoder, path channels, output injection), read
+    from its config.json, so the benchmark times the ControlNet users get."""
+    path = CONTROLNET_ASSET / "config.json"
+    if not path.is_file():
+        raise StableMoError(f"{path}: the shipped ControlNet is missing (a source checkout has it); pass --skip-controlnet")
+    return dict(json.loads(path.read_text())["controlnet"]["control"])
+
+
 def _controlled_pipeline(pipe, student, fast: bool):
     """`student` (a 1-step LCM pipeline of `pipe`'s network) with a ControlNet on its network
     (stablemo.controlnet; its injections start at zero, so the timing is a trained one's)."""
@@ -172,7 +185,7 @@ def _controlled_pipeline(pipe, student, fast: bool):
     J = get_skeleton(student.skeleton).num_joints
     base = ConsistencyStudent(pipe.config["model"])  # stock modules: the ControlNet copies them (fast ones hold packed weights)
     base.model.load_state_dict(pipe.model.state_dict())
-    control = {"channels": 64, "layers": 3, "path": True}  # as the shipped pelvis ControlNet
+    control = _shipped_control_form()
     model = ControlledModel(base, "consistency", J, control)
     config = {**student.config, "controlnet": {"base_kind": "consistency", "joints": J, "hint_scale": 1.0,
                                                "control": control}}
