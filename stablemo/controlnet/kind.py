@@ -2,7 +2,7 @@
 ControlNet. Samplers are the base kind's; the request's resolved joint targets become the hint.
 
 Bundle config: the base bundle's config with `kind: "controlnet"` and a section
-`controlnet: {base_kind, joints, hint_scale, control: {channels, layers, path, output[, blocks]}}`.
+`controlnet: {base_kind, joints, hint_scale, control: {channels, layers, path, output, output_scale[, blocks]}}`.
 """
 
 from __future__ import annotations

@@ -83,10 +83,19 @@ def _encoder_copy(unet: CondUNet1D) -> CondUNet1D:
 class Residuals:
     """What a ControlNet adds to its frozen network at one step: `inner`, one tensor per injection
     point inside the network (UNet: each skip (B, C_i, T_i), then the middle; DiT/RetNet: each copied
-    block's frame tokens (B, T, C)), and `output` (B, T, D) onto its output, or None."""
+    block's frame tokens (B, T, C)), `output` (B, T, D) added to its output and `output_scale`
+    (B, T, D) scaling it first (out * (1 + scale) + output: where the hint determines a channel the
+    ControlNet can replace the base's value instead of correcting it blind), each or None."""
 
     inner: list[torch.Tensor]
     output: torch.Tensor | None = None
+    output_scale: torch.Tensor | None = None
+
+    def apply_output(self, out: torch.Tensor) -> torch.Tensor:
+        """The network's output (B, T, D) with the output injection: out * (1 + output_scale) + output."""
+        if self.output_scale is not None:
+            out = out + out * self.output_scale
+        return out if self.output is None else out + self.output
 
 
 @dataclass
@@ -130,16 +139,21 @@ class UNetControlNet(_ControlNetBase):
     joints: J of the skeleton; channels/layers: the hint encoder's; path: the hint carries the
     targets' path channels (hints.py); output: one more zero-initialised 1x1 convolution, from the
     copy's full-resolution features straight onto the network's output, so the hint can set output
-    channels (the root's) by a near-linear path instead of only through the frozen decoder."""
+    channels (the root's) by a near-linear path instead of only through the frozen decoder;
+    output_scale: one more, scaling the network's output per frame and channel before that shift
+    (zero-initialised too), so the injection can replace the base's value of a channel the hint
+    determines rather than add to a value it cannot see (the base's output at t = 999 depends on the
+    noise)."""
 
     def __init__(self, unet: CondUNet1D, joints: int, channels: int = 64, layers: int = 3, path: bool = False,
-                 output: bool = False):
+                 output: bool = False, output_scale: bool = False):
         super().__init__(joints, unet.input_dim, channels, layers, path)
         self.encoder = _encoder_copy(unet)
         widths = [stage.blocks[-1].conv2.out_channels for stage in unet.down]
         self.skip_convs = nn.ModuleList(_zeroed(nn.Conv1d(c, c, 1)) for c in widths)
         self.mid_conv = _zeroed(nn.Conv1d(widths[-1], widths[-1], 1))
         self.out_conv = _zeroed(nn.Conv1d(widths[0], unet.input_dim, 1)) if output else None
+        self.out_scale_conv = _zeroed(nn.Conv1d(widths[0], unet.input_dim, 1)) if output_scale else None
 
     def residuals(self, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning, hint: torch.Tensor,
                   gate: torch.Tensor) -> Residuals:
@@ -149,18 +163,19 @@ class UNetControlNet(_ControlNetBase):
         enc = self.encoder
         adagn = enc.step_adagn(t, ctx)
         h = zero_pad_bct(x.transpose(1, 2), ctx.masks[0]) + hint  # (B, D, T)
-        out, to_output = [], None
+        out, to_output, scale = [], None, None
         for i, stage in enumerate(enc.down):
             h = stage(h, adagn[i], ctx.text_contexts[i], ctx.masks[i])
             out.append(zero_pad_bct(self.skip_convs[i](h), ctx.masks[i]) * gate)
-            if i == 0 and self.out_conv is not None:
-                to_output = (zero_pad_bct(self.out_conv(h), ctx.masks[0]) * gate).transpose(1, 2)
+            if i == 0:
+                to_output = _frames_out(self.out_conv, h, ctx.masks[0], gate)
+                scale = _frames_out(self.out_scale_conv, h, ctx.masks[0], gate)
             if i < len(enc.downsample):
                 h = enc.resample(enc.downsample[i], h, ctx.masks[i + 1])
         n = len(enc.down)
         h = enc.mid(h, adagn[n], ctx.text_contexts[n], ctx.masks[-1])
         out.append(zero_pad_bct(self.mid_conv(h), ctx.masks[-1]) * gate)
-        return Residuals(out, to_output)
+        return Residuals(out, to_output, scale)
 
     @staticmethod
     def run_base(unet: CondUNet1D, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning,
@@ -185,8 +200,7 @@ class UNetControlNet(_ControlNetBase):
             h = stage(unet.merge_skip(h, skips.pop()), adagn[n + 1 + j], ctx.text_contexts[n + 1 + j], ctx.masks[level])
             if not unet.upsample_first and j < len(unet.upsample):
                 h = unet.resample(unet.upsample[j], h, ctx.masks[level - 1])
-        out = unet.head(h, ctx.masks[0]).transpose(1, 2)  # (B, T, D)
-        return out if residuals.output is None else out + residuals.output
+        return residuals.apply_output(unet.head(h, ctx.masks[0]).transpose(1, 2))  # (B, T, D)
 
 
 def _block_copy(net: nn.Module, blocks: int) -> nn.Module:
@@ -207,7 +221,7 @@ class TokenControlNet(_ControlNetBase):
     the frame tokens of the frozen block i's output."""
 
     def __init__(self, net: nn.Module, joints: int, channels: int = 64, layers: int = 3, path: bool = False,
-                 output: bool = False, blocks: int | None = None):
+                 output: bool = False, output_scale: bool = False, blocks: int | None = None):
         super().__init__(joints, net.latent_dim, channels, layers, path)
         n = len(net.blocks)
         blocks = (n + 1) // 2 if blocks is None else int(blocks)
@@ -216,6 +230,7 @@ class TokenControlNet(_ControlNetBase):
         self.encoder = _block_copy(net, blocks)
         self.block_out = nn.ModuleList(_zeroed(nn.Linear(net.latent_dim, net.latent_dim)) for _ in range(blocks))
         self.out_linear = _zeroed(nn.Linear(net.latent_dim, net.input_dim)) if output else None
+        self.out_scale_linear = _zeroed(nn.Linear(net.latent_dim, net.input_dim)) if output_scale else None
 
     def residuals(self, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning, hint: torch.Tensor,
                   gate: torch.Tensor) -> Residuals:
@@ -228,10 +243,10 @@ class TokenControlNet(_ControlNetBase):
         for i in range(len(enc.blocks)):
             h = enc.block(i, h, layout, ctx)
             out.append(zero_pad_btc(self.block_out[i](h[:, -mask.shape[1]:]), mask) * gate)
-        to_output = None
-        if self.out_linear is not None:
-            to_output = zero_pad_btc(self.out_linear(h[:, -mask.shape[1]:]), mask) * gate
-        return Residuals(out, to_output)
+        frames = h[:, -mask.shape[1]:]
+        to_output, scale = (None if layer is None else zero_pad_btc(layer(frames), mask) * gate
+                            for layer in (self.out_linear, self.out_scale_linear))
+        return Residuals(out, to_output, scale)
 
     @staticmethod
     def run_base(net: nn.Module, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning,
@@ -243,8 +258,13 @@ class TokenControlNet(_ControlNetBase):
             h = net.block(i, h, layout, ctx)
             if i < len(residuals.inner):
                 h = _add_to_frames(h, residuals.inner[i])
-        out = net.readout(h, layout, ctx)
-        return out if residuals.output is None else out + residuals.output
+        return residuals.apply_output(net.readout(h, layout, ctx))
+
+
+def _frames_out(conv: nn.Module | None, h: torch.Tensor, mask: torch.Tensor, gate: torch.Tensor) -> torch.Tensor | None:
+    """An output injection from full-resolution features h (B, C, T): conv(h), zero on padding,
+    times the gate, as (B, T, D); None without the layer."""
+    return None if conv is None else (zero_pad_bct(conv(h), mask) * gate).transpose(1, 2)
 
 
 def _add_to_frames(h: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
@@ -255,11 +275,11 @@ def _add_to_frames(h: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
 
 def make_controlnet(denoiser: nn.Module, joints: int, **control) -> _ControlNetBase:
     """The ControlNet form for `denoiser` (a CondUNet1D, DiT or RetNet), with its copy made now;
-    control: channels, layers, path, output (and blocks for a DiT/RetNet)."""
+    control: channels, layers, path, output, output_scale (and blocks for a DiT/RetNet)."""
     if isinstance(denoiser, CondUNet1D):
-        form, known = UNetControlNet, {"channels", "layers", "path", "output"}
+        form, known = UNetControlNet, {"channels", "layers", "path", "output", "output_scale"}
     elif isinstance(denoiser, (DiT, RetNet)):
-        form, known = TokenControlNet, {"channels", "layers", "path", "output", "blocks"}
+        form, known = TokenControlNet, {"channels", "layers", "path", "output", "output_scale", "blocks"}
     else:
         raise StableMoError(f"controlnet: a {type(denoiser).__name__} denoiser cannot be controlled "
                             "(supported: unet, dit, retnet)")
