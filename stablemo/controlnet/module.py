@@ -10,7 +10,9 @@ One step, per batch of clean clips x0 (B, T, D) (facts-distillation §4, MotionL
    positions (differentiable recovery), m = the hint mask; optionally (velocity_weight > 0, ours,
    not MotionLCM's) + mu * the same masked squared error of the hinted joints' per-frame velocities
    (m/s) where two neighbouring frames are hints: a global position is the sum of every earlier
-   step, so its error's gradient couples all frames, while a step's error is local.
+   step, so its error's gradient couples all frames, while a step's error is local; and
+   (root_weight > 0, ours) + nu * the squared error of the 4 root feature channels (normalised) on
+   the frames whose pelvis is a hint, the local quantities a dense pelvis path all but determines.
 Only the ControlNet trains; the base stays frozen and in eval mode. Its EMA is what export writes.
 Randomness comes from (seed, step, batch, rank), so a resumed run repeats the uninterrupted one.
 """
@@ -197,18 +199,18 @@ class ControlNetTraining(LightningModule):
         joint = (sq * m).sum() / m.sum().clamp(min=1.0)
         err = ((sq.detach().sqrt() * m).sum() / m.sum().clamp(min=1.0))
         loss = recon + hp.joint_weight * joint
-        out = {"recon": recon, "joint": joint, "joint_err": err}
+        terms = {"recon": recon, "joint": joint, "joint_err": err}
         if hp.velocity_weight:
             step_sq = (torch.diff(joints_hat - true_joints, dim=1) * PATH_SCALE).square().sum(-1)  # (B, T-1, J), (m/s)^2
             pairs = m[:, 1:] * m[:, :-1]
-            out["velocity"] = (step_sq * pairs).sum() / pairs.sum().clamp(min=1.0)
-            loss = loss + hp.velocity_weight * out["velocity"]
+            terms["velocity"] = (step_sq * pairs).sum() / pairs.sum().clamp(min=1.0)
+            loss = loss + hp.velocity_weight * terms["velocity"]
         if hp.root_weight:
             pelvis = m[..., 0]  # (B, T): frames whose pelvis is a target
             root_sq = (x0_hat[..., :ROOT_CHANNELS] - x0[..., :ROOT_CHANNELS]).square().mean(-1)
-            out["root"] = (root_sq * pelvis).sum() / pelvis.sum().clamp(min=1.0)
-            loss = loss + hp.root_weight * out["root"]
-        return {"loss": loss, **out}
+            terms["root"] = (root_sq * pelvis).sum() / pelvis.sum().clamp(min=1.0)
+            loss = loss + hp.root_weight * terms["root"]
+        return {"loss": loss, **terms}
 
     # ------------------------------------------------------------------ loop
 

@@ -170,13 +170,21 @@ class CastConv1dFunction(torch.autograd.Function):
                 None if gb is None else gb.to(weight.dtype), None, None, None, None, None)
 
 
-def _cast_ok(layer: nn.Module, x: torch.Tensor) -> bool:
-    """CPU autocast with a gradient recorded, a float32 layer of the plain form (groups 1, no
-    dilation, zero padding): the layer goes through CastConv1dFunction."""
-    return (torch.is_grad_enabled() and (x.requires_grad or layer.weight.requires_grad) and x.device.type == "cpu"
-            and x.dim() == 3 and torch.is_autocast_enabled("cpu") and layer.weight.dtype == torch.float32
-            and layer.groups == 1 and layer.dilation == (1,) and layer.padding_mode == "zeros"
+def _recording_on_cpu(layer: nn.Module, x: torch.Tensor) -> bool:
+    """A gradient is recorded through `layer` (its input or its weight needs one), on the CPU."""
+    return torch.is_grad_enabled() and (x.requires_grad or layer.weight.requires_grad) and x.device.type == "cpu"
+
+
+def _plain_conv(layer: nn.Module, x: torch.Tensor) -> bool:
+    """A 1-d convolution of the form the training Functions cover: (B, C, T) input, groups 1, no
+    dilation, zero padding given as a number."""
+    return (x.dim() == 3 and layer.groups == 1 and layer.dilation == (1,) and layer.padding_mode == "zeros"
             and not isinstance(layer.padding, str))
+
+
+def _cast_ok(layer: nn.Module, x: torch.Tensor) -> bool:
+    """CPU autocast with a gradient recorded, a float32 weight: the layer goes through its Cast Function."""
+    return _recording_on_cpu(layer, x) and torch.is_autocast_enabled("cpu") and layer.weight.dtype == torch.float32
 
 
 class TrainConvTranspose1d(nn.ConvTranspose1d):
@@ -191,7 +199,7 @@ class TrainConvTranspose1d(nn.ConvTranspose1d):
         return fast.train(conv.training)
 
     def forward(self, x: torch.Tensor, output_size=None) -> torch.Tensor:
-        if output_size is None and _cast_ok(self, x):
+        if output_size is None and _cast_ok(self, x) and _plain_conv(self, x):
             return CastConv1dFunction.apply(x, self.weight, self.bias, self.stride[0], self.padding[0],
                                             self.output_padding[0], True, torch.get_autocast_dtype("cpu"))
         return super().forward(x, output_size)
@@ -238,8 +246,7 @@ class TrainLinear(nn.Linear):
         return fast.train(linear.training)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if (torch.is_grad_enabled() and (x.requires_grad or self.weight.requires_grad) and x.device.type == "cpu"
-                and torch.is_autocast_enabled("cpu") and self.weight.dtype == torch.float32):
+        if _cast_ok(self, x):
             return CastLinearFunction.apply(x, self.weight, self.bias, torch.get_autocast_dtype("cpu"))
         return super().forward(x)
 
@@ -263,14 +270,12 @@ class TrainConv1d(nn.Conv1d):
 
     def _gemm_ok(self, x: torch.Tensor) -> bool:
         # CPU only: measured against oneDNN's convolution here; cuDNN's is another matter (not measured)
-        return (self.gemm and torch.is_grad_enabled() and (x.requires_grad or self.weight.requires_grad)
-                and x.device.type == "cpu" and x.dim() == 3 and x.dtype in (torch.float32, torch.float64) and x.dtype == self.weight.dtype
-                and not torch.is_autocast_enabled(x.device.type)
-                and self.groups == 1 and self.dilation == (1,) and self.padding_mode == "zeros"
-                and not isinstance(self.padding, str))
+        return (self.gemm and _recording_on_cpu(self, x) and _plain_conv(self, x)
+                and x.dtype in (torch.float32, torch.float64) and x.dtype == self.weight.dtype
+                and not torch.is_autocast_enabled(x.device.type))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if _cast_ok(self, x):
+        if _cast_ok(self, x) and _plain_conv(self, x):
             return CastConv1dFunction.apply(x, self.weight, self.bias, self.stride[0], self.padding[0], 0, False,
                                             torch.get_autocast_dtype("cpu"))
         if not self._gemm_ok(x):
