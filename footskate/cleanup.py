@@ -16,13 +16,14 @@ from dataclasses import dataclass, field, asdict
 
 import torch
 
-from footskate.contacts import contacts_from_forces, contacts_from_heights
+from footskate.contacts import PART_THRESHOLD, contacts_from_forces, contacts_from_heights
 from footskate.errors import FootskateError
 from footskate.vgrf import VGRFNet, msle
 
 
 GATE_MARGIN = 0.05   # m; see CleanupConfig.gate_margin
 GATE_FORCE = 0.25    # body weights; see CleanupConfig.gate_force
+GATE_SUPPORT = 0.0   # body weights; see CleanupConfig.gate_support (0: off)
 
 
 @dataclass
@@ -85,6 +86,13 @@ class CleanupConfig:
     # heights, unanchored (see MARGINS in that script)
     gate_margin: float = GATE_MARGIN
     gate_force: float = GATE_FORCE
+    # gated: a second, lower force (body weights, 0 = off) at which the network confirms a contact
+    # the height/speed rule sees (a hysteresis: the network alone needs gate_force, the network and
+    # the rule together gate_support). scripts/footskate_calibrate.py searches it with gate_force:
+    # on the validation motions every support lowered the smallest per-type margin over the rule
+    # (0.10 BW: +0.0023, 0.05: +0.0012, 0.02: -0.0014, off: +0.0051; the rule's contacts on sliding
+    # feet come back with it), so it is off
+    gate_support: float = GATE_SUPPORT
 
 
 @dataclass
@@ -251,11 +259,13 @@ def detect_contacts(joints: torch.Tensor, lengths: torch.Tensor | None, feet: li
                     vgrf: VGRFNet | None = None, margin: float = 0.05,
                     speed: float = 0.9325, gate: bool = False,
                     gate_speed: float = 3.0, gate_margin: float = GATE_MARGIN,
-                    gate_force: float = GATE_FORCE) -> tuple[torch.Tensor, torch.Tensor | None]:
+                    gate_force: float = GATE_FORCE,
+                    gate_support: float = GATE_SUPPORT) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Contacts (B, T, 4) from the vGRF network if given (foot force >= `gate_force` body weights
     with `gate`, UnderPressure's 0.10 without; with `gate`: only where the joint is within
-    `gate_margin` of its own lowest point and slower than `gate_speed`), else the height/speed
-    heuristic (`margin`, `speed`)."""
+    `gate_margin` of its own lowest point and slower than `gate_speed`, and, with `gate_support` > 0,
+    also where the height/speed rule says the joint is down and the force reaches `gate_support`),
+    else the height/speed heuristic (`margin`, `speed`)."""
     if lengths is None:
         lengths = torch.full((joints.shape[0],), joints.shape[1], dtype=torch.long, device=joints.device)
     mask = valid_mask(lengths, joints.shape[1])
@@ -271,6 +281,10 @@ def detect_contacts(joints: torch.Tensor, lengths: torch.Tensor | None, feet: li
             # the height/speed rule says the joint is down, is filled so that one stance stays one
             # anchored range.
             rule = contacts_from_heights(joints[:, :, feet], fps, up_axis, lengths, height=gate_margin, speed=speed)
+            if gate_support > 0:  # the rule's contact, confirmed by a lighter load than the network alone needs
+                supported = contacts_from_forces(forces, fps, lengths, foot_threshold=gate_support,
+                                                 part_threshold=min(PART_THRESHOLD, gate_support / 2))
+                contacts = contacts | (rule & supported)
             contacts = contacts | (rule & _near(contacts, -1, lengths) & _near(contacts, 1, lengths))
         else:
             contacts = contacts_from_forces(forces, fps, lengths)
@@ -327,7 +341,7 @@ def cleanup(joints: torch.Tensor, parents, feet, lengths: torch.Tensor | None = 
         contacts, forces0 = detect_contacts(x0, lengths, list(feet), cfg.fps, cfg.up_axis, detector,
                                             cfg.contact_margin, cfg.contact_speed, gate=cfg.detect != "vgrf",
                                             gate_speed=cfg.gate_speed, gate_margin=cfg.gate_margin,
-                                            gate_force=cfg.gate_force)
+                                            gate_force=cfg.gate_force, gate_support=cfg.gate_support)
     else:
         contacts = torch.as_tensor(contacts, device=device).bool()
         if contacts.shape != (b, t, 4):

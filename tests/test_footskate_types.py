@@ -109,6 +109,26 @@ def test_a_short_force_dip_mid_stance_does_not_split_the_contact():
     assert gated[0].all()
 
 
+def test_a_light_load_confirms_only_the_rules_contact():
+    class Light(_Forces):  # the left foot carries 0.08 body weights from frame 10 on, the right the rest
+        def forward(self, joints, lengths=None):
+            f = super().forward(joints, lengths)
+            f[:, 10:, 0] *= 0.16
+            return f
+
+    x = torch.zeros(1, 20, 22, 3)                                 # both feet down and still ...
+    x[0, 15:, 10, 1] = 0.03                                       # ... the left toe 3 cm up from frame 15 and sliding
+    x[0, 15:, 10, 0] = 0.1 * torch.arange(5)                     # at 2 m/s: low, but not the rule's contact
+    off, _ = detect_contacts(x, None, FEET, 20.0, 1, Light(), gate=True)
+    on, _ = detect_contacts(x, None, FEET, 20.0, 1, Light(), gate=True, gate_support=0.05)
+    assert off[0, :9, :2].all() and not off[0, 11:, :2].any()     # 0.08 < gate_force: the network says up
+    assert on[0, :15, :2].all()                                   # the rule says down, 0.08 >= 0.05 confirms it
+    assert not on[0, 15:, 1].any()                                # the rule says up: no contact at any force
+    strict, _ = detect_contacts(x, None, FEET, 20.0, 1, Light(), gate=True, gate_support=0.10)
+    assert not strict[0, 11:, :2].any()                           # 0.08 < 0.10: unconfirmed
+    assert torch.equal(on[..., 2:], off[..., 2:])                 # the loaded right foot is unchanged
+
+
 def test_kit_mapping_and_the_v21_starting_point():
     """The KIT-ML benchmark motions, and the V21's start: the V22 with its inputs mapped joint by
     joint computes on the mapped body what the V22 computes on the original (frame rate aside),
