@@ -228,9 +228,9 @@ def test_calibration_picks_the_setting_with_the_largest_smallest_margin():
     out = mod.calibrate(_Forces(), seeds=(3000,), per_type=1)
     margins = [r["min_margin"] for r in out["grid"]]
     assert out["best"] == out["grid"][0] and margins == sorted(margins, reverse=True)
-    assert len(out["grid"]) == len(mod.FORCES) * len(mod.MARGINS) * len(mod.SPEEDS)
+    assert len(out["grid"]) == len(mod.FORCES) * len(mod.MARGINS) * len(mod.SPEEDS) * len(mod.SUPPORTS)
     # the stand-in network says "full weight on both feet" everywhere: the gate alone decides, and
-    # then the force threshold makes no difference
+    # then neither the force threshold nor the support force makes a difference
     assert len({round(r["f1"]["all"], 6) for r in out["grid"] if r["gate_speed"] == 3.0}) == 1
 
 
