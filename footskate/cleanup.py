@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, asdict
 
 import torch
 
-from footskate.contacts import PART_THRESHOLD, contacts_from_forces, contacts_from_heights
+from footskate.contacts import PART_THRESHOLD, contacts_from_forces, contacts_from_heights, long_runs
 from footskate.errors import FootskateError
 from footskate.vgrf import VGRFNet, msle
 
@@ -24,6 +24,8 @@ from footskate.vgrf import VGRFNet, msle
 GATE_MARGIN = 0.05   # m; see CleanupConfig.gate_margin
 GATE_FORCE = 0.25    # body weights; see CleanupConfig.gate_force
 GATE_SUPPORT = 0.0   # body weights; see CleanupConfig.gate_support (0: off)
+GATE_REST = 0.75     # seconds; see CleanupConfig.gate_rest (0: off)
+REST_SPEED = 0.2     # m/s: a still foot (a planted joint of clean mocap moves 0.0-0.2 m/s)
 
 
 @dataclass
@@ -93,6 +95,16 @@ class CleanupConfig:
     # (0.10 BW: +0.0023, 0.05: +0.0012, 0.02: -0.0014, off: +0.0051; the rule's contacts on sliding
     # feet come back with it), so it is off
     gate_support: float = GATE_SUPPORT
+    # gated: a joint that stays still (< REST_SPEED) within gate_margin of its lowest point for at
+    # least this long (seconds, 0 = off) is down whatever load the network gives it (a foot resting
+    # on its ball beside a loaded flat foot carries little weight but does not move).
+    # scripts/footskate_calibrate.py searches it with gate_force: on the validation motions 0.75 s
+    # ties with off exactly (smallest per-type margin over the rule +0.0051, every type's F1 the
+    # same: their still feet are loaded, their sliding feet never still); 0.5 s loses 1e-4 on walk.
+    # It is on because a joint at rest on the floor is in contact (the real clip's left toe stands
+    # still 15 frames on its ball at 0.04-0.08 BW); the longest of the grid's durations, so that it
+    # adds only clear rests
+    gate_rest: float = GATE_REST
 
 
 @dataclass
@@ -260,11 +272,13 @@ def detect_contacts(joints: torch.Tensor, lengths: torch.Tensor | None, feet: li
                     speed: float = 0.9325, gate: bool = False,
                     gate_speed: float = 3.0, gate_margin: float = GATE_MARGIN,
                     gate_force: float = GATE_FORCE,
-                    gate_support: float = GATE_SUPPORT) -> tuple[torch.Tensor, torch.Tensor | None]:
+                    gate_support: float = GATE_SUPPORT,
+                    gate_rest: float = GATE_REST) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Contacts (B, T, 4) from the vGRF network if given (foot force >= `gate_force` body weights
     with `gate`, UnderPressure's 0.10 without; with `gate`: only where the joint is within
     `gate_margin` of its own lowest point and slower than `gate_speed`, and, with `gate_support` > 0,
-    also where the height/speed rule says the joint is down and the force reaches `gate_support`),
+    also where the height/speed rule says the joint is down and the force reaches `gate_support`,
+    and, with `gate_rest` > 0, where the joint stays still that many seconds within `gate_margin`),
     else the height/speed heuristic (`margin`, `speed`)."""
     if lengths is None:
         lengths = torch.full((joints.shape[0],), joints.shape[1], dtype=torch.long, device=joints.device)
@@ -285,6 +299,10 @@ def detect_contacts(joints: torch.Tensor, lengths: torch.Tensor | None, feet: li
                 supported = contacts_from_forces(forces, fps, lengths, foot_threshold=gate_support,
                                                  part_threshold=min(PART_THRESHOLD, gate_support / 2))
                 contacts = contacts | (rule & supported)
+            if gate_rest > 0:  # at rest on the floor, loaded or not
+                still = contacts_from_heights(joints[:, :, feet], fps, up_axis, lengths, height=gate_margin,
+                                              speed=REST_SPEED)
+                contacts = contacts | long_runs(still, max(2, round(gate_rest * fps)), lengths)
             contacts = contacts | (rule & _near(contacts, -1, lengths) & _near(contacts, 1, lengths))
         else:
             contacts = contacts_from_forces(forces, fps, lengths)
@@ -341,7 +359,8 @@ def cleanup(joints: torch.Tensor, parents, feet, lengths: torch.Tensor | None = 
         contacts, forces0 = detect_contacts(x0, lengths, list(feet), cfg.fps, cfg.up_axis, detector,
                                             cfg.contact_margin, cfg.contact_speed, gate=cfg.detect != "vgrf",
                                             gate_speed=cfg.gate_speed, gate_margin=cfg.gate_margin,
-                                            gate_force=cfg.gate_force, gate_support=cfg.gate_support)
+                                            gate_force=cfg.gate_force, gate_support=cfg.gate_support,
+                                            gate_rest=cfg.gate_rest)
     else:
         contacts = torch.as_tensor(contacts, device=device).bool()
         if contacts.shape != (b, t, 4):

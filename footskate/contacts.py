@@ -140,6 +140,22 @@ def contacts_from_heights(feet: torch.Tensor, fps: float, up_axis: int = 1, leng
     return contacts.reshape(*lead, *contacts.shape[1:])
 
 
+def long_runs(contacts: torch.Tensor, frames: int, lengths: torch.Tensor | None = None) -> torch.Tensor:
+    """(N, F, K) bool -> the frames inside runs of at least `frames` consecutive True (within each
+    sample's valid length; padding never extends a run)."""
+    n, f, k = contacts.shape
+    if frames <= 1:
+        return contacts.clone()
+    if lengths is not None:
+        contacts = contacts & (torch.arange(f, device=contacts.device)[None, :] < lengths.to(contacts.device)[:, None])[..., None]
+    if f < frames:
+        return torch.zeros_like(contacts)
+    x = contacts.float().transpose(1, 2).reshape(n * k, 1, f)
+    full = (torch.nn.functional.avg_pool1d(x, frames, stride=1) > 1 - 0.5 / frames).float()  # window t..t+frames-1 all True
+    out = torch.nn.functional.max_pool1d(torch.nn.functional.pad(full, (frames - 1, frames - 1)), frames, stride=1)
+    return (out > 0.5).reshape(n, k, f).transpose(1, 2)
+
+
 def contact_ranges_count(contacts: torch.Tensor) -> int:
     """Number of contiguous contact ranges in a (..., F, K) bool tensor (for logs and tests)."""
     c = contacts.transpose(-1, -2).reshape(-1, contacts.shape[-2])
@@ -147,5 +163,5 @@ def contact_ranges_count(contacts: torch.Tensor) -> int:
     return int(starts.sum())
 
 
-__all__ = ["contacts_from_forces", "contacts_from_heights", "majority_filter", "temporal_filter",
+__all__ = ["contacts_from_forces", "contacts_from_heights", "long_runs", "majority_filter", "temporal_filter",
            "gaussian_kernel", "parts_to_joints", "contact_ranges_count"]

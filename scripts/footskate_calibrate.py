@@ -4,7 +4,8 @@
 
 The network's contacts are kept where the foot force reaches `gate_force` body weights and the
 joint is within `gate_margin` of its own lowest point and slower than `gate_speed`, and also where
-the height/speed rule says the joint is down and the force reaches `gate_support` (footskate.cleanup
+the height/speed rule says the joint is down and the force reaches `gate_support`, and where it stays
+still near the floor for `gate_rest` seconds (footskate.cleanup
 detect_contacts, gate=True). This grid-searches them (the height gate: see MARGINS) on the benchmark's motion types built
 from validation seeds (default 3000-3007 and 4000-4007; the benchmark's test seeds are 1000-1999,
 its tuning seed 0, the V22's training motions 10000+ and the generator mix), with the benchmark's
@@ -36,6 +37,9 @@ SPEEDS = (2.5, 3.0, 4.0)
 # the lower force at which the network confirms a contact the height/speed rule sees (0: off);
 # fixed before any run, from UnderPressure's 0.10 BW threshold down to a foot barely touching
 SUPPORTS = (0.0, 0.02, 0.05, 0.10)
+# how long a joint must stay still near the floor to be down whatever its load (s; 0: off); fixed
+# before any run: 0.3 / 0.5 / 0.75 s (6 / 10 / 15 frames at 20 fps)
+RESTS = (0.0, 0.3, 0.5, 0.75)
 
 
 class _Forces:
@@ -53,7 +57,7 @@ class _Forces:
 
 
 def calibrate(vgrf, seeds=(3000, 4000), per_type: int = 8, skeleton: str = "humanml3d", margins=MARGINS,
-              supports=SUPPORTS) -> dict:
+              supports=SUPPORTS, rests=RESTS) -> dict:
     from footskate.cleanup import detect_contacts
     from stablemo.footskate_bench import TYPES, _f1_score, _skeleton, build_set, f1
 
@@ -77,9 +81,11 @@ def calibrate(vgrf, seeds=(3000, 4000), per_type: int = 8, skeleton: str = "huma
 
     rule = score()
     rows = []
-    for force, margin, speed, support in itertools.product(FORCES, margins, SPEEDS, supports):
-        s = score(vgrf=vgrf, gate=True, gate_force=force, gate_margin=margin, gate_speed=speed, gate_support=support)
+    for force, margin, speed, support, rest in itertools.product(FORCES, margins, SPEEDS, supports, rests):
+        s = score(vgrf=vgrf, gate=True, gate_force=force, gate_margin=margin, gate_speed=speed, gate_support=support,
+                  gate_rest=rest)
         rows.append({"gate_force": force, "gate_margin": margin, "gate_speed": speed, "gate_support": support,
+                     "gate_rest": rest,
                      "min_margin": min(s[k] - rule[k] for k in TYPES), "f1": s})
     rows.sort(key=lambda r: (-r["min_margin"], -r["f1"]["all"]))
     return {"skeleton": skeleton, "seeds": list(seeds), "per_type": per_type, "rule": rule, "best": rows[0], "grid": rows}
@@ -96,22 +102,23 @@ def main(argv=None) -> int:
     p.add_argument("--skeleton", choices=("humanml3d", "kit"), default="humanml3d")
     p.add_argument("--margins", default=",".join(map(str, MARGINS)), help="height gates to search (m, comma-separated)")
     p.add_argument("--supports", default=",".join(map(str, SUPPORTS)), help="support forces to search (BW, comma-separated; 0: off)")
+    p.add_argument("--rests", default=",".join(map(str, RESTS)), help="rest durations to search (s, comma-separated; 0: off)")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
     out = calibrate(load_vgrf_model(args.weights, args.skeleton), tuple(int(s) for s in args.seeds.split(",")),
                     args.per_type, args.skeleton, tuple(float(m) for m in args.margins.split(",")),
-                    tuple(float(f) for f in args.supports.split(",")))
+                    tuple(float(f) for f in args.supports.split(",")), tuple(float(r) for r in args.rests.split(",")))
     fmt = lambda f: " ".join(f"{k} {v:.4f}" for k, v in f.items())
     print("rule  ", fmt(out["rule"]))
     for r in out["grid"][:8]:
         print(f"force {r['gate_force']:.2f} margin {r['gate_margin']:.3f} speed {r['gate_speed']:.1f} "
-              f"support {r['gate_support']:.2f} "
+              f"support {r['gate_support']:.2f} rest {r['gate_rest']:.2f} "
               f"min margin {r['min_margin']:+.4f} | {fmt(r['f1'])}")
     b = out["best"]
     print(f"best: gate_force {b['gate_force']} gate_margin {b['gate_margin']} gate_speed {b['gate_speed']} "
-          f"gate_support {b['gate_support']}")
+          f"gate_support {b['gate_support']} gate_rest {b['gate_rest']}")
     if args.json:
         write_text(Path(args.json), json.dumps(out, indent=1) + "\n")
     return 0

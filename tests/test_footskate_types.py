@@ -129,6 +129,38 @@ def test_a_light_load_confirms_only_the_rules_contact():
     assert torch.equal(on[..., 2:], off[..., 2:])                 # the loaded right foot is unchanged
 
 
+def test_a_still_joint_near_the_floor_is_down_whatever_its_load():
+    class Light(_Forces):  # the left foot carries 0.08 body weights from frame 10 on (under gate_force)
+        def forward(self, joints, lengths=None):
+            f = super().forward(joints, lengths)
+            f[:, 10:, 0] *= 0.16
+            return f
+
+    x = torch.zeros(2, 40, 22, 3)                                 # both feet down ...
+    x[:, 10:, 10, 1] = 0.03                                       # ... the left toe 3 cm up from frame 10, heel raised
+    x[:, 10:, 7, 1] = 0.08
+    x[1, 10:, 10, 0] = 0.7 / 20 * torch.arange(30)               # sample 1: the toe slides at 0.7 m/s
+    x[1, 10:, 7, 0] = 0.7 / 20 * torch.arange(30)
+    off, _ = detect_contacts(x, None, FEET, 20.0, 1, Light(), gate=True, gate_rest=0.0)
+    on, _ = detect_contacts(x, None, FEET, 20.0, 1, Light(), gate=True, gate_rest=0.75)
+    assert not off[0, 12:, 1].any()                               # the network alone: too light
+    assert on[0, :, 1].all()                                      # 30 still frames >= 15: the toe rests on the floor
+    assert not on[0, 12:, 0].any()                                # the heel, 8 cm up, stays up
+    assert not on[1, 12:, 1].any()                                # a sliding toe is not at rest
+    short, _ = detect_contacts(x[:, :22], None, FEET, 20.0, 1, Light(), gate=True, gate_rest=0.75)
+    assert not short[0, 12:, 1].any()                             # still for 12 frames only: under 0.75 s
+    assert torch.equal(on[..., 2:], off[..., 2:])                 # the loaded right foot is unchanged
+
+
+def test_long_runs_keeps_only_runs_long_enough_inside_each_length():
+    from footskate.contacts import long_runs
+
+    c = torch.tensor([[1, 1, 0, 1, 1, 1, 0, 1, 1, 1, 1]], dtype=torch.bool)[..., None].expand(2, -1, 2)
+    out = long_runs(c, 3, torch.tensor([11, 9]))
+    assert out[0, :, 0].int().tolist() == [0, 0, 0, 1, 1, 1, 0, 1, 1, 1, 1]
+    assert out[1, :, 1].int().tolist() == [0, 0, 0, 1, 1, 1, 0, 0, 0, 0, 0]   # the cut run is 2 frames long
+
+
 def test_kit_mapping_and_the_v21_starting_point():
     """The KIT-ML benchmark motions, and the V21's start: the V22 with its inputs mapped joint by
     joint computes on the mapped body what the V22 computes on the original (frame rate aside),
@@ -228,7 +260,7 @@ def test_calibration_picks_the_setting_with_the_largest_smallest_margin():
     out = mod.calibrate(_Forces(), seeds=(3000,), per_type=1)
     margins = [r["min_margin"] for r in out["grid"]]
     assert out["best"] == out["grid"][0] and margins == sorted(margins, reverse=True)
-    assert len(out["grid"]) == len(mod.FORCES) * len(mod.MARGINS) * len(mod.SPEEDS) * len(mod.SUPPORTS)
+    assert len(out["grid"]) == len(mod.FORCES) * len(mod.MARGINS) * len(mod.SPEEDS) * len(mod.SUPPORTS) * len(mod.RESTS)
     # the stand-in network says "full weight on both feet" everywhere: the gate alone decides, and
     # then neither the force threshold nor the support force makes a difference
     assert len({round(r["f1"]["all"], 6) for r in out["grid"] if r["gate_speed"] == 3.0}) == 1
