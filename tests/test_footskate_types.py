@@ -116,15 +116,15 @@ def test_a_light_load_confirms_only_the_rules_contact():
             f[:, 10:, 0] *= 0.16
             return f
 
-    x = torch.zeros(1, 20, 22, 3)                                 # both feet down and still ...
+    x = torch.zeros(1, 20, 22, 3)                                 # both feet down and still (the rest rule off) ...
     x[0, 15:, 10, 1] = 0.03                                       # ... the left toe 3 cm up from frame 15 and sliding
     x[0, 15:, 10, 0] = 0.1 * torch.arange(5)                     # at 2 m/s: low, but not the rule's contact
-    off, _ = detect_contacts(x, None, FEET, 20.0, 1, Light(), gate=True)
-    on, _ = detect_contacts(x, None, FEET, 20.0, 1, Light(), gate=True, gate_support=0.05)
+    off, _ = detect_contacts(x, None, FEET, 20.0, 1, Light(), gate=True, gate_rest=0.0)
+    on, _ = detect_contacts(x, None, FEET, 20.0, 1, Light(), gate=True, gate_support=0.05, gate_rest=0.0)
     assert off[0, :9, :2].all() and not off[0, 11:, :2].any()     # 0.08 < gate_force: the network says up
     assert on[0, :15, :2].all()                                   # the rule says down, 0.08 >= 0.05 confirms it
     assert not on[0, 15:, 1].any()                                # the rule says up: no contact at any force
-    strict, _ = detect_contacts(x, None, FEET, 20.0, 1, Light(), gate=True, gate_support=0.10)
+    strict, _ = detect_contacts(x, None, FEET, 20.0, 1, Light(), gate=True, gate_support=0.10, gate_rest=0.0)
     assert not strict[0, 11:, :2].any()                           # 0.08 < 0.10: unconfirmed
     assert torch.equal(on[..., 2:], off[..., 2:])                 # the loaded right foot is unchanged
 
