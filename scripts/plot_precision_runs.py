@@ -3,7 +3,7 @@
     python scripts/plot_precision_runs.py --out docs/precision_runs.png \
         "fp32 seed 0=runs/q28_fp32" "bf16-mixed seed 0=runs/q28_bf16" "fp32 seed 1=runs/q28_fp32_s1"
     python scripts/plot_precision_runs.py --metric joint_err_m --out docs/control/controlnet_training.png \
-        "session 10=docs/controlnet_training_log_session10.csv" "session 11=runs/cn_s11_long"
+        "session 10=docs/controlnet_training_log_session10.csv" "session 12=docs/controlnet_training_log.csv"
 
 Each LABEL=RUN reads RUN/logs/version_*/metrics.csv as Lightning's CSV logger writes it (all
 versions of a resumed run, merged by scripts/merge_logs.py: a later version wins a step), or a CSV

@@ -212,13 +212,13 @@ def _pelvis_path(frames: int, skeleton):
 
 
 def time_sentences(pipe, args, sampler: str, steps: int, text_cache: bool, parallel_cfg: bool, dtype,
-                   max_steps: int | None = None, **control) -> tuple[list[float], list[float], int]:
-    """`args.repeats` timed sentences (wall s, CPU s each) and how many sampler steps each ran;
-    control: `control=` and `control_guidance=` of every request."""
+                   max_steps: int | None = None, cfg: float | None = None, **control) -> tuple[list[float], list[float], int]:
+    """`args.repeats` timed sentences (wall s, CPU s each) and how many sampler steps each ran, at
+    guidance `cfg` (default `args.cfg`); control: `control=` and `control_guidance=` of every request."""
     seconds, cpu_seconds, measured = [], [], steps
     for r in range(args.repeats):
         elapsed, cpu, measured = time_generation(pipe, PROMPTS[r % len(PROMPTS)], args.frames, sampler, steps,
-                                                 args.cfg, text_cache, parallel_cfg, dtype, args.seed + r, max_steps,
+                                                 args.cfg if cfg is None else cfg, text_cache, parallel_cfg, dtype, args.seed + r, max_steps,
                                                  **control)
         seconds.append(elapsed)
         cpu_seconds.append(cpu)
@@ -235,10 +235,60 @@ def run_aits(args) -> dict:
         torch.set_num_threads(threads)
 
 
+def _base_pipeline(pipe, fast: bool):
+    """The frozen base of a controlled bundle's pipeline as a pipeline of its own kind (the same
+    modules: the base's weights are shared, not copied)."""
+    from stablemo.pipeline import Pipeline
+
+    model = pipe.model
+    kind = model.base_kind
+    config = {k: v for k, v in pipe.config.items() if k != "controlnet"} | {"kind": kind}
+    return Pipeline(model.base, pipe.schedule, mean=pipe.mean.numpy(), std=pipe.std.numpy(),
+                    prediction_type=pipe.prediction_type, skeleton=pipe.skeleton, kind=kind, device=pipe.device,
+                    config=config, inference=pipe.inference, fast=fast)
+
+
+def _bundle_rows(pipe, args, fast: bool) -> tuple[list[Row], float, str | None]:
+    """Rows for a bundle that is not a plain diffusion model, at its own sampler, steps and CFG: a
+    consistency student's one row; a controlled bundle's base beside the bundle following a dense
+    pelvis path, without and with one guidance refinement. Returns the rows, the base network's
+    FLOPs per denoiser call, and the name of the row the controlled ones are compared with."""
+    inf = pipe.inference
+    cfg = inf.cfg
+    kind = pipe.config.get("kind", "diffusion")
+    base = _base_pipeline(pipe, fast) if kind == "controlnet" else pipe
+    # a teacher-based ControlNet runs CFG as one batch of 2; a student embeds its guidance
+    batch = 2 if kind == "controlnet" and pipe.model.base_kind == "diffusion" else 1
+    student = base.config.get("kind") == "consistency"
+    base_name = STUDENT_ROW if student and inf.steps == 1 else f"base, {inf.steps} {inf.sampler} steps (fp32)"
+    flops = denoiser_flops(base, args.frames, batch)
+    time_generation(base, "warm up", args.frames, inf.sampler, 2, cfg, True, True, "fp32", 0)  # 2 calls: packs
+    seconds, cpu_seconds, _ = time_sentences(base, args, inf.sampler, inf.steps, True, True, "fp32", cfg=cfg)
+    rows = [Row(base_name, inf.sampler, inf.steps, True, not student, "fp32", seconds, cpu_seconds, inf.steps, flops)]
+    if kind != "controlnet" or args.skip_controlnet:
+        return rows, flops, None
+    spec = _pelvis_path(args.frames, pipe.skeleton)
+    flops_control = denoiser_flops(pipe, args.frames, batch)
+    time_generation(pipe, "warm up", args.frames, inf.sampler, 2, cfg, True, True, "fp32", 0, control=spec)
+    names = (CONTROLNET_ROW, CONTROLNET_GUIDED_ROW) if base_name == STUDENT_ROW else \
+        (f"+ ControlNet, {inf.steps} steps (fp32)", f"+ ControlNet + guidance, {inf.steps} steps (fp32)")
+    for name, refine in zip(names, (False, True)):
+        seconds, cpu_seconds, _ = time_sentences(pipe, args, inf.sampler, inf.steps, True, True, "fp32", cfg=cfg,
+                                                 control=spec, control_guidance=refine)
+        rows.append(Row(name, inf.sampler, inf.steps, True, not student, "fp32", seconds, cpu_seconds, inf.steps,
+                        flops_control))
+    return rows, flops, base_name
+
+
 def _run_aits(args) -> dict:
     pipe, source = _build_pipeline(args, fast=not args.stock)
     low = "fp16" if pipe.device.type == "cuda" else "bf16"
     B = 1
+    if pipe.config.get("kind", "diffusion") != "diffusion":
+        peaks = [matmul_gflops()]
+        rows, flops, base_name = _bundle_rows(pipe, args, fast=not args.stock)
+        peaks.append(matmul_gflops())
+        return _result(args, pipe, source, low, flops, rows, peaks, None, base_name, cfg=pipe.inference.cfg)
     flops_cfg = denoiser_flops(pipe, args.frames, 2 * B)  # one step of CFG = 2 sequences
     peaks = [matmul_gflops()]
 
@@ -282,6 +332,12 @@ def _run_aits(args) -> dict:
         print(f"  measured varied lengths: teacher {varied['teacher']:.2f} s, student {varied['student']:.2f} s",
               file=sys.stderr)
     peaks.append(matmul_gflops())
+    return _result(args, pipe, source, low, flops_cfg, rows, peaks, varied, STUDENT_ROW, cfg=args.cfg)
+
+
+def _result(args, pipe, source: str, low: str, flops: float, rows: list[Row], peaks: list, varied,
+            control_base: str | None, cfg: float) -> dict:
+    """The run's numbers: rows, the matmul references sampled between them, the environment."""
     low_dtype = torch.bfloat16 if low == "bf16" else torch.float16
     peak_low = _fastest(matmul_gflops(low_dtype))[0] if pipe.device.type == "cpu" else None
     references = [_fastest(p) for p in peaks]
@@ -290,12 +346,13 @@ def _run_aits(args) -> dict:
         "model": source,
         "parameters_M": sum(p.numel() for p in pipe.model.parameters()) / 1e6,
         "frames": args.frames,
-        "cfg": args.cfg,
+        "cfg": cfg,
+        "control_base_row": control_base,
         "threads": torch.get_num_threads(),
         "device": str(pipe.device),
         "kernels": "stock PyTorch" if args.stock else
                    f"stablemo.fast (GEMM convolutions, {gemm.gemm_backend()} packed GEMM)",
-        "flops_per_step": flops_cfg,
+        "flops_per_step": flops,
         "matmul_fp32_gflops": statistics.median(w for w, _ in references),
         "matmul_fp32_gflops_per_cpu_s": statistics.median(c for _, c in references),
         "matmul_fp32_samples": references,
@@ -353,10 +410,11 @@ def format_report(result: dict) -> str:
     if STUDENT_ROW in by_name and TEACHER_ROW in by_name:
         notes.append(f"1-step student AITS / teacher's {by_name[TEACHER_ROW].steps}-step AITS ('{TEACHER_ROW}' row): "
                      f"{by_name[STUDENT_ROW].aits / by_name[TEACHER_ROW].aits:.3f}")
-    for name in (CONTROLNET_ROW, CONTROLNET_GUIDED_ROW):
-        if name in by_name and STUDENT_ROW in by_name:
-            notes.append(f"'{name}' AITS / plain 1-step AITS: {by_name[name].aits / by_name[STUDENT_ROW].aits:.2f} "
-                         "(dense pelvis path; the ControlNet's copy is the student's encoder half)")
+    base = result.get("control_base_row", STUDENT_ROW)
+    for name in by_name:
+        if "ControlNet" in name and base in by_name:
+            notes.append(f"'{name}' AITS / '{base}' AITS: {by_name[name].aits / by_name[base].aits:.2f} "
+                         "(dense pelvis path; the ControlNet's copy is its base's encoder half)")
     varied = result.get("varied_lengths")
     if varied:
         notes.append(f"the same two over {len(varied['lengths'])} sentences of varied lengths "

@@ -62,7 +62,10 @@ def denoiser_flops(pipe, frames: int, batch: int) -> float:
     mask = (torch.arange(T, device=pipe.device)[None] < frames).expand(batch, T)
     counter = FlopCounterMode(display=False, custom_mapping=fast_flops.counter_formulas())
     with torch.inference_mode():
-        ctx = pipe.model.prepare(text, text_mask, mask)
+        if pipe.config.get("kind") == "consistency":  # a student's condition: its embedded guidance w (B,)
+            ctx = pipe.model.prepare(text, text_mask, mask, torch.zeros(batch, device=pipe.device))
+        else:
+            ctx = pipe.model.prepare(text, text_mask, mask)
         pipe.model.denoise(x, t, ctx)  # warm: packed weights exist before counting
         with fast_flops.fused_read_flops(pipe.model) as unseen, counter:
             pipe.model.denoise(x, t, ctx)

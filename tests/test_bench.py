@@ -44,7 +44,7 @@ def test_aits_table_and_json(tiny_config, tmp_path, capsys):
     # + ControlNet (the encoder half again, the hint encoder): more than the student's, less than twice
     assert [r["name"] for r in rows[6:]] == [bench.CONTROLNET_ROW, bench.CONTROLNET_GUIDED_ROW]
     assert rows[5]["flops_per_step"] < rows[6]["flops_per_step"] < 2 * rows[5]["flops_per_step"]
-    assert f"'{bench.CONTROLNET_ROW}' AITS / plain 1-step AITS" in text
+    assert f"'{bench.CONTROLNET_ROW}' AITS / '{bench.STUDENT_ROW}' AITS" in text
     assert data["matmul_fp32_gflops"] > 0 and data["frames"] == 12
     # the distillation speed-up again over a test set's varied lengths, side by side
     varied = data["varied_lengths"]

@@ -319,6 +319,32 @@ def controlled_bundle(base_bundle, tmp_path, name, trained=True):
     return save_bundle(tmp_path / name, config, state), config
 
 
+def test_bench_aits_times_student_and_controlled_bundles_beside_their_base(student_bundle, teacher_bundle,
+                                                                            tmp_path, capsys):
+    import json
+
+    from stablemo import bench
+
+    def run(bundle):
+        out = tmp_path / f"{Path(bundle).name}.json"
+        assert bench.main(["aits", "--bundle", str(bundle), "--frames", "24", "--repeats", "1", "--threads", "1",
+                           "--json", str(out)]) == 0
+        return json.loads(out.read_text())["rows"], capsys.readouterr().out
+
+    rows, _ = run(student_bundle)                                 # a student: its own 1-step row only
+    assert [r["name"] for r in rows] == [bench.STUDENT_ROW] and rows[0]["sampler"] == "lcm"
+    on_student, _ = controlled_bundle(student_bundle, tmp_path, "on_student")
+    rows, text = run(on_student)
+    assert [r["name"] for r in rows] == [bench.STUDENT_ROW, bench.CONTROLNET_ROW, bench.CONTROLNET_GUIDED_ROW]
+    assert rows[0]["flops_per_step"] < rows[1]["flops_per_step"] < 2 * rows[0]["flops_per_step"]
+    assert f"'{bench.CONTROLNET_ROW}' AITS / '{bench.STUDENT_ROW}' AITS" in text
+    on_teacher, _ = controlled_bundle(teacher_bundle, tmp_path, "on_teacher")
+    rows, text = run(on_teacher)                                  # the teacher's own sampler and steps, CFG
+    assert len(rows) == 3 and len({r["steps"] for r in rows}) == 1 and rows[0]["steps"] > 1
+    assert all(r["parallel_cfg"] and r["sampler"] != "lcm" for r in rows)
+    assert "ControlNet" in rows[1]["name"] and f"AITS / '{rows[0]['name']}' AITS" in text
+
+
 def pelvis_path(T=40):
     pos = np.zeros((T, J, 3), np.float32)
     pos[:, 0, 2] = np.linspace(0, 2.0, T)  # 2 m forward
