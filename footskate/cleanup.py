@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, asdict
 
 import torch
 
-from footskate.contacts import PART_THRESHOLD, contacts_from_forces, contacts_from_heights, long_runs
+from footskate.contacts import PART_THRESHOLD, contacts_at_rest, contacts_from_forces, contacts_from_heights
 from footskate.errors import FootskateError
 from footskate.vgrf import VGRFNet, msle
 
@@ -95,15 +95,15 @@ class CleanupConfig:
     # (0.10 BW: +0.0023, 0.05: +0.0012, 0.02: -0.0014, off: +0.0051; the rule's contacts on sliding
     # feet come back with it), so it is off
     gate_support: float = GATE_SUPPORT
-    # gated: a joint that stays still (< REST_SPEED) within gate_margin of its lowest point for at
-    # least this long (seconds, 0 = off) is down whatever load the network gives it (a foot resting
-    # on its ball beside a loaded flat foot carries little weight but does not move).
-    # scripts/footskate_calibrate.py searches it with gate_force: on the validation motions 0.75 s
-    # ties with off exactly (smallest per-type margin over the rule +0.0051, every type's F1 the
-    # same: their still feet are loaded, their sliding feet never still); 0.5 s loses 1e-4 on walk.
-    # It is on because a joint at rest on the floor is in contact (the real clip's left toe stands
-    # still 15 frames on its ball at 0.04-0.08 BW); the longest of the grid's durations, so that it
-    # adds only clear rests
+    # gated: a joint that stays at rest (moving < REST_SPEED over 0.2 s spans) within gate_margin of
+    # its lowest point for at least this long (seconds, 0 = off) is down whatever load the network
+    # gives it (a foot resting on its ball beside a loaded flat foot carries little weight but does
+    # not move). scripts/footskate_calibrate.py searches it with gate_force: on the validation
+    # motions 0.3, 0.5 and 0.75 s tie with off exactly (smallest per-type margin over the rule
+    # +0.0051, every type's F1 the same: their still feet are loaded, their sliding feet never
+    # still). It is on because a joint at rest on the floor is in contact (the real clip's left toe
+    # stands 15 frames on its ball at 0.04-0.08 BW); the longest of the grid's durations, so that
+    # it adds only clear rests
     gate_rest: float = GATE_REST
 
 
@@ -300,9 +300,8 @@ def detect_contacts(joints: torch.Tensor, lengths: torch.Tensor | None, feet: li
                                                  part_threshold=min(PART_THRESHOLD, gate_support / 2))
                 contacts = contacts | (rule & supported)
             if gate_rest > 0:  # at rest on the floor, loaded or not
-                still = contacts_from_heights(joints[:, :, feet], fps, up_axis, lengths, height=gate_margin,
-                                              speed=REST_SPEED)
-                contacts = contacts | long_runs(still, max(2, round(gate_rest * fps)), lengths)
+                contacts = contacts | contacts_at_rest(joints[:, :, feet], fps, up_axis, lengths, gate_margin,
+                                                       REST_SPEED, gate_rest)
             contacts = contacts | (rule & _near(contacts, -1, lengths) & _near(contacts, 1, lengths))
         else:
             contacts = contacts_from_forces(forces, fps, lengths)

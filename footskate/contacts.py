@@ -156,6 +156,20 @@ def long_runs(contacts: torch.Tensor, frames: int, lengths: torch.Tensor | None 
     return (out > 0.5).reshape(n, k, f).transpose(1, 2)
 
 
+def contacts_at_rest(feet: torch.Tensor, fps: float, up_axis: int, lengths: torch.Tensor | None, height: float,
+                     speed: float, seconds: float, span_s: float = 0.2) -> torch.Tensor:
+    """feet (N, F, 4, 3) -> (N, F, 4): frames inside runs of at least `seconds` in which the joint is
+    within `height` of its own lowest point and at rest: its displacement over `span_s` (centred)
+    is under `speed` x `span_s`. Measured over a span rather than frame to frame, so that
+    per-frame jitter (a few mm of capture or generation noise) does not read as motion."""
+    half = max(1, round(span_s * fps / 2))
+    x = feet.float()
+    disp = (_shifted(x, half, lengths) - _shifted(x, -half, lengths)).norm(dim=-1)       # (N, F, 4)
+    low = contacts_from_heights(feet, fps, up_axis, lengths, height=height, speed=float("inf"))
+    still = low & (disp * fps / (2 * half) < speed)
+    return long_runs(still, max(2, round(seconds * fps)), lengths)
+
+
 def contact_ranges_count(contacts: torch.Tensor) -> int:
     """Number of contiguous contact ranges in a (..., F, K) bool tensor (for logs and tests)."""
     c = contacts.transpose(-1, -2).reshape(-1, contacts.shape[-2])
@@ -163,5 +177,5 @@ def contact_ranges_count(contacts: torch.Tensor) -> int:
     return int(starts.sum())
 
 
-__all__ = ["contacts_from_forces", "contacts_from_heights", "long_runs", "majority_filter", "temporal_filter",
+__all__ = ["contacts_at_rest", "contacts_from_forces", "contacts_from_heights", "long_runs", "majority_filter", "temporal_filter",
            "gaussian_kernel", "parts_to_joints", "contact_ranges_count"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from footskate import HUMANML3D, CleanupConfig, cleanup
-from footskate.cleanup import contact_ranges, detect_contacts, swing_offsets
+from footskate.cleanup import REST_SPEED, contact_ranges, detect_contacts, swing_offsets
 
 FEET = list(HUMANML3D.feet)
 
@@ -136,18 +136,23 @@ def test_a_still_joint_near_the_floor_is_down_whatever_its_load():
             f[:, 10:, 0] *= 0.16
             return f
 
-    x = torch.zeros(2, 40, 22, 3)                                 # both feet down ...
+    x = torch.zeros(3, 40, 22, 3)                                 # both feet down ...
     x[:, 10:, 10, 1] = 0.03                                       # ... the left toe 3 cm up from frame 10, heel raised
     x[:, 10:, 7, 1] = 0.08
     x[1, 10:, 10, 0] = 0.7 / 20 * torch.arange(30)               # sample 1: the toe slides at 0.7 m/s
     x[1, 10:, 7, 0] = 0.7 / 20 * torch.arange(30)
+    x[2, :, 10, [0, 2]] += 0.005 * torch.randn(40, 2, generator=torch.Generator().manual_seed(0))  # 2: 5 mm jitter
+    frame_speed = (x[2, 1:, 10, [0, 2]] - x[2, :-1, 10, [0, 2]]).norm(dim=-1) * 20
+    assert (frame_speed > REST_SPEED).any()                       # frame to frame, the jitter reads as motion
     off, _ = detect_contacts(x, None, FEET, 20.0, 1, Light(), gate=True, gate_rest=0.0)
     on, _ = detect_contacts(x, None, FEET, 20.0, 1, Light(), gate=True, gate_rest=0.75)
     assert not off[0, 12:, 1].any()                               # the network alone: too light
-    assert on[0, :, 1].all()                                      # 30 still frames >= 15: the toe rests on the floor
+    assert on[0, :, 1].all() and on[2, :, 1].all()                # 30 still frames >= 15: the toe rests on the floor
     assert not on[0, 12:, 0].any()                                # the heel, 8 cm up, stays up
     assert not on[1, 12:, 1].any()                                # a sliding toe is not at rest
-    short, _ = detect_contacts(x[:, :22], None, FEET, 20.0, 1, Light(), gate=True, gate_rest=0.75)
+    short = x[:1, :22].clone()                                    # the toe swings in at 1 m/s, then rests 12 frames
+    short[0, :10, 10, 0] = 0.05 * torch.arange(-10, 0)
+    short, _ = detect_contacts(short, None, FEET, 20.0, 1, Light(), gate=True, gate_rest=0.75)
     assert not short[0, 12:, 1].any()                             # still for 12 frames only: under 0.75 s
     assert torch.equal(on[..., 2:], off[..., 2:])                 # the loaded right foot is unchanged
 
