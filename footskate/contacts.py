@@ -177,5 +177,5 @@ def contact_ranges_count(contacts: torch.Tensor) -> int:
     return int(starts.sum())
 
 
-__all__ = ["contacts_at_rest", "contacts_from_forces", "contacts_from_heights", "long_runs", "majority_filter", "temporal_filter",
-           "gaussian_kernel", "parts_to_joints", "contact_ranges_count"]
+__all__ = ["contacts_at_rest", "contacts_from_forces", "contacts_from_heights", "long_runs", "majority_filter",
+           "temporal_filter", "gaussian_kernel", "parts_to_joints", "contact_ranges_count"]

@@ -18,6 +18,9 @@ one:
 and, for the distillation speed-up, a 1-step LCM consistency student of the same network (its
 guidance embedded: one forward of batch 1 per sentence, fp32), as `stablemo distill` exports it
 before training (the student starts as a copy of the teacher, so the timing is the trained one's).
+`--bundle` with a student bundle times its own row; with a controlled bundle (kind `controlnet`),
+its frozen base beside it following a dense pelvis path, without and with one guidance
+refinement, all at the bundle's own sampler, steps and CFG.
 
 The denoiser's FLOPs per step come from torch.utils.flop_counter; achieved GFLOP/s of a row are
 steps x FLOPs/step / AITS, and its efficiency is that over this machine's fp32 matmul throughput,
