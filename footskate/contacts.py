@@ -144,10 +144,10 @@ def long_runs(contacts: torch.Tensor, frames: int, lengths: torch.Tensor | None 
     """(N, F, K) bool -> the frames inside runs of at least `frames` consecutive True (within each
     sample's valid length; padding never extends a run)."""
     n, f, k = contacts.shape
-    if frames <= 1:
-        return contacts.clone()
     if lengths is not None:
         contacts = contacts & (torch.arange(f, device=contacts.device)[None, :] < lengths.to(contacts.device)[:, None])[..., None]
+    if frames <= 1:
+        return contacts.clone()
     if f < frames:
         return torch.zeros_like(contacts)
     x = contacts.float().transpose(1, 2).reshape(n * k, 1, f)

@@ -151,18 +151,24 @@ def _build_pipeline(args, fast: bool):
     return pipe, f"{source}, random weights"
 
 
+def _sibling_pipeline(pipe, model, kind: str, config: dict, inference, fast: bool):
+    """A pipeline for `model` with `pipe`'s schedule, statistics, prediction type, skeleton and device."""
+    from stablemo.pipeline import Pipeline
+
+    return Pipeline(model, pipe.schedule, mean=pipe.mean.numpy(), std=pipe.std.numpy(),
+                    prediction_type=pipe.prediction_type, skeleton=pipe.skeleton, kind=kind, device=pipe.device,
+                    config=config, inference=inference, fast=fast)
+
+
 def _student_pipeline(pipe, fast: bool):
     """A 1-step LCM student of `pipe`'s network (stablemo.distill's defaults), with the teacher's weights."""
     from stablemo.distill.student import ConsistencyStudent
-    from stablemo.pipeline import Pipeline
 
     student = ConsistencyStudent(pipe.config["model"])
     student.model.load_state_dict(pipe.model.state_dict())
     config = {"consistency": {"mode": "lcm", "ddim_steps": 50, "sigma_data": 0.5, "timestep_scale": 10.0}}
     inference = replace(pipe.inference, sampler="lcm", steps=1, cfg=1.0)
-    return Pipeline(student, pipe.schedule, mean=pipe.mean.numpy(), std=pipe.std.numpy(),
-                    prediction_type=pipe.prediction_type, skeleton=pipe.skeleton, kind="consistency",
-                    device=pipe.device, config=config, inference=inference, fast=fast)
+    return _sibling_pipeline(pipe, student, "consistency", config, inference, fast)
 
 
 CONTROLNET_ASSET = Path(__file__).resolve().parent / "assets" / "demo_controlnet"
@@ -183,7 +189,6 @@ def _controlled_pipeline(pipe, student, fast: bool):
     from stablemo.controlnet.network import ControlledModel
     from stablemo.distill.student import ConsistencyStudent
     from stablemo.motion.skeleton import get_skeleton
-    from stablemo.pipeline import Pipeline
 
     J = get_skeleton(student.skeleton).num_joints
     base = ConsistencyStudent(pipe.config["model"])  # stock modules: the ControlNet copies them (fast ones hold packed weights)
@@ -192,10 +197,7 @@ def _controlled_pipeline(pipe, student, fast: bool):
     model = ControlledModel(base, "consistency", J, control)
     config = {**student.config, "controlnet": {"base_kind": "consistency", "joints": J, "hint_scale": 1.0,
                                                "control": control}}
-    pipe = Pipeline(model, student.schedule, mean=student.mean.numpy(), std=student.std.numpy(),
-                    prediction_type=student.prediction_type, skeleton=student.skeleton, kind="controlnet",
-                    device=student.device, config=config, inference=student.inference, fast=fast)
-    return pipe
+    return _sibling_pipeline(student, model, "controlnet", config, student.inference, fast)
 
 
 def _pelvis_path(frames: int, skeleton):
@@ -241,14 +243,9 @@ def run_aits(args) -> dict:
 def _base_pipeline(pipe, fast: bool):
     """The frozen base of a controlled bundle's pipeline as a pipeline of its own kind (the same
     modules: the base's weights are shared, not copied)."""
-    from stablemo.pipeline import Pipeline
-
-    model = pipe.model
-    kind = model.base_kind
+    kind = pipe.model.base_kind
     config = {k: v for k, v in pipe.config.items() if k != "controlnet"} | {"kind": kind}
-    return Pipeline(model.base, pipe.schedule, mean=pipe.mean.numpy(), std=pipe.std.numpy(),
-                    prediction_type=pipe.prediction_type, skeleton=pipe.skeleton, kind=kind, device=pipe.device,
-                    config=config, inference=pipe.inference, fast=fast)
+    return _sibling_pipeline(pipe, pipe.model.base, kind, config, pipe.inference, fast)
 
 
 def _bundle_rows(pipe, args, fast: bool) -> tuple[list[Row], float, str | None]:
