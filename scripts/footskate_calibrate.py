@@ -105,6 +105,9 @@ def main(argv=None) -> int:
     p.add_argument("--rests", default=",".join(map(str, RESTS)), help="rest durations to search (s, comma-separated; 0: off)")
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--json", default=None)
+    p.add_argument("--store", default=None,
+                   help="write a copy of the weights here with the best force in their metadata ('gate_force', "
+                        "which the gated decision then uses for this network)")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
     out = calibrate(load_vgrf_model(args.weights, args.skeleton), tuple(int(s) for s in args.seeds.split(",")),
@@ -121,6 +124,15 @@ def main(argv=None) -> int:
           f"gate_support {b['gate_support']} gate_rest {b['gate_rest']}")
     if args.json:
         write_text(Path(args.json), json.dumps(out, indent=1) + "\n")
+    if args.store:
+        from footskate.vgrf import save_vgrf
+
+        model = load_vgrf_model(args.weights, args.skeleton)
+        meta = {**getattr(model, "metadata", {}), "gate_force": b["gate_force"],
+                "gate_force_calibration": {"seeds": args.seeds, "per_type": args.per_type, "min_margin": b["min_margin"],
+                                           "command": "python scripts/footskate_calibrate.py " + " ".join(argv or [])}}
+        save_vgrf(model, args.store, meta)
+        print(f"stored gate_force {b['gate_force']} in {args.store}")
     return 0
 
 

@@ -296,3 +296,90 @@ def test_foot_shuffle_lifts_a_standing_foot_and_takes_its_contact():
     length = lambda x, a, b: np.linalg.norm(x[:, a] - x[:, b], axis=-1)
     for a, b in ((10, 7), (11, 8), (7, 4), (8, 5)):                    # the lifted part moves rigidly
         np.testing.assert_allclose(length(moved, a, b), length(joints, a, b), atol=1e-5)
+
+
+def test_the_rest_rule_reads_heights_over_spans_so_jitter_does_not_sink_the_floor():
+    """A toe resting 3.5 cm above its stance height for 40 frames, with 5 mm jitter on every
+    coordinate: the raw lowest point sinks with the noise (~1.3 cm) and single frames leave the
+    5 cm gate, so a frame-wise height test breaks the rest; span means do not."""
+    from footskate.contacts import contacts_at_rest, contacts_from_heights
+
+    g = torch.Generator().manual_seed(0)
+    feet = torch.zeros(4, 60, 4, 3)
+    feet[:, 20:, 1, 1] = 0.035                                     # joint 1 (a toe) rests 3.5 cm up from frame 20
+    feet = feet + 0.005 * torch.randn(feet.shape, generator=g)
+    rest = contacts_at_rest(feet, 20.0, 1, None, 0.05, REST_SPEED, 0.75)
+    assert rest[:, 22:58, 1].all()                                 # every sample: the whole rest, ends aside
+    framewise = contacts_from_heights(feet, 20.0, 1, None, height=0.05, speed=float("inf"))
+    assert not framewise[:, 20:, 1].all()                          # the raw floor drops some frames out of the gate
+    moving = feet.clone()
+    moving[:, 20:, 1, 0] += 0.5 / 20 * torch.arange(40)           # the same toe sliding at 0.5 m/s
+    assert not contacts_at_rest(moving, 20.0, 1, None, 0.05, REST_SPEED, 0.75)[:, 20:, 1].any()
+
+
+def test_trimming_a_range_that_runs_into_a_lift_off():
+    """A 12-frame stance whose last 3 frames are the foot already leaving (moving 30 cm): the range
+    is cut at the lift-off and the stance is anchored; with trimming off, or a range that would lose
+    more than trim_seconds (a long drifting contact), it is left whole and unanchored."""
+    from footskate.cleanup import trim_ranges
+
+    pos = torch.zeros(2, 20, 4, 3)
+    c = torch.zeros(2, 20, 4, dtype=torch.bool)
+    c[:, 2:14, 0] = True
+    pos[:, 11:, 0, 0] = torch.tensor([0.1, 0.3, 0.5, 0.7, 0.9, 1.1, 1.3, 1.5, 1.7])  # leaves from frame 11
+    trimmed = trim_ranges(c, pos, 1, 0.25, 4)
+    assert trimmed[0, :, 0].int().tolist() == [0, 0] + [1] * 10 + [0] * 8        # frames 12-13 (30+ cm away) cut
+    assert torch.equal(trimmed[..., 1:], c[..., 1:])
+    assert torch.equal(trim_ranges(c, pos, 1, 0.25, 1), c)                      # would cut 2 > 1: left whole
+    _, w_off, info_off = contact_ranges(c, pos, 1, 2, 2, max_offset=0.25)
+    _, w_on, info_on = contact_ranges(trimmed, pos, 1, 2, 2, max_offset=0.25)
+    assert info_off["anchored_ranges"] == 0 and info_on["anchored_ranges"] == 2
+    assert (w_on[:, 4:10, 0] == 1).all()
+    x = torch.zeros(1, 20, 22, 3)                                              # through cleanup: the config switch
+    x[0, 2:14, [7, 10], 1] = torch.tensor([0.05, 0.01])
+    x[0, :, :, 0] += 0.01 * torch.arange(20)[:, None]                          # the whole body drifts 0.2 m/s ...
+    x[0, 11:, [7, 10], 0] += torch.tensor([0.1, 0.3, 0.5, 0.7, 0.9, 1.1, 1.3, 1.5, 1.7])[:, None]  # ... the left foot leaves
+    contacts = torch.zeros(1, 20, 4, dtype=torch.bool)
+    contacts[0, 2:14, :2] = True
+    on = cleanup(x, HUMANML3D.parents, HUMANML3D.feet, contacts=contacts, config=CleanupConfig(iters=5))
+    off = cleanup(x, HUMANML3D.parents, HUMANML3D.feet, contacts=contacts, config=CleanupConfig(iters=5, trim_seconds=0))
+    assert on.info["anchored_ranges"] == 2 and off.info["anchored_ranges"] == 0
+
+
+def test_the_gated_force_threshold_travels_with_the_network():
+    from footskate.cleanup import GATE_FORCE, calibrated_gate_force
+
+    net = _Forces()
+    assert calibrated_gate_force(net) == GATE_FORCE
+    net.metadata = {"gate_force": 0.15}
+    assert calibrated_gate_force(net) == 0.15 and calibrated_gate_force(net, 0.3) == 0.3
+
+    class Light(_Forces):  # the left foot carries 0.2 body weights
+        def forward(self, joints, lengths=None):
+            f = super().forward(joints, lengths)
+            f[:, :, 0] *= 0.4
+            return f
+
+    light = Light()
+    x = torch.zeros(1, 20, 22, 3)
+    assert not detect_contacts(x, None, FEET, 20.0, 1, light, gate=True, gate_rest=0.0)[0][0, :, :2].any()
+    light.metadata = {"gate_force": 0.15}                           # calibrated lower for this network
+    assert detect_contacts(x, None, FEET, 20.0, 1, light, gate=True, gate_rest=0.0)[0][0, :, :2].all()
+
+
+def test_the_gap_fill_is_a_duration():
+    """A mid-stance force dip is filled up to GAP_FILL_S (0.15 s): 3 frames at 20 fps, 2 at 12.5."""
+    class Dip(_Forces):
+        def __init__(self, frames):
+            super().__init__()
+            self.frames = frames
+
+        def forward(self, joints, lengths=None):
+            f = super().forward(joints, lengths)
+            f[:, 9:9 + self.frames] = 0.0
+            return f
+
+    x = torch.zeros(1, 24, 22, 3)
+    for fps, filled, split in ((20.0, 3, 4), (12.5, 2, 3)):
+        assert detect_contacts(x, None, FEET, fps, 1, Dip(filled), gate=True, gate_rest=0.0)[0][0].all()
+        assert not detect_contacts(x, None, FEET, fps, 1, Dip(split), gate=True, gate_rest=0.0)[0][0, 9:9 + split].all()
