@@ -25,7 +25,6 @@ GATE_MARGIN = 0.05   # m; see CleanupConfig.gate_margin
 GATE_FORCE = 0.25    # body weights; see CleanupConfig.gate_force (a network's own calibrated value comes first)
 GAP_FILL_S = 0.15    # seconds; the longest mid-stance force dip the gated decision fills (3 frames at 20 fps)
 GATE_BRIDGE = 0.3    # seconds; see CleanupConfig.gate_bridge (0: off)
-BRIDGE_FORCE = 0.05  # body weights: the light load a bridged gap keeps (UnderPressure's part threshold)
 GATE_SUPPORT = 0.0   # body weights; see CleanupConfig.gate_support (0: off)
 GATE_REST = 0.75     # seconds; see CleanupConfig.gate_rest (0: off)
 REST_SPEED = 0.2     # m/s: a still foot (a planted joint of clean mocap moves 0.0-0.2 m/s)
@@ -121,13 +120,15 @@ class CleanupConfig:
     # it adds only clear rests
     gate_rest: float = GATE_REST
     # gated: a gap of up to this long (seconds, 0 = off) between two of the network's contacts of
-    # a joint is bridged where, on every frame of it, the height/speed rule says the joint is down
-    # and the network still gives its foot a light load (BRIDGE_FORCE): a stance the force dips
-    # through (the real clip's left toe carries 0.07-0.18 BW for 5 frames while the heel rises and
-    # the weight passes to the other foot) stays one anchored range. Unlike gate_support it only
-    # joins contacts, never starts one, so the rule's contacts on sliding feet do not come back:
-    # the synthetic validation motions' F1 is identical with 0.3 and 0.5 s and with 0.02 / 0.05 BW;
-    # on the real clip with injected root overshoot the stance-foot speed reduction goes 75 -> 83 %
+    # a joint is bridged where, on every frame of it, the height/speed rule says the joint is down:
+    # the force can dip through a stance for longer than the 0.15 s gap fill (GAP_FILL_S) covers.
+    # The real clip's left toe carries 0.07-0.18 BW for 5 frames while its heel rises and the
+    # weight passes to the other foot; the demo model's "jumps forward twice" unweights both feet
+    # (0.01-0.03 BW) for 4-5 frames in the crouch between jumps while they stand on the floor.
+    # Unlike gate_support it only joins contacts, never starts or extends one, so the rule's
+    # contacts on sliding feet do not come back: the synthetic validation motions' F1 is identical
+    # with it (0.3 or 0.5 s, and also when the gap must keep a light load of 0.02 or 0.05 BW); on
+    # the real clip with injected root overshoot the stance-foot speed reduction goes 75 -> 83 %
     gate_bridge: float = GATE_BRIDGE
 
 
@@ -357,8 +358,7 @@ def detect_contacts(joints: torch.Tensor, lengths: torch.Tensor | None, feet: li
     `gate_margin` of its own lowest point and slower than `gate_speed`, and, with `gate_support` > 0,
     also where the height/speed rule says the joint is down and the force reaches `gate_support`,
     and, with `gate_rest` > 0, where the joint stays still that many seconds within `gate_margin`,
-    and, with `gate_bridge` > 0, across gaps that short between contacts where the rule says down
-    and the load stays light but not zero),
+    and, with `gate_bridge` > 0, across gaps that short between contacts where the rule says down),
     else the height/speed heuristic (`margin`, `speed`)."""
     if lengths is None:
         lengths = torch.full((joints.shape[0],), joints.shape[1], dtype=torch.long, device=joints.device)
@@ -387,9 +387,7 @@ def detect_contacts(joints: torch.Tensor, lengths: torch.Tensor | None, feet: li
             gap = max(1, round(GAP_FILL_S * fps))
             contacts = contacts | (rule & _near(contacts, -1, lengths, gap) & _near(contacts, 1, lengths, gap))
             if gate_bridge > 0:
-                light = contacts_from_forces(forces, fps, lengths, foot_threshold=BRIDGE_FORCE,
-                                             part_threshold=BRIDGE_FORCE / 2)
-                contacts = contacts | _bridge(contacts, rule & light, round(gate_bridge * fps), lengths)
+                contacts = contacts | _bridge(contacts, rule, round(gate_bridge * fps), lengths)
         else:
             contacts = contacts_from_forces(forces, fps, lengths)
     else:
