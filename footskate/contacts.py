@@ -111,9 +111,22 @@ def contacts_from_forces(forces: torch.Tensor, fps: float, lengths: torch.Tensor
     return parts_to_joints(contacts) if joint_order else contacts
 
 
+def span_floor(h: torch.Tensor, fps: float, lengths: torch.Tensor | None, span_s: float = 0.2) -> tuple[torch.Tensor, torch.Tensor]:
+    """h (N, F, K) heights -> (span means (N, F, K), floor (N, 1, K)): each frame's mean height over
+    a centred `span_s` window, and the lowest such mean over each sample's valid frames — the lowest
+    level a joint holds for a span. A raw minimum sinks with per-frame noise (5 mm jitter: ~1 cm)
+    and with single frames that dip through the floor (a generated toe at a jump's take-off)."""
+    half = max(1, round(span_s * fps / 2))
+    mean = temporal_filter(h, torch.full((2 * half + 1,), 1.0 / (2 * half + 1)), lengths)
+    frames = h.shape[1]
+    valid = torch.arange(frames, device=h.device)[None, :, None] < (
+        lengths.to(h.device)[:, None, None] if lengths is not None else frames)
+    return mean, torch.where(valid, mean, torch.full_like(mean, float("inf"))).amin(1, keepdim=True)
+
+
 def contacts_from_heights(feet: torch.Tensor, fps: float, up_axis: int = 1, lengths: torch.Tensor | None = None,
                           height: float = HEURISTIC_MARGIN, speed: float = HEURISTIC_SPEED,
-                          relative: bool = True) -> torch.Tensor:
+                          relative: bool = True, floor_span: bool = False) -> torch.Tensor:
     """Heuristic: feet (..., F, 4, 3) positions -> (..., F, 4) contacts (low and slow).
 
     `relative` (default): a joint is low when it is within `height` of its own lowest point in
@@ -132,7 +145,9 @@ def contacts_from_heights(feet: torch.Tensor, fps: float, up_axis: int = 1, leng
     is_last = idx == last[:, None]
     disp = torch.where(is_last[..., None], prev_disp, disp)
     h = x[..., up_axis]
-    if relative:
+    if relative and floor_span:  # the lowest level held over a span (span_floor), not the raw minimum
+        h = h - span_floor(h, fps, lengths)[1]
+    elif relative:
         valid = (idx <= last[:, None])[..., None]
         floor = torch.where(valid, h, torch.full_like(h, float("inf"))).amin(1, keepdim=True)
         h = h - floor
@@ -169,12 +184,7 @@ def contacts_at_rest(feet: torch.Tensor, fps: float, up_axis: int, lengths: torc
     half = max(1, round(span_s * fps / 2))
     x, lead = _flatten(feet.float(), 2)
     disp = (_shifted(x, half, lengths) - _shifted(x, -half, lengths)).norm(dim=-1)       # (N, F, 4)
-    box = torch.full((2 * half + 1,), 1.0 / (2 * half + 1))
-    h = temporal_filter(x[..., up_axis], box, lengths)                                     # (N, F, 4) span means
-    frames = x.shape[1]
-    valid = torch.arange(frames, device=x.device)[None, :, None] < (
-        lengths.to(x.device)[:, None, None] if lengths is not None else frames)
-    floor = torch.where(valid, h, torch.full_like(h, float("inf"))).amin(1, keepdim=True)
+    h, floor = span_floor(x[..., up_axis], fps, lengths, span_s)                          # span means, (N, 1, 4)
     still = (h - floor < height) & (disp * fps / (2 * half) < speed)
     return long_runs(still, max(2, round(seconds * fps)), lengths).reshape(*lead, *still.shape[1:])
 
