@@ -126,7 +126,7 @@ def span_floor(h: torch.Tensor, fps: float, lengths: torch.Tensor | None, span_s
 
 def contacts_from_heights(feet: torch.Tensor, fps: float, up_axis: int = 1, lengths: torch.Tensor | None = None,
                           height: float = HEURISTIC_MARGIN, speed: float = HEURISTIC_SPEED,
-                          relative: bool = True, floor_span: bool = False) -> torch.Tensor:
+                          relative: bool = True) -> torch.Tensor:
     """Heuristic: feet (..., F, 4, 3) positions -> (..., F, 4) contacts (low and slow).
 
     `relative` (default): a joint is low when it is within `height` of its own lowest point in
@@ -145,9 +145,7 @@ def contacts_from_heights(feet: torch.Tensor, fps: float, up_axis: int = 1, leng
     is_last = idx == last[:, None]
     disp = torch.where(is_last[..., None], prev_disp, disp)
     h = x[..., up_axis]
-    if relative and floor_span:  # the lowest level held over a span (span_floor), not the raw minimum
-        h = h - span_floor(h, fps, lengths)[1]
-    elif relative:
+    if relative:
         valid = (idx <= last[:, None])[..., None]
         floor = torch.where(valid, h, torch.full_like(h, float("inf"))).amin(1, keepdim=True)
         h = h - floor
