@@ -33,7 +33,7 @@ def _figure(plain: np.ndarray, clean: np.ndarray, contacts: np.ndarray, fps: flo
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from stablemo.io import write_bytes
+    from stablemo.io import atomic_open
 
     t = np.arange(len(plain)) / fps
     fig = plt.figure(figsize=(11, 10))
@@ -67,12 +67,9 @@ def _figure(plain: np.ndarray, clean: np.ndarray, contacts: np.ndarray, fps: flo
         ax.set_xlabel("forward (m)")
     fig.suptitle(title)
     fig.tight_layout()
-    import io
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=80)
+    with atomic_open(path) as f:
+        fig.savefig(f, format="png", dpi=80)
     plt.close(fig)
-    write_bytes(path, buf.getvalue())
 
 
 def main(argv=None) -> int:
