@@ -64,7 +64,8 @@ class CleanupConfig:
     # sliding (hand-labelled stances, 4 draws, drift 0.7 m/s) whole-range rejection left 17 of 99
     # ranges unanchored and removed 62 % of the stance-foot speed, 0.3 s 80 % (unlimited trimming
     # 80.5 %, but on the accumulating-drift test it raised the skating ratio of 4 of 24 clips,
-    # 0.3 s of none); the synthetic validation motions are unchanged (their ranges never stray)
+    # 0.3 s of none; both before gate_bridge, which adds 1.4 points); the synthetic validation
+    # motions are unchanged (their ranges never stray)
     trim_seconds: float = 0.3
     # m; the root (and with it the upper body, which moves rigidly with it) is displaced by at most
     # this much in any frame: its displacement is a radial tanh squash of the free parameter, so
@@ -95,9 +96,9 @@ class CleanupConfig:
     # network's contacts need (body weights; UnderPressure's rule: 0.10). The force is calibrated
     # per network on synthetic validation motions (seeds 3000 and 4000, 8 per type, sliding
     # injected), never on the benchmark's test seeds or the real clip: scripts/footskate_calibrate.py
-    # (V22: 0.25, smallest per-type F1 margin over the rule +0.0051, 0.10: +0.0015; V21: 0.20), and
-    # stored in the weights' metadata ("gate_force"); None takes the network's value, else
-    # GATE_FORCE. The height gate stays 5 cm: 3 cm
+    # (V22: 0.25, smallest per-type F1 margin over the rule +0.0051, 0.10: +0.0015; V21: 0.25 on
+    # seeds 3000-6000, +0.0040), and `--store` keeps it in the weights' metadata ("gate_force");
+    # None takes the network's value, else GATE_FORCE. The height gate stays 5 cm: 3 cm
     # scores higher there but leaves the demo model's generated stances, which sit at different
     # heights, unanchored (see MARGINS in that script)
     gate_margin: float = GATE_MARGIN

@@ -195,4 +195,4 @@ def contact_ranges_count(contacts: torch.Tensor) -> int:
 
 
 __all__ = ["contacts_at_rest", "contacts_from_forces", "contacts_from_heights", "long_runs", "majority_filter",
-           "temporal_filter", "gaussian_kernel", "parts_to_joints", "contact_ranges_count"]
+           "span_floor", "temporal_filter", "gaussian_kernel", "parts_to_joints", "contact_ranges_count"]

@@ -17,7 +17,9 @@ pairs inside the ground-truth contacts) before / after and its reduction, non-le
 (every joint but hips, knees, ankles, toes; mean, p95 and max), knees moved (the leg IK's), bone-length change
 (max), foot acceleration (mean |second difference| of ankles and toes) before / after, and
 contact-detection F1 of the height rule and the vGRF network on the sliding input against the
-synthetic labels. `--real` adds F1 on a real clip against its hand labels (REAL_CONTACTS).
+synthetic labels. `--real` adds F1 on a real clip against its hand labels (REAL_CONTACTS), and the
+stance-foot speed reduction on that clip with sliding injected (root overshoot alone, and with the
+drift too) for the gated and the rule's contacts.
 """
 
 from __future__ import annotations

@@ -205,14 +205,16 @@ def test_each_skeleton_gets_its_shipped_network():
 
 def test_hand_labels_of_the_real_clip_and_the_detectors_on_it():
     """HumanML3D 012314 with the hand labels of stablemo.footskate_bench.REAL_CONTACTS (issue #22).
-    Measured: rule 0.891, gated V22 0.872 clean; with injected sliding (seeds 0-3) 0.876 / 0.875,
-    the network alone 0.81: the issue's "above the rule on the real clip" is not met (docs/footskate.md)."""
+    Measured (session 13): clean, rule 0.891 / gated V22 0.897 / the network alone 0.810; with
+    injected sliding (seeds 0, 1) the gated decision above the rule too; and with sliding injected
+    the gated cleanup removes more of the stance feet's speed than the rule's (docs/footskate.md:
+    83 / 82 % with root overshoot alone, 82 / 66 % with the drift too)."""
     from pathlib import Path
 
     import numpy as np
     import pytest
 
-    from stablemo.footskate_bench import hand_labels, label_real_contacts, real_clip_f1
+    from stablemo.footskate_bench import hand_labels, label_real_contacts, real_clip_f1, real_clip_removal
     from stablemo.footskate_guidance import load_vgrf_model
 
     clip = Path(__file__).parents[1] / "../shared/data/humanml3d-sample/new_joints/012314.npy"
@@ -225,8 +227,13 @@ def test_hand_labels_of_the_real_clip_and_the_detectors_on_it():
     torch.set_num_threads(1)
     f1 = real_clip_f1(clip, load_vgrf_model(None), seeds=(0, 1))
     assert f1["labels"].startswith("hand")
-    assert f1["clean"]["rule"] > 0.88 and f1["clean"]["gated"] > 0.86 and f1["sliding"]["gated"] > 0.86, f1
+    assert f1["clean"]["rule"] > 0.88 and f1["clean"]["gated"] > f1["clean"]["rule"], f1
+    assert f1["sliding"]["gated"] > f1["sliding"]["rule"], f1
     assert f1["clean"]["gated"] > f1["clean"]["vgrf"] + 0.03       # the gate is what makes the network usable here
+    removal = real_clip_removal(clip, load_vgrf_model(None), seeds=(0, 1))
+    for name in ("overshoot", "overshoot+drift"):
+        assert removal[name]["reduction_gated"] > 0.75, removal
+        assert removal[name]["reduction_gated"] >= removal[name]["reduction_heuristic"] - 0.005, removal
 
 
 def test_heel_raise_stands_on_the_ball_of_the_foot():
