@@ -61,6 +61,22 @@ def motion_kind(arr: np.ndarray, topo: Topology, source: str, codec: FeatureCode
     return False
 
 
+BODY_SPAN_M = (0.2, 5.0)  # metres: the largest extent of a person's joints in any frame, lying or standing
+
+
+def check_units(joints: np.ndarray, lengths: np.ndarray, topo: Topology, source: str) -> None:
+    """Joints in the wrong unit (KIT-ML is millimetres, HumanML3D metres) would be cleaned with every
+    threshold off by 1000: named here, before the compute, instead of a silently wrong file."""
+    per_frame = np.linalg.norm(joints.max(2) - joints.min(2), axis=-1)            # (B, T) extent of the body
+    valid = np.arange(joints.shape[1])[None] < lengths[:, None]
+    span = float(np.where(valid, per_frame, 0.0).max()) * topo.unit
+    if not BODY_SPAN_M[0] <= span <= BODY_SPAN_M[1]:
+        unit = "millimetres" if topo.unit == 0.001 else "metres" if topo.unit == 1.0 else f"units of {topo.unit} m"
+        raise FootskateError(f"{source}: the body spans {span:.3g} m read as {unit}, the unit of {topo.name} joints "
+                             f"(a person spans {BODY_SPAN_M[0]}-{BODY_SPAN_M[1]} m); convert the joints or pick "
+                             f"--skeleton")
+
+
 def save_finite(path: Path, array: np.ndarray, flag: str) -> None:
     """Never write a non-finite motion: a diverged cleanup is an error, not a file."""
     if not np.isfinite(array).all():
@@ -87,6 +103,8 @@ def run(args: argparse.Namespace, codec: FeatureCodec | None) -> dict:
         raise FootskateError(f"{args.input}: need at least 2 frames")
     lengths = lengths_of(batch)
     joints = batch if is_joints else codec.to_joints(batch.astype(np.float32))
+    if is_joints:
+        check_units(joints, lengths, topo, args.input)
     vgrf = resolve_vgrf(args.weights, topo)
     if args.contacts in ("vgrf", "gated") and vgrf is None:
         raise FootskateError(f"--contacts {args.contacts}: no vGRF network for skeleton {topo.name} (give --weights)")

@@ -448,6 +448,25 @@ def test_footskate_names_bad_inputs_in_one_line(capsys, tmp_path):
     assert not out.exists()
 
 
+def test_footskate_names_joints_in_the_wrong_unit(capsys, tmp_path):
+    """KIT-ML joints are millimetres, HumanML3D's metres: the other unit is one line, no file."""
+    out = tmp_path / "out.npy"
+    metres = tmp_path / "kit_in_metres.npy"
+    np.save(metres, walking_joints(joints=21))
+    rc, err = footskate(capsys, metres, out, "--skeleton", "kit")
+    assert rc == 2
+    one_error_line(err, str(metres), "millimetres", "kit")
+    mm = tmp_path / "humanml3d_in_mm.npy"
+    np.save(mm, walking_joints() * 1000)
+    rc, err = footskate(capsys, mm, out)
+    assert rc == 2
+    one_error_line(err, str(mm), "metres")
+    assert not out.exists()
+    np.save(mm, walking_joints(joints=21) * 1000)                  # the right unit for KIT: cleaned
+    rc, err = footskate(capsys, mm, out, "--skeleton", "kit")
+    assert rc == 0 and out.exists()
+
+
 def test_footskate_out_checks_come_before_compute(capsys, tmp_path, joints_file):
     folder = tmp_path / "adir"
     folder.mkdir()

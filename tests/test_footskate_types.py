@@ -423,3 +423,27 @@ def test_a_gap_between_contacts_where_the_rule_says_down_is_bridged():
     assert not detect_contacts(x, None, FEET, 20.0, 1, Dip(0, 5), **kw)[0][0, :4, :2].any()      # no contact before
     c = torch.tensor([[1, 0, 0, 1, 0, 0, 0, 1]], dtype=torch.bool)[..., None]
     assert _bridge(c, torch.ones_like(c), 2, torch.tensor([8]))[0, :, 0].int().tolist() == [0, 1, 1, 0, 0, 0, 0, 0]
+
+
+def test_stablemo_footskate_skeleton_kit_end_to_end(tmp_path):
+    """`stablemo footskate --skeleton kit` on KIT-ML joints written by another tool: a synthetic run
+    mapped to KIT at 12.5 fps with sliding injected (the benchmark's injection, at 20 fps before the
+    mapping); the shipped V21's gated contacts take most of the stance feet's sliding out."""
+    import numpy as np
+
+    from stablemo import cli
+    from stablemo.footskate_bench import KIT_FEET, KIT_FPS, build_motion, inject_sliding, stance_speed, to_kit
+
+    joints, contacts = build_motion("run", 1000)
+    sliding = inject_sliding(joints, contacts, np.random.default_rng(0))
+    kit, kit_contacts = to_kit(sliding, contacts)
+    src, out = tmp_path / "run_kit.npy", tmp_path / "clean.npy"
+    np.save(src, kit * 1000)                                         # KIT-ML joints are millimetres
+    torch.set_num_threads(1)
+    assert cli.main(["footskate", str(src), "--out", str(out), "--skeleton", "kit", "--threads", "1"]) == 0
+    clean = np.load(out) / 1000
+    assert clean.shape == kit.shape and np.isfinite(clean).all()
+    truth, lengths = torch.from_numpy(kit_contacts)[None], torch.tensor([len(kit)])
+    speed = lambda x: float(stance_speed(torch.from_numpy(x)[None], truth, lengths, KIT_FEET, KIT_FPS)[0].sum()
+                            / stance_speed(torch.from_numpy(x)[None], truth, lengths, KIT_FEET, KIT_FPS)[1].sum())
+    assert speed(clean) < 0.3 * speed(kit), (speed(kit), speed(clean))
