@@ -150,7 +150,7 @@ def bar_chart(rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from stablemo.io import atomic_open
+    from stablemo.render import save_png
 
     colours = {"Conv1D UNet": "#4C72B0", "DiT": "#DD8452", "RetNet": "#55A868"}
     metrics = [("val_loss", "validation loss (EMA) ↓")]
@@ -166,8 +166,7 @@ def bar_chart(rows: list[dict], path: Path) -> None:
         ax.set_title(title, fontsize=9)
     fig.suptitle(f"Architecture ablation ({rows[0]['dataset']}, {rows[0]['steps']} steps each)", fontsize=10)
     fig.tight_layout()
-    with atomic_open(path) as f:
-        fig.savefig(f, format="png", dpi=120)
+    save_png(fig, path, dpi=120)
     plt.close(fig)
 
 

@@ -33,7 +33,7 @@ def _figure(plain: np.ndarray, clean: np.ndarray, contacts: np.ndarray, fps: flo
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from stablemo.io import atomic_open
+    from stablemo.render import save_png
 
     t = np.arange(len(plain)) / fps
     fig = plt.figure(figsize=(11, 10))
@@ -67,8 +67,7 @@ def _figure(plain: np.ndarray, clean: np.ndarray, contacts: np.ndarray, fps: flo
         ax.set_xlabel("forward (m)")
     fig.suptitle(title)
     fig.tight_layout()
-    with atomic_open(path) as f:
-        fig.savefig(f, format="png", dpi=80)
+    save_png(fig, path, dpi=80)
     plt.close(fig)
 
 

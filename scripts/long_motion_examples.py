@@ -29,7 +29,7 @@ def plot_path(motion, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from stablemo.io import atomic_open
+    from stablemo.render import save_png
 
     fig, (top, side) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [1, 1.6]})
     root = motion.joints[:, 0]
@@ -53,8 +53,7 @@ def plot_path(motion, path: Path) -> None:
     side.set_ylabel("height (m)")
     side.set_title("root height (solid) and lowest foot (dashed); joins: grey lines", fontsize=9)
     fig.tight_layout()
-    with atomic_open(path) as f:
-        fig.savefig(f, format="png", dpi=110)
+    save_png(fig, path, dpi=110)
     plt.close(fig)
 
 

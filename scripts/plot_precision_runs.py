@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from stablemo.io import atomic_open
+    from stablemo.render import save_png
 
     fig, (ax_t, ax_v) = plt.subplots(1, 2, figsize=(11, 4))
     for spec in args.runs:
@@ -89,8 +89,7 @@ def main(argv: list[str] | None = None) -> int:
         ax.grid(alpha=0.3)
         ax.legend()
     fig.tight_layout()
-    with atomic_open(args.out) as f:
-        fig.savefig(f, format="png", dpi=110)
+    save_png(fig, args.out, dpi=110)
     return 0
 
 

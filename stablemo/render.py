@@ -280,9 +280,10 @@ def _frame_indices(num: int, count: int) -> list[int]:
     return sorted({int(round(i)) for i in np.linspace(0, num - 1, count)})
 
 
-def _save_png(fig, path: Path) -> None:
+def save_png(fig, path: str | Path, dpi: int = DPI) -> None:
+    """A matplotlib figure as a PNG, written atomically (the renders here and the scripts' plots)."""
     with atomic_open(path) as f:
-        fig.savefig(f, format="png", dpi=DPI)
+        fig.savefig(f, format="png", dpi=dpi)
 
 
 def render_strip(
@@ -310,7 +311,7 @@ def render_strip(
         _Panel(ax, arr, view, f"frame {t} ({t / skel.fps:.1f} s)", False, skel.fps, targets).show(t)
     if title:
         fig.suptitle(title, fontsize=10, y=0.99)
-    _save_png(fig, path)
+    save_png(fig, path)
     return path
 
 
@@ -341,7 +342,7 @@ def render_contact_sheet(
             ax = fig.add_axes((x0 + c * (1 - x0) / cols, y, (1 - x0) / cols, 1 / rows))
             _Panel(ax, arr, view, None, False, skel.fps).show(t)
             ax.text(0.03, 0.03, f"{t / skel.fps:.1f} s", transform=ax.transAxes, fontsize=6, color="#666666")
-    _save_png(fig, Path(path))
+    save_png(fig, Path(path))
     return Path(path)
 
 
