@@ -193,6 +193,21 @@ def _fill_padding(x: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
     return torch.gather(x, 1, idx.view(b, t, *([1] * (x.dim() - 2))).expand_as(x))
 
 
+def _segments(c: torch.Tensor, starts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Contact ranges of rows c (R, T) bool, each beginning where `starts` is True: per frame its
+    global range id (R, T) (meaningful on contact frames), and per range its start frame, length
+    and row (num,) each. Segment ids from cumulative sums, no loop over rows or ranges."""
+    per_row = starts.sum(1)
+    row_offset = torch.cumsum(per_row, 0) - per_row                         # exclusive cumsum
+    seg = torch.cumsum(starts.long(), 1) - 1 + row_offset[:, None]          # global range id per frame
+    num = int(per_row.sum())
+    frame = torch.arange(c.shape[1], device=c.device).expand_as(c)
+    start = torch.zeros(num, dtype=torch.long, device=c.device).scatter_(0, seg[starts], frame[starts])
+    length = torch.bincount(seg[c], minlength=num)
+    row = torch.repeat_interleave(torch.arange(c.shape[0], device=c.device), per_row)
+    return seg, start, length, row
+
+
 def contact_ranges(contacts: torch.Tensor, positions: torch.Tensor, up_axis: int, ramp_frames: int,
                    min_range: int, max_offset: float = float("inf"),
                    split_travel: float = float("inf")) -> tuple[torch.Tensor, torch.Tensor, dict]:
@@ -221,16 +236,11 @@ def contact_ranges(contacts: torch.Tensor, positions: torch.Tensor, up_axis: int
         chunk = torch.floor(since / split_travel)
         chunk_prev = torch.nn.functional.pad(chunk, (1, 0), value=-1.0)[:, :-1]
         starts = starts | (c & prev & (chunk != chunk_prev))
-    per_row = starts.sum(1)
-    row_offset = torch.cumsum(per_row, 0) - per_row                         # exclusive cumsum
-    seg = torch.cumsum(starts.long(), 1) - 1 + row_offset[:, None]          # global range id per frame
-    num = int(per_row.sum())
+    seg, start, length, row = _segments(c, starts)
+    num = int(start.numel())
     frame = torch.arange(t, device=c.device).expand(b * k, t)
     seg_c = seg[c]
-    start = torch.zeros(num, dtype=torch.long, device=c.device).scatter_(0, seg[starts], frame[starts])
-    length = torch.bincount(seg_c, minlength=num)
     mid = start + (length - 1) // 2
-    row = torch.repeat_interleave(torch.arange(b * k, device=c.device), per_row)
     target = pos[row, mid].clone()                                          # (num, 3)
     # Height: the lowest the joint gets during the range (its real touch-down height above the
     # floor, ~1 cm for a toe, ~5-9 cm for an ankle), never below the floor.
@@ -268,24 +278,20 @@ def trim_ranges(contacts: torch.Tensor, positions: torch.Tensor, up_axis: int, m
     b, t, k = contacts.shape
     c = contacts.permute(0, 2, 1).reshape(b * k, t)
     pos = positions.permute(0, 2, 1, 3).reshape(b * k, t, 3)
-    starts = c & ~torch.nn.functional.pad(c, (1, 0))[:, :-1]
-    run = torch.cumsum(starts.long(), 1)                                    # range number per frame (row-local)
-    frame = torch.arange(t, device=c.device).expand(b * k, t)
-    start = torch.zeros(b * k, t + 1, dtype=torch.long, device=c.device).scatter_reduce(
-        1, torch.where(c, run, 0), torch.where(c, frame, t), reduce="amin", include_self=False)
-    end = torch.zeros(b * k, t + 1, dtype=torch.long, device=c.device).scatter_reduce(
-        1, torch.where(c, run, 0), torch.where(c, frame, -1), reduce="amax", include_self=False)
-    run_c = torch.where(c, run, 0)
-    mid = (torch.gather(start, 1, run_c) + torch.gather(end, 1, run_c)) // 2              # (BK, T)
+    seg, start, length, _ = _segments(c, c & ~torch.nn.functional.pad(c, (1, 0))[:, :-1])
+    seg_c = seg[c]
+    mid = torch.zeros_like(seg)
+    mid[c] = (start + (length - 1) // 2)[seg_c]                                          # its range's middle frame
     horiz = [a for a in range(3) if a != up_axis]
     mid_pos = torch.gather(pos, 1, mid[..., None].expand(-1, -1, 3))
     bad = (c & ((pos - mid_pos)[..., horiz].norm(dim=-1) > max_offset)).long()
-    cum = torch.cumsum(bad, 1)                                                           # bad frames in [0, f]
-    at = lambda i: torch.gather(torch.nn.functional.pad(cum, (1, 0)), 1, i)           # bad frames in [0, i)
+    before = torch.nn.functional.pad(torch.cumsum(bad, 1), (1, 0))                       # bad frames in [0, i)
+    at = lambda i: torch.gather(before, 1, i)
+    frame = torch.arange(t, device=c.device).expand(b * k, t)
     lo, hi = torch.minimum(frame, mid), torch.maximum(frame, mid)
     keep = c & (at(hi + 1) - at(lo) == 0)                                                # none between f and mid
-    cut = torch.zeros(b * k, t + 1, dtype=torch.long, device=c.device).scatter_add(1, run_c, (c & ~keep).long())
-    keep = torch.where(c & (torch.gather(cut, 1, run_c) > max_trim), c, keep)            # cut too much: left whole
+    cut = torch.bincount(seg_c, weights=(~keep[c]).float(), minlength=start.numel())     # frames cut per range
+    keep[c] = keep[c] | (cut[seg_c] > max_trim)                                          # cut too much: left whole
     return keep.view(b, k, t).permute(0, 2, 1)
 
 
