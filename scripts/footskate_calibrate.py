@@ -110,7 +110,8 @@ def main(argv=None) -> int:
                         "which the gated decision then uses for this network)")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
-    out = calibrate(load_vgrf_model(args.weights, args.skeleton), tuple(int(s) for s in args.seeds.split(",")),
+    model = load_vgrf_model(args.weights, args.skeleton)
+    out = calibrate(model, tuple(int(s) for s in args.seeds.split(",")),
                     args.per_type, args.skeleton, tuple(float(m) for m in args.margins.split(",")),
                     tuple(float(f) for f in args.supports.split(",")), tuple(float(r) for r in args.rests.split(",")))
     fmt = lambda f: " ".join(f"{k} {v:.4f}" for k, v in f.items())
@@ -127,7 +128,6 @@ def main(argv=None) -> int:
     if args.store:
         from footskate.vgrf import save_vgrf
 
-        model = load_vgrf_model(args.weights, args.skeleton)
         meta = {**getattr(model, "metadata", {}), "gate_force": b["gate_force"],
                 "gate_force_calibration": {"seeds": args.seeds, "per_type": args.per_type, "min_margin": b["min_margin"],
                                            "command": "python scripts/footskate_calibrate.py " + " ".join(argv or [])}}
