@@ -133,6 +133,8 @@ def load_bundle(path: str | os.PathLike) -> Bundle:
         config = json.loads(config_path.read_text())
     except json.JSONDecodeError as err:
         raise StableMoError(f"{config_path}: not valid JSON ({err})") from None
+    if not isinstance(config, dict):
+        raise StableMoError(f"{config_path}: not a StableMo bundle (a JSON {type(config).__name__}, not an object)")
     if config.get("format") != BUNDLE_FORMAT:
         raise StableMoError(f"{config_path}: not a StableMo bundle (format={config.get('format')!r})")
     if config.get("version", 0) > BUNDLE_VERSION:

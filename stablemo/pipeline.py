@@ -33,6 +33,7 @@ from stablemo.fast import accelerate
 from stablemo.runtime import resolve_device, resolve_dtype
 from stablemo.hooks import SampleHook, StepState, apply_hooks
 from stablemo.inference_config import InferenceConfig, check_finite, check_positive_int, check_seed
+from stablemo.motion.plausible import check_feature_stats
 from stablemo.kinds import ControlTargets, Denoise, ModelKind, model_kind
 from stablemo.control.spec import Inpaint, JointControl
 
@@ -462,3 +463,5 @@ def _check_stats(config: dict, source: str) -> None:
             raise StableMoError(f"{source}: {key!r} holds NaN/Inf")
     if (values["std"] <= 0).any():
         raise StableMoError(f"{source}: 'std' holds values <= 0")
+    for key in ("mean", "std"):
+        check_feature_stats(values[key], f"{source}: {key!r}")

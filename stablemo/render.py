@@ -13,7 +13,7 @@ accepts features (T, D) or joints (T, J, 3).
 from __future__ import annotations
 
 import argparse
-import math
+import itertools
 import shutil
 import subprocess
 from pathlib import Path
@@ -24,6 +24,7 @@ import numpy as np
 from stablemo.errors import StableMoError
 from stablemo.io import atomic_open, atomic_path, check_output_file, load_npy
 from stablemo.motion import Skeleton, features_to_joints, get_skeleton, skeleton_for_shape
+from stablemo.motion.plausible import check_fps, check_joints_extent
 
 COLOURS = {"left": "#1f6fd1", "right": "#d62f2f", "center": "#444444"}
 SHADOW = "#9a9a9a"
@@ -31,6 +32,7 @@ GRID = "#c8c8c8"
 PATH = "#2a9d5c"
 TARGET = "#e08a00"  # joint-control targets
 AZIMUTH_DEG, ELEVATION_DEG = 35.0, 20.0
+MAX_GRID_LINES = 40  # floor-grid lines across each axis, at most
 DPI = 80
 
 
@@ -57,7 +59,7 @@ class _View:
         unit = 1000.0 if skeleton.units == "mm" else 1.0
         xz = joints[:, :, [0, 2]].reshape(-1, 2)
         margin = 0.5 * unit
-        spacing = 0.5 * unit
+        spacing = _grid_spacing(float((xz.max(0) - xz.min(0)).max()) + 2 * margin, unit)
         lo = np.floor((xz.min(0) - margin) / spacing) * spacing
         hi = np.ceil((xz.max(0) + margin) / spacing) * spacing
         self.grid = []  # list of (2, 2) projected segments
@@ -82,6 +84,15 @@ class _View:
         return points @ self.back  # larger = nearer the viewer
 
 
+def _grid_spacing(extent: float, unit: float) -> float:
+    """Floor-grid spacing: 0.5 m, or a wider 1-2-5 step so that at most MAX_GRID_LINES lines cross an
+    axis: the drawing's cost is bounded by the image, not by how far the motion travels."""
+    spacing, factors = 0.5 * unit, itertools.cycle((2.0, 2.0, 2.5))  # 0.5, 1, 2, 5, 10, 20, 50 ... m
+    while extent / spacing > MAX_GRID_LINES:
+        spacing *= next(factors)
+    return spacing
+
+
 def _check_joints(joints: np.ndarray, skeleton: Skeleton, name: str = "joints") -> np.ndarray:
     arr = np.asarray(joints)
     if arr.ndim != 3 or arr.shape[1:] != (skeleton.num_joints, 3):
@@ -90,6 +101,7 @@ def _check_joints(joints: np.ndarray, skeleton: Skeleton, name: str = "joints") 
         raise StableMoError(f"{name}: no frames")
     if not np.all(np.isfinite(arr)):
         raise StableMoError(f"{name}: contains NaN or Inf")
+    check_joints_extent(arr, skeleton, skeleton.fps, name)
     return arr.astype(np.float64)
 
 
@@ -251,9 +263,7 @@ def render_animation(
     path = Path(path)
     arr = _check_joints(joints, skel)
     targets = _check_targets(targets, arr)
-    fps = float(fps or skel.fps)
-    if not math.isfinite(fps) or fps <= 0:
-        raise StableMoError(f"fps: must be a finite positive number, got {fps}")
+    fps = check_fps(skel.fps if fps is None else fps, "fps")
     suffix = path.suffix.lower()
     if suffix not in (".gif", ".mp4"):
         raise StableMoError(f"{path}: unsupported animation format {suffix or '(none)'}; use .gif or .mp4")
@@ -410,6 +420,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--index", type=int, default=None, help="item to render when FILE holds a batch (N, T, D) or (N, T, J, 3)")
     args = parser.parse_args(argv)
     out = check_output_file(args.out, "--out")  # before the motion is read or a frame drawn
+    if args.fps is not None:
+        check_fps(args.fps, "--fps")
     strip = out.with_name(out.stem + "_frames.png")
     if args.frames:
         check_output_file(strip, "--frames")

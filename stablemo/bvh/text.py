@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 
 from stablemo.bvh.rig import Animation, Rig
 from stablemo.errors import StableMoError
+from stablemo.motion.plausible import MAX_BVH_JOINTS, check_fps
 
 ROOT_CHANNELS = ("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation")
 JOINT_CHANNELS = ("Zrotation", "Xrotation", "Yrotation")
@@ -147,9 +148,16 @@ def read_bvh(path: str | Path) -> Animation:
     motion_at = next((i for i, line in enumerate(lines) if line.strip() == "MOTION"), None)
     if motion_at is None:
         raise StableMoError(f"{path}: no MOTION section; not a BVH file?")
+    # bound the hierarchy before tokenising it: a file of a million joints is refused in a second,
+    # not parsed for minutes (and a deep chain would exhaust the parser's recursion)
+    declared = sum(1 for line in lines[:motion_at] if line.lstrip().startswith(("JOINT", "ROOT")))
+    if declared > MAX_BVH_JOINTS:
+        raise StableMoError(f"{path}: the hierarchy declares {declared} joints; at most {MAX_BVH_JOINTS} are read "
+                            "(a full-body rig with fingers and face has a few hundred)")
     tokens = _Tokens(lines[:motion_at], path)
     tokens.expect("HIERARCHY")
     names: list[str] = []
+    seen: set[str] = set()
     parents: list[int] = []
     offsets: list[np.ndarray] = []
     channels: list[list[str]] = []
@@ -157,10 +165,11 @@ def read_bvh(path: str | Path) -> Animation:
 
     def joint(parent: int) -> None:
         name, line = tokens.next("a joint name")
-        if name in names:
+        if name in seen:
             raise tokens.fail(f"joint name {name!r} appears twice", line)
         index = len(names)
         names.append(name)
+        seen.add(name)
         parents.append(parent)
         tokens.expect("{")
         tokens.expect("OFFSET")
@@ -221,6 +230,7 @@ def _motion(lines: list[str], at: int, width: int, path: Path) -> tuple[np.ndarr
         dt = float("nan")
     if not math.isfinite(dt) or dt <= 0:
         raise StableMoError(f"{path}:{at + 3}: Frame Time: {time_text!r} is not a positive number of seconds")
+    check_fps(1.0 / dt, f"{path}:{at + 3}: Frame Time {time_text} s")
     body = lines[at + 3:]
     while body and not body[-1].strip():
         body.pop()

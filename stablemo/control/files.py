@@ -113,6 +113,10 @@ def load_control(path, skeleton) -> JointControl:
     skel = get_skeleton(skeleton)
     if not file.is_file():
         raise StableMoError(f"{file}: control file not found")
+    if not zipfile.is_zipfile(file):
+        # np.load would return a plain array for a .npy (and try pickle for anything else)
+        raise StableMoError(f"{file}: not an .npz control file (write one with `stablemo control-file`; "
+                            "a joints .npy is its input, not a control file)")
     try:
         with np.load(file, allow_pickle=False) as data:
             keys = set(data.files)

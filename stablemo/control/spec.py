@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from stablemo.errors import StableMoError
+from stablemo.motion.plausible import check_targets
 from stablemo.motion.skeleton import get_skeleton
 
 
@@ -103,6 +104,7 @@ class JointControl:
             raise StableMoError(f"{what}.positions: the root at frame 0 is at x={pos[0, 0, 0]:.3f}, z={pos[0, 0, 2]:.3f}; "
                                 "a motion starts at the origin (x = z = 0): express the targets in the motion's own "
                                 "frame (subtract the first pelvis position, see docs/control.md)")
+        check_targets(pos, mask, skel, f"{what}.positions")
         targets = np.zeros((length, J, 3), np.float32)
         keep = np.zeros((length, J), bool)
         n = min(length, pos.shape[0])

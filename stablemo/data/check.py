@@ -31,12 +31,12 @@ from stablemo.data.layout import (
 from stablemo.data.stats import load_stat
 from stablemo.errors import StableMoError
 from stablemo.io import load_npy
+from stablemo.motion.plausible import MAX_ABS_FEATURE
 
 REQUIRED_SPLITS = ("train", "val", "test")
-# Sane ranges. Motion features are positions (m), velocities (m/frame), 6D rotations and contacts:
-# |x| of a few units. 1e4 is far beyond any real motion, yet finite values as large as 3e38 pass
-# the NaN/Inf check and then overflow float32 once normalised, and training diverges.
-MAX_ABS_VALUE = 1e4
+# Sane ranges (stablemo.motion.plausible says why): finite values as large as 3e38 pass the
+# NaN/Inf check and then overflow float32 once normalised, and training diverges.
+MAX_ABS_VALUE = MAX_ABS_FEATURE
 # Normalising divides by Std (after feat_bias): below this even float32 rounding of a feature
 # (~1e-7 of its size) is amplified past 1, and a constant feature needs no tiny Std (see stats_problems).
 MIN_STD = 1e-8

@@ -257,7 +257,8 @@ def recover_root(features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     lin = features[..., :-1, 1:3]  # velocity k-1 is expressed in the facing frame of k
     step = torch.stack([lin[..., 0], torch.zeros_like(lin[..., 0]), lin[..., 1]], dim=-1)
     step = qrot(qinv(q[..., 1:, :]), step)
-    xz = torch.cat([torch.zeros_like(step[..., :1, :]), torch.cumsum(step, dim=-2)], dim=-2)
+    # the root starts at the origin; new_zeros, not zeros_like(step[..., :1, :]), which is empty for one frame
+    xz = torch.cat([step.new_zeros(*step.shape[:-2], 1, 3), torch.cumsum(step, dim=-2)], dim=-2)
     pos = torch.stack([xz[..., 0], features[..., 3], xz[..., 2]], dim=-1)
     return q, pos
 

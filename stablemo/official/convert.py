@@ -21,6 +21,7 @@ from stablemo.bundle import check_bundle_target, save_bundle
 from stablemo.errors import StableMoError
 from stablemo.inference_config import MAX_FRAMES, InferenceConfig
 from stablemo.io import load_npy
+from stablemo.motion.plausible import check_feature_stats
 from stablemo.official import layout
 
 DEFAULT_CLIP = "openai/clip-vit-base-patch32"
@@ -90,6 +91,7 @@ def read_stats(mean_path: Path, std_path: Path, width: int) -> tuple[np.ndarray,
             raise StableMoError(f"{path}: expected {width} values (the network's feature width), got shape {array.shape}")
         if not np.isfinite(array).all():
             raise StableMoError(f"{path}: holds NaN/Inf")
+        check_feature_stats(array, str(path))
         values.append(array)
     if (values[1] <= 0).any():
         raise StableMoError(f"{std_path}: holds values <= 0")

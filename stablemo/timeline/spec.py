@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from stablemo.errors import StableMoError
+from stablemo.motion.plausible import MAX_TIMELINE_SECONDS
 
 # Two times closer than this are the same instant: "0 2.5" then "2.5 5" must not be a 1e-16 s gap
 # after float parsing; a millisecond is far below a frame at any frame rate a model uses.
@@ -54,6 +55,9 @@ def check_segments(segments: Sequence[Segment | tuple], source: str = "segments"
                 raise StableMoError(f"{where}: {name} must be a finite number of seconds, got {value!r}")
         if not isinstance(seg.text, str) or not seg.text.strip():
             raise StableMoError(f"{where}: empty prompt")
+        if seg.end_s > MAX_TIMELINE_SECONDS:
+            raise StableMoError(f"{where}: ends at {seg.end_s:g} s; a timeline is at most {MAX_TIMELINE_SECONDS:g} s "
+                                "(split a longer show into several timelines)")
         if seg.end_s <= seg.start_s:
             raise StableMoError(f"{where}: ends at {seg.end_s:g} s, not after its start {seg.start_s:g} s")
         expected = out[-1].end_s if out else 0.0
