@@ -31,6 +31,7 @@ from stablemo.serve.local import serving
 from stablemo.serve.models import ModelSet
 
 DEMO = Path(__file__).resolve().parents[1] / "stablemo" / "assets" / "demo_bundle"
+TEST_HOSTS = ("testserver",)  # FastAPI's TestClient sends Host: testserver; the server itself never allows it
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +41,7 @@ def models():
 
 @pytest.fixture(scope="module")
 def client(models):
-    with TestClient(create_app(models)) as c:
+    with TestClient(create_app(models, hosts=TEST_HOSTS)) as c:
         yield c
 
 
@@ -145,7 +146,7 @@ def test_the_demo_student_is_served_by_default_and_equals_offline(tmp_path):
 
     assert bundles_from_args(None) == DEMO_MODELS and list(DEMO_MODELS) == ["student", "teacher"]
     student = ModelSet({"student": DEMO_MODELS["student"]})
-    with TestClient(create_app(student)) as c:
+    with TestClient(create_app(student, hosts=TEST_HOSTS)) as c:
         data = c.post("/api/generate", json={"text": "a person jumps, then turns left", "seed": 11}).json()
         info = c.get("/api/info").json()["models"][0]
     assert (data["steps"], data["sampler"], data["frames"]) == (1, "lcm", 120)

@@ -8,10 +8,14 @@
     POST /api/stream       {"timeline": [{"text", "seconds"}, ...], "chunk_seconds", "seed", ...} ->
                            NDJSON: a header line, one line per chunk as it is made, a last "done" line
 
-Bad input is HTTP 400 with {"error": "<field>: <one line>"}, checked before the job is queued. All
-generation runs on one worker thread: a request that arrives while another computes waits its
-turn (FIFO) instead of splitting the cores, and past `max_queue` waiting requests the answer is
-503 at once. GIFs and BVH files are made on a second thread so a download does not hold up typing.
+Bad input is HTTP 400 with {"error": "<field>: <one line>"}, checked before the job is queued;
+requests from another Host or Origin, non-JSON POSTs and oversized or slow bodies are refused
+before any route runs (stablemo.serve.guard). All generation runs on one worker thread: a request
+that arrives while another computes waits its turn (FIFO) instead of splitting the cores, and
+past `max_queue` waiting requests the answer is 503 at once. GIFs and BVH files are made on a
+second thread so a download does not hold up typing; a download whose file is not made within
+`render_budget_s` (queue wait included) is a 503, so one costly download cannot hold others for long.
+Both threads are daemons: stopping the server never waits for a job to finish.
 """
 
 # no `from __future__ import annotations`: FastAPI reads the route functions' annotations at run time
@@ -20,9 +24,11 @@ import contextlib
 import io
 import json
 import logging
+import queue
 import tempfile
+import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future
 from pathlib import Path
 
 import numpy as np
@@ -32,12 +38,16 @@ from fastapi.staticfiles import StaticFiles
 
 from stablemo.errors import StableMoError, one_line
 from stablemo.generate import slugify
+from stablemo.serve.guard import LOOPBACK_HOSTS, Guard, read_json
 from stablemo.serve.models import ModelSet, Motion, encode_array, motion_json
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 DOWNLOADS = {"joints.npy": "application/octet-stream", "features.npy": "application/octet-stream",
              "gif": "image/gif", "bvh": "application/octet-stream"}
 log = logging.getLogger("stablemo.serve")
+# An honest GIF of the longest demo motion (196 frames) took ~10 s on the loaded 2-core machine
+# (docs/serve.md); a download waits at most this long, its wait in the render queue included.
+RENDER_BUDGET_S = 60.0
 
 
 class Busy(Exception):
@@ -45,26 +55,63 @@ class Busy(Exception):
 
 
 class Worker:
-    """One thread for generation, a bounded count of waiting requests (counted on the event loop)."""
+    """One daemon thread running jobs in arrival order, and a bounded count of requests waiting for
+    it (counted on the event loop, the one being computed included). A daemon, not a
+    ThreadPoolExecutor: the interpreter joins an executor's threads at exit, so a long job would
+    hold a stopping server; a job whose request went away before it started is skipped."""
 
     def __init__(self, max_queue: int, name: str):
-        self.executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix=name)
-        self.max_queue, self.waiting = max_queue, 0
+        self.max_queue, self.waiting, self.name = max_queue, 0, name
+        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
+        self._thread.start()
 
-    async def run(self, fn, *args):
+    def _loop(self) -> None:
+        while (job := self._jobs.get()) is not None:
+            future, fn, args = job
+            if not future.set_running_or_notify_cancel():
+                continue  # cancelled while it waited (the client disconnected, the server stops)
+            try:
+                future.set_result(fn(*args))
+            except BaseException as err:  # handed to the awaiting request, which reports it
+                future.set_exception(err)
+
+    async def run(self, fn, *args, budget_s: float | None = None):
+        """fn(*args) on the worker thread. budget_s: raise Busy if the result (queue wait included)
+        takes longer; the job then finishes on its own, unread (a thread cannot be stopped)."""
         if self.waiting >= self.max_queue:
             raise Busy(f"server busy: {self.waiting} requests are waiting; try again shortly")
         self.waiting += 1
         try:
-            return await asyncio.get_running_loop().run_in_executor(self.executor, fn, *args)
+            future: Future = Future()
+            self._jobs.put((future, fn, args))
+            result = asyncio.wrap_future(future)  # cancelling this request cancels a job not yet started
+            if budget_s is None:
+                return await result
+            try:
+                return await asyncio.wait_for(result, budget_s)
+            except TimeoutError:
+                raise Busy(f"server busy: the job took over {budget_s:g} s and was abandoned; "
+                           "try again shortly") from None
         finally:
             self.waiting -= 1
 
     def shutdown(self) -> None:
-        self.executor.shutdown(wait=False, cancel_futures=True)
+        """Cancel what waits and let the thread end after the job it is on (without waiting for it)."""
+        while True:
+            try:
+                job = self._jobs.get_nowait()
+            except queue.Empty:
+                break
+            if job is not None:
+                job[0].cancel()
+        self._jobs.put(None)
 
 
-def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_DIR):
+def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_DIR, hosts=LOOPBACK_HOSTS,
+               render_budget_s: float = RENDER_BUDGET_S, **guard):
+    """The app. hosts: the names the server answers to in Host (tests add FastAPI's 'testserver');
+    guard: Guard's max_body / body_timeout."""
     generate_worker = Worker(max_queue, "stablemo-generate")
     render_worker = Worker(4, "stablemo-render")
     @contextlib.asynccontextmanager
@@ -76,16 +123,13 @@ def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_
     # no /docs page: FastAPI's loads Swagger UI from a CDN, and nothing here may need the network
     app = FastAPI(title="StableMo", lifespan=lifespan, docs_url=None, redoc_url=None, openapi_url="/api/openapi.json")
     app.state.models = models
+    app.add_middleware(Guard, hosts=hosts, **guard)
 
     def error(status: int, message: str) -> JSONResponse:
         return JSONResponse({"error": one_line(message)}, status_code=status)
 
     async def parse(request: Request):
-        try:
-            body = json.loads(await request.body())
-        except (json.JSONDecodeError, UnicodeDecodeError) as err:
-            raise StableMoError(f"request: the body is not valid JSON ({err})") from None
-        return models.parse(body)
+        return models.parse(await read_json(request))
 
     async def run_job(spec) -> tuple[Motion, bool, float]:
         queued = time.perf_counter()
@@ -120,11 +164,7 @@ def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_
 
     @app.post("/api/stream")
     async def stream(request: Request):
-        try:
-            body = json.loads(await request.body())
-        except (json.JSONDecodeError, UnicodeDecodeError) as err:
-            raise StableMoError(f"request: the body is not valid JSON ({err})") from None
-        job = models.parse_stream(body)
+        job = models.parse_stream(await read_json(request))
 
         async def lines():
             start = time.perf_counter()
@@ -153,9 +193,9 @@ def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_
             raise StableMoError(f"format: expected one of {', '.join(sorted(DOWNLOADS))}, got {fmt!r}")
         motion, _, _ = await run_job(spec)
         if fmt == "gif":
-            data = await render_worker.run(gif_bytes, motion)
+            data = await render_worker.run(gif_bytes, motion, budget_s=render_budget_s)
         elif fmt == "bvh":
-            data = await render_worker.run(bvh_bytes, motion)
+            data = await render_worker.run(bvh_bytes, motion, budget_s=render_budget_s)
         else:
             data = npy_bytes(motion.joints if fmt == "joints.npy" else motion.features)
         name = f"{slugify(spec.text)}-seed{spec.seed}.{fmt}"

@@ -11,6 +11,7 @@ import argparse
 from pathlib import Path
 
 from stablemo.errors import StableMoError
+from stablemo.serve.guard import bracket_host
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets"
 DEMO_MODELS = {"student": ASSETS / "demo_student", "teacher": ASSETS / "demo_bundle"}
@@ -21,7 +22,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--bundle", action="append", metavar="[NAME=]DIR",
                    help="a bundle to serve (repeat for several; the first is the page's default). "
                         "Default: the packaged demo student (1 step) and its teacher (10 steps)")
-    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to listen on (default 127.0.0.1: this machine only). The server answers only "
+                        "requests whose Host is 127.0.0.1, localhost or [::1] with its port, and this address; "
+                        "another address lets other machines in (docs/serve.md: it has no authentication)")
     p.add_argument("--port", type=int, default=7860, help="port (default 7860)")
     p.add_argument("--threads", type=int, default=1,
                    help="torch threads of the one generation worker (default 1: on a 2-core machine shared with "
@@ -84,11 +88,51 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_warmup:  # first-call costs (kernels, allocator) are paid here, not by the first visitor
         for name in models.models:
             models.warm_up(name)
-    app = create_app(models, max_queue=args.max_queue)
-    print(f"stablemo serve: {', '.join(models.models)} (default {models.default}) on http://{args.host}:{args.port}/",
-          flush=True)
-    uvicorn.run(app, host=args.host, port=args.port, log_level="warning")
+    app = create_app(models, max_queue=args.max_queue, hosts=allowed_hosts(args.host))
+    print(f"stablemo serve: {', '.join(models.models)} (default {models.default}) on "
+          f"http://{bracket_host(args.host)}:{args.port}/", flush=True)
+    if not _is_loopback(args.host):
+        print(f"stablemo serve: warning: listening on {args.host}, not this machine only: anyone who can reach "
+              f"it can use it (there is no authentication)", flush=True)
+    # SHUTDOWN_S: on SIGTERM/Ctrl-C, requests still running (a long stream, a download waiting for its
+    # file) are cancelled after this instead of being waited for; the worker threads are daemons
+    uvicorn.run(app, host=args.host, port=args.port, log_level="warning", timeout_graceful_shutdown=SHUTDOWN_S)
     return 0
+
+
+SHUTDOWN_S = 0.3
+
+
+def _is_loopback(host: str) -> bool:
+    import ipaddress
+
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+def allowed_hosts(host: str) -> tuple[str, ...]:
+    """The names a request's Host may carry: the loopback names, plus --host when it is another
+    address; for a wildcard address (0.0.0.0, ::) this machine's host name too, the name other
+    machines would use."""
+    import ipaddress
+    import socket
+
+    from stablemo.serve.guard import LOOPBACK_HOSTS
+
+    names = list(LOOPBACK_HOSTS)
+    if not _is_loopback(host):
+        names.append(host)
+        try:
+            wildcard = ipaddress.ip_address(host.strip("[]")).is_unspecified
+        except ValueError:
+            wildcard = False
+        if wildcard:
+            names += [socket.gethostname(), socket.getfqdn()]
+    return tuple(dict.fromkeys(names))
 
 
 def _check_port(host: str, port: int) -> None:

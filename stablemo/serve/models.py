@@ -22,6 +22,7 @@ import numpy as np
 from stablemo.errors import StableMoError
 from stablemo.inference_config import check_finite, check_positive_int, check_seed
 from stablemo.pipeline import Pipeline, Request
+from stablemo.timeline.stream import chunk_frames
 
 DEFAULT_SECONDS = 6.0
 MAX_TEXT_CHARS = 1000  # the text encoders keep far fewer tokens; longer is a pasting accident
@@ -78,7 +79,7 @@ class ServedModel:
             "name": self.name,
             "label": f"{self.name} ({kind}, {inf.steps} step{'s' if inf.steps != 1 else ''})",
             "kind": kind,
-            "bundle": str(self.path),
+            "bundle": self.path.name,  # the folder's name only: the page has no use for this machine's paths
             "fps": pipe.fps,
             "min_frames": pipe.min_length,
             "max_frames": pipe.max_length,
@@ -201,6 +202,7 @@ class ModelSet:
         if total > MAX_STREAM_SECONDS:
             raise StableMoError(f"timeline: {total:g} s in all, at most {MAX_STREAM_SECONDS:g} s")
         chunk = check_finite("chunk_seconds", _number("chunk_seconds", body.get("chunk_seconds", 2.0)), low=0.0, strict=True)
+        chunk_frames(pipe, chunk)  # before counting chunks: a tiny chunk would be billions of them
         seed = check_seed("seed", body.get("seed", 0))
         steps = body.get("steps")
         if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int)):

@@ -27,7 +27,11 @@ from stablemo.timeline.compose import DEFAULT_OVERLAP_S, DEFAULT_SETTLE_S
 from stablemo.timeline.windows import RootFrame, Sampling, generate_window, settle
 
 DEFAULT_CONTEXT_S = DEFAULT_OVERLAP_S  # the timeline's measured choices (docs/long_motion.md)
-
+# The shortest chunk (0.25 s at 20 fps). Every chunk computes a whole window of at least the
+# model's min_length frames (40 for the demo models), so shorter chunks cost more than 8 windows per
+# frame streamed, and a hostile chunk_seconds (1e-9) must not turn a bounded length into billions
+# of chunks: with this floor a 300 s stream is at most 1200 chunks.
+MIN_CHUNK_FRAMES = 5
 
 
 @dataclass
@@ -71,6 +75,18 @@ def _seconds_to_frames(pipe, seconds, name: str, low: int) -> int:
     return frames
 
 
+def chunk_frames(pipe, chunk_seconds, context_seconds=DEFAULT_CONTEXT_S) -> tuple[int, int]:
+    """(chunk frames n, context frames k) of a stream, checked against the model: n >=
+    MIN_CHUNK_FRAMES and a window of k + n frames within the model's maximum. The one check of
+    these lengths, for Pipeline.stream and the server (which calls it before counting chunks)."""
+    n = _seconds_to_frames(pipe, chunk_seconds, "chunk_seconds", MIN_CHUNK_FRAMES)
+    k = _seconds_to_frames(pipe, context_seconds, "context_seconds", 0)
+    if k + n > pipe.max_length:
+        raise StableMoError(f"chunk_seconds + context_seconds: {n + k} frames exceed this model's maximum "
+                            f"window of {pipe.max_length} frames ({pipe.max_length / pipe.fps:g} s)")
+    return n, k
+
+
 def stream(pipe, texts_or_callback: TextSource, chunk_seconds: float = 2.0, seed: int = 0,
            context_seconds: float = DEFAULT_CONTEXT_S, settle_s: float = DEFAULT_SETTLE_S, max_chunks: int | None = None, steps: int | None = None,
            sampler: str | None = None, cfg: float | None = None, dtype=None, hooks: Sequence = (),
@@ -80,15 +96,11 @@ def stream(pipe, texts_or_callback: TextSource, chunk_seconds: float = 2.0, seed
     control: optional `(index, window_length, context_frames) -> JointControl or None`, joint targets
     for a chunk's window in the window's own frame (its first frame at the origin facing +z). Every
     argument is checked here, before the first chunk is generated."""
-    n = _seconds_to_frames(pipe, chunk_seconds, "chunk_seconds", 1)
-    k = _seconds_to_frames(pipe, context_seconds, "context_seconds", 0)
+    n, k = chunk_frames(pipe, chunk_seconds, context_seconds)
     h = _seconds_to_frames(pipe, settle_s, "settle_s", 0)
-    if k + n > pipe.max_length:
-        raise StableMoError(f"chunk_seconds + context_seconds: {n + k} frames exceed this model's maximum "
-                            f"window of {pipe.max_length} frames ({pipe.max_length / pipe.fps:g} s)")
-    check_seed("seed", seed)
     if max_chunks is not None and (isinstance(max_chunks, bool) or not isinstance(max_chunks, int) or max_chunks < 1):
         raise StableMoError(f"max_chunks: must be a positive integer or None, got {max_chunks!r}")
+    check_seed("seed", seed, count=max_chunks or 1)  # chunk i uses seed + i
     next_text = _text_source(texts_or_callback)
     sampling = Sampling(steps, sampler, cfg, dtype, tuple(hooks))
     return _chunks(pipe, next_text, n, k, h, seed, max_chunks, sampling, control)
@@ -125,4 +137,4 @@ def _chunks(pipe, next_text, n: int, k: int, h: int, seed: int, max_chunks, samp
         yield chunk
 
 
-__all__ = ["Chunk", "stream"]
+__all__ = ["Chunk", "MIN_CHUNK_FRAMES", "chunk_frames", "stream"]
