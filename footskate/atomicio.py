@@ -8,7 +8,11 @@ greps the source tree for writes that bypass it). The rules it enforces:
   overwritten, and the final `os.replace` is a same-filesystem rename (atomic on POSIX);
 * on any failure the temporary is removed and the target is untouched;
 * a folder target that is not empty is only replaced when the caller says it is its own kind
-  (`replaceable`), so nothing we did not write is ever deleted.
+  (`replaceable`) and nothing in it is unaccounted for (a file list the build wrote, or the new
+  folder's own names), so nothing we did not write is ever deleted;
+* a folder is replaced by one atomic exchange (`replace_dir`: renameat2 RENAME_EXCHANGE), or
+  where the system lacks it by two journaled renames that the next write undoes or completes;
+  leftovers of a killed write are removed by the next write to the same target.
 
 Why it lives in footskate: footskate is the lower layer (torch/numpy only, it never imports
 stablemo) while stablemo imports footskate, so this is the one place both can use. It needs the
@@ -18,16 +22,29 @@ standard library only; `stablemo.io` re-exports it with StableMo's error type fo
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import errno
+import json
 import os
+import platform
+import re
 import shutil
+import signal
+import sys
 import tempfile
+import threading
 from pathlib import Path
 from typing import BinaryIO, Callable, Iterator, Optional
 
+try:
+    import fcntl
+except ImportError:  # not POSIX: no locks; the parent-folder ordering is then best effort
+    fcntl = None
+
 __all__ = [
-    "atomic_dir", "atomic_open", "atomic_path", "output_dir_problem", "output_file_problem",
-    "write_bytes", "write_text",
+    "atomic_dir", "atomic_open", "atomic_path", "default_signals", "exchange", "output_dir_problem",
+    "output_file_problem", "ownership_problem", "recover_dir", "replace_dir", "same_output",
+    "terminate_as_interrupt", "write_bytes", "write_text",
 ]
 
 
@@ -111,7 +128,304 @@ def _is_empty_dir(path: Path) -> bool:
         return next(entries, None) is None
 
 
-def _move_dir_into_place(tmp: Path, path: Path, replaceable: Optional[Callable[[Path], bool]]) -> None:
+# ------------------------------------------------------------------------------ folders
+# A folder is built as `.<name>.<8 random chars>.partial` beside its target and swapped in whole.
+# Three rules keep anything we did not write from being deleted, and the target always whole:
+#
+# * ownership: a non-empty folder is replaced only when the caller says it is its kind
+#   (`replaceable`) *and* every entry in it is accounted for: listed, with its size, in the file
+#   list (`manifest`) the build that made it wrote, or, without a manifest, an entry of the same
+#   name and kind the new folder holds too (it is rewritten, not lost). One extra file: refused.
+# * the swap (`replace_dir`): renameat2(RENAME_EXCHANGE) where the kernel and file system have it
+#   (one atomic step: the target is the old folder, then the new one); elsewhere two renames
+#   under a journal `.<name>.replacing` that the next write to the same target reads to put the
+#   old folder back if a kill fell between them.
+# * leftovers: a build holds a lock (flock) on its partial folder until it is swapped in; the next
+#   write to the same target removes partial/old folders of that target's name nobody holds
+#   (a SIGKILL's leftovers). Creating, sweeping and swapping hold a lock on the parent folder, so
+#   a sweep never sees a live build between its creation and its lock.
+
+AT_FDCWD = -100
+RENAME_EXCHANGE = 2
+# renameat2's system call number, for a glibc older than 2.28 (no wrapper); other machines fall back
+_SYS_RENAMEAT2 = {"x86_64": 316, "aarch64": 276}
+_RANDOM = r"[a-z0-9_]{8}"  # tempfile.mkdtemp's random part
+_DIR = -1  # a folder, in a tree listing (files are listed by their size)
+_OTHER = -2  # a symlink, socket, fifo, device: never written by us
+MANIFEST_FORMAT = "stablemo-folder-files"
+
+
+def _rename(src: Path, dst: Path) -> None:
+    os.rename(src, dst)  # one name for the steps of the fallback (tests interrupt it here)
+
+
+def _libc_exchange(a: bytes, b: bytes) -> Optional[int]:
+    """renameat2(AT_FDCWD, a, AT_FDCWD, b, RENAME_EXCHANGE) -> 0 or an errno; None: no way to call it."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+    except OSError:
+        return None
+    func = getattr(libc, "renameat2", None)
+    if func is not None:
+        func.argtypes = (ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint)
+        func.restype = ctypes.c_int
+        rc = func(AT_FDCWD, a, AT_FDCWD, b, RENAME_EXCHANGE)
+    else:
+        number = _SYS_RENAMEAT2.get(platform.machine())
+        if number is None:
+            return None
+        libc.syscall.restype = ctypes.c_long
+        rc = libc.syscall(ctypes.c_long(number), ctypes.c_int(AT_FDCWD), ctypes.c_char_p(a),
+                          ctypes.c_int(AT_FDCWD), ctypes.c_char_p(b), ctypes.c_uint(RENAME_EXCHANGE))
+    return 0 if rc == 0 else ctypes.get_errno()
+
+
+def exchange(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Swap two existing paths in one atomic step; False where this system cannot (not Linux, an
+    old kernel, a file system without RENAME_EXCHANGE). Other failures raise OSError."""
+    if not sys.platform.startswith("linux"):
+        return False
+    err = _libc_exchange(os.fsencode(a), os.fsencode(b))
+    if err is None or err in (errno.ENOSYS, errno.EINVAL, errno.EOPNOTSUPP, errno.ENOTSUP):
+        return False
+    if err:
+        raise OSError(err, os.strerror(err), str(b))
+    return True
+
+
+def _tree(folder: Path) -> dict[str, int]:
+    """Every entry under `folder` (not following symlinks): relative path -> size of a regular
+    file, _DIR for a folder, _OTHER for anything else."""
+    out: dict[str, int] = {}
+
+    def walk(d: str, prefix: str) -> None:
+        with os.scandir(d) as entries:
+            for e in entries:
+                rel = prefix + e.name
+                if e.is_dir(follow_symlinks=False):
+                    out[rel] = _DIR
+                    walk(e.path, rel + "/")
+                elif e.is_file(follow_symlinks=False):
+                    out[rel] = e.stat(follow_symlinks=False).st_size
+                else:
+                    out[rel] = _OTHER
+
+    walk(os.fspath(folder), "")
+    return out
+
+
+def _write_manifest(folder: Path, name: str) -> None:
+    """List every entry of the finished build (with sizes) in `folder/name`, its last file."""
+    entries = _tree(folder)
+    entries.pop(name, None)
+    write_text(folder / name, json.dumps({"format": MANIFEST_FORMAT, "version": 1, "entries": entries},
+                                         indent=0, sort_keys=True) + "\n")
+
+
+def _read_manifest(path: Path) -> Optional[dict[str, int]]:
+    if path.is_symlink() or not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    entries = data.get("entries") if isinstance(data, dict) and data.get("format") == MANIFEST_FORMAT else None
+    if not isinstance(entries, dict) or not all(isinstance(v, int) for v in entries.values()):
+        return None
+    return entries
+
+
+def _drop_derived(tree: dict[str, int], derived: tuple[str, ...]) -> None:
+    """Remove from `tree` the top-level folders in `derived` (data the caller regenerates from the
+    rest, e.g. a read cache) when they hold plain files and folders only."""
+    for top in derived:
+        inside = [rel for rel in tree if rel.startswith(top + "/")]
+        if tree.get(top) == _DIR and all(tree[rel] != _OTHER for rel in inside):
+            for rel in [top, *inside]:
+                del tree[rel]
+
+
+def _shallowest(paths: list[str]) -> list[str]:
+    """The paths not under another of them (a foreign folder is named, not its contents)."""
+    chosen = set(paths)
+    return sorted(p for p in paths if not any(p.rsplit("/", i)[0] in chosen for i in range(1, p.count("/") + 1)))
+
+
+def ownership_problem(folder: str | os.PathLike, *, manifest: Optional[str] = None,
+                      expected: Optional[dict[str, int]] = None, derived: tuple[str, ...] = ()) -> Optional[str]:
+    """Why the existing folder `folder` may not be deleted as one we wrote (one line), or None.
+
+    With `manifest` (a file name): every entry must be listed in that file list, which the build
+    that made the folder wrote, with the same kind and (files) the same size; the list missing or
+    unreadable is a refusal. Without: every entry must be in `expected` (a `_tree` of the folder
+    that replaces it) with the same kind. Entries may be missing; none may be extra or changed.
+    """
+    folder = Path(folder)
+    tree = _tree(folder)
+    if manifest is not None:
+        listed = _read_manifest(folder / manifest)
+        if listed is None:
+            return f"has no list of the files StableMo wrote there ({manifest}: not made by this command, or by an older version)"
+        tree.pop(manifest, None)
+        _drop_derived(tree, derived)
+        foreign = [rel for rel, kind in tree.items() if kind == _OTHER or listed.get(rel) != kind]
+    else:
+        _drop_derived(tree, derived)
+        like = expected or {}
+        foreign = [rel for rel, kind in tree.items()
+                   if kind == _OTHER or rel not in like or (kind == _DIR) != (like[rel] == _DIR)]
+    if not foreign:
+        return None
+    names = _shallowest(foreign)
+    more = f" and {len(names) - 3} more" if len(names) > 3 else ""
+    return f"holds files StableMo did not write there or that changed since ({', '.join(names[:3])}{more})"
+
+
+@contextlib.contextmanager
+def _folder_lock(folder: Path) -> Iterator[None]:
+    """An exclusive flock on `folder` itself for a short critical section (create + lock a build,
+    sweep, swap); a no-op where the folder cannot be opened or locks are unsupported."""
+    try:
+        fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except OSError:
+        yield
+        return
+    try:
+        if fcntl is not None:
+            with contextlib.suppress(OSError):
+                fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _try_lock(path: Path) -> Optional[int]:
+    """An fd holding an exclusive flock on folder `path`, or None if another process holds it.
+    Where locks are unsupported the fd comes back unlocked (the parent lock still orders us)."""
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_NOFOLLOW", 0))
+    if fcntl is None:
+        return fd
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        return None
+    except OSError:
+        pass
+    return fd
+
+
+def _leftover_pattern(target: Path) -> re.Pattern:
+    return re.compile(rf"^\.{re.escape(target.name)}\.{_RANDOM}\.(partial|old)$")
+
+
+def _journal(target: Path) -> Path:
+    return target.parent / f".{target.name}.replacing"
+
+
+def _remove_leftover(path: Path) -> bool:
+    """Delete one leftover build/old folder of ours unless a live build holds its lock."""
+    try:
+        st = path.lstat()
+    except OSError:
+        return False
+    if not path.is_dir() or path.is_symlink() or (hasattr(os, "getuid") and st.st_uid != os.getuid()):
+        return False
+    try:
+        fd = _try_lock(path)
+    except OSError:
+        return False
+    if fd is None:
+        return False  # a live build
+    try:
+        shutil.rmtree(path, ignore_errors=True)
+    finally:
+        os.close(fd)
+    return not os.path.lexists(path)
+
+
+def _recover(target: Path) -> list[Path]:
+    """Finish what a killed write to `target` left (the caller holds the parent lock): a fallback
+    swap cut between its renames gets the old folder back at `target`; leftover partial and old
+    folders of `target`'s name that no live build holds are removed. Returns what was removed."""
+    journal = _journal(target)
+    if journal.is_file() and not journal.is_symlink():
+        try:
+            old_name = json.loads(journal.read_text(encoding="utf-8")).get("old", "")
+        except (OSError, ValueError, AttributeError):
+            old_name = ""
+        old = target.parent / str(old_name)
+        if (_leftover_pattern(target).match(old.name) and old.is_dir() and not old.is_symlink()
+                and not os.path.lexists(target)):
+            _rename(old, target)  # the new folder never arrived: the old one is back, whole
+        _unlink_quietly(journal)
+    pattern = _leftover_pattern(target)
+    removed = []
+    with os.scandir(target.parent) as entries:
+        candidates = [Path(e.path) for e in entries if pattern.match(e.name)]
+    for path in candidates:
+        if _remove_leftover(path):
+            removed.append(path)
+    return removed
+
+
+def recover_dir(target: str | os.PathLike) -> list[Path]:
+    """Clean up after killed folder writes to `target` (see `_recover`); what was removed.
+    `atomic_dir` calls it before each build, so a later run always tidies an earlier one's kill."""
+    target = Path(target)
+    if not target.parent.is_dir():
+        return []
+    with _folder_lock(target.parent):
+        return _recover(target)
+
+
+def _replace_by_renames(new: Path, target: Path) -> None:
+    """The fallback swap: target -> .old, new -> target, journaled so that a kill between the two
+    renames is undone by the next `_recover` (which puts the old folder back)."""
+    old = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=target.parent))
+    write_text(_journal(target), json.dumps({"old": old.name, "new": new.name}) + "\n", durable=True)
+    _rename(target, old)  # replaces the empty folder mkdtemp made
+    try:
+        _rename(new, target)
+    except BaseException:
+        _rename(old, target)
+        _unlink_quietly(_journal(target))
+        raise
+    _unlink_quietly(_journal(target))
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _swap_in(new: Path, target: Path, still_ours: Optional[Callable[[Path], Optional[str]]]) -> None:
+    """Put folder `new` at existing folder `target` and delete the old one (parent lock held).
+    still_ours(old) is asked again after an atomic exchange, about the old folder at its new
+    place: anything that appeared in it since the check puts it back (FileExistsError)."""
+    if not exchange(new, target):
+        _replace_by_renames(new, target)
+        return
+    problem = still_ours(new) if still_ours else None  # `new` now names the old folder
+    if problem:
+        exchange(new, target)
+        raise FileExistsError(errno.ENOTEMPTY, problem, str(target))
+    shutil.rmtree(new, ignore_errors=True)
+
+
+def replace_dir(new: str | os.PathLike, target: str | os.PathLike) -> None:
+    """Replace folder `target` by folder `new` (a sibling: same file system); the old folder is
+    deleted. At every instant `target` names the old folder or the new one (renameat2
+    RENAME_EXCHANGE); without that system call, two journaled renames, undone by the next
+    `recover_dir(target)` (every `atomic_dir` runs it) if a kill falls between them.
+    A missing `target` is simply created. The caller decides that the old folder is its own."""
+    new, target = Path(new), Path(target)
+    with _folder_lock(target.parent):
+        _recover(target)
+        if not os.path.lexists(target):
+            os.rename(new, target)
+            return
+        _swap_in(new, target, None)
+
+
+def _move_dir_into_place(tmp: Path, path: Path, replaceable: Optional[Callable[[Path], bool]],
+                         manifest: Optional[str], derived: tuple[str, ...]) -> None:
     if path.is_symlink() or (path.exists() and not path.is_dir()):
         raise FileExistsError(errno.EEXIST, "exists and is not a folder", str(path))
     if not path.exists() or _is_empty_dir(path):
@@ -119,38 +433,90 @@ def _move_dir_into_place(tmp: Path, path: Path, replaceable: Optional[Callable[[
         return
     if replaceable is None or not replaceable(path):
         raise FileExistsError(errno.ENOTEMPTY, "folder is not empty and is not ours to replace", str(path))
-    # Two renames (POSIX has no portable atomic swap of folders): the old folder is moved aside
-    # under an unpredictable name, put back if the second rename fails, deleted after success.
-    old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
-    os.replace(path, old)
-    try:
-        os.replace(tmp, path)
-    except BaseException:
-        os.replace(old, path)
-        raise
-    shutil.rmtree(old, ignore_errors=True)
+    expected = None if manifest else _tree(tmp)
+
+    def still_ours(folder: Path) -> Optional[str]:
+        return ownership_problem(folder, manifest=manifest, expected=expected, derived=derived)
+
+    problem = still_ours(path)
+    if problem:
+        raise FileExistsError(errno.ENOTEMPTY, problem, str(path))
+    _swap_in(tmp, path, still_ours)
 
 
 @contextlib.contextmanager
-def atomic_dir(path: str | os.PathLike, *, replaceable: Optional[Callable[[Path], bool]] = None) -> Iterator[Path]:
+def atomic_dir(path: str | os.PathLike, *, replaceable: Optional[Callable[[Path], bool]] = None,
+               manifest: Optional[str] = None, derived: tuple[str, ...] = ()) -> Iterator[Path]:
     """Build a folder that becomes `path` when the block ends without an exception.
 
-    Yields a fresh folder `.<name>.<random>.partial` made exclusively beside `path`; write into it
-    (with `atomic_open` etc.). On success it is renamed to `path` when `path` is absent or an empty
-    folder, or when `replaceable(path)` says the existing folder is the caller's own kind (then the
-    old one is removed). Anything else at `path` raises FileExistsError and is left untouched.
-    On failure the temp folder is removed.
+    Yields a fresh folder `.<name>.<random>.partial` made exclusively beside `path` (and locked
+    until it is in place); write into it (with `atomic_open` etc.). First, leftovers of killed
+    writes to `path` are tidied (`recover_dir`). With `manifest` (a file name), the list of every
+    file written (and its size) is added as that file at the end. On success the folder is renamed
+    to `path` when `path` is absent or an empty folder, or swapped in with `replace_dir` when
+    `replaceable(path)` says the existing folder is the caller's kind *and* `ownership_problem`
+    finds nothing in it the caller did not write (its `manifest`, or else only names the new folder
+    has too; `derived`: top-level cache folders that may go with it). Anything else at `path`
+    raises FileExistsError (its message says why) and is left untouched. On failure (an exception,
+    SIGINT; SIGTERM inside `terminate_as_interrupt`) the temp folder is removed.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
+    with _folder_lock(path.parent):
+        _recover(path)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
+        lock = _try_lock(tmp)  # held until the block ends: a sweep leaves a live build alone
     try:
         yield tmp
+        if manifest:
+            _write_manifest(tmp, manifest)
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes it private (0700)
-        _move_dir_into_place(tmp, path, replaceable)
+        with _folder_lock(path.parent):
+            _move_dir_into_place(tmp, path, replaceable, manifest, derived)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    finally:
+        if lock is not None:
+            os.close(lock)
+
+
+@contextlib.contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
+    """Within the block, SIGTERM and SIGINT raise SystemExit(128 + signal) in the main thread, so
+    every `atomic_dir`/`atomic_open` being written removes its temporary before the process ends
+    (the default SIGTERM ends it at once, leaving them for the next run's sweep). Elsewhere
+    (another thread) a no-op."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum, _frame):
+        raise SystemExit(128 + signum)
+
+    previous = {sig: signal.signal(sig, stop) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def default_signals() -> None:
+    """For worker processes forked inside `terminate_as_interrupt`: the parent handles the
+    interrupt (and terminates them), a worker just ends on SIGTERM and ignores SIGINT."""
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def same_output(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Whether two output paths name the same file (after symlinks and '..'; hard links too)."""
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
 
 
 # ------------------------------------------------------------------------------ output checks

@@ -5,7 +5,8 @@ docstring for why it lives there), re-exported here so StableMo code imports the
 
     atomic_open(path, *, suffix=".tmp", mode=None, durable=False)  # context manager -> binary file
     atomic_path(path, *, suffix=None)    # context manager -> temp file name, for external programs
-    atomic_dir(path, *, replaceable=None)  # context manager -> temp folder renamed into place
+    atomic_dir(path, *, replaceable=None, manifest=None)  # context manager -> temp folder swapped in
+    replace_dir(new, target)             # folder swap: the old or the new one at every instant
     write_text(path, text), write_bytes(path, data), save_npy(path, array)
 
 and the checks every command runs on its output arguments before any compute:
@@ -25,8 +26,14 @@ from footskate.atomicio import (  # noqa: F401  (re-exported)
     atomic_dir,
     atomic_open,
     atomic_path,
+    default_signals,
     output_dir_problem,
     output_file_problem,
+    ownership_problem,
+    recover_dir,
+    replace_dir,
+    same_output,
+    terminate_as_interrupt,
     write_bytes,
     write_text,
 )

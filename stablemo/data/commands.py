@@ -19,8 +19,11 @@ def _parser() -> argparse.ArgumentParser:
     check.add_argument("--all-problems", action="store_true", help="list every problem (default: the first 30)")
     check.add_argument("--no-cache", action="store_true", help="read every file without using or writing the cache")
     synth = sub.add_parser("synth", help="write the procedural synthetic dataset in the HumanML3D layout")
-    synth.add_argument("--out", required=True, help="output folder")
-    synth.add_argument("--num", type=int, default=None, help="number of motions (default: the generator's)")
+    synth.add_argument("--out", required=True,
+                       help="output folder: new, empty, or a dataset this command wrote (replaced whole; "
+                            "refused if it holds any other file)")
+    synth.add_argument("--num", type=int, default=None,
+                       help="number of motions, 3 to 100000 (default: the generator's, 2000; ~160 kB each)")
     synth.add_argument("--seed", type=int, default=0, help="random seed (same seed, same dataset)")
     imp = sub.add_parser("import-bvh", help="turn a folder of BVH mocap into a HumanML3D-layout dataset")
     imp.add_argument("dir", help="folder searched recursively for .bvh files")
@@ -48,17 +51,15 @@ def main(argv: list[str]) -> int:
         clips = import_bvh_dir(args.dir, args.out, texts=args.texts, name_map=args.map, up=args.up, seed=args.seed)
         print(f"wrote {len(clips)} clips ({sum(len(c.features) for c in clips)} frames at 20 fps) to {args.out}")
         return 0
-    if args.num is not None and args.num < 1:
-        raise StableMoError(f"--num={args.num}: must be >= 1")
+    from stablemo.data.synth.writer import check_num, write_dataset  # owned by the synthetic-dataset module
+
+    if args.num is not None:
+        check_num(args.num, "--num")  # the cap and the minimum, before anything else
     if args.seed < 0:
         raise StableMoError(f"--seed={args.seed}: must be >= 0")
-    from stablemo.data.synth import (
-        write_dataset,  # owned by the synthetic-dataset module
-    )
-
     if args.num is None:
-        write_dataset(args.out, seed=args.seed)
+        write_dataset(args.out, seed=args.seed, flag="--out")
     else:
-        write_dataset(args.out, args.num, args.seed)
+        write_dataset(args.out, args.num, args.seed, flag="--out")
     print(f"wrote synthetic dataset to {args.out}")
     return 0

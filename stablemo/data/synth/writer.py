@@ -7,6 +7,17 @@
     Mean.npy, Std.npy        statistics over all clips (std averaged within feature groups)
     train/val/test/train_val/all.txt   80 / 5 / 15 % split
     synth.json               generator version, seed, count, per-action counts
+    .stablemo-files.json     every file written, with its size (written last)
+
+Replacing an earlier dataset: only one whose content is exactly what that file lists (a `data
+check`/training read cache, .stablemo_cache, may go with it); one extra or changed file and the
+folder is refused. The new dataset is built in a hidden sibling `.<name>.<random>.partial` and
+swapped in atomically (footskate.atomicio.replace_dir), so the path holds the old dataset or the
+new one at every instant. Ctrl-C or SIGTERM removes the partial folder; a harder kill's leftover
+is removed by the next `data synth` into the same --out.
+
+Size: at most MAX_NUM motions per dataset (about BYTES_PER_MOTION each on disk), and the
+estimate must fit the free space beside --out; progress goes to stderr.
 
 As in HumanML3D, `new_joints` and `new_joint_vecs` have the same number of frames: a motion is
 generated with T+1 positions; its T feature rows describe frames 0..T-1 (the last position only
@@ -21,22 +32,41 @@ from __future__ import annotations
 import json
 import multiprocessing as mp
 import os
+import shutil
+import sys
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
+from stablemo.data.cache import CACHE_DIRNAME
 from stablemo.data.stats import feature_groups
 from stablemo.data.synth.compose import generate_motion, text_file
 from stablemo.errors import StableMoError
-from stablemo.io import atomic_dir, output_dir_problem, save_npy, write_text
+from stablemo.io import (
+    atomic_dir,
+    default_signals,
+    output_dir_problem,
+    ownership_problem,
+    save_npy,
+    terminate_as_interrupt,
+    write_text,
+)
 
 VERSION = 1
 FEATURE_DIM = 263
 CHUNK = 25  # motions per work unit (fixed: the statistics' summation order must not depend on workers)
 SPLIT_FRACTIONS = (0.80, 0.05, 0.15)  # train, val, test
 MARKER = "synth.json"
+MANIFEST = ".stablemo-files.json"  # every file this writer wrote: what may be replaced, exactly
+MIN_NUM = 3  # train, val and test need a motion each
+# HumanML3D has ~29k clips; 100k synthetic ones are ~15 GB and about an hour on two cores. Beyond
+# that a typo (1e9) would fill the disk for days: refused, one line, before anything is written.
+MAX_NUM = 100_000
+BYTES_PER_MOTION = 160_000  # measured mean on disk: 152 kB per motion (seed 0, 100 motions)
+PROGRESS_STEPS = 10  # without a terminal: one stderr line per 10 % of the motions
+PROGRESS_MIN = 200  # motions: smaller runs take seconds and print no progress
 
 
 def motion_rng(seed: int, index: int) -> np.random.Generator:
@@ -89,21 +119,76 @@ def _is_synth(path: Path) -> bool:
     return (path / MARKER).is_file()
 
 
-def _check_target(out_dir: Path) -> None:
-    """Refuse, before generating anything, a target that is not ours to replace."""
+def check_num(num, flag: str = "num") -> int:
+    """The number of motions: an int in [MIN_NUM, MAX_NUM] (the cap keeps a typo off the disk)."""
+    if isinstance(num, bool) or not isinstance(num, (int, np.integer)):
+        raise StableMoError(f"{flag}={num!r}: must be a whole number of motions")
+    if not MIN_NUM <= num <= MAX_NUM:
+        raise StableMoError(f"{flag}={num}: must be in [{MIN_NUM}, {MAX_NUM}] (train, val and test need a motion "
+                            f"each; {MAX_NUM} motions are about {MAX_NUM * BYTES_PER_MOTION / 1e9:.0f} GB)")
+    return int(num)
+
+
+def _replace_problem(out_dir: Path) -> str | None:
+    """Why the existing non-empty folder `out_dir` is not ours to replace, or None."""
+    if not _is_synth(out_dir):
+        return "folder is not empty and is not a synthetic dataset; choose another --out"
+    problem = ownership_problem(out_dir, manifest=MANIFEST, derived=(CACHE_DIRNAME,))
+    if problem:
+        return f"{problem}; nothing was replaced (move them away, delete the folder yourself or choose another --out)"
+    return None
+
+
+def _check_target(out_dir: Path, num: int, prefix: str = "") -> None:
+    """Refuse, before generating anything, a target that is not ours to replace or won't fit."""
+    def refuse(reason: str):
+        raise StableMoError(f"{prefix}{out_dir}: {reason}")
+
     if out_dir.is_symlink() or (out_dir.exists() and not out_dir.is_dir()):
-        raise StableMoError(f"{out_dir}: exists and is not a folder")
-    if out_dir.is_dir() and any(out_dir.iterdir()) and not _is_synth(out_dir):
-        raise StableMoError(f"{out_dir}: folder is not empty and is not a synthetic dataset; choose another --out")
+        refuse("exists and is not a folder")
+    if out_dir.is_dir() and any(out_dir.iterdir()):
+        problem = _replace_problem(out_dir)
+        if problem:
+            refuse(problem)
     problem = output_dir_problem(out_dir.parent)
     if problem:
-        raise StableMoError(f"{out_dir}: cannot write beside it ({problem})")
+        refuse(f"cannot write beside it ({problem})")
+    parent = next(p for p in (out_dir.parent, *out_dir.parent.parents) if p.exists())
+    need, free = num * BYTES_PER_MOTION, shutil.disk_usage(parent).free
+    if need > free:
+        refuse(f"{num} motions need about {need / 1e9:.1f} GB and {parent} has {free / 1e9:.1f} GB free; "
+               "pass a smaller --num")
+
+
+class _Progress:
+    """Motions written so far, on stderr: a bar on a terminal, else a line per PROGRESS_STEPS-th
+    (nothing for runs under PROGRESS_MIN motions)."""
+
+    def __init__(self, total: int):
+        self.total, self.done, self.shown = total, 0, 0
+        self.quiet = total < PROGRESS_MIN
+        self.bar = tqdm(total=total, desc="synth", unit="motion") if sys.stderr.isatty() and not self.quiet else None
+
+    def update(self, n: int) -> None:
+        self.done += n
+        if self.bar is not None:
+            self.bar.update(n)
+            return
+        step = self.done * PROGRESS_STEPS // self.total
+        if step > self.shown and not self.quiet:
+            self.shown = step
+            print(f"synth: {self.done}/{self.total} motions ({100 * self.done // self.total}%)",
+                  file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
 
 
 def _generate(tmp: Path, num: int, seed: int, workers: int) -> list[tuple]:
     """Write the clips into `tmp` in chunks; returns each chunk's statistics and action names."""
     jobs = [(str(tmp), seed, range(a, min(a + CHUNK, num))) for a in range(0, num, CHUNK)]
-    bar = tqdm(total=num, desc="synth", unit="motion", disable=None)
+    bar = _Progress(num)
     results = []
     if workers == 1 or len(jobs) == 1:
         for job in jobs:
@@ -111,7 +196,7 @@ def _generate(tmp: Path, num: int, seed: int, workers: int) -> list[tuple]:
             bar.update(len(job[2]))
     else:
         ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-        with ctx.Pool(workers) as pool:
+        with ctx.Pool(workers, initializer=default_signals) as pool:
             for res in pool.imap(_write_chunk, jobs):  # ordered: fixed summation order
                 results.append(res)
                 bar.update(len(res[3]))
@@ -140,24 +225,32 @@ def _write_summary(tmp: Path, results: list[tuple], num: int, seed: int) -> None
     write_text(tmp / MARKER, json.dumps(meta, indent=2) + "\n")
 
 
-def write_dataset(out_dir, num: int = 2000, seed: int = 0, workers: int | None = None) -> Path:
-    """Generate `num` motions with `seed` into `out_dir` (HumanML3D layout); returns the folder."""
-    if int(num) < 3:
-        raise StableMoError(f"num={num}: must be >= 3 (train, val and test need a motion each)")
+def write_dataset(out_dir, num: int = 2000, seed: int = 0, workers: int | None = None,
+                  flag: str | None = None) -> Path:
+    """Generate `num` motions with `seed` into `out_dir` (HumanML3D layout); returns the folder.
+    flag: the option that named `out_dir` (e.g. "--out"), to start its error lines."""
+    num = check_num(num)
     if int(seed) < 0:
         raise StableMoError(f"seed={seed}: must be >= 0")
-    num, seed = int(num), int(seed)
+    seed = int(seed)
     out_dir = Path(out_dir)
     workers = min(os.cpu_count() or 1, 2) if workers is None else int(workers)
     if workers < 1:
         raise StableMoError(f"workers={workers}: must be >= 1")
-    _check_target(out_dir)
+    prefix = f"{flag}: " if flag else ""
+    _check_target(out_dir, num, prefix)
     try:
-        # built in a fresh hidden sibling folder, renamed into place: a replaced dataset is ours (MARKER)
-        with atomic_dir(out_dir, replaceable=_is_synth) as tmp:
+        # built in a fresh hidden sibling folder, swapped into place; an existing dataset is only
+        # replaced when it is exactly what its file list says we wrote (checked again at the swap)
+        with terminate_as_interrupt(), atomic_dir(out_dir, replaceable=lambda p: _replace_problem(p) is None,
+                                                  manifest=MANIFEST, derived=(CACHE_DIRNAME,)) as tmp:
             for sub in ("new_joint_vecs", "new_joints", "contacts", "texts"):
                 (tmp / sub).mkdir()
             _write_summary(tmp, _generate(tmp, num, seed, workers), num, seed)
-    except FileExistsError:
-        raise StableMoError(f"{out_dir}: changed while the dataset was written; nothing replaced") from None
+    except FileExistsError as err:
+        raise StableMoError(f"{prefix}{out_dir}: changed while the dataset was written ({err.strerror}); "
+                            "nothing replaced") from None
+    except SystemExit:
+        print(f"synth: interrupted; the partial dataset was removed, {out_dir} is as it was", file=sys.stderr)
+        raise
     return out_dir
