@@ -86,13 +86,15 @@ class Worker:
             future: Future = Future()
             self._jobs.put((future, fn, args))
             result = asyncio.wrap_future(future)  # cancelling this request cancels a job not yet started
-            if budget_s is None:
-                return await result
             try:
-                return await asyncio.wait_for(result, budget_s)
+                return await (result if budget_s is None else asyncio.wait_for(result, budget_s))
             except TimeoutError:
                 raise Busy(f"server busy: the job took over {budget_s:g} s and was abandoned; "
                            "try again shortly") from None
+            except asyncio.CancelledError:
+                # the server is stopping (uvicorn cancels what is still running after its short grace
+                # time): a one-line 503 for the client instead of a traceback in the log
+                raise Busy("server busy: the request was cancelled because the server is stopping") from None
         finally:
             self.waiting -= 1
 

@@ -111,9 +111,10 @@ class Guard:
                      "the most a request may send")
         lengths = headers.get("content-length", [])
         if lengths:
-            if len(set(lengths)) != 1 or not lengths[0].strip().isdigit() or len(lengths[0].strip()) > 18:
+            length = lengths[0].strip()
+            if len(set(lengths)) != 1 or not (length.isascii() and length.isdigit()):
                 return None, (400, f"Content-Length: expected one whole number, got {', '.join(lengths)[:80]!r}")
-            if int(lengths[0]) > self.max_body:
+            if len(length) > 18 or int(length) > self.max_body:
                 return None, over
         chunks, size = [], 0
         deadline = asyncio.get_running_loop().time() + self.body_timeout
@@ -239,15 +240,18 @@ def _deep_field(text: str) -> str:
                 key, pos = json.decoder.scanstring(text, pos)
             except (json.JSONDecodeError, ValueError):
                 break
-        elif c == ":" and stack and stack[-1][0] == "{":
-            stack[-1][1] = key
-        elif c == "," and stack and stack[-1][0] == "[":
-            stack[-1][1] += 1
         elif c in "[{":
             if len(stack) >= MAX_JSON_DEPTH:
                 return _path([part for _, part in stack])
             stack.append(["[", 0] if c == "[" else ["{", None])
-        elif stack:
+        elif not stack:
+            break
+        elif c in ":,":  # a key ends / the next item of an array begins (anything else is not JSON: ignored)
+            if c == ":" and stack[-1][0] == "{":
+                stack[-1][1] = key
+            elif c == "," and stack[-1][0] == "[":
+                stack[-1][1] += 1
+        else:  # ] or }
             stack.pop()
     return "request"
 
