@@ -344,10 +344,11 @@ def _remove_leftover(path: Path) -> bool:
     return not os.path.lexists(path)
 
 
-def _recover(target: Path) -> list[Path]:
+def _recover(target: Path, keep: Optional[Path] = None) -> list[Path]:
     """Finish what a killed write to `target` left (the caller holds the parent lock): a fallback
     swap cut between its renames gets the old folder back at `target`; leftover partial and old
-    folders of `target`'s name that no live build holds are removed. Returns what was removed."""
+    folders of `target`'s name that no live build holds are removed, except `keep` (a finished
+    build about to be swapped in). Returns what was removed."""
     journal = _journal(target)
     if journal.is_file() and not journal.is_symlink():
         try:
@@ -362,7 +363,7 @@ def _recover(target: Path) -> list[Path]:
     pattern = _leftover_pattern(target)
     removed = []
     with os.scandir(target.parent) as entries:
-        candidates = [Path(e.path) for e in entries if pattern.match(e.name)]
+        candidates = [Path(e.path) for e in entries if pattern.match(e.name) and e.name != getattr(keep, "name", None)]
     for path in candidates:
         if _remove_leftover(path):
             removed.append(path)
@@ -417,7 +418,7 @@ def replace_dir(new: str | os.PathLike, target: str | os.PathLike) -> None:
     A missing `target` is simply created. The caller decides that the old folder is its own."""
     new, target = Path(new), Path(target)
     with _folder_lock(target.parent):
-        _recover(target)
+        _recover(target, keep=new)
         if not os.path.lexists(target):
             os.rename(new, target)
             return
@@ -510,13 +511,11 @@ def default_signals() -> None:
 
 
 def same_output(a: str | os.PathLike, b: str | os.PathLike) -> bool:
-    """Whether two output paths name the same file (after symlinks and '..'; hard links too)."""
-    if os.path.realpath(a) == os.path.realpath(b):
-        return True
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return False
+    """Whether two output paths are one directory entry, i.e. the second atomic write would replace
+    the first: the same name in the same folder (after symlinks and '..' in the folders). A final
+    symlink or a hard link is replaced, never written through, so those stay two outputs."""
+    a, b = Path(a), Path(b)  # not normalised: "link/.." is the link target's parent, as the kernel sees it
+    return a.name == b.name and os.path.realpath(a.parent) == os.path.realpath(b.parent)
 
 
 # ------------------------------------------------------------------------------ output checks

@@ -16,7 +16,7 @@ from typing import Protocol
 import numpy as np
 import torch
 
-from footskate.atomicio import output_file_problem
+from footskate.atomicio import output_file_problem, same_output
 from footskate.cleanup import CleanupConfig, cleanup
 from footskate.errors import FootskateError
 from footskate.npyio import load_npy, save_npy
@@ -168,6 +168,8 @@ def check_arguments(args: argparse.Namespace) -> None:
         problem = output_file_problem(path) if path else None
         if problem:
             raise FootskateError(f"{flag}: {problem}")
+    if args.joints_out and same_output(args.out, args.joints_out):  # the second write would replace the first
+        raise FootskateError(f"--joints-out: {args.joints_out} is the same file as --out {args.out}; give two paths")
 
 
 def main(argv: list[str] | None = None, codec_factory=None) -> int:

@@ -17,7 +17,7 @@ import sys
 import numpy as np
 
 from stablemo.errors import StableMoError
-from stablemo.generate import _bundle_path, slugify, write_motion
+from stablemo.generate import _bundle_path, check_output_name, slugify, write_motion
 from stablemo.inference_config import check_finite, check_positive_int, check_seed
 from stablemo.io import check_output_dir, check_output_file, load_npy
 
@@ -37,7 +37,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     p.add_argument("--bundle", default=None, help="bundle folder (default: the packaged demo model)")
     p.add_argument("--out", default="outputs", help="output folder (default ./outputs)")
-    p.add_argument("--name", default=None, help="file name stem (default: from the text)")
+    p.add_argument("--name", default=None,
+                   help="file name stem inside --out, a plain name without folders (default: from the text)")
     p.add_argument("--format", action="append", choices=["gif", "mp4", "bvh"], default=None,
                    help="output format beside the .npy files (repeatable; default gif)")
     p.add_argument("--no-render", action="store_true", help="write the .npy files only")
@@ -49,7 +50,19 @@ def _read_features(path: str) -> np.ndarray:
     arr = load_npy(path)
     if arr.ndim != 2:
         raise StableMoError(f"{path}: expected a (T, D) array of features, got shape {arr.shape}")
+    if len(arr) == 0:
+        raise StableMoError(f"{path}: the motion has no frames (shape {arr.shape}); nothing to edit")
     return arr.astype(np.float32)
+
+
+def _length_problem(length: int, frames: int | None, path: str, low: int, high: int) -> str:
+    """The one line for a result length outside the model's range [low, high], with its true cause."""
+    if frames:
+        return f"--frames: {length} frames is outside this model's range [{low}, {high}]"
+    side = "short" if length < low else "long"
+    hint = f"pass --frames {low} or more to continue it" if side == "short" else f"pass --frames {high} or fewer"
+    return (f"{path}: the input has {length} frame{'s' * (length != 1)}, outside this model's range "
+            f"[{low}, {high}] (the input is too {side}: {hint})")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -63,10 +76,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.frames is not None:
         check_positive_int("--frames", args.frames)
     check_seed("--seed", args.seed)
+    if args.name is not None:
+        check_output_name(args.name, "--name")  # a plain name: the files never land outside --out
     feats = _read_features(args.features)
     bundle = _bundle_path(args.bundle)
     out = check_output_dir(args.out, "--out")
-    slug = args.name or slugify(args.text)
+    slug = args.name if args.name is not None else slugify(args.text)
     formats = [] if args.no_render else list(dict.fromkeys(args.format or ["gif"]))
     for suffix in ["features.npy", "joints.npy"] + formats:
         check_output_file(out / f"{slug}.{suffix}", "--out")
@@ -81,8 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         raise StableMoError(f"{args.features}: features have {feats.shape[1]} columns, this bundle's have {D}")
     length = args.frames or len(feats)
     if not pipe.min_length <= length <= pipe.max_length:
-        raise StableMoError(f"length: {length} frames is outside this model's range [{pipe.min_length}, "
-                            f"{pipe.max_length}]{'' if args.frames else ' (the input is too long: pass --frames)'}")
+        raise StableMoError(_length_problem(length, args.frames, args.features, pipe.min_length, pipe.max_length))
     mask = keep_mask(args.keep, len(feats), pipe.skeleton)
     spec = Inpaint(feats, mask)
     spec.resolve(length, D, what=f"--keep on {args.features}")  # before any network call

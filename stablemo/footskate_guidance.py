@@ -98,6 +98,17 @@ def _topology(skeleton):
     return TOPOLOGIES[name]
 
 
+def check_footskate_options(footskate: bool, weights, flags: bool = False) -> None:
+    """vGRF weights only mean something with the foot-skate correction on: given without it, they
+    would be silently ignored. flags: name the CLI options, else the keyword arguments."""
+    if weights is not None and not footskate:
+        if flags:
+            raise StableMoError("--footskate-weights: only used with --footskate; add --footskate "
+                                "(or drop --footskate-weights)")
+        raise StableMoError("footskate_weights: only used with footskate=True; pass footskate=True "
+                            "(or drop footskate_weights)")
+
+
 def load_vgrf_model(weights: str | Path | None, skeleton="humanml3d"):
     """vGRF model for a skeleton: `weights` (ours or a user's UnderPressure .tar), else the shipped V22, else None."""
     from footskate.vgrf import resolve_vgrf

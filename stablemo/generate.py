@@ -11,6 +11,7 @@ Every file is written atomically: an interrupted run leaves no half-written outp
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import sys
 from pathlib import Path
@@ -24,18 +25,50 @@ DEFAULT_SECONDS = 6.0
 
 
 def slugify(text: str, max_len: int = 60) -> str:
+    """A file name stem from user text: only [a-z0-9-], never empty, never '.', '..' or a path."""
     slug = re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-")[:max_len].rstrip("-")
     return slug or "motion"
 
 
 def unique_slugs(texts: list[str]) -> list[str]:
-    seen: dict[str, int] = {}
+    """One distinct file stem per text, in order. The first text of each slug keeps it; a repeat
+    gets the first `<slug>-N` (N = 2, 3, ...) that no text's own slug and no earlier pick took, so
+    "x", "x", "x 2" -> x, x-3, x-2 (never two prompts writing the same files)."""
+    slugs = [slugify(text) for text in texts]
+    taken = set(slugs)
+    seen: set[str] = set()
     out = []
-    for text in texts:
-        slug = slugify(text)
-        seen[slug] = seen.get(slug, 0) + 1
-        out.append(slug if seen[slug] == 1 else f"{slug}-{seen[slug]}")
+    for slug in slugs:
+        if slug in seen:
+            n = 2
+            while f"{slug}-{n}" in taken:
+                n += 1
+            taken.add(f"{slug}-{n}")
+            out.append(f"{slug}-{n}")
+        else:
+            seen.add(slug)
+            out.append(slug)
     return out
+
+
+NAME_MAX = 200  # bytes; the longest suffix (".features.npy") and the temp name's must still fit 255
+
+
+def check_output_name(name: str, flag: str = "--name") -> str:
+    """A user-given file name stem: one plain name inside --out, so the outputs never land elsewhere.
+    Refused: empty, a path (any separator, '..', absolute), a hidden name, control characters."""
+    if not name or not name.strip():
+        raise StableMoError(f"{flag}: empty name")
+    seps = {"/", "\\", os.sep, os.altsep or "/"}
+    if any(sep in name for sep in seps) or os.path.isabs(name) or name in (".", ".."):
+        raise StableMoError(f"{flag}: {name!r} is a path; give a plain file name (the files go into --out)")
+    if name.startswith("."):
+        raise StableMoError(f"{flag}: {name!r} starts with '.'; give a plain, visible file name")
+    if any(ord(c) < 32 or ord(c) == 127 for c in name):
+        raise StableMoError(f"{flag}: {name!r} holds control characters; give a plain file name")
+    if len(os.fsencode(name)) > NAME_MAX:
+        raise StableMoError(f"{flag}: name is {len(os.fsencode(name))} bytes long; at most {NAME_MAX}")
+    return name
 
 
 def read_prompts(path: str) -> list[str]:
@@ -189,7 +222,10 @@ def write_motion(out: Path, slug: str, feats, joints, pipe, formats: list[str], 
 
 
 def _check_numbers(args) -> None:
-    """Numeric flags: finite and in range, before anything is loaded."""
+    """Numeric flags: finite and in range (and options that need another), before anything is loaded."""
+    from stablemo.footskate_guidance import check_footskate_options
+
+    check_footskate_options(args.footskate, args.footskate_weights, flags=True)
     if args.steps is not None:
         check_positive_int("--steps", args.steps)
     if args.cfg is not None:

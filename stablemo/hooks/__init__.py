@@ -72,6 +72,9 @@ def make_hooks(pipeline, *, footskate: bool = False, footskate_weights=None, foo
                footskate_steps: Sequence[int] | None = None) -> list[SampleHook]:
     """The hooks a request asks for by options (the CLI flags of `generate` and `evaluate`, and the
     Python API), in the order they apply."""
+    from stablemo.footskate_guidance import check_footskate_options
+
+    check_footskate_options(footskate, footskate_weights)  # weights without the hook: an error, not ignored
     hooks: list[SampleHook] = []
     if footskate:
         from stablemo.hooks.footskate import DEFAULT_HOOK_STEPS, FootskateHook
