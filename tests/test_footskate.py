@@ -515,7 +515,7 @@ def test_long_travelling_contacts_can_be_split():
 
 
 def test_vgrf_fit_learns_repeats_and_refuses_a_non_finite_loss():
-    """footskate.train.fit (the loop of `python -m footskate.train` and scripts/train_v22_types.py):
+    """footskate.train.fit (the loop of `python -m footskate.train` and scripts/footskate/train_vgrf.py):
     the loss falls on a fixed toy set, the same generator gives the same weights, and a loss that
     turns non-finite is one FootskateError."""
     from footskate.train import fit, masked_msle, sample_batch

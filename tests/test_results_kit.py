@@ -1,5 +1,5 @@
 """Issues 26 (item 3) and 27: the packaged synthetic-benchmark evaluator, `stablemo evaluate --dtype`,
-scripts/make_results.py (checksums, --quick, the precision table), run folders that hold their
+scripts/results/make_results.py (checksums, --quick, the precision table), run folders that hold their
 checkpoints and logs."""
 
 from __future__ import annotations
@@ -21,10 +21,11 @@ from stablemo.eval.command import main as evaluate_main
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "stablemo" / "assets" / "demo_bundle"
+MAKE_RESULTS = REPO / "scripts" / "results" / "make_results.py"
 
 
 def _make_results():
-    spec = importlib.util.spec_from_file_location("make_results", REPO / "scripts" / "make_results.py")
+    spec = importlib.util.spec_from_file_location("make_results", MAKE_RESULTS)
     module = importlib.util.module_from_spec(spec)
     sys.modules.setdefault("make_results", module)  # its dataclasses look their module up there
     spec.loader.exec_module(sys.modules["make_results"])
@@ -112,15 +113,24 @@ def test_quick_mode_defaults_and_explicit_flags():
     mr = _make_results()
     quick = mr.parse_args(["--quick"])
     assert (quick.replications, quick.max_items, quick.ddpm_replications, quick.paper_aits_repeats) == (2, 64, 0, 0)
-    assert quick.no_distill and quick.out == "outputs/results_quick.md"
+    assert quick.no_distill and quick.out == "outputs/results_quick.md" and quick.json == "outputs/results_quick.json"
     assert mr.parse_args(["--quick", "--replications", "5"]).replications == 5
     full = mr.parse_args([])
     assert (full.replications, full.max_items, full.out) == (20, 128, "docs/results.md")
+    assert full.json == "docs/data/results/results.json"
+
+
+def test_make_results_refuses_bad_arguments_before_any_compute(tmp_path):
+    """Run as users run it (a process): each bad argument is one line naming it, exit status 1."""
+    cases = [(["--replications", "0"], "--replications: ")]
     if not torch.cuda.is_available():
-        with pytest.raises(StableMoError, match="^--low-precision: "):
-            mr.check_args(mr.parse_args(["--low-precision", "fp16", "--out", "/tmp/x.md"]))
-    with pytest.raises(StableMoError, match="^--replications: "):
-        mr.check_args(mr.parse_args(["--replications", "0"]))
+        cases.append((["--low-precision", "fp16"], "--low-precision: "))
+    for argv, message in cases:
+        done = subprocess.run([sys.executable, str(MAKE_RESULTS), *argv, "--out", str(tmp_path / "x.md")],
+                              capture_output=True, text=True, cwd=REPO, check=False)
+        assert done.returncode != 0 and message in done.stderr, done.stderr[-2000:]
+        assert "Traceback" not in done.stderr
+    assert not (tmp_path / "x.md").exists()
 
 
 def _row(fids, r3s):
@@ -152,21 +162,25 @@ def test_precision_table_pairs_replications_and_checks_the_target():
 
 
 def test_control_tables_rewrite_only_the_control_sections(tmp_path):
-    """--control-tables: the joint-control sections come from docs/*.json again (with the dense-pelvis
-    summary); the measured sections around them are kept byte for byte; a file without them is one error."""
-    mr = _make_results()
+    """--control-tables: the joint-control sections come from docs/data/results/*.json again (with the
+    dense-pelvis summary); the measured sections around them are kept byte for byte; a file without
+    them is one error."""
     out = tmp_path / "results.md"
     before, after = "# Results\n\n## Samplers\n\n| a | b |\n", "\n## Provenance\n\n| env | x |\n"
     out.write_text(before + "\n## Joint control by guidance (old)\n\nstale numbers\n" + after)
-    assert mr.main(["--control-tables", "--out", str(out)]) == 0
+    cmd = [sys.executable, str(MAKE_RESULTS), "--control-tables", "--out"]
+    done = subprocess.run([*cmd, str(out)], capture_output=True, text=True, cwd=REPO, check=False)
+    assert done.returncode == 0, done.stderr[-2000:]
     text = out.read_text()
     assert text.startswith(before) and text.endswith(after) and "stale numbers" not in text
+    assert "| model | control | FID |" in text  # the tables, rendered by scripts/control/report.py --render
     summary = text[text.index("## Dense pelvis control"):]
     assert "| guidance only, teacher (10 steps) |" in summary and "| ControlNet, 1-step student |" in summary
     bare = tmp_path / "bare.md"
     bare.write_text(before + after)
-    with pytest.raises(StableMoError, match="no joint-control sections"):
-        mr.main(["--control-tables", "--out", str(bare)])
+    done = subprocess.run([*cmd, str(bare)], capture_output=True, text=True, cwd=REPO, check=False)
+    assert done.returncode != 0 and "no joint-control sections" in done.stderr, done.stderr[-2000:]
+    assert bare.read_text() == before + after
 
 
 @pytest.mark.slow
@@ -180,7 +194,7 @@ def test_make_results_quick_end_to_end(tmp_path):
     out = tmp_path / "results.md"
     argv = ["--quick", "--data", str(synth), "--student", "LCM=" + str(tmp_path / "no_student"),
             "--max-items", "32", "--replications", "1", "--aits-sentences", "2", "--out", str(out)]
-    env_cmd = [sys.executable, str(REPO / "scripts" / "make_results.py"), *argv]
+    env_cmd = [sys.executable, str(MAKE_RESULTS), *argv]
     first = subprocess.run(env_cmd, capture_output=True, text=True, cwd=REPO, check=False)
     assert first.returncode == 0, first.stderr[-2000:]
     text = out.read_text()
@@ -208,7 +222,7 @@ def test_documented_checkpoint_paths_are_where_the_configs_write():
     roots = {(yaml.safe_load(p.read_text()) or {}).get("trainer", {}).get("default_root_dir")
              for p in (REPO / "configs").rglob("*.yaml")}
     texts = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md")), *sorted((REPO / "configs").rglob("*.yaml")),
-             *sorted((REPO / "scripts").glob("*.sh"))]
+             *sorted((REPO / "scripts").rglob("*.sh"))]
     found = 0
     for path in texts:
         for match in re.finditer(r"((?:runs|outputs)/[\w/.-]+?)/checkpoints/", path.read_text()):

@@ -448,24 +448,24 @@ def test_bench_train_reports_speed_and_memory(tiny_data, tmp_path, capsys):
 
 
 def test_ablate_script_writes_csv_table_and_chart(tiny_data, tmp_path):
+    """scripts/train/ablate.py run as users run it (a process), two variants of two steps."""
     import csv
 
-    sys.path.insert(0, str(REPO / "scripts"))
-    try:
-        import ablate
-    finally:
-        sys.path.pop(0)
+    script = [sys.executable, str(REPO / "scripts" / "train" / "ablate.py")]
     out = tmp_path / "ablation"
-    assert ablate.main(["--data", str(tiny_data), "--out", str(out), "--steps", "2", "--batch-size", "4",
-                        "--variants", "dit_xattn", "unet_base", "--", "--data.max_length=64"]) == 0
+    done = subprocess.run([*script, "--data", str(tiny_data), "--out", str(out), "--steps", "2", "--batch-size", "4",
+                           "--variants", "dit_xattn", "unet_base", "--", "--data.max_length=64"],
+                          capture_output=True, text=True, cwd=REPO, check=False)
+    assert done.returncode == 0, done.stderr[-3000:]
     rows = list(csv.DictReader(open(out / "ablation.csv")))
     assert [r["variant"] for r in rows] == ["unet_base", "dit_xattn"]  # paper order, not argument order
     assert all(float(r["val_loss"]) > 0 and int(r["steps"]) == 2 for r in rows)
     table = (out / "ablation.md").read_text()
     assert "| Dataset | Network | Val loss" in table and "Conv1D UNet baseline" in table and "+ cross-attention" in table
     assert (out / "ablation.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    with pytest.raises(StableMoError, match="folder not found"):
-        ablate.main(["--data", str(tmp_path / "missing")])
+    missing = subprocess.run([*script, "--data", str(tmp_path / "missing")], capture_output=True, text=True,
+                             cwd=REPO, check=False)
+    assert missing.returncode == 2 and "folder not found" in missing.stderr and "Traceback" not in missing.stderr
 
 
 @pytest.mark.slow  # a real process killed mid-run

@@ -1,6 +1,6 @@
-"""The renders of docs/long_motion.md: the example timeline as one motion.
+"""The renders of docs/data/long_motion.md: the example timeline as one motion.
 
-    OMP_NUM_THREADS=1 python scripts/long_motion_examples.py --out docs/long_motion [--gif]
+    OMP_NUM_THREADS=1 python scripts/long_motion/examples.py --out docs/data/long_motion [--gif]
 
 Writes example_segments.png (one row per segment, its frames in the motion's global frame),
 example_path.png (top view of the root path coloured by segment with the joins marked, and the root
@@ -60,8 +60,8 @@ def plot_path(motion, path: Path) -> None:
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--bundle", default="stablemo/assets/demo_bundle")
-    p.add_argument("--timeline", default="docs/long_motion/example.txt")
-    p.add_argument("--out", default="docs/long_motion")
+    p.add_argument("--timeline", default="docs/data/long_motion/example.txt")
+    p.add_argument("--out", default="docs/data/long_motion")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--gif", action="store_true")
     args = p.parse_args(argv)

@@ -1,9 +1,9 @@
 """Architecture ablation (paper Table 4): train every denoiser variant on the same data with the same
 budget, evaluate them the same way, and write a CSV, a markdown table and a bar chart.
 
-    python scripts/ablate.py --data data/synth                      # all seven variants, configs' budget
-    python scripts/ablate.py --data data/synth --steps 100 --variants unet_base unet_xattn
-    python scripts/ablate.py --data data/synth --evaluator runs/evaluator/evaluator.ckpt   # + FID, R-precision
+    python scripts/train/ablate.py --data data/synth                      # all seven variants, configs' budget
+    python scripts/train/ablate.py --data data/synth --steps 100 --variants unet_base unet_xattn
+    python scripts/train/ablate.py --data data/synth --evaluator runs/evaluator/evaluator.ckpt   # + FID, R-precision
 
 Each variant is `configs/ablation/common.yaml` + `configs/ablation/<variant>.yaml`, trained through the
 same LightningCLI as `stablemo fit`. Every variant is scored by the validation loss of its EMA weights
@@ -22,7 +22,7 @@ import sys
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 CONFIGS = REPO / "configs" / "ablation"
 
 # (variant, family, row label) in the paper's Table 4 order

@@ -2,13 +2,13 @@
 
 One command from a clean clone (after `bash scripts/setup.sh`) regenerates every table:
 
-    OMP_NUM_THREADS=1 .venv/bin/python scripts/make_results.py --resume      # docs/results.md, hours on 2 cores
-    OMP_NUM_THREADS=1 .venv/bin/python scripts/make_results.py --quick       # CI-sized check, minutes
+    OMP_NUM_THREADS=1 .venv/bin/python scripts/results/make_results.py --resume      # docs/results.md, hours on 2 cores
+    OMP_NUM_THREADS=1 .venv/bin/python scripts/results/make_results.py --quick       # CI-sized check, minutes
 
 What it needs it makes, by seed: the synthetic data (`stablemo data synth --num 2000 --seed 0`
-when `--data` is absent) and the LCM/PCM students (`scripts/distill_demo.sh lcm|pcm` when their
+when `--data` is absent) and the LCM/PCM students (`scripts/train/distill_demo.sh lcm|pcm` when their
 bundles are absent; not in `--quick`, which scores the students it finds). The evaluator is the
-packaged `stablemo/assets/evaluator_synth` (scripts/make_evaluator_asset.sh made it). Checksums of
+packaged `stablemo/assets/evaluator_synth` (scripts/train/make_evaluator_asset.sh made it). Checksums of
 the data, bundles and evaluator, and the environment (versions, CPU, threads, git commit), are
 printed and recorded in the report.
 
@@ -24,9 +24,10 @@ Every row is scored by the same evaluator on the same test split with the same r
 (so rows are paired replication by replication). AITS (batch 1, model loaded, each sentence
 encoding its own text) is measured for every row in this one run, after the quality rows,
 round-robin sentence by sentence (never taken from an earlier run, even with `--resume`).
-The report (markdown and JSON beside it) is rewritten after every row, marked partial until the
-last one; `--resume` keeps each row whose own settings (checksums of data, bundle and evaluator,
-sampler, steps, precision, replications, items, seed) are unchanged.
+The report (markdown, and its JSON: `--json`, docs/data/results/results.json for docs/results.md)
+is rewritten after every row, marked partial until the last one; `--resume` keeps each row whose
+own settings (checksums of data, bundle and evaluator, sampler, steps, precision, replications,
+items, seed) are unchanged.
 """
 
 from __future__ import annotations
@@ -52,7 +53,7 @@ from stablemo.eval.command import REAL_ROW, SYNTH_EVALUATOR, evaluate, load_text
 from stablemo.inference_config import PAPER_CFG
 from stablemo.io import check_output_file, write_text
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 COLUMNS = [("r1", "R@1 ↑"), ("r3", "R@3 ↑"), ("fid", "FID ↓"), ("mm_dist", "MM-Dist ↓"), ("diversity", "Diversity →")]
 TEACHER_ROW = "Teacher, SDE-DPM-Solver++ 2M, 10 steps"
 DEFAULT_STUDENTS = ["LCM=bundles/demo_lcm", "PCM=bundles/demo_pcm"]
@@ -144,7 +145,7 @@ def ensure_data(path: Path) -> None:
 
 
 def ensure_student(name: str, path: Path, distill: bool) -> bool:
-    """A student bundle at `path`, distilled by scripts/distill_demo.sh when missing (if allowed)."""
+    """A student bundle at `path`, distilled by scripts/train/distill_demo.sh when missing (if allowed)."""
     if (path / "config.json").is_file():
         return True
     mode = name.lower()
@@ -152,13 +153,13 @@ def ensure_student(name: str, path: Path, distill: bool) -> bool:
     if not distill or mode not in ("lcm", "pcm") or path.resolve() != default.resolve():
         print(f"== skipping the {name} student: {path} is missing", flush=True)
         return False
-    print(f"== distilling the {name} student into {path} (scripts/distill_demo.sh {mode}; on a shared 2-core CPU "
+    print(f"== distilling the {name} student into {path} (scripts/train/distill_demo.sh {mode}; on a shared 2-core CPU "
           "LCM took 50 min, PCM (adversarial, twice the updates) longer)", flush=True)
     env = dict(os.environ)
     venv_cli = Path(sys.executable).parent / "stablemo"
     if venv_cli.is_file():
         env["STABLEMO"] = str(venv_cli)
-    subprocess.run(["bash", str(REPO / "scripts" / "distill_demo.sh"), mode], cwd=REPO, env=env, check=True)
+    subprocess.run(["bash", str(REPO / "scripts" / "train" / "distill_demo.sh"), mode], cwd=REPO, env=env, check=True)
     return True
 
 
@@ -467,40 +468,47 @@ def render_provenance(raw: dict) -> str:
         for name, digest in table.items():
             sums.append(f"| {what} | `{name}` | `{digest[:16]}` |")
     return ("\n## Provenance\n\nEnvironment of this invocation:\n\n| | |\n|---|---|\n" + env + "\n\n"
-            "sha256 (first 16 hex digits; the full ones are in the JSON beside this file) of what was scored: "
+            "sha256 (first 16 hex digits; the full ones are in this report's JSON, "
+            "docs/data/results/results.json for docs/results.md) of what was scored: "
             "each top-level file, each subfolder (over its files' paths and sha256, sorted) and the whole "
             "folder (`*`). Data generated by `stablemo data synth --num 2000 --seed 0`.\n\n"
             "| What | File or folder | sha256 |\n|---|---|---|\n" + "\n".join(sums) + "\n")
 
 
-REPO_DOCS = Path(__file__).resolve().parents[1] / "docs"
-CONTROL_TABLES = [  # (JSON beside this file, heading, how it was made)
+RESULTS_DATA = REPO / "docs" / "data" / "results"  # the JSON of the measured tables
+CONTROL_TABLES = [  # (JSON in docs/data/results/, heading, how it was made)
     ("results_control.json", "Joint control by guidance (teacher and 1-step student)",
-     "`python scripts/control_report.py --student LCM=bundles/demo_lcm --replications 3 --max-items 96`; the "
+     "`python scripts/control/report.py --student LCM=bundles/demo_lcm --replications 3 --max-items 96`; the "
      "`+ --footskate` rows: `stablemo evaluate --bundle B --data data/synth --replications 3 --max-items 96 "
      "--control pelvis --density 100% --footskate`. Method and reading: docs/control.md. The AITS lines are that "
      "run's, with 100 pose iterations at the last step; with the 40 used since, measured side by side the same "
      "way: 1.72x (teacher) and 2.39x (student)."),
     ("controlnet_results.json", "Motion ControlNet on the 1-step student",
-     "`python scripts/control_report.py --no-teacher --student LCM=stablemo/assets/demo_student --controlnet "
+     "`python scripts/control/report.py --no-teacher --student LCM=stablemo/assets/demo_student --controlnet "
      "\"LCM 1-step=stablemo/assets/demo_controlnet\" --rows none:100%,pelvis:100%,pelvis:25%,pelvis:5,pelvis:1 "
-     "--replications 3 --max-items 96 --out docs/controlnet_results.json` (the shipped pelvis ControlNet, "
+     "--replications 3 --max-items 96 --out docs/data/results/controlnet_results.json` (the shipped pelvis ControlNet, "
      "`configs/control/controlnet_lcm_pelvis_synth.yaml`). Training and reading: docs/control.md."),
     ("controlnet_teacher_results.json", "Motion ControlNet on the teacher (10 steps)",
-     "`python scripts/control_report.py --no-teacher --controlnet \"teacher 10-step=bundles/demo_pelvis_control\" "
-     "--rows pelvis:100%,pelvis:5 --replications 2 --max-items 64 --out docs/controlnet_teacher_results.json` "
+     "`python scripts/control/report.py --no-teacher --controlnet \"teacher 10-step=bundles/demo_pelvis_control\" "
+     "--rows pelvis:100%,pelvis:5 --replications 2 --max-items 64 --out docs/data/results/controlnet_teacher_results.json` "
      "(`configs/control/controlnet_teacher_pelvis_synth.yaml`, exported to bundles/demo_pelvis_control). "
      "Training and reading: docs/control.md."),
 ]
 
 
+def control_markdown(path: Path) -> str:
+    """The table of one scripts/control/report.py JSON, rendered by that script (`--render`)."""
+    done = subprocess.run([sys.executable, str(REPO / "scripts" / "control" / "report.py"), "--render", str(path)],
+                          capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise StableMoError(f"{path}: scripts/control/report.py --render failed: {done.stderr.strip()[-500:]}")
+    return done.stdout.rstrip("\n")
+
+
 def render_control(out_dir: Path) -> str:
-    """The joint-control tables, from the JSON that scripts/control_report.py wrote into docs/ (their
+    """The joint-control tables, from the JSON that scripts/control/report.py wrote into docs/data/results/ (their
     runs take hours here, so they are kept as measured, not re-run by this script), then the
     dense-pelvis summary the ControlNet issue asks for."""
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from control_report import markdown
-
     parts, reports = [], {}
     for name, heading, how in CONTROL_TABLES:
         path = out_dir / name
@@ -510,7 +518,7 @@ def render_control(out_dir: Path) -> str:
             parts.append(f"\n## {heading}\n\n{how} Synthetic test split, hints from the scored motions "
                          f"(OmniControl / MotionLCM protocol), mean ± 95% interval over "
                          f"{settings.get('replications', 3)} replications of {settings.get('max_items', 96)} "
-                         f"items; errors in metres.\n\n{markdown(report)}\n")
+                         f"items; errors in metres.\n\n{control_markdown(path)}\n")
     return "".join(parts) + render_control_summary(reports)
 
 
@@ -554,26 +562,26 @@ def render_control_summary(reports: dict) -> str:
 
 def rewrite_control_sections(out: Path) -> None:
     """Replace the joint-control sections of an existing results file by a fresh render of the JSON
-    in docs/ (`--control-tables`), leaving every other section as it was measured."""
+    in docs/data/results/ (`--control-tables`), leaving every other section as it was measured."""
     text = out.read_text()
     start, end = text.find("\n## Joint control by guidance"), text.find("\n## Provenance")
     if start < 0 or end < start:
         raise StableMoError(f"{out}: no joint-control sections to replace (run make_results first)")
-    write_text(out, text[:start] + render_control(REPO_DOCS) + text[end:])
+    write_text(out, text[:start] + render_control(RESULTS_DATA) + text[end:])
 
 
 def render(args, argv, raw: dict, runs: list[Run], pairs, minutes: float, done: int, total: int) -> str:
-    cmd = "python scripts/make_results.py " + " ".join(argv)
+    cmd = "python scripts/results/make_results.py " + " ".join(argv)
     status = "" if done == total else (
         f"\n**Partial: {done} of {total} rows so far (the run is still going, or was stopped: `--resume` continues it). "
         f"Not scored yet: {'; '.join(raw.get('missing', []))}.**\n")
     if raw.get("skipped_students"):
-        status += ("\n**Not in these tables: the " + ", ".join(f"{n} student (`{p}` missing; `bash scripts/distill_demo.sh "
+        status += ("\n**Not in these tables: the " + ", ".join(f"{n} student (`{p}` missing; `bash scripts/train/distill_demo.sh "
                    f"{n.lower()}` makes it, or this script without `--no-distill`)" for n, p in raw["skipped_students"])
                    + ".**\n")
     return f"""# Results on the synthetic benchmark
 
-Generated by `scripts/make_results.py` (do not edit by hand). Command (from a clean clone: `bash
+Generated by `scripts/results/make_results.py` (do not edit by hand). Command (from a clean clone: `bash
 scripts/setup.sh`, then this; it generates the data and distils the students it needs):
 
 ```bash
@@ -583,14 +591,14 @@ OMP_NUM_THREADS=1 {cmd}
 This invocation took {minutes:.0f} min{f" ({raw['kept']} of the {total} rows were kept from an earlier invocation with the same row settings, `--resume`)" if raw.get('kept') else ""}.
 Model: `{args.bundle}` (the demo CondUNet1D, see `configs/demo.yaml`). Evaluator: `{args.evaluator}`
 (StableMo's contrastive text–motion evaluator trained on the same synthetic data,
-`configs/evaluator_synth.yaml`, exported by `scripts/make_evaluator_asset.sh`). Test split with the
+`configs/evaluator_synth.yaml`, exported by `scripts/train/make_evaluator_asset.sh`). Test split with the
 evaluation crops; mean ± 95% interval over {args.replications} replications; CFG {args.cfg:g}; network
 precision {args.dtype} unless a row says otherwise. AITS: average inference time per sentence, batch 1,
 model loaded, every sentence encoding its own text (cold caches), over {args.aits_sentences} test
 sentences timed round-robin across the rows. Items scored per replication: {args.max_items or 'the whole test split'}.
 Machine and versions: see Provenance at the end.
 
-{render_samplers(raw, runs)}{render_ratios(raw, runs)}{render_precision(raw, pairs, args)}{render_ddpm(raw, args)}{render_control(REPO_DOCS)}{render_provenance(raw)}"""
+{render_samplers(raw, runs)}{render_ratios(raw, runs)}{render_precision(raw, pairs, args)}{render_ddpm(raw, args)}{render_control(RESULTS_DATA)}{render_provenance(raw)}"""
 
 
 # ----------------------------------------------------------------------------- main
@@ -622,9 +630,11 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--cfg", type=float, default=PAPER_CFG)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None, help="default: docs/results.md (outputs/results_quick.md with --quick)")
-    p.add_argument("--resume", action="store_true", help="keep the rows of OUT's .json whose settings are unchanged")
+    p.add_argument("--json", default=None, help="the numbers and settings of every row, what --resume reads (default: "
+                   "docs/data/results/results.json for docs/results.md, else OUT with the suffix .json)")
+    p.add_argument("--resume", action="store_true", help="keep the rows of the --json file whose settings are unchanged")
     p.add_argument("--control-tables", action="store_true",
-                   help="only re-render OUT's joint-control sections from the JSON in docs/ (control_report.py "
+                   help="only re-render OUT's joint-control sections from the JSON in docs/data/results/ (scripts/control/report.py "
                         "writes them); every other section stays as measured")
     p.add_argument("--budget-min", type=float, default=None,
                    help="start no new row after this many minutes; the rows done get their AITS and tables "
@@ -635,6 +645,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             setattr(args, k, v)
     args.no_distill = args.no_distill or args.quick
     args.out = args.out or ("outputs/results_quick.md" if args.quick else "docs/results.md")
+    if args.json is None:
+        args.json = ("docs/data/results/results.json" if Path(args.out) == Path("docs/results.md")
+                     else str(Path(args.out).with_suffix(".json")))
     return args
 
 
@@ -662,6 +675,7 @@ def check_args(args) -> None:
         if not Path(getattr(args, flag)).exists():
             raise StableMoError(f"--{flag} {getattr(args, flag)}: not found")
     check_output_file(args.out, "--out")
+    check_output_file(args.json, "--json")
 
 
 def main(argv: list[str]) -> int:
@@ -695,7 +709,7 @@ def main(argv: list[str]) -> int:
     expected["rows"][REAL_ROW] = ctx.key(None, args.max_items, args.replications)
     if args.ddpm_replications:
         expected["ddpm"][REAL_ROW] = ctx.key(None, args.ddpm_items, args.ddpm_replications)
-    json_path = Path(args.out).with_suffix(".json")
+    json_path = Path(args.json)
     if args.resume and json_path.is_file():
         previous = json.loads(json_path.read_text())
         for section, keys in expected.items():  # only rows whose settings are unchanged

@@ -1,6 +1,6 @@
 """The controlled 1-step student following a pelvis path it never saw (docs/control.md, ControlNet).
 
-    python scripts/controlnet_example.py --bundle stablemo/assets/demo_controlnet --out docs/control
+    python scripts/control/controlnet_example.py --bundle stablemo/assets/demo_controlnet --out docs/data/control
 
 The path is the pelvis of a test-split motion of the synthetic benchmark (a circle walk); the
 prompt is its caption (as in the evaluation protocol). Renders three strips (student without control, with the
@@ -22,7 +22,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--bundle", default="stablemo/assets/demo_controlnet")
     p.add_argument("--data", default="data/synth")
-    p.add_argument("--out", default="docs/control")
+    p.add_argument("--out", default="docs/data/control")
     p.add_argument("--text", default=None, help="the prompt (default: the source motion's own caption, as the "
                    "evaluation protocol pairs them; a prompt that contradicts the path weakens the hint alone)")
     p.add_argument("--pick", default="circle", help="first test motion whose caption contains this word")

@@ -1,6 +1,6 @@
 """Seams and segments of long motions: choose the window joining on some prompts, report it on others.
 
-    OMP_NUM_THREADS=1 python scripts/long_motion_report.py --out /tmp/long/report [--seeds 2]
+    OMP_NUM_THREADS=1 python scripts/long_motion/report.py --out /tmp/long/report [--seeds 2]
 
 1. Grid over overlap x blend x settle (stablemo.timeline.generate_timeline) on the TUNING timelines
    (prompts that appear in no held-out timeline): at every join, the root and foot acceleration
@@ -10,7 +10,7 @@
 2. The chosen setting and the plain one (in-painted prefix only) on the HELD-OUT timelines, same
    numbers.
 3. Per segment of the 30-s held-out timeline: root measures (turn, path, forward, rise, as
-   scripts/check_demo.py) and the evaluator's R@3 (each segment's text among 31 captions of the
+   scripts/results/check_demo.py) and the evaluator's R@3 (each segment's text among 31 captions of the
    test split) vs single-prompt generations of the same text and length with the same seeds.
 Writes report.json and report.md under --out.
 """
@@ -26,12 +26,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from check_demo import root_stats
-
 from stablemo.errors import run_script
 from stablemo.io import write_text
+from stablemo.motion import features_to_joints
 from stablemo.pipeline import Pipeline
 from stablemo.timeline.seams import data_percentiles, seam_report
 
@@ -79,11 +76,15 @@ def run_setting(pipe, timelines, seeds, setting, data_p99) -> dict:
 
 
 def segment_stats(features: np.ndarray) -> dict:
-    """check_demo's root measures in the segment's own frame, with the rise taken from the segment's
-    median root height (a segment starts mid-motion, perhaps already in the air)."""
-    stats = root_stats(features)
-    stats["rise"] = float(features[:, 3].max() - np.median(features[:, 3]))
-    return stats
+    """The root measures of scripts/results/check_demo.py (turning angle: the sum of the root's angular
+    velocity channel; path length and forward displacement of the root, metres) in the segment's own
+    frame, with the rise taken from the segment's median root height (a segment starts mid-motion,
+    perhaps already in the air)."""
+    joints = features_to_joints(features[None].astype(np.float32))[0]       # (T, 22, 3)
+    root = joints[:, 0]
+    step = np.linalg.norm(np.diff(root[:, [0, 2]], axis=0), axis=-1)
+    return {"turn": float(features[:, 0].sum()), "path": float(step.sum()), "forward": float(root[-1, 2] - root[0, 2]),
+            "rise": float(features[:, 3].max() - np.median(features[:, 3]))}
 
 
 def distractor_captions(data: Path, avoid: set[str], count: int, seed: int) -> list[str]:

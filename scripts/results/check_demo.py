@@ -1,6 +1,6 @@
 """Does the demo model do what the prompt says? Root-motion statistics of generations vs the data.
 
-    python scripts/check_demo.py [--bundle stablemo/assets/demo_bundle] [--data data/synth] [--samples 8]
+    python scripts/results/check_demo.py [--bundle stablemo/assets/demo_bundle] [--data data/synth] [--samples 8]
 
 For each probe prompt, `--samples` motions are generated (10 SDE steps, CFG 2.5, seeds 0..n-1) at
 the median length of the matching data clips, and compared with the data clips whose caption

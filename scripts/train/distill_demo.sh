@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
 # Distil the bundled demo model into a consistency student and export it, in one command:
-#   bash scripts/distill_demo.sh lcm|pcm [extra `stablemo fit` arguments]
+#   bash scripts/train/distill_demo.sh lcm|pcm [extra `stablemo fit` arguments]
 # then: stablemo generate "a person jumps twice" --bundle bundles/demo_lcm --steps 1
 # Uses configs/distill/<mode>_synth.yaml; re-running it resumes from the run's last checkpoint.
 set -euo pipefail
-cd "$(dirname "$0")/.."
-mode=${1:?usage: scripts/distill_demo.sh lcm|pcm [fit arguments]}
+cd "$(dirname "$0")/../.."
+mode=${1:?usage: scripts/train/distill_demo.sh lcm|pcm [fit arguments]}
 shift
 case "$mode" in lcm|pcm) ;; *) echo "distill_demo.sh: mode must be lcm or pcm, got '$mode'" >&2; exit 2 ;; esac
 STABLEMO=${STABLEMO:-.venv/bin/stablemo}

@@ -1,7 +1,7 @@
 """The joint-control table of docs/results.md: OmniControl / MotionLCM's protocol on the synthetic benchmark.
 
-    python scripts/control_report.py --bundle stablemo/assets/demo_bundle --student LCM=bundles/demo_lcm \
-        --data data/synth --replications 3 --max-items 128 --out docs/control_results.json
+    python scripts/control/report.py --bundle stablemo/assets/demo_bundle --student LCM=bundles/demo_lcm \
+        --data data/synth --replications 3 --max-items 128 --out docs/data/results/results_control.json
 
 `--controlnet NAME=DIR` adds a ControlNet bundle (stablemo.controlnet; docs/control.md), scored at its
 own steps with the hint alone and with the hint plus the guidance refinement (Request.control_guidance);
@@ -13,7 +13,8 @@ pelvis at 100% / 25% / 5 / 2 / 1 frames, a wrist at 25%, whole-pose keyframes on
 uncontrolled row is scored against the same hints (its errors say how far free generation is from
 the test motions; its spike share is the model's own baseline). AITS of controlled vs uncontrolled
 generation is measured side by side (alternating, batch 1, dense pelvis hints) and printed as a
-ratio. Prints the markdown table; `--out` keeps the numbers as JSON.
+ratio. Prints the markdown table; `--out` keeps the numbers as JSON; `--render JSON` prints the table
+of such a file again.
 """
 
 from __future__ import annotations
@@ -106,7 +107,13 @@ def main(argv=None) -> int:
                    help="NAME=DIR: a ControlNet bundle, scored at its own steps without and with the guidance refinement")
     p.add_argument("--rows", default=None, help="comma-separated joint:density rows to score (default: all)")
     p.add_argument("--out", default=None)
+    p.add_argument("--render", default=None, metavar="JSON",
+                   help="only print the markdown table of a JSON this script wrote (scripts/results/make_results.py "
+                        "uses it for docs/results.md)")
     args = p.parse_args(argv)
+    if args.render:
+        print(markdown(json.loads(Path(args.render).read_text())))
+        return 0
     torch.set_num_threads(args.threads)
 
     from stablemo.data import MotionDataset

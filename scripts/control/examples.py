@@ -1,6 +1,6 @@
 """Rendered examples of every control and editing mode for docs/control.md (strips with the targets).
 
-    python scripts/control_examples.py --data data/synth --out docs/control
+    python scripts/control/examples.py --data data/synth --out docs/data/control
 
 Sources are test-split motions of the synthetic benchmark (never seen in training); each example
 prints its error at the targets (control) or at the kept entries (editing), and the largest
@@ -30,7 +30,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--bundle", default="stablemo/assets/demo_bundle")
     p.add_argument("--data", default="data/synth")
-    p.add_argument("--out", default="docs/control")
+    p.add_argument("--out", default="docs/data/control")
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args(argv)
     torch.set_num_threads(1)

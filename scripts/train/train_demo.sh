@@ -3,11 +3,11 @@
 # configs/demo.yaml, export, and a copy of the training log into docs/. Resumable: re-running it
 # continues from runs/demo/checkpoints/last.ckpt.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 STABLEMO=${STABLEMO:-.venv/bin/stablemo}
 [ -f data/synth/Mean.npy ] || "$STABLEMO" data synth --out data/synth --num 2000 --seed 0
 resume=()
 [ -f runs/demo/checkpoints/last.ckpt ] && resume=(--ckpt_path last)
 "$STABLEMO" fit --config configs/demo.yaml "${resume[@]}" "$@"
 "$STABLEMO" export runs/demo/checkpoints/last.ckpt --out stablemo/assets/demo_bundle --overwrite
-.venv/bin/python scripts/merge_logs.py runs/demo/logs docs/demo_training_log.csv
+.venv/bin/python scripts/train/training_log.py merge runs/demo/logs docs/data/training/demo_training_log.csv

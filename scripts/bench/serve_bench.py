@@ -1,7 +1,7 @@
 """Measure `stablemo serve` on this machine: prompt -> first frame in the browser, and a load test.
 
-    python scripts/serve_bench.py latency [--prompts 12] [--out /tmp/serve_latency.json]
-    python scripts/serve_bench.py load [--requests 200] [--concurrency 4] [--model student] [--out ...]
+    python scripts/bench/serve_bench.py latency [--prompts 12] [--out /tmp/serve_latency.json]
+    python scripts/bench/serve_bench.py load [--requests 200] [--concurrency 4] [--model student] [--out ...]
 
 Both start `stablemo serve` (the packaged demo models, --threads 1) as a separate process on a free
 loopback port and stop it at the end; nothing is sent anywhere but 127.0.0.1.
@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 STABLEMO = [sys.executable, "-m", "stablemo.cli"]
 PROMPTS = [
     "a person jumps, then turns left", "a person walks forward, then waves their right hand",
@@ -171,7 +171,10 @@ def load(args) -> dict:
     seeds = [args.seed + i for i in range(args.requests)]
     with server() as (url, info):
         model = args.model or info["default"]
-        bundle = next(m["bundle"] for m in info["models"] if m["name"] == model)
+        # /api/info names bundles, not their paths: the server runs the packaged demo models
+        from stablemo.serve.command import DEMO_MODELS
+
+        bundle = DEMO_MODELS[model]
 
         def one(seed: int) -> dict:
             start = time.perf_counter()
@@ -185,7 +188,7 @@ def load(args) -> dict:
         wall = time.perf_counter() - start
     from stablemo.pipeline import Pipeline, Request
 
-    pipe = Pipeline.from_bundle(REPO / bundle if not Path(bundle).is_absolute() else bundle)
+    pipe = Pipeline.from_bundle(bundle)
     frames = round(args.seconds * pipe.fps)
     errors = [a for a in answers if a["status"] != 200]
     mismatched = []

@@ -4,7 +4,7 @@
 # training with configs/evaluator_synth.yaml (400 steps, a few minutes on a CPU), export of the
 # weights and statistics to a folder (config.json + model.safetensors, ~5 MB). Resumable.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 STABLEMO=${STABLEMO:-.venv/bin/stablemo}
 PYTHON=${PYTHON:-.venv/bin/python}
 [ -f data/synth/Mean.npy ] || "$STABLEMO" data synth --out data/synth --num 2000 --seed 0

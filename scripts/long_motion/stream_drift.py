@@ -1,6 +1,6 @@
 """Ten minutes of Pipeline.stream: does the floor drift, does anything go non-finite?
 
-    OMP_NUM_THREADS=1 python scripts/stream_drift.py --minutes 10 [--bundle DIR] [--steps N] [--settle 0.5]
+    OMP_NUM_THREADS=1 python scripts/long_motion/stream_drift.py --minutes 10 [--bundle DIR] [--steps N] [--settle 0.5]
 
 The text changes every 5 chunks (2-s chunks, 1 s of context) through walking, turning, jumping,
 running prompts. Per block of one text cycle (7 prompts x 5 chunks = 70 s, so every block holds the

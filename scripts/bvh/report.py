@@ -3,7 +3,7 @@ over joints and frames) at headings 0/90/180/270 for the real HumanML3D clip, sy
 circling, jumping, crawling and flipping motions and the demo model's own samples; foot twist
 rotations' independence of the heading; Blender's bone heads; the writer's time per frame.
 
-    OMP_NUM_THREADS=1 .venv/bin/python scripts/bvh_report.py [--no-demo] [--no-blender]
+    OMP_NUM_THREADS=1 .venv/bin/python scripts/bvh/report.py [--no-demo] [--no-blender]
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests"))
 SAMPLE = ROOT.parent / "shared" / "data" / "humanml3d-sample"
 
