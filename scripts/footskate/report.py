@@ -1,6 +1,6 @@
 """Measure foot-skate removal on a model's generations: plain vs post-process vs inside denoising.
 
-    python scripts/footskate_report.py [--bundle stablemo/assets/demo_bundle] [--num 32] [--frames 196]
+    python scripts/footskate/report.py [--bundle stablemo/assets/demo_bundle] [--num 32] [--frames 196]
         [--steps 10 --cfg 2.5 --seed 0] [--threads 1] [--json outputs/footskate_report.json]
 
 One batch of prompts is generated once; the same motions are then cleaned by the stand-alone

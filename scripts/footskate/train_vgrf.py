@@ -1,7 +1,7 @@
 """Fine-tune the V22 vGRF network on every motion type, sliding feet included (issue #22); with
 `--skeleton kit`, train the KIT-ML V21 the same way from the same motions mapped to KIT.
 
-    python scripts/train_v22_types.py --out footskate/weights/v22_synth.safetensors \
+    python scripts/footskate/train_vgrf.py --out footskate/weights/v22_synth.safetensors \
         [--init footskate/weights/v22_synth.safetensors] [--motions 1200] [--per-type 60] \
         [--steps 3000] [--batch 32] [--window 64] [--lr 1e-4] [--seed 0] [--heel-raise 0.5] [--threads 1] [--log train.log]
 
@@ -230,7 +230,7 @@ def main(argv=None) -> int:
         print(msg, flush=True)
         lines.append(msg)
 
-    log("$ python scripts/train_v22_types.py " + " ".join(argv if argv is not None else sys.argv[1:]))
+    log("$ python scripts/footskate/train_vgrf.py " + " ".join(argv if argv is not None else sys.argv[1:]))
     model = load_vgrf(args.init, quiet=True)  # a bad --init is named before the data is built
     started = time.time()
     joints, forces = build_training_set(args.motions, args.per_type, args.seed, log, args.skeleton, args.heel_raise,

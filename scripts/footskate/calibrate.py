@@ -1,6 +1,6 @@
 """Calibrate the gated vGRF contact decision (issue #22) on synthetic validation motions.
 
-    python scripts/footskate_calibrate.py [--weights V22] [--seeds 3000,4000] [--per-type 8] [--json out.json]
+    python scripts/footskate/calibrate.py [--weights V22] [--seeds 3000,4000] [--per-type 8] [--json out.json]
 
 The network's contacts are kept where the foot force reaches `gate_force` body weights and the
 joint is within `gate_margin` of its own lowest point and slower than `gate_speed`, and also where
@@ -130,7 +130,7 @@ def main(argv=None) -> int:
 
         meta = {**getattr(model, "metadata", {}), "gate_force": b["gate_force"],
                 "gate_force_calibration": {"seeds": args.seeds, "per_type": args.per_type, "min_margin": b["min_margin"],
-                                           "command": "python scripts/footskate_calibrate.py " + " ".join(argv or [])}}
+                                           "command": "python scripts/footskate/calibrate.py " + " ".join(argv or [])}}
         save_vgrf(model, args.store, meta)
         print(f"stored gate_force {b['gate_force']} in {args.store}")
     return 0

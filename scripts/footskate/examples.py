@@ -1,7 +1,7 @@
 """Feet of the issue's two prompts, plain and with `generate --footskate`, as one figure per prompt.
 
-    python scripts/footskate_examples.py [--bundle stablemo/assets/demo_bundle] [--seconds 5] [--seed 3]
-        [--out docs/footskate]
+    python scripts/footskate/examples.py [--bundle stablemo/assets/demo_bundle] [--seconds 5] [--seed 3]
+        [--out docs/data/footskate]
 
 For "a person runs forward" and "a person jumps forward twice" the demo model generates once
 without and once with the correction inside denoising (the same seed; `FootskateHook` at the last
@@ -76,7 +76,7 @@ def main(argv=None) -> int:
     p.add_argument("--bundle", default="stablemo/assets/demo_bundle")
     p.add_argument("--seconds", type=float, default=5.0)
     p.add_argument("--seed", type=int, default=3)
-    p.add_argument("--out", default="docs/footskate")
+    p.add_argument("--out", default="docs/data/footskate")
     p.add_argument("--threads", type=int, default=1)
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
