@@ -126,13 +126,14 @@ EXPECTED = {"huge_body": 413, "chunked_body": 413, "slow_body": 408, "bad_json":
 
 
 def hostile_clients(host: str, port: int, threads: int, stop: threading.Event, slow_seconds: float = 20.0):
-    """Start `threads` threads cycling through HOSTILE_KINDS until `stop`; returns (threads, results:
-    kind -> list of statuses). Thread i starts at kind i, so the kinds run side by side."""
+    """Start `threads` threads cycling through HOSTILE_KINDS until `stop` (each thread sends every
+    kind at least once); returns (threads, results: kind -> list of statuses). Thread i starts at
+    kind 4 i, so different kinds run side by side."""
     results: dict[str, list] = {k: [] for k in HOSTILE_KINDS}
 
     def loop(offset: int):
         for i in itertools.count(offset):
-            if stop.is_set():
+            if stop.is_set() and i - offset >= len(HOSTILE_KINDS):
                 return
             kind = HOSTILE_KINDS[i % len(HOSTILE_KINDS)]
             results[kind].append(hostile_request(kind, host, port, slow_seconds))

@@ -39,7 +39,7 @@ from fastapi.staticfiles import StaticFiles
 from stablemo.errors import StableMoError, one_line
 from stablemo.generate import slugify
 from stablemo.serve.guard import LOOPBACK_HOSTS, Guard, read_json
-from stablemo.serve.models import ModelSet, Motion, encode_array, motion_json
+from stablemo.serve.models import ModelSet, Motion, encode_array, json_short, motion_json
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 DOWNLOADS = {"joints.npy": "application/octet-stream", "features.npy": "application/octet-stream",
@@ -128,7 +128,7 @@ def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_
     app.add_middleware(Guard, hosts=hosts, **guard)
 
     def error(status: int, message: str) -> JSONResponse:
-        return JSONResponse({"error": one_line(message)}, status_code=status)
+        return JSONResponse({"error": short_line(message)}, status_code=status)
 
     async def parse(request: Request):
         return models.parse(await read_json(request))
@@ -176,7 +176,7 @@ def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_
                 try:  # one chunk per turn of the worker: other requests interleave with a long stream
                     chunk = await generate_worker.run(next, job.chunks, None)
                 except (StableMoError, Busy) as err:
-                    yield json.dumps({"error": one_line(str(err))}) + "\n"
+                    yield json.dumps({"error": short_line(str(err))}) + "\n"
                     return
                 if chunk is None:
                     break
@@ -192,7 +192,7 @@ def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_
         spec, options = await parse(request)
         fmt = options["format"]
         if fmt not in DOWNLOADS:
-            raise StableMoError(f"format: expected one of {', '.join(sorted(DOWNLOADS))}, got {fmt!r}")
+            raise StableMoError(f"format: expected one of {', '.join(sorted(DOWNLOADS))}, got {json_short(fmt)}")
         motion, _, _ = await run_job(spec)
         if fmt == "gif":
             data = await render_worker.run(gif_bytes, motion, budget_s=render_budget_s)
@@ -205,6 +205,16 @@ def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_
 
     app.mount("/static", StaticFiles(directory=static_dir), name="static")
     return app
+
+
+MAX_ERROR_CHARS = 500
+
+
+def short_line(message: str) -> str:
+    """An error as one line of at most MAX_ERROR_CHARS: a message quoting what a client sent (a
+    value, a field name) never echoes a megabyte back."""
+    line = one_line(message)
+    return line if len(line) <= MAX_ERROR_CHARS else line[:MAX_ERROR_CHARS - 3] + "..."
 
 
 def npy_bytes(arr: np.ndarray) -> bytes:

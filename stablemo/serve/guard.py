@@ -32,8 +32,8 @@ from stablemo.errors import StableMoError, one_line
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "[::1]")
 # The largest honest body is a joint-control request with a target at every (frame, joint) of the
 # longest motion: 196 frames x 22 joints of [frame, joint, x, y, z] at full float64 precision is
-# ~0.4 MB (tests/test_serve_hostile.py measures it); a 300 s timeline of 1 s lines of 1000
-# characters is ~0.3 MB. 1 MiB leaves a margin of 2.5x over both.
+# 0.31 MB (tests/test_serve_hostile.py measures it); a 300 s timeline of 1 s lines of 1000
+# characters is ~0.3 MB. 1 MiB leaves a margin of over 3x.
 MAX_BODY_BYTES = 1 << 20
 BODY_TIMEOUT_S = 10.0  # the whole body must arrive within this, counted from the first read
 MAX_JSON_DEPTH = 8  # the API's deepest value (control.targets[i][k]) is at depth 4
@@ -186,7 +186,8 @@ def _parse_constant(text: str):
 
 
 def _path(parts: list) -> str:
-    out = ""
+    """'control.targets[3][0]'; inside a body that is not an object: 'request[0].text'."""
+    out = "request" if parts and isinstance(parts[0], int) else ""
     for part in parts:
         out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
     return out or "request"

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import base64
 import math
+import re
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -116,10 +117,10 @@ class ModelSet:
             raise StableMoError("request: expected a JSON object")
         unknown = sorted(set(body) - known)
         if unknown:
-            raise StableMoError(f"{unknown[0]}: unknown field (known: {', '.join(sorted(known))})")
+            raise StableMoError(f"{field_name(unknown[0])}: unknown field (known: {', '.join(sorted(known))})")
         name = body.get("model") or self.default
-        if name not in self.models:
-            raise StableMoError(f"model: unknown {name!r}; served: {', '.join(self.models)}")
+        if not isinstance(name, str) or name not in self.models:  # (a list is not even hashable)
+            raise StableMoError(f"model: unknown {json_short(name)}; served: {', '.join(self.models)}")
         return name, self.models[name].pipeline
 
     def parse(self, body: Any) -> tuple[Spec, dict]:
@@ -137,25 +138,25 @@ class ModelSet:
         seed = check_seed("seed", body.get("seed", 0))
         sampler = body.get("sampler")
         if sampler is not None and sampler not in pipe.samplers:
-            raise StableMoError(f"sampler: unknown {sampler!r}; choose from {sorted(pipe.samplers)}")
+            raise StableMoError(f"sampler: unknown {json_short(sampler)}; choose from {sorted(pipe.samplers)}")
         steps = body.get("steps")
         if steps is not None:
             if isinstance(steps, bool) or not isinstance(steps, int):
-                raise StableMoError(f"steps: expected a whole number, got {steps!r}")
+                raise StableMoError(f"steps: expected a whole number, got {json_short(steps)}")
             check_positive_int("steps", steps)
         cfg = body.get("cfg")
         if cfg is not None:
             cfg = check_finite("cfg", _number("cfg", cfg), low=0.0, high=100.0)
         footskate = body.get("footskate", False)
         if not isinstance(footskate, bool):
-            raise StableMoError(f"footskate: expected true or false, got {footskate!r}")
+            raise StableMoError(f"footskate: expected true or false, got {json_short(footskate)}")
         control = _control(body.get("control"), frames, pipe.skeleton)
         encoding = body.get("encoding", "lists")
         if encoding not in ENCODINGS:
-            raise StableMoError(f"encoding: expected one of {', '.join(ENCODINGS)}, got {encoding!r}")
+            raise StableMoError(f"encoding: expected one of {', '.join(ENCODINGS)}, got {json_short(encoding)}")
         features = body.get("features", True)
         if not isinstance(features, bool):
-            raise StableMoError(f"features: expected true or false, got {features!r}")
+            raise StableMoError(f"features: expected true or false, got {json_short(features)}")
         spec = Spec(name, text.strip(), frames, seed, sampler, steps, cfg, footskate, control)
         # the pipeline's own checks (steps the sampler can run, targets against the motion, ...)
         # before the job is queued
@@ -206,12 +207,12 @@ class ModelSet:
         seed = check_seed("seed", body.get("seed", 0))
         steps = body.get("steps")
         if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int)):
-            raise StableMoError(f"steps: expected a whole number, got {steps!r}")
+            raise StableMoError(f"steps: expected a whole number, got {json_short(steps)}")
         cfg = None if body.get("cfg") is None else check_finite("cfg", _number("cfg", body["cfg"]), low=0.0, high=100.0)
         sampler = body.get("sampler")
         encoding = body.get("encoding", "lists")
         if encoding not in ENCODINGS:
-            raise StableMoError(f"encoding: expected one of {', '.join(ENCODINGS)}, got {encoding!r}")
+            raise StableMoError(f"encoding: expected one of {', '.join(ENCODINGS)}, got {json_short(encoding)}")
         # chunk i plays from i * chunk: it gets the prompt of the timeline at its middle
         count = max(1, math.ceil(total / chunk - 1e-9))
         ends = np.cumsum([sec for _, sec in segments])
@@ -330,6 +331,12 @@ def control_from_targets(targets: tuple, frames: int, skeleton: str):
     return JointControl(positions, mask)
 
 
+def field_name(name: str) -> str:
+    """A field's name as an error message starts with it: as is when it looks like one, else quoted
+    and cut short (a key may be any JSON string: spaces, newlines, a megabyte)."""
+    return name if re.fullmatch(r"[A-Za-z0-9_.-]{1,40}", name) else json_short(name)
+
+
 def json_short(value: Any) -> str:
     text = repr(value)
     return text if len(text) <= 40 else text[:37] + "..."
@@ -341,7 +348,7 @@ def _frames(body: dict, pipe) -> int:
     if body.get("frames") is not None:
         frames = body["frames"]
         if isinstance(frames, bool) or not isinstance(frames, int):
-            raise StableMoError(f"frames: expected a whole number, got {frames!r}")
+            raise StableMoError(f"frames: expected a whole number, got {json_short(frames)}")
         flag = f"frames: {frames}"
     elif body.get("seconds") is not None:
         seconds = check_finite("seconds", _number("seconds", body["seconds"]), low=0.0, strict=True)
@@ -356,7 +363,7 @@ def _frames(body: dict, pipe) -> int:
 
 def _number(name: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise StableMoError(f"{name}: expected a number, got {value!r}")
+        raise StableMoError(f"{name}: expected a number, got {json_short(value)}")
     if isinstance(value, float) and not math.isfinite(value):
         raise StableMoError(f"{name}: must be a finite number, got {value}")
     return float(value)
