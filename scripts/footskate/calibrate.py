@@ -1,4 +1,4 @@
-"""Calibrate the gated vGRF contact decision (issue #22) on synthetic validation motions.
+"""Calibrate the gated vGRF contact decision on synthetic validation motions.
 
     python scripts/footskate/calibrate.py [--weights V22] [--seeds 3000,4000] [--per-type 8] [--json out.json]
 
@@ -26,7 +26,7 @@ import torch
 
 FORCES = (0.10, 0.15, 0.20, 0.25, 0.30)
 # The height gate stays at 5 cm: on the synthetic validation motions 3 cm scores higher (smallest
-# per-type margin over the rule +0.0068 against +0.0051 at 5 cm, V22 of issue #22 session 9), but
+# per-type margin over the rule +0.0068 against +0.0051 at 5 cm for the shipped V22), but
 # those motions have a clean floor. On the demo model's generations, whose stance feet sit at
 # different heights, a 3 cm gate leaves stances unanchored: `generate --footskate "a person runs
 # forward" --seconds 5 --seed 3` keeps a skating ratio of 0.061 (0.010 with 5 cm), the jump-forward

@@ -1,4 +1,4 @@
-"""Feet of the issue's two prompts, plain and with `generate --footskate`, as one figure per prompt.
+"""Feet of two prompts (a run, a double jump), plain and with `generate --footskate`, as one figure per prompt.
 
     python scripts/footskate/examples.py [--bundle stablemo/assets/demo_bundle] [--seconds 5] [--seed 3]
         [--out docs/data/footskate]

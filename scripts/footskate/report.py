@@ -9,7 +9,7 @@ with the correction inside the last denoising steps (`stablemo generate --footsk
 ratio (GMD definition), PhysDiff ground sliding and the feet's mean acceleration (jitter) are
 read from the joints recovered from each row's *features*, i.e. what a user of the output files
 sees. For the post-process the script also
-reports the issue's targets: anchor drift inside contact ranges, movement of the non-foot joints,
+reports anchor drift inside contact ranges, movement of the non-foot joints,
 bone-length change and the cleanup's wall time for the whole batch.
 """
 
@@ -129,7 +129,7 @@ def main(argv=None) -> dict:
                              "hook_seconds": [c["seconds"] for c in hooks[0].calls]},
     }
     base = report["plain"]["skating_ratio"]
-    base_std = report["plain_on_standard_skeleton"]["skating_ratio"]  # the re-extracted baseline (issue #22)
+    base_std = report["plain_on_standard_skeleton"]["skating_ratio"]  # the re-extracted baseline
     for key in ("post_process", "inside_denoising"):
         report[key]["reduction"] = 1.0 - report[key]["skating_ratio"] / base if base > 0 else 0.0
         report[key]["reduction_vs_re_extracted"] = 1.0 - report[key]["skating_ratio"] / base_std if base_std > 0 else 0.0

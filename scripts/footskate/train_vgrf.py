@@ -1,4 +1,4 @@
-"""Fine-tune the V22 vGRF network on every motion type, sliding feet included (issue #22); with
+"""Fine-tune the V22 vGRF network on every motion type, sliding feet included; with
 `--skeleton kit`, train the KIT-ML V21 the same way from the same motions mapped to KIT.
 
     python scripts/footskate/train_vgrf.py --out footskate/weights/v22_synth.safetensors \
@@ -17,8 +17,8 @@ are 1000-1999, so neither is trained on. Every motion is also added
 - with `--heel-raise P`: with a share P of its flat-foot stances on the ball of the foot
   (heel_raise; heel contact off, labels recomputed), plus 5 mm joint noise;
 - with `--shuffle P`: with a share P of its double-support stances shuffling a foot (foot_shuffle:
-  lifted 1.5-4 cm for 4-8 frames, contacts off), plus 5 mm joint noise. Tried in issue #22
-  (session 9) and not shipped: validation margin +0.0041 against +0.0051 without it.
+  lifted 1.5-4 cm for 4-8 frames, contacts off), plus 5 mm joint noise. Tried and not
+  shipped: validation margin +0.0041 against +0.0051 without it.
 
 `--skeleton kit`: every sequence is mapped to the KIT-ML skeleton at 12.5 fps
 (stablemo.footskate_bench.to_kit: a joint map, the metatarsal 2/3 of the way from ankle to toe)
@@ -247,7 +247,7 @@ def main(argv=None) -> int:
     for key in after:
         log(f"{key:24s} rule {after[key]['rule']:.3f}  vgrf {before[key]['vgrf']:.3f} -> {after[key]['vgrf']:.3f}  "
             f"gated {before[key]['gated']:.3f} -> {after[key]['gated']:.3f}")
-    save_vgrf(model, args.out, {"trained_on": "synthetic generator mix + footskate_bench types (issue #22)"
+    save_vgrf(model, args.out, {"trained_on": "synthetic generator mix + footskate_bench types"
                                               + (", mapped to KIT-ML at 12.5 fps" if args.skeleton == "kit" else ""),
                                 "init": args.init or "shipped v22_synth", "steps": args.steps, "batch": args.batch,
                                 "window": args.window, "lr": args.lr, "seed": args.seed,

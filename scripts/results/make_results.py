@@ -58,7 +58,7 @@ COLUMNS = [("r1", "R@1 ↑"), ("r3", "R@3 ↑"), ("fid", "FID ↓"), ("mm_dist",
 TEACHER_ROW = "Teacher, SDE-DPM-Solver++ 2M, 10 steps"
 DEFAULT_STUDENTS = ["LCM=bundles/demo_lcm", "PCM=bundles/demo_pcm"]
 SYNTH = {"num": 2000, "seed": 0}  # the benchmark's data: `stablemo data synth --num 2000 --seed 0`
-# the precision table's targets (issue 27): low-precision FID <= 1.02x fp32, R@3 within 0.01
+# the precision table's targets: low-precision FID <= 1.02x fp32, R@3 within 0.01
 FID_RATIO_TARGET, R3_TARGET = 1.02, 0.01
 FULL = {"replications": 20, "max_items": 128, "aits_sentences": 20, "ddpm_replications": 1, "paper_aits_repeats": 3}
 QUICK = {"replications": 2, "max_items": 64, "aits_sentences": 4, "ddpm_replications": 0, "paper_aits_repeats": 0}
@@ -508,7 +508,7 @@ def control_markdown(path: Path) -> str:
 def render_control(out_dir: Path) -> str:
     """The joint-control tables, from the JSON that scripts/control/report.py wrote into docs/data/results/ (their
     runs take hours here, so they are kept as measured, not re-run by this script), then the
-    dense-pelvis summary the ControlNet issue asks for."""
+    dense-pelvis summary (guidance, ControlNet, both)."""
     parts, reports = [], {}
     for name, heading, how in CONTROL_TABLES:
         path = out_dir / name
@@ -739,7 +739,7 @@ def main(argv: list[str]) -> int:
     for what, digest in ctx.checksums["data"].items():
         print(f"sha256 data {what}: {digest}")
     print(f"sha256 evaluator: {ctx.checksums['evaluator']['*']}")
-    run_precision(ctx, raw, pairs, save)  # first: the rows issue 27 asks for, and their speed note
+    run_precision(ctx, raw, pairs, save)  # first: the precision rows and their speed note
     run_paper_aits(args, raw, save, ctx.out_of_time())
     run_samplers(ctx, raw, runs, save)
     run_ddpm(ctx, raw, save)

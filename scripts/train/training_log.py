@@ -3,14 +3,15 @@
     python scripts/train/training_log.py merge runs/demo/logs docs/data/training/demo_training_log.csv
     python scripts/train/training_log.py plot --out runs.png "fp32=runs/fp32" "bf16-mixed=runs/bf16"
     python scripts/train/training_log.py plot --metric joint_err_m --out docs/data/control/controlnet_training.png \
-        "4500 steps=docs/data/control/controlnet_training_log_4500_steps.csv" \
-        "6000 steps (shipped)=docs/data/control/controlnet_training_log.csv"
+        "λ 1, no output injection, 1800 steps=docs/data/control/controlnet_training_log_lambda1.csv" \
+        "λ 10, lr/10 at 2000, 4500 steps=docs/data/control/controlnet_training_log_decay2000.csv" \
+        "λ 10, lr/10 at 3500 and 7000, 7500 steps (shipped)=docs/data/control/controlnet_training_log.csv"
 
 merge: Lightning's CSV logger writes one RUN/logs/version_N/metrics.csv per start of a run; a
 resumed run logs again the steps after its checkpoint. The merged CSV has one row per logged step
 (a later version wins a step) and is written atomically.
 
-plot: each LABEL=RUN reads RUN/logs/version_*/metrics.csv (merged as above) or a merged CSV:
+plot: each LABEL=RUN (the label without "=") reads RUN/logs/version_*/metrics.csv (merged as above) or a merged CSV:
 train/<metric> every `log_every_n_steps`, val/<metric> at each validation. Left panel: the train
 value (one batch per point, so noisy) and its moving average; right: the validation value (EMA
 weights, fixed timesteps and seeded noise: comparable between runs). Also prints the numbers
