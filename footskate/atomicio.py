@@ -33,6 +33,7 @@ import signal
 import sys
 import tempfile
 import threading
+import time
 from pathlib import Path
 from typing import BinaryIO, Callable, Iterator, Optional
 
@@ -153,6 +154,8 @@ _RANDOM = r"[a-z0-9_]{8}"  # tempfile.mkdtemp's random part
 _DIR = -1  # a folder, in a tree listing (files are listed by their size)
 _OTHER = -2  # a symlink, socket, fifo, device: never written by us
 MANIFEST_FORMAT = "stablemo-folder-files"
+# Where flock is unsupported, a leftover folder is taken as abandoned only after this long.
+UNLOCKABLE_AGE_S = 24 * 3600.0
 
 
 def _rename(src: Path, dst: Path) -> None:
@@ -299,20 +302,20 @@ def _folder_lock(folder: Path) -> Iterator[None]:
         os.close(fd)  # releases the lock
 
 
-def _try_lock(path: Path) -> Optional[int]:
-    """An fd holding an exclusive flock on folder `path`, or None if another process holds it.
-    Where locks are unsupported the fd comes back unlocked (the parent lock still orders us)."""
+def _try_lock(path: Path) -> tuple[Optional[int], bool]:
+    """(fd, locked): an fd on folder `path` holding an exclusive flock (locked=True), or where
+    locks are unsupported an unlocked fd (locked=False); (None, True) if another process holds it."""
     fd = os.open(path, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_NOFOLLOW", 0))
     if fcntl is None:
-        return fd
+        return fd, False
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         os.close(fd)
-        return None
+        return None, True
     except OSError:
-        pass
-    return fd
+        return fd, False
+    return fd, True
 
 
 def _leftover_pattern(target: Path) -> re.Pattern:
@@ -332,11 +335,14 @@ def _remove_leftover(path: Path) -> bool:
     if not path.is_dir() or path.is_symlink() or (hasattr(os, "getuid") and st.st_uid != os.getuid()):
         return False
     try:
-        fd = _try_lock(path)
+        fd, locked = _try_lock(path)
     except OSError:
         return False
     if fd is None:
         return False  # a live build
+    if not locked and time.time() - st.st_mtime < UNLOCKABLE_AGE_S:
+        os.close(fd)  # no locks here: only an old leftover can be told from a live build
+        return False
     try:
         shutil.rmtree(path, ignore_errors=True)
     finally:
@@ -466,7 +472,10 @@ def atomic_dir(path: str | os.PathLike, *, replaceable: Optional[Callable[[Path]
     with _folder_lock(path.parent):
         _recover(path)
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
-        lock = _try_lock(tmp)  # held until the block ends: a sweep leaves a live build alone
+        try:
+            lock = _try_lock(tmp)[0]  # held until the block ends: a sweep leaves a live build alone
+        except OSError:  # a system that cannot open folders: no lock (the sweep cannot lock it either)
+            lock = None
     try:
         yield tmp
         if manifest:

@@ -93,7 +93,7 @@ def test_synth_refuses_a_folder_with_a_planted_marker(capsys, tmp_path):
     d.mkdir()
     (d / "synth.json").write_text("{}")
     (d / "thesis.tex").write_text("\\documentclass{article}")
-    for planted in ({}, {"format": atomicio.MANIFEST_FORMAT, "version": 1, "entries": {"synth.json": 2}}):
+    for planted in ({}, {"format": "stablemo-folder-files", "version": 1, "entries": {"synth.json": 2}}):
         (d / MANIFEST).write_text(json.dumps(planted))  # an unreadable list, then one missing thesis.tex
         before = snapshot(d)
         rc, _, err = run_cli(capsys, "data", "synth", "--out", d, "--num", "3")
