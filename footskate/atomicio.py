@@ -268,7 +268,8 @@ def ownership_problem(folder: str | os.PathLike, *, manifest: Optional[str] = No
     if manifest is not None:
         listed = _read_manifest(folder / manifest)
         if listed is None:
-            return f"has no list of the files StableMo wrote there ({manifest}: not made by this command, or by an older version)"
+            return (f"has no list of the files StableMo wrote there ({manifest}: not made by this command, "
+                    "or by an older version)")
         tree.pop(manifest, None)
         _drop_derived(tree, derived)
         foreign = [rel for rel, kind in tree.items() if kind == _OTHER or listed.get(rel) != kind]

@@ -429,7 +429,8 @@ def test_generate_gives_every_prompt_its_own_files(capsys, bundle, tmp_path):
                               "--out", out, "--no-render")
     assert rc == 0, err
     stems = ["a-person-walks", "a-person-walks-3", "a-person-walks-2"]
-    assert sorted(p.name for p in out.iterdir()) == sorted(f"{s}.{k}.npy" for s in stems for k in ("features", "joints"))
+    files = sorted(f"{s}.{k}.npy" for s in stems for k in ("features", "joints"))
+    assert sorted(p.name for p in out.iterdir()) == files  # 3 prompts, 3 motions
     motions = [np.load(out / f"{s}.features.npy") for s in stems]  # prompt i uses seed + i: all differ
     assert not np.array_equal(motions[0], motions[1]) and not np.array_equal(motions[1], motions[2])
     lines = stdout.strip().splitlines()  # the mapping prompt -> files, in prompt order

@@ -3,6 +3,10 @@
 The bundle (stablemo.bundle) holds the EMA weights by default, the network/schedule/prediction
 configuration from the checkpoint's hyperparameters and the dataset facts (Mean/Std, skeleton,
 fps, lengths) the DiffusionModule stored at save time — no dataset is needed to export.
+
+`--overwrite` replaces a bundle (config.json and model.safetensors, nothing else) in one atomic
+exchange (footskate.atomicio.replace_dir): --out names the old bundle or the new one at every
+instant, and leftovers of a killed export beside it are removed by the next one.
 """
 
 from __future__ import annotations
