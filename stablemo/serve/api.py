@@ -45,8 +45,9 @@ STATIC_DIR = Path(__file__).resolve().parent / "static"
 DOWNLOADS = {"joints.npy": "application/octet-stream", "features.npy": "application/octet-stream",
              "gif": "image/gif", "bvh": "application/octet-stream"}
 log = logging.getLogger("stablemo.serve")
-# An honest GIF of the longest demo motion (196 frames) took ~10 s on the loaded 2-core machine
-# (docs/serve.md); a download waits at most this long, its wait in the render queue included.
+# An honest GIF of the longest demo motion (196 frames) took 3-6 s on the 2-core machine at load 3
+# (docs/serve.md): 60 s is a 10x margin. A download waits at most this long, its wait in the render
+# queue included.
 RENDER_BUDGET_S = 60.0
 
 
