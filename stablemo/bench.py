@@ -73,6 +73,10 @@ PROMPTS = [
 ]
 
 
+# The longest motion timed for a network given by --config (no bundle states its range); a
+# bundle's own [min_length, max_length] applies to --bundle.
+CONFIG_MAX_FRAMES = 10_000
+
 STUDENT_ROW = "1-step LCM student (fp32)"
 CONTROLNET_ROW = "1-step + ControlNet (fp32)"  # dense pelvis targets
 CONTROLNET_GUIDED_ROW = "1-step + ControlNet + guidance (fp32)"  # and one guidance refinement
@@ -147,7 +151,7 @@ def _build_pipeline(args, fast: bool):
     dim = int(kwargs["denoiser"]["input_dim"])
     pipe = Pipeline(model, NoiseSchedule(), mean=[0.0] * dim, std=[1.0] * dim, prediction_type="sample",
                     skeleton="humanml3d" if dim == 263 else "kit", device=args.device, fast=fast, config={"model": kwargs},
-                    inference=InferenceConfig(max_length=10_000))
+                    inference=InferenceConfig(max_length=CONFIG_MAX_FRAMES))
     return pipe, f"{source}, random weights"
 
 
@@ -282,6 +286,7 @@ def _bundle_rows(pipe, args, fast: bool) -> tuple[list[Row], float, str | None]:
 
 def _run_aits(args) -> dict:
     pipe, source = _build_pipeline(args, fast=not args.stock)
+    check_frames(args.frames, pipe)
     low = "fp16" if pipe.device.type == "cuda" else "bf16"
     B = 1
     if pipe.config.get("kind", "diffusion") != "diffusion":
@@ -333,6 +338,15 @@ def _run_aits(args) -> dict:
               file=sys.stderr)
     peaks.append(matmul_gflops())
     return _result(args, pipe, source, low, flops_cfg, rows, peaks, varied, STUDENT_ROW, cfg=args.cfg)
+
+
+def check_frames(frames: int, pipe) -> None:
+    """--frames within the model's range, checked once the model is loaded and before anything
+    runs: the FLOP count and the warm-ups would otherwise start on it (a million frames ran out
+    of memory, or for minutes, instead of the generation's own refusal)."""
+    if not pipe.min_length <= frames <= pipe.max_length:
+        raise StableMoError(f"--frames: {frames} frames is outside this model's range "
+                            f"[{pipe.min_length}, {pipe.max_length}]")
 
 
 def _result(args, pipe, source: str, low: str, flops: float, rows: list[Row], peaks: list, varied,
@@ -456,8 +470,8 @@ def _aits_parser() -> argparse.ArgumentParser:
 
 def main_aits(argv: list[str]) -> int:
     args = _aits_parser().parse_args(argv)
-    if args.frames < 1:
-        raise StableMoError(f"--frames: must be >= 1, got {args.frames}")
+    if not 1 <= args.frames <= CONFIG_MAX_FRAMES:  # the widest range any model here gets (check_frames)
+        raise StableMoError(f"--frames: must be in [1, {CONFIG_MAX_FRAMES}], got {args.frames}")
     if args.repeats < 1:
         raise StableMoError(f"--repeats: must be >= 1, got {args.repeats}")
     if args.ddpm_steps is not None and not 1 <= args.ddpm_steps <= 1000:

@@ -10,6 +10,7 @@ import errno
 import importlib
 import os
 import sys
+import warnings
 
 from stablemo.errors import StableMoError, one_line
 
@@ -51,6 +52,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"stablemo: unknown command {name!r}\n\n{_usage()}", file=sys.stderr)
         return 2
     module_name, func_name, _ = COMMANDS[name]
+    # torch warns about the protocol of a raw pickle before refusing it: the refusal is the one line
+    warnings.filterwarnings("ignore", message="Detected pickle protocol", category=UserWarning)
     try:
         func = getattr(importlib.import_module(module_name), func_name)
         return int(func(rest) or 0)

@@ -61,6 +61,8 @@ def main(argv: list[str] | None = None) -> int:
     skel = skeleton_for_shape(joints.shape) if joints.ndim == 3 else None
     if skel is None or joints.shape[-1] != 3:
         raise StableMoError(f"{path}: expected joints (T, 22, 3) or (T, 21, 3), got shape {joints.shape}")
+    if len(joints) < 1:  # checked here, where the file is read: every use below indexes frame 0
+        raise StableMoError(f"{path}: no frames (shape {joints.shape})")
     if not np.isfinite(joints).all():
         raise StableMoError(f"{path}: joints hold NaN or Inf")
     out = check_output_file(args.out, "--out")

@@ -134,11 +134,17 @@ class ControlNetTraining(LightningModule):
                                         "train the ControlNet on the base's dataset")
 
     def on_train_start(self) -> None:
-        # a constant lr holds as configured, also when a run resumes with a changed one; a decaying
-        # one resumes where its scheduler's state says
+        # a resumed run trains at the lr it was given, also when it changed: a constant one holds as
+        # configured, a decaying one continues its curve (the scheduler's state) at the new level
+        from stablemo.lit.module import follow_configured_lrs
+
+        optimizer = self.trainer.optimizers[0]
         if self.hparams.lr_step is None:
-            for group in self.trainer.optimizers[0].param_groups:
+            for group in optimizer.param_groups:
                 group["lr"] = self.hparams.lr
+        else:
+            follow_configured_lrs(optimizer, self.trainer.lr_scheduler_configs[0].scheduler,
+                                  [float(self.hparams.lr)] * len(optimizer.param_groups))
 
     def configure_optimizers(self):
         hp = self.hparams

@@ -128,6 +128,18 @@ class ConsistencyDistillation(LightningModule):
     def teacher_config_dim(self) -> int:
         return int(self.teacher_config["model"]["denoiser"]["input_dim"])
 
+    def on_train_start(self) -> None:
+        """A resumed run trains at the learning rates it was given, not the checkpoint's (Lightning
+        restores the optimisers' states after configure_optimizers); unchanged ones are untouched."""
+        from stablemo.lit.module import follow_configured_lrs
+
+        hp = self.hparams
+        optimizers = self.trainer.optimizers
+        follow_configured_lrs(optimizers[0], self.trainer.lr_scheduler_configs[0].scheduler,
+                              [float(hp.lr), float(hp.lr * hp.w_lr_scale)])
+        if len(optimizers) > 1:  # the discriminator's, without a scheduler
+            follow_configured_lrs(optimizers[1], None, [float(hp.disc_lr)] * len(optimizers[1].param_groups))
+
     def configure_optimizers(self):
         hp = self.hparams
         # the guidance embedding starts at zero and is the only new layer: it may learn faster

@@ -16,15 +16,18 @@ a command line whose configs and flags name none (see `names_model_class`).
 from __future__ import annotations
 
 import inspect
+import re
+import signal
 import sys
 import warnings
 from pathlib import Path
 
 from jsonargparse import Namespace
+from lightning.fabric.utilities.exceptions import MisconfigurationException
 from lightning.pytorch.cli import LightningCLI
 from lightning.pytorch.plugins.io import CheckpointIO
 
-from stablemo.errors import StableMoError, one_line
+from stablemo.errors import StableMoError, one_line, yaml_error_line
 from stablemo.lit.callbacks import FinalStepCheckpoint, NonFiniteGuard
 from stablemo.lit.checkpoint_io import AtomicCheckpointIO, load_checkpoint_file
 from stablemo.lit.module import DiffusionModule
@@ -103,6 +106,18 @@ class StableMoCLI(LightningCLI):
         if config["trainer"].get("logger") is None:
             config["trainer"]["logger"] = Namespace(class_path="lightning.pytorch.loggers.CSVLogger",
                                                     init_args=Namespace(save_dir=str(root), name="logs"))
+
+    def _run_subcommand(self, subcommand: str) -> None:
+        """Lightning answers a Ctrl-C during fit/validate/test with its own shutdown and `sys.exit(1)`,
+        leaving SIGINT ignored: it is a KeyboardInterrupt again here, so that `stablemo` reports it
+        as every command does (one line, exit 130), and a second Ctrl-C works again."""
+        try:
+            super()._run_subcommand(subcommand)
+        except SystemExit:
+            if not self.trainer.interrupted:
+                raise
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+            raise KeyboardInterrupt from None
 
     def instantiate_trainer(self, **kwargs):
         plugins = self._get(self.config_init, "trainer", default={}).get("plugins") or []
@@ -188,6 +203,9 @@ def run_cli(model_class, argv: list[str], **kwargs) -> StableMoCLI:
         raise
     except ArgumentError as err:
         raise StableMoError(argument_error_line(str(err), argv)) from None
+    except MisconfigurationException as err:
+        # the Trainer's own checks of its settings (max_steps >= -1, ...) and of the run's set-up
+        raise StableMoError(misconfiguration_line(str(err))) from None
     except (ValueError, TypeError) as err:
         # jsonargparse instantiates the class_path'd module inside its own checks and wraps what the
         # module's __init__ raised ("Does not validate against any of the Union subtypes"): a
@@ -222,6 +240,18 @@ def _run(subcommand: str, argv: list[str]) -> int:
     return 0
 
 
+def misconfiguration_line(message: str) -> str:
+    """Lightning's MisconfigurationException as one line naming the flag: "`max_steps` must be a
+    non-negative integer ..." -> "--trainer.max_steps: must be a non-negative integer ...". """
+    from lightning.pytorch import Trainer
+
+    message = one_line(message)
+    match = re.match(r"`(\w+)`\s*(.*)", message)
+    if match and match.group(1) in inspect.signature(Trainer.__init__).parameters:
+        return f"--trainer.{match.group(1)}: {match.group(2)}"
+    return message
+
+
 def argument_error_line(message: str, argv: list[str]) -> str:
     """jsonargparse's error as one line: the dotted key at fault and the innermost reason, e.g.
     "model.lr: Expected a <class 'float'>. Got value: abc"; a file that is not a config at all is
@@ -229,6 +259,10 @@ def argument_error_line(message: str, argv: list[str]) -> str:
     lines = [line.strip() for line in message.splitlines() if line.strip()]
     if not lines:
         return "invalid arguments"
+    if lines[0].startswith("Problems parsing config"):
+        broken = broken_yaml_file(argv)
+        if broken is not None:
+            return broken
     if lines[0].startswith("Unexpected config"):
         configs = [argv[i + 1] for i, a in enumerate(argv[:-1]) if a in ("--config", "-c")]
         return f"--config: {', '.join(configs) or 'a config'}: not a StableMo/LightningCLI config (a YAML mapping of settings)"
@@ -247,6 +281,39 @@ def argument_error_line(message: str, argv: list[str]) -> str:
     if keys[:1] == ["config"]:
         keys[0] = "--config"
     return f"{'.'.join(keys)}: {reason}" if keys else reason
+
+
+def broken_yaml_file(argv: list[str]) -> str | None:
+    """`--config: FILE: line N, column M: not valid YAML (...)` for the first file given on the
+    command line that YAML cannot parse (jsonargparse parses it from a string, so its error says
+    `in "<unicode string>"` and names no file); None when every file parses."""
+    import yaml
+
+    for flag, value in _flag_values(argv):
+        path = Path(value)
+        if not path.is_file():
+            continue  # an inline YAML value, or not a file: jsonargparse's own message stands
+        try:
+            yaml.safe_load(path.read_text())
+        except yaml.YAMLError as err:
+            return f"{flag}: {yaml_error_line(path, err)}"
+        except (OSError, UnicodeDecodeError) as err:
+            return f"{flag}: {path}: cannot be read as YAML ({err})"
+    return None
+
+
+def _flag_values(argv: list[str]) -> list[tuple[str, str]]:
+    """(flag, value) for every `--flag value` and `--flag=value` on a command line."""
+    pairs = []
+    for i, arg in enumerate(argv):
+        if not arg.startswith("-"):
+            continue
+        key, eq, value = arg.partition("=")
+        if eq:
+            pairs.append((key, value))
+        elif i + 1 < len(argv) and not argv[i + 1].startswith("--"):
+            pairs.append((key, argv[i + 1]))
+    return pairs
 
 
 def main_fit(argv: list[str]) -> int:

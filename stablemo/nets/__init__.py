@@ -39,7 +39,13 @@ def build_denoiser(name: str, **config) -> nn.Module:
         raise StableMoError(f"denoiser {name!r}: unknown option(s) {unknown}; accepted: {sorted(accepted)}")
     if "input_dim" not in config:
         raise StableMoError(f"denoiser {name!r}: input_dim is required (feature width, e.g. 263)")
-    return cls(**config)
+    try:
+        return cls(**config)
+    except (TypeError, ValueError, RuntimeError) as err:
+        # a value of the wrong type or sign ("base_channels: abc", "channel_mults: 5", -4 channels)
+        # fails deep inside torch: the option set is what the user can fix
+        raise StableMoError(f"denoiser {name!r}: these options do not build a network "
+                            f"({type(err).__name__}: {err}); options: {config}") from None
 
 
 __all__ = ["DENOISERS", "build_denoiser", "denoiser_class"]

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import yaml
 
-from stablemo.errors import StableMoError
+from stablemo.errors import StableMoError, yaml_error_line
 
 
 def read_yaml(path: str | Path, flag: str | None = None):
@@ -19,7 +19,7 @@ def read_yaml(path: str | Path, flag: str | None = None):
     try:
         return yaml.safe_load(path.read_text())
     except yaml.YAMLError as err:
-        raise StableMoError(f"{path}: not valid YAML ({err})") from None
+        raise StableMoError(yaml_error_line(path, err)) from None
 
 
 def find_model(node) -> dict | None:

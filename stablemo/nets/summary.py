@@ -13,8 +13,8 @@ import argparse
 
 import torch
 
-from stablemo.errors import StableMoError
-from stablemo.inference_config import MAX_FRAMES
+from stablemo.errors import StableMoError, one_line
+from stablemo.inference_config import MAX_FRAMES, check_seed
 from stablemo.nets import build_denoiser
 from stablemo.nets.config import load_denoiser_config
 
@@ -68,6 +68,29 @@ def _human(n: float) -> str:
     return f"{n:.2f}P"
 
 
+# Bounds of the command line's sizes: the FLOP count runs a real forward pass, so a size is memory
+# (1e8 frames asked for 105 GB); a network's widths stay far below these.
+MAX_LENGTH = 10_000  # frames, as `stablemo bench aits` allows a network without a bundle
+MAX_TEXT_LENGTH = 1024  # tokens (CLIP takes 77)
+MAX_WIDTH = 65_536  # feature / text latent width
+
+
+def check_options(args) -> None:
+    """Every numeric option in range, before anything is read or built."""
+    _check_int_range("--length", args.length, 1, MAX_LENGTH)
+    _check_int_range("--text-length", args.text_length, 1, MAX_TEXT_LENGTH)
+    for flag, value in (("--input-dim", args.input_dim), ("--text-dim", args.text_dim)):
+        if value is not None:
+            _check_int_range(flag, value, 1, MAX_WIDTH)
+    _check_int_range("--depth", args.depth, 1, 64)
+    check_seed("--seed", args.seed)
+
+
+def _check_int_range(flag: str, value: int, low: int, high: int) -> None:
+    if not low <= value <= high:
+        raise StableMoError(f"{flag}: must be in [{low}, {high}], got {value}")
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="stablemo nets", description="denoiser tools")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -80,6 +103,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--depth", type=int, default=1, help="module nesting depth to list")
     p.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
+    check_options(args)
 
     config = load_denoiser_config(args.config)
     name = config.pop("name")
@@ -90,8 +114,15 @@ def main(argv: list[str]) -> int:
     config.setdefault("input_dim", 263)
     config.setdefault("text_dim", 256)
     torch.manual_seed(args.seed)
-    model = build_denoiser(name, **config)
-    rows, total_flops, total_len = summarize(model, args.length, args.text_length, depth=args.depth, seed=args.seed)
+    try:
+        model = build_denoiser(name, **config)
+        rows, total_flops, total_len = summarize(model, args.length, args.text_length, depth=args.depth, seed=args.seed)
+    except StableMoError as err:
+        raise StableMoError(f"{args.config}: {err}") from None
+    except (RuntimeError, ValueError, TypeError) as err:
+        # the options built a network that cannot run a forward pass (e.g. input_dim: 0 in the file)
+        raise StableMoError(f"{args.config}: denoiser {name!r} with {config} fails on a {args.length}-frame input "
+                            f"({type(err).__name__}: {one_line(str(err))})") from None
 
     width = max([len("module")] + [len(r[0]) for r in rows])
     print(f"denoiser {name}: {', '.join(f'{k}={v}' for k, v in config.items())}")
