@@ -244,7 +244,7 @@ def test_heel_raise_stands_on_the_ball_of_the_foot():
 
     from stablemo.footskate_bench import build_motion
 
-    spec = importlib.util.spec_from_file_location("train_v22_types", Path(__file__).parents[1] / "scripts/footskate/train_vgrf.py")
+    spec = importlib.util.spec_from_file_location("train_vgrf", Path(__file__).parents[1] / "scripts/footskate/train_vgrf.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     joints, contacts = build_motion("walk", 10000)
@@ -286,7 +286,7 @@ def test_foot_shuffle_lifts_a_standing_foot_and_takes_its_contact():
 
     from stablemo.data.synth import generate_motion
 
-    spec = importlib.util.spec_from_file_location("train_v22_types", Path(__file__).parents[1] / "scripts/footskate/train_vgrf.py")
+    spec = importlib.util.spec_from_file_location("train_vgrf", Path(__file__).parents[1] / "scripts/footskate/train_vgrf.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     rng = np.random.default_rng(0)

@@ -139,4 +139,4 @@ def main(argv=None) -> int:
 if __name__ == "__main__":
     from stablemo.errors import run_script
 
-    sys.exit(run_script(main, Path(__file__).name, sys.argv[1:]))
+    sys.exit(run_script(main, "/".join(Path(__file__).parts[-2:]), sys.argv[1:]))

@@ -148,4 +148,4 @@ def _leg_chain(topo) -> set[int]:
 
 
 if __name__ == "__main__":
-    sys.exit(run_script(main, Path(__file__).name, sys.argv[1:]))
+    sys.exit(run_script(main, "/".join(Path(__file__).parts[-2:]), sys.argv[1:]))

@@ -276,4 +276,4 @@ if __name__ == "__main__":
         except FootskateError as err:  # bad --init weights: one line, exit 2
             raise StableMoError(str(err)) from None
 
-    sys.exit(run_script(_main, Path(__file__).name, sys.argv[1:]))
+    sys.exit(run_script(_main, "/".join(Path(__file__).parts[-2:]), sys.argv[1:]))

@@ -1,4 +1,4 @@
-"""The renders of docs/data/long_motion.md: the example timeline as one motion.
+"""The renders of docs/long_motion.md: the example timeline as one motion.
 
     OMP_NUM_THREADS=1 python scripts/long_motion/examples.py --out docs/data/long_motion [--gif]
 
@@ -82,4 +82,4 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    sys.exit(run_script(main, Path(__file__).name, sys.argv[1:]))
+    sys.exit(run_script(main, "/".join(Path(__file__).parts[-2:]), sys.argv[1:]))

@@ -755,4 +755,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(run_script(main, Path(__file__).name, sys.argv[1:]))
+    sys.exit(run_script(main, "/".join(Path(__file__).parts[-2:]), sys.argv[1:]))
