@@ -4,7 +4,7 @@ exact, and how much slower are they?
     python scripts/bench/serve_load_hostile.py [--requests 60] [--concurrency 2] [--hostile 3] [--out FILE]
 
 Starts `stablemo serve --threads 1` (the packaged demo models) on a free loopback port, as
-scripts/bench/serve_bench.py's load test does, then runs the same honest load twice in one run: quiet,
+scripts/bench/serve_bench.py's load test does (this script does not import it), then runs the same honest load twice in one run: quiet,
 then with `--hostile` threads sending, over and over, the hostile mix below. Every honest answer
 is compared, bit for bit, with offline `Pipeline.generate` for its seed; the script prints p50/p95
 latency of both phases and their ratio (the target: hostile p95 within 2x of quiet p95), and the
@@ -28,11 +28,13 @@ from __future__ import annotations
 
 import argparse
 import base64
+import contextlib
 import http.client
 import itertools
 import json
 import os
 import socket
+import subprocess
 import sys
 import threading
 import time
@@ -224,6 +226,34 @@ def run(host: str, port: int, pipe, model: str, requests: int, concurrency: int,
     return out
 
 
+@contextlib.contextmanager
+def server():
+    """`stablemo serve --threads 1` (the packaged demo models) on a free loopback port, in its own
+    process; yields its base URL, stops it at the end."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen([sys.executable, "-m", "stablemo.cli", "serve", "--port", str(port), "--threads", "1"],
+                            cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 300
+        while True:
+            try:
+                conn = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
+                conn.request("GET", "/api/info")
+                conn.getresponse().read()
+                conn.close()
+                break
+            except OSError:
+                if proc.poll() is not None or time.monotonic() > deadline:
+                    raise SystemExit(f"stablemo serve did not start (exit code {proc.poll()})") from None
+                time.sleep(0.5)
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        proc.terminate()
+        proc.wait(30)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--requests", type=int, default=60, help="honest requests per phase")
@@ -233,17 +263,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=6.0)
     ap.add_argument("--out", default=None, help="also write the results as JSON here")
     args = ap.parse_args(argv)
-    sys.path.insert(0, str(Path(__file__).resolve().parent))  # serve_bench beside it
     import torch
 
-    from serve_bench import server
     from stablemo.pipeline import Pipeline
     from stablemo.serve.command import DEMO_MODELS
 
     torch.set_num_threads(1)  # as the server's worker (--threads 1)
     pipe = Pipeline.from_bundle(DEMO_MODELS[args.model])
     frames = round(args.seconds * pipe.fps)
-    with server() as (url, _info):
+    with server() as url:
         host, port = url.removeprefix("http://").rsplit(":", 1)
         result = run(host, int(port), pipe, args.model, args.requests, args.concurrency, args.hostile, frames)
     text = json.dumps(result, indent=1)
