@@ -98,18 +98,20 @@ def check_targets(positions: np.ndarray, mask: np.ndarray, skeleton: Skeleton | 
 
 
 def check_joints_extent(joints: np.ndarray, skeleton: Skeleton | str, fps: float, what: str) -> None:
-    """Joints (T, J, 3) in the skeleton's unit: the body spans a person's size in each frame, and
-    its horizontal extent over the motion is no more than a body covers at MAX_SPEED_M_S."""
+    """Joints (T, J, 3) in the skeleton's unit: no frame's body is larger than a person (a unit
+    1000x too large), and the horizontal extent over the motion is no more than a body covers at
+    MAX_SPEED_M_S. A body too small to be a person is not refused here: it costs nothing to draw,
+    and an untrained or diverging model makes such bodies, which a user should see."""
     skel = get_skeleton(skeleton)
     arr = np.asarray(joints, np.float64) / scale(skel)                       # (T, J, 3) metres
     span = float(np.linalg.norm(arr.max(1) - arr.min(1), axis=-1).max())     # largest body extent of a frame
     xz = arr[..., [0, 2]].reshape(-1, 2)
     extent = float(np.linalg.norm(xz.max(0) - xz.min(0)))
     limit = MAX_SPEED_M_S * max(len(arr) - 1, 0) / fps + 2 * REACH_M
-    if BODY_SPAN_M[0] <= span <= BODY_SPAN_M[1] and extent <= limit:
+    if span <= BODY_SPAN_M[1] and extent <= limit:
         return
     unit = "millimetres" if skel.units == "mm" else "metres"
-    if not BODY_SPAN_M[0] <= span <= BODY_SPAN_M[1]:
+    if span > BODY_SPAN_M[1]:
         raise StableMoError(f"{what}: the body spans {span:.3g} m read as {unit}, the unit of {skel.name} joints "
                             f"(a person spans {BODY_SPAN_M[0]:g}-{BODY_SPAN_M[1]:g} m); convert the joints or pick "
                             "the skeleton")
