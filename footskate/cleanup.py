@@ -95,7 +95,7 @@ class CleanupConfig:
     # gated: the height gate (m above the joint's own lowest point) and the per-foot force the
     # network's contacts need (body weights; UnderPressure's rule: 0.10). The force is calibrated
     # per network on synthetic validation motions (seeds 3000 and 4000, 8 per type, sliding
-    # injected), never on the benchmark's test seeds or the real clip: scripts/footskate_calibrate.py
+    # injected), never on the benchmark's test seeds or the real clip: scripts/footskate/calibrate.py
     # (V22: 0.25, smallest per-type F1 margin over the rule +0.0051, 0.10: +0.0015; V21: 0.25 on
     # seeds 3000-6000, +0.0040), and `--store` keeps it in the weights' metadata ("gate_force");
     # None takes the network's value, else GATE_FORCE. The height gate stays 5 cm: 3 cm
@@ -105,7 +105,7 @@ class CleanupConfig:
     gate_force: float | None = None
     # gated: a second, lower force (body weights, 0 = off) at which the network confirms a contact
     # the height/speed rule sees (a hysteresis: the network alone needs gate_force, the network and
-    # the rule together gate_support). scripts/footskate_calibrate.py searches it with gate_force:
+    # the rule together gate_support). scripts/footskate/calibrate.py searches it with gate_force:
     # on the validation motions every support lowered the smallest per-type margin over the rule
     # (0.10 BW: +0.0023, 0.05: +0.0012, 0.02: -0.0014, off: +0.0051; the rule's contacts on sliding
     # feet come back with it), so it is off
@@ -113,7 +113,7 @@ class CleanupConfig:
     # gated: a joint that stays at rest (moving < REST_SPEED over 0.2 s spans) within gate_margin of
     # its lowest point for at least this long (seconds, 0 = off) is down whatever load the network
     # gives it (a foot resting on its ball beside a loaded flat foot carries little weight but does
-    # not move). scripts/footskate_calibrate.py searches it with gate_force: on the validation
+    # not move). scripts/footskate/calibrate.py searches it with gate_force: on the validation
     # motions 0.3, 0.5 and 0.75 s tie with off exactly (smallest per-type margin over the rule
     # +0.0051, every type's F1 the same: their still feet are loaded, their sliding feet never
     # still). It is on because a joint at rest on the floor is in contact (the real clip's left toe
@@ -346,7 +346,7 @@ def _bridge(contacts: torch.Tensor, through: torch.Tensor, frames: int, lengths:
 
 def calibrated_gate_force(vgrf, gate_force: float | None = None) -> float:
     """The gated decision's force threshold: `gate_force` if given, else the one calibrated for
-    this network (its weights' metadata "gate_force", scripts/footskate_calibrate.py), else GATE_FORCE."""
+    this network (its weights' metadata "gate_force", scripts/footskate/calibrate.py), else GATE_FORCE."""
     if gate_force is not None:
         return float(gate_force)
     return float((getattr(vgrf, "metadata", None) or {}).get("gate_force", GATE_FORCE))

@@ -129,7 +129,7 @@ def clean_features(features, lengths, skeleton="humanml3d", vgrf=None, config=No
     dataset's own extraction), then clean, then derive features without refitting, so the features
     reproduce the cleaned joints exactly. On the demo model's generations this order beats cleaning
     the raw joints and refitting afterwards (which moves anchored feet again):
-    scripts/footskate_report.py.
+    scripts/footskate/report.py.
     """
     from footskate.cleanup import CleanupConfig, anchor_drift, cleanup
     from footskate.errors import FootskateError

@@ -5,7 +5,7 @@ the shortest world-space rotation from the bone's raw rest axis to its direction
 `swing_rotations`). Such a rotation carries nothing beyond the bone's direction (which the ric
 positions give exactly), and its twist depends on where the body faces: joint rotations built from
 those swings (parent swing^-1 * child swing) differ by up to 180° for the same pose turned to
-heading 90/180/270 (clip 012314: ankles, elbows, collars; scripts/bvh_report.py), and their twist is
+heading 90/180/270 (clip 012314: ankles, elbows, collars; scripts/bvh/report.py), and their twist is
 undefined where a bone points against its raw axis in world space. Here every rotation is taken
 relative to the parent's own frame instead, so no rotation below the root depends on the heading:
 

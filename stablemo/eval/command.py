@@ -39,7 +39,7 @@ from stablemo.eval.text_motion import (  # noqa: F401 (re-exported: the evaluato
 
 REAL_ROW = "Real motion"
 # StableMo's evaluator of the synthetic benchmark, shipped so that `stablemo evaluate` runs out of the
-# box (made by scripts/make_evaluator_asset.sh: data synth seed 0, configs/evaluator_synth.yaml)
+# box (made by scripts/train/make_evaluator_asset.sh: data synth seed 0, configs/evaluator_synth.yaml)
 SYNTH_EVALUATOR = Path(__file__).resolve().parents[1] / "assets" / "evaluator_synth"
 COLUMNS = [  # (json key, table header, lower/higher/closer-is-better hint only for readers)
     ("r1", "R@1"), ("r2", "R@2"), ("r3", "R@3"), ("fid", "FID"), ("mm_dist", "MM-Dist"),

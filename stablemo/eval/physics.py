@@ -102,7 +102,7 @@ def ground_metrics(joints, mask=None, lengths=None, threshold: float = 0.005) ->
 
 def foot_acceleration(joints, mask=None, lengths=None, feet=(7, 8, 10, 11), fps: float = 20.0) -> np.ndarray:
     """Mean |second difference| of the feet's (ankles and toes) coordinates, m/s², over valid
-    frames; (B,). The jitter measure of foot-skate corrections (scripts/footskate_report.py, docs/
+    frames; (B,). The jitter measure of foot-skate corrections (scripts/footskate/report.py, docs/
     footskate.md) and of joint control: a target reached by a jerk shows here."""
     j, m = _prepare(joints, mask, lengths)
     feet_pos = j[:, :, list(feet)]  # (B, T, F, 3)

@@ -27,7 +27,7 @@ from stablemo.motion.features import features_to_joints
 from stablemo.timeline.spec import Segment, check_segments, segment_frames
 from stablemo.timeline.windows import Sampling, crossfade, generate_window, settle
 
-DEFAULT_OVERLAP_S = 0.5  # the three chosen on held-apart prompts by scripts/long_motion_report.py (docs/long_motion.md)
+DEFAULT_OVERLAP_S = 0.5  # the three chosen on held-apart prompts by scripts/long_motion/report.py (docs/long_motion.md)
 DEFAULT_BLEND_S = 0.0
 DEFAULT_SETTLE_S = 1.0
 

@@ -1,6 +1,6 @@
-"""One motion of every action on a contact sheet (docs/synth_contact_sheet.png).
+"""One motion of every action on a contact sheet (docs/data/synth/synth_contact_sheet.png).
 
-    python -m stablemo.data.synth.preview docs/synth_contact_sheet.png [--seed 0] [--frames 8]
+    python -m stablemo.data.synth.preview docs/data/synth/synth_contact_sheet.png [--seed 0] [--frames 8]
 """
 
 from __future__ import annotations
