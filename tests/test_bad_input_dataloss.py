@@ -306,7 +306,7 @@ def test_a_file_added_during_the_swap_puts_the_old_folder_back(tmp_path, monkeyp
 @pytest.fixture(scope="module")
 def ckpt(tmp_path_factory) -> Path:
     """A checkpoint of the precomputed-bundle kind (tests/test_bad_input_writes.py): fast to export."""
-    from stablemo.lit.checkpoint_io import AtomicCheckpointIO
+    from stablemo.training.checkpoint_io import AtomicCheckpointIO
 
     path = tmp_path_factory.mktemp("ckpt") / "last.ckpt"
     AtomicCheckpointIO().save_checkpoint({
@@ -354,8 +354,8 @@ def test_export_overwrite_never_deletes_a_folder_named_like_a_bundle_file(capsys
 @pytest.fixture(scope="module")
 def bundle(tmp_path_factory):
     """The tiny bundle of tests/test_generate_cli.py (lengths 8 to 40 frames)."""
-    model_mod = pytest.importorskip("stablemo.model")
-    from stablemo.bundle import save_bundle
+    model_mod = pytest.importorskip("stablemo.nets.model")
+    from stablemo.inference.bundle import save_bundle
 
     config = {
         "model": {
@@ -442,7 +442,7 @@ def test_footskate_weights_without_footskate_is_an_error(capsys, tmp_path):
                          "--bundle", tmp_path / "missing-bundle", "--out", tmp_path / "out")  # before the bundle
     assert rc == 2
     one_error_line(err, "--footskate-weights", "--footskate")
-    from stablemo.hooks import make_hooks
+    from stablemo.inference.hooks import make_hooks
 
     with pytest.raises(StableMoError, match="footskate_weights: only used with footskate=True"):
         make_hooks(None, footskate_weights="w.safetensors")

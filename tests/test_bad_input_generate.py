@@ -13,7 +13,7 @@ from safetensors.torch import load_file, save_file
 
 from stablemo import cli
 from stablemo.errors import StableMoError
-from stablemo.generate import DEFAULT_BUNDLE
+from stablemo.cli.generate import DEFAULT_BUNDLE
 
 FAST = ["--frames", "40", "--steps", "1", "--no-render"]
 
@@ -34,7 +34,7 @@ def assert_one_line(rc: int, err: str, *needles: str) -> None:
 @pytest.fixture
 def no_model(monkeypatch):
     """Fail the test if a bundle is loaded: the argument must be refused before any compute."""
-    from stablemo.pipeline import Pipeline
+    from stablemo.inference.pipeline import Pipeline
 
     def refuse(*args, **kwargs):
         raise AssertionError("the model was loaded before the bad argument was refused")
@@ -58,7 +58,7 @@ def test_generate_refuses_non_finite_numbers_before_loading(capsys, tmp_path, no
 
 
 def test_python_api_refuses_non_finite_and_out_of_range_settings():
-    from stablemo.pipeline import Pipeline
+    from stablemo.inference.pipeline import Pipeline
 
     pipe = Pipeline.from_bundle(DEFAULT_BUNDLE)
     for kwargs, message in [(dict(cfg=float("nan")), "cfg: must be a finite number"),
@@ -79,8 +79,8 @@ def test_python_api_refuses_non_finite_and_out_of_range_settings():
 
 def test_a_non_finite_result_is_an_error_naming_the_prompt():
     """A hook (or diverged weights) that produces NaN: an error, never a returned motion."""
-    from stablemo.hooks import AtSteps
-    from stablemo.pipeline import Pipeline
+    from stablemo.inference.hooks import AtSteps
+    from stablemo.inference.pipeline import Pipeline
 
     class Poison(AtSteps):
         def __call__(self, state):

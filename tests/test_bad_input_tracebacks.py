@@ -17,7 +17,7 @@ import torch
 
 from stablemo import cli
 from stablemo.errors import one_line
-from stablemo.lit.checkpoint_io import load_checkpoint_file
+from stablemo.training.checkpoint_io import load_checkpoint_file
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO_BUNDLE = REPO / "stablemo" / "assets" / "demo_bundle"
@@ -268,7 +268,7 @@ def test_ctrl_c_is_one_interrupted_line_with_exit_130(tmp_path, capsys, monkeypa
 def test_ctrl_c_during_fit_is_one_interrupted_line_with_exit_130(tmp_path, capsys, tiny_data, monkeypatch):
     import signal
 
-    from stablemo.lit.module import DiffusionModule
+    from stablemo.training.module import DiffusionModule
 
     step = DiffusionModule.training_step
 
@@ -297,7 +297,7 @@ def test_ctrl_c_during_fit_is_one_interrupted_line_with_exit_130(tmp_path, capsy
 def test_resume_with_a_new_lr_trains_at_it(tmp_path, tiny_data):
     """--model.lr given when resuming is the optimiser's lr (the checkpoint's was kept before), so
     a diverged run resumed "with a lower --model.lr", as the guard's message advises, takes it."""
-    from stablemo.lit.cli import main_fit
+    from stablemo.training.lightning_cli import main_fit
 
     config = _tiny_fit_config(tmp_path, tiny_data)  # lr 1e-3
     last = tmp_path / "run" / "checkpoints" / "last.ckpt"

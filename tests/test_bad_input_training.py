@@ -17,7 +17,7 @@ import torch
 import yaml
 
 from stablemo.cli import main as cli
-from stablemo.lit.checkpoint_io import load_checkpoint_file
+from stablemo.training.checkpoint_io import load_checkpoint_file
 from test_training import TINY_MODEL, tiny_config, write_random_dataset
 
 REPO = Path(__file__).resolve().parents[1]
@@ -289,7 +289,7 @@ def test_bundle_whose_text_encoder_holds_a_pickled_bin(tmp_path, capsys):
 def test_nan_right_after_resume_names_the_checkpoint_it_resumed_from(tiny_data, tmp_path, capsys, monkeypatch):
     """Resumed with other checkpoint settings (as after a kill), the checkpoint callback restores no
     state of its own: the message said "none written yet" although the run started from last.ckpt."""
-    from stablemo.lit.module import DiffusionModule
+    from stablemo.training.module import DiffusionModule
 
     cfg = tiny_config(tmp_path / "run", tiny_data, **{"trainer.max_steps": 3})
     assert _run_cli(["fit", "--config", str(cfg)], capsys)[0] == 0

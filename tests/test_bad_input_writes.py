@@ -51,7 +51,7 @@ def snapshot(folder: Path) -> dict[str, bytes | None]:
 def ckpt(tmp_path_factory) -> Path:
     """A checkpoint of the precomputed-bundle kind (what ConsistencyDistillation saves): exportable
     without any training, which keeps these tests fast."""
-    from stablemo.lit.checkpoint_io import AtomicCheckpointIO
+    from stablemo.training.checkpoint_io import AtomicCheckpointIO
 
     path = tmp_path_factory.mktemp("ckpt") / "last.ckpt"
     checkpoint = {
@@ -340,7 +340,7 @@ def test_stale_partials_go_when_a_run_starts_before_any_save(tmp_path):
     """The checkpoint callback's setup (a run's start, before its first save) cleans the folder."""
     from lightning.pytorch import LightningModule, Trainer
 
-    from stablemo.lit.callbacks import FinalStepCheckpoint
+    from stablemo.training.callbacks import FinalStepCheckpoint
 
     folder = tmp_path / "checkpoints"
     folder.mkdir()

@@ -16,7 +16,7 @@ text: {encoder: minilm, latent_dim: 16, num_layers: 1, num_heads: 2, ff_dim: 32}
 
 @pytest.fixture
 def tiny_config(tmp_path):
-    pytest.importorskip("stablemo.model")
+    pytest.importorskip("stablemo.nets.model")
     path = tmp_path / "tiny.yaml"
     path.write_text(TINY)
     return path
@@ -54,8 +54,8 @@ def test_aits_table_and_json(tiny_config, tmp_path, capsys):
 
 def test_flops_per_step_counts_both_cfg_halves(tiny_config):
     from stablemo.diffusion.schedule import NoiseSchedule
-    from stablemo.model import MotionDiffusionModel
-    from stablemo.pipeline import Pipeline
+    from stablemo.nets.model import MotionDiffusionModel
+    from stablemo.inference.pipeline import Pipeline
 
     kwargs, _ = bench._model_kwargs(str(tiny_config))
     pipe = Pipeline(MotionDiffusionModel(**kwargs), NoiseSchedule(), [0.0] * 263, [1.0] * 263, device="cpu")
@@ -126,8 +126,8 @@ def test_flops_are_the_same_with_and_without_the_fused_attention_kernel(tiny_con
     from stablemo.fast import kernels as fused
     from stablemo.fast.blocks import FusedLinearCrossAttention
     from stablemo.diffusion.schedule import NoiseSchedule
-    from stablemo.model import MotionDiffusionModel
-    from stablemo.pipeline import Pipeline
+    from stablemo.nets.model import MotionDiffusionModel
+    from stablemo.inference.pipeline import Pipeline
 
     if fused.kernels() is None:
         pytest.skip("the fused CPU kernels cannot be built here")

@@ -213,7 +213,7 @@ def test_kit_features(tmp_path):
 
 
 def test_bvh_command_writes_bvh_and_smpl_npz(tmp_path, capsys):
-    from stablemo.bvh.command import main
+    from stablemo.cli.bvh import main
     from stablemo.bvh.smpl import SMPL_PARENTS
 
     joints = heading(synth_joints("jump", 11), 200)

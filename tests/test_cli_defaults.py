@@ -12,12 +12,12 @@ from pathlib import Path
 import pytest
 import yaml
 
-from stablemo.lit.cli import main_fit
+from stablemo.training.lightning_cli import main_fit
 
 REPO = Path(__file__).resolve().parents[1]
-CONTROLNET = "stablemo.controlnet.module.ControlNetTraining"
-DISTILL = "stablemo.distill.module.ConsistencyDistillation"
-DIFFUSION = "stablemo.lit.module.DiffusionModule"
+CONTROLNET = "stablemo.training.controlnet_module.ControlNetTraining"
+DISTILL = "stablemo.training.distill_module.ConsistencyDistillation"
+DIFFUSION = "stablemo.training.module.DiffusionModule"
 
 
 def printed_model(argv: list[str], capsys) -> dict:
@@ -75,7 +75,7 @@ def test_shipped_control_configs_print_their_own_defaults(name, capsys):
 
 
 def test_names_model_class(tmp_path):
-    from stablemo.lit.cli import names_model_class
+    from stablemo.training.lightning_cli import names_model_class
 
     named = write_config(tmp_path, {"class_path": CONTROLNET})
     plain = tmp_path / "plain.yaml"

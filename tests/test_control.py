@@ -8,16 +8,16 @@ import numpy as np
 import pytest
 import torch
 
-from stablemo.bundle import save_bundle
+from stablemo.inference.bundle import save_bundle
 from stablemo.control import Inpaint, JointControl
 from stablemo.control.guidance import JointGuidance, project_root
 from stablemo.diffusion.inpainting import Inpainting
 from stablemo.diffusion.samplers import SAMPLER_TABLE
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.errors import StableMoError
-from stablemo.hooks import StepState
+from stablemo.inference.hooks import StepState
 from stablemo.motion import features_to_joints
-from stablemo.pipeline import Pipeline
+from stablemo.inference.pipeline import Pipeline
 
 DEMO = Path(__file__).resolve().parents[1] / "stablemo" / "assets" / "demo_bundle"
 D, J = 263, 22
@@ -31,7 +31,7 @@ def demo():
 @pytest.fixture(scope="module")
 def students(tmp_path_factory):
     """LCM and PCM students initialised from the demo teacher (untrained: the contract, not quality)."""
-    from stablemo.distill.module import ConsistencyDistillation
+    from stablemo.training.distill_module import ConsistencyDistillation
 
     out = {}
     for mode in ("lcm", "pcm"):
@@ -191,7 +191,7 @@ def test_control_reaches_the_targets_and_is_batch_invariant(demo):
 
 
 def test_control_and_footskate_in_one_request(demo):
-    from stablemo.hooks import make_hooks
+    from stablemo.inference.hooks import make_hooks
 
     src = demo.generate(["a person walks in a circle counterclockwise"], 80, seed=9).joint_list()[0]
     spec = _control_from(src, range(80), [0])

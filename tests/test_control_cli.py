@@ -8,7 +8,7 @@ import pytest
 from pathlib import Path
 
 from stablemo.cli import main
-from stablemo.control.command import canonical_start
+from stablemo.cli.control_file import canonical_start
 from stablemo.control.files import load_control
 from stablemo.control.parts import joint_columns, keep_mask, part_joints
 from stablemo.errors import StableMoError

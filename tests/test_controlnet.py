@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 import torch
 
-from stablemo.bundle import save_bundle
-from stablemo.controlnet.hints import TRAIN_JOINTS, hint_input, sample_hint_mask
-from stablemo.controlnet.network import ControlledModel
+from stablemo.inference.bundle import save_bundle
+from stablemo.control.hints import TRAIN_JOINTS, hint_input, sample_hint_mask
+from stablemo.control.controlnet import ControlledModel
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.errors import StableMoError
-from stablemo.model import MotionDiffusionModel
+from stablemo.nets.model import MotionDiffusionModel
 
 D, J = 263, 22
 REPO = Path(__file__).resolve().parents[1]
@@ -67,7 +67,7 @@ def teacher_bundle(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def student_bundle(teacher_bundle, tmp_path_factory):
-    from stablemo.distill.module import ConsistencyDistillation
+    from stablemo.training.distill_module import ConsistencyDistillation
 
     config, state = ConsistencyDistillation(teacher=str(teacher_bundle), mode="lcm", ddim_steps=50).bundle()
     return save_bundle(tmp_path_factory.mktemp("b") / "student", config, state)
@@ -242,7 +242,7 @@ def test_path_channels_read_speed_direction_and_turning_off_a_circle():
 
 
 def test_training_step_moves_only_the_controlnet_and_learns(student_bundle):
-    from stablemo.controlnet.module import ControlNetTraining
+    from stablemo.training.controlnet_module import ControlNetTraining
 
     module = ControlNetTraining(str(student_bundle), control={"channels": 16, "layers": 2, "path": True, "output": True},
                                 train_timesteps=[999], dense_prob=1.0, empty_prob=0.0, lr=3e-3)
@@ -271,8 +271,8 @@ def test_velocity_and_root_losses_are_what_they_say(student_bundle, monkeypatch)
     """velocity_weight adds mu * the mean squared error (m/s)^2 of the hinted joints' steps between
     neighbouring hinted frames, root_weight nu * the squared error of the 4 root feature channels
     on the frames whose pelvis is a hint; both recomputed here from the x0 estimate the step took."""
-    from stablemo.controlnet.hints import PATH_SCALE
-    from stablemo.controlnet.module import ControlNetTraining
+    from stablemo.control.hints import PATH_SCALE
+    from stablemo.training.controlnet_module import ControlNetTraining
 
     kw = dict(control={"channels": 16, "layers": 2, "path": True}, train_timesteps=[999], dense_prob=0.5,
               hint_joints=[0, 0, 20])  # the pelvis mostly: the root term needs it
@@ -288,7 +288,7 @@ def test_velocity_and_root_losses_are_what_they_say(student_bundle, monkeypatch)
     seen = {}
     real = module._x0_estimate
     module._x0_estimate = lambda *a: seen.setdefault("x0", real(*a))
-    import stablemo.controlnet.module as cn_module
+    import stablemo.training.controlnet_module as cn_module
 
     draw = cn_module.sample_hint_mask
     monkeypatch.setattr(cn_module, "sample_hint_mask", lambda *a: seen.setdefault("hints", draw(*a)))
@@ -309,7 +309,7 @@ def test_velocity_and_root_losses_are_what_they_say(student_bundle, monkeypatch)
 
 
 def controlled_bundle(base_bundle, tmp_path, name, trained=True):
-    from stablemo.controlnet.module import ControlNetTraining
+    from stablemo.training.controlnet_module import ControlNetTraining
 
     module = ControlNetTraining(str(base_bundle), control={"channels": 16, "layers": 2, "path": True, "output": True})
     if trained:
@@ -357,7 +357,7 @@ def pelvis_path(T=40):
 
 def test_controlled_bundle_serves_through_the_pipeline(student_bundle, teacher_bundle, tmp_path):
     from stablemo.control.spec import JointControl
-    from stablemo.pipeline import Pipeline
+    from stablemo.inference.pipeline import Pipeline
 
     untrained, config = controlled_bundle(student_bundle, tmp_path, "zero", trained=False)
     assert config["kind"] == "controlnet" and config["inference"]["sampler"] == "lcm"
@@ -395,8 +395,8 @@ def test_controlled_bundle_serves_through_the_pipeline(student_bundle, teacher_b
 
 
 def test_export_writes_the_controlnet_ema_over_the_frozen_base(student_bundle, tmp_path):
-    from stablemo.controlnet.module import ControlNetTraining
-    from stablemo.lit.export import bundle_from_checkpoint
+    from stablemo.training.controlnet_module import ControlNetTraining
+    from stablemo.training.export import bundle_from_checkpoint
 
     module = ControlNetTraining(str(student_bundle), control={"channels": 16, "layers": 2}, ema_decay=0.5, ema_warmup=0)
     perturb(module.model.control)
@@ -414,8 +414,8 @@ def test_export_writes_the_controlnet_ema_over_the_frozen_base(student_bundle, t
 
 
 def test_bad_bundles_and_bases_are_named(teacher_bundle, student_bundle, tmp_path):
-    from stablemo.controlnet.module import ControlNetTraining
-    from stablemo.pipeline import Pipeline
+    from stablemo.training.controlnet_module import ControlNetTraining
+    from stablemo.inference.pipeline import Pipeline
 
     path, config = controlled_bundle(student_bundle, tmp_path, "ok")
     broken = dict(config)
@@ -434,13 +434,13 @@ def test_bad_bundles_and_bases_are_named(teacher_bundle, student_bundle, tmp_pat
 def test_shipped_control_configs_parse(name, capsys):
     import yaml
 
-    from stablemo.lit.cli import main_fit
+    from stablemo.training.lightning_cli import main_fit
 
     with pytest.raises(SystemExit) as exit_:
         main_fit(["--config", str(REPO / "configs" / "control" / name), "--print_config"])
     assert exit_.value.code in (0, None)
     printed = yaml.safe_load(capsys.readouterr().out)
-    assert printed["model"]["class_path"] == "stablemo.controlnet.module.ControlNetTraining"
+    assert printed["model"]["class_path"] == "stablemo.training.controlnet_module.ControlNetTraining"
     # MotionLCM's lambda = 1, except the shipped student's pelvis recipe (docs/control.md)
     assert printed["model"]["init_args"]["joint_weight"] == (10.0 if name == "controlnet_lcm_pelvis_synth.yaml" else 1.0)
     assert printed["model"]["init_args"]["hint_joints"] == ([0] if "pelvis" in name else list(TRAIN_JOINTS))
@@ -451,10 +451,10 @@ def test_fit_resume_and_export_through_the_cli(student_bundle, tmp_path):
     """3 + 3 steps resumed == 6 straight (weights, EMA, optimiser), then export serves."""
     import yaml
 
-    from stablemo.lit.checkpoint_io import load_checkpoint_file
-    from stablemo.lit.cli import main_fit
-    from stablemo.lit.export import export
-    from stablemo.pipeline import Pipeline
+    from stablemo.training.checkpoint_io import load_checkpoint_file
+    from stablemo.training.lightning_cli import main_fit
+    from stablemo.training.export import export
+    from stablemo.inference.pipeline import Pipeline
     from tests.test_training import write_random_dataset
 
     data = write_random_dataset(tmp_path / "data")
@@ -468,7 +468,7 @@ def test_fit_resume_and_export_through_the_cli(student_bundle, tmp_path):
     cfg_file = Path(student_bundle) / "config.json"
     base_config = json.loads(cfg_file.read_text())
     base_config.update(stats)
-    from stablemo.bundle import load_bundle
+    from stablemo.inference.bundle import load_bundle
 
     base = save_bundle(tmp_path / "base", base_config, load_bundle(student_bundle).state_dict)
 
@@ -478,7 +478,7 @@ def test_fit_resume_and_export_through_the_cli(student_bundle, tmp_path):
                            "log_every_n_steps": 1, "default_root_dir": str(root), "enable_progress_bar": False,
                            "enable_model_summary": False},
                "checkpoint": {"every_n_train_steps": 3, "save_last": True},
-               "model": {"class_path": "stablemo.controlnet.module.ControlNetTraining",
+               "model": {"class_path": "stablemo.training.controlnet_module.ControlNetTraining",
                          "init_args": {"base": str(base), "control": {"channels": 16, "layers": 2},
                                        "train_timesteps": [999], "ema_decay": 0.9, "lr": 1e-3}},
                "data": {"data_dir": str(data), "batch_size": 4, "pad_multiple": 2, "max_length": 64}}
@@ -531,7 +531,7 @@ ASSET = REPO / "stablemo" / "assets" / "demo_controlnet"
 @pytest.mark.skipif(not (ASSET / "config.json").is_file(), reason="the controlled demo student is not shipped")
 def test_shipped_controlled_student_is_padding_invariant_and_follows_a_path():
     from stablemo.control.spec import JointControl
-    from stablemo.pipeline import Pipeline
+    from stablemo.inference.pipeline import Pipeline
 
     pipe = Pipeline.from_bundle(ASSET)
     assert pipe.config["kind"] == "controlnet" and pipe.inference.steps == 1

@@ -487,7 +487,7 @@ def test_data_check_reports_every_problem(tmp_path, capsys):
 
 
 def test_data_check_kit(tmp_path, capsys):
-    from stablemo.data.commands import main
+    from stablemo.cli.data import main
 
     root = write_dataset(tmp_path, "kit")
     assert main(["check", str(root), "--dataset", "kit"]) == 0

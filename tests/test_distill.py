@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from stablemo.bundle import save_bundle
+from stablemo.inference.bundle import save_bundle
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.distill.consistency import (
     CLEAN,
@@ -20,7 +20,7 @@ from stablemo.distill.consistency import (
 )
 from stablemo.distill.sampling import lcm_timesteps, pcm_path, sample_lcm, sample_pcm
 from stablemo.distill.student import ConsistencyStudent
-from stablemo.model import MotionDiffusionModel
+from stablemo.nets.model import MotionDiffusionModel
 
 D = 263
 TINY = {
@@ -145,7 +145,7 @@ def test_lcm_sampling_uses_fresh_noise_between_steps():
 
 
 def test_distillation_loss_decreases_on_a_tiny_set(teacher_bundle):
-    from stablemo.distill.module import ConsistencyDistillation
+    from stablemo.training.distill_module import ConsistencyDistillation
 
     module = ConsistencyDistillation(teacher=str(teacher_bundle), mode="lcm", ddim_steps=10, huber_c=0.03)
     # the student starts as the teacher, whose consistency error is already small; move it away so
@@ -169,8 +169,8 @@ def test_distillation_loss_decreases_on_a_tiny_set(teacher_bundle):
 
 
 def test_student_bundle_samples_through_the_pipeline(teacher_bundle, tmp_path):
-    from stablemo.distill.module import ConsistencyDistillation
-    from stablemo.pipeline import Pipeline
+    from stablemo.training.distill_module import ConsistencyDistillation
+    from stablemo.inference.pipeline import Pipeline
 
     for mode in ("lcm", "pcm"):
         module = ConsistencyDistillation(teacher=str(teacher_bundle), mode=mode, ddim_steps=50, phases=4)
@@ -187,8 +187,8 @@ def test_student_bundle_samples_through_the_pipeline(teacher_bundle, tmp_path):
 
 def test_student_pipeline_clears_the_shared_text_cache(teacher_bundle, tmp_path):
     """AITS times each sentence with cold text caches; a student's pipeline must reach its encoder."""
-    from stablemo.distill.module import ConsistencyDistillation
-    from stablemo.pipeline import Pipeline
+    from stablemo.training.distill_module import ConsistencyDistillation
+    from stablemo.inference.pipeline import Pipeline
 
     module = ConsistencyDistillation(teacher=str(teacher_bundle), mode="lcm", ddim_steps=50)
     config, state = module.bundle()
@@ -204,7 +204,7 @@ def test_student_pipeline_clears_the_shared_text_cache(teacher_bundle, tmp_path)
 
 
 def test_guidance_embedding_can_learn_faster(teacher_bundle):
-    from stablemo.distill.module import ConsistencyDistillation
+    from stablemo.training.distill_module import ConsistencyDistillation
 
     module = ConsistencyDistillation(teacher=str(teacher_bundle), mode="lcm", ddim_steps=50, lr=1e-4, w_lr_scale=20)
     (opt,), _ = module.configure_optimizers()
@@ -219,7 +219,7 @@ def test_guidance_embedding_can_learn_faster(teacher_bundle):
 def test_student_inference_is_the_students_own_with_the_teachers_lengths():
     """A student config copied from a teacher with an inference section (sampler dpmpp_2m_sde) must
     name the student's sampler, or the bundle would not load; lengths and fps stay the teacher's."""
-    from stablemo.inference_config import student_inference
+    from stablemo.inference.config import student_inference
 
     config = {"kind": "consistency", "consistency": {"mode": "lcm", "steps": 1, "w": 1.5},
               "inference": {"sampler": "dpmpp_2m_sde", "steps": 10, "cfg": 2.5, "min_length": 40,

@@ -114,7 +114,7 @@ def test_trains_to_good_retrieval_and_reloads(trained):
 
 def test_benchmark_protocol_with_constructed_generators(trained):
     from stablemo.data import MotionDataset
-    from stablemo.eval.command import REAL_ROW, OurEvaluator, evaluate, format_table
+    from stablemo.eval.evaluate import REAL_ROW, OurEvaluator, evaluate, format_table
 
     data = MotionDataset.from_folder(trained["root"], "train", crop="eval", cache=False, progress=False)
     evaluator = OurEvaluator(trained["ckpt"])
@@ -154,7 +154,7 @@ def test_benchmark_protocol_with_constructed_generators(trained):
 def test_evaluate_command_real_motion_only(trained, capsys):
     import json
 
-    from stablemo.eval.command import main
+    from stablemo.eval.evaluate import main
 
     out = trained["tmp"] / "results.json"
     assert main(["--data", str(trained["root"]), "--evaluator", str(trained["ckpt"]), "--split", "train",
@@ -172,9 +172,9 @@ def test_evaluate_command_with_a_bundle(trained, capsys):
     """End to end through Pipeline.from_bundle with a tiny untrained model: table, footskate, AITS, JSON."""
     import json
 
-    from stablemo.bundle import save_bundle
-    from stablemo.eval.command import main
-    from stablemo.model import MotionDiffusionModel
+    from stablemo.inference.bundle import save_bundle
+    from stablemo.eval.evaluate import main
+    from stablemo.nets.model import MotionDiffusionModel
 
     torch.manual_seed(0)
     model_cfg = {"denoiser": {"name": "unet", "input_dim": 263, "base_channels": 16, "channel_mults": [1, 2],
@@ -216,7 +216,7 @@ def test_test_stage_restores_statistics_from_checkpoint(trained):
 
 
 def test_embed_motions_keeps_input_order(trained):
-    from stablemo.eval.command import OurEvaluator, embed_motions
+    from stablemo.eval.evaluate import OurEvaluator, embed_motions
 
     evaluator = OurEvaluator(trained["ckpt"])
     g = torch.Generator().manual_seed(0)

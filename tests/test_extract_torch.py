@@ -100,7 +100,7 @@ def test_random_motions_both_skeletons():
 def test_consistent_features_and_standard_joints_equal_per_sample_numpy():
     """The foot-skate path's helpers (batched, torch) against the per-sample numpy algorithm they
     replace: one frame extrapolated at constant velocity, then each sample extracted alone."""
-    from stablemo.footskate_guidance import joints_to_consistent_features, standard_joints
+    from stablemo.skating.cleanup import joints_to_consistent_features, standard_joints
 
     rng = np.random.default_rng(3)
     motions = [random_motion(rng, n) for n in (50, 1, 2, 33)]  # float32, as the cleanup returns them
@@ -154,9 +154,9 @@ def test_footskate_hook_path_uses_no_numpy(monkeypatch):
     the batched result equals cleaning each sample alone."""
     from stablemo.data.synth import generate_motion
     from stablemo.data.synth.writer import motion_rng
-    from stablemo.footskate_guidance import joints_to_consistent_features
-    from stablemo.hooks import StepState
-    from stablemo.hooks.footskate import FootskateHook
+    from stablemo.skating.cleanup import joints_to_consistent_features
+    from stablemo.inference.hooks import StepState
+    from stablemo.skating.hook import FootskateHook
     import stablemo.motion.features as numpy_features
 
     motions = [generate_motion(motion_rng(1, i)).joints[:n] for i, n in enumerate((48, 30))]

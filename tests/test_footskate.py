@@ -49,7 +49,7 @@ def drifting_planted_foot(frames: int = 41) -> tuple[torch.Tensor, torch.Tensor]
 
 def gmd_skating_ratio(joints: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
     try:
-        from stablemo.eval.physics import foot_skating_ratio
+        from stablemo.skating.metrics import foot_skating_ratio
         return torch.as_tensor(foot_skating_ratio(joints, lengths=lengths))
     except ImportError:  # the definition (facts §5), for a checkout without the eval package
         feet = joints[:, :, [10, 11]].double()
@@ -441,7 +441,7 @@ def test_stablemo_footskate_features_are_consistent(tmp_path):
 def test_clean_features_reproduce_the_cleaned_joints():
     """Features out of clean_features give back exactly the joints it returns (no refit moves the
     anchored feet), on the standard skeleton, with less skating than the input."""
-    from stablemo.footskate_guidance import clean_features, joints_to_consistent_features
+    from stablemo.skating.cleanup import clean_features, joints_to_consistent_features
     from stablemo.motion import canonicalize_joints, features_to_joints
 
     x = standing_pose().expand(60, 22, 3).clone()              # (60, 22, 3)
@@ -468,11 +468,11 @@ def test_clean_features_reproduce_the_cleaned_joints():
 @pytest.mark.skipif(not (SAMPLE / "new_joints/012314.npy").is_file(), reason="HumanML3D sample not present")
 def test_guidance_hook_cleans_x0_inside_denoising():
     from stablemo.diffusion.schedule import NoiseSchedule
-    from stablemo.footskate_guidance import joints_to_consistent_features
-    from stablemo.hooks.footskate import FootskateHook
-    from stablemo.inference_config import InferenceConfig
+    from stablemo.skating.cleanup import joints_to_consistent_features
+    from stablemo.skating.hook import FootskateHook
+    from stablemo.inference.config import InferenceConfig
     from stablemo.motion import features_to_joints
-    from stablemo.pipeline import Pipeline
+    from stablemo.inference.pipeline import Pipeline
 
     clip = torch.from_numpy(np.load(SAMPLE / "new_joints/012314.npy")).float()[:64]
     contacts, _ = detect_contacts(clip[None], None, FEET, 20.0, 1)

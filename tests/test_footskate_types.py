@@ -62,8 +62,8 @@ def test_swing_offsets_carry_the_correction_across_the_swing():
 
 def test_every_motion_type_loses_most_of_its_injected_sliding():
     """Held-out seed, one motion per type, the default (gated) contacts with the shipped V22."""
-    from stablemo.footskate_bench import TYPES, build_set, table
-    from stablemo.footskate_guidance import load_vgrf_model
+    from stablemo.bench.footskate import TYPES, build_set, table
+    from stablemo.skating.cleanup import load_vgrf_model
 
     torch.manual_seed(0)
     data = build_set(2000, 1)
@@ -83,7 +83,7 @@ def test_every_motion_type_loses_most_of_its_injected_sliding():
 def test_dance_steps_pivot_and_plant():
     import numpy as np
 
-    from stablemo.footskate_bench import build_motion
+    from stablemo.bench.footskate import build_motion
 
     joints, contacts = build_motion("dance", 3)
     assert np.isfinite(joints).all() and contacts[:, 0].sum() > 10 and contacts[:, 2].sum() > 10
@@ -174,7 +174,7 @@ def test_kit_mapping_and_the_v21_starting_point():
 
     from footskate import KIT
     from footskate.vgrf import VGRFNet
-    from stablemo.footskate_bench import KIT_FEET, build_motion, kit_from_v22, to_kit
+    from stablemo.bench.footskate import KIT_FEET, build_motion, kit_from_v22, to_kit
 
     joints, contacts = build_motion("walk", 5)
     kit, kit_contacts = to_kit(joints, contacts)
@@ -204,7 +204,7 @@ def test_each_skeleton_gets_its_shipped_network():
 
 
 def test_hand_labels_of_the_real_clip_and_the_detectors_on_it():
-    """HumanML3D 012314 with the hand labels of stablemo.footskate_bench.REAL_CONTACTS (issue #22).
+    """HumanML3D 012314 with the hand labels of stablemo.bench.footskate.REAL_CONTACTS (issue #22).
     Measured (session 13): clean, rule 0.891 / gated V22 0.897 / the network alone 0.810; with
     injected sliding (seeds 0, 1) the gated decision above the rule too; and with sliding injected
     the gated cleanup removes more of the stance feet's speed than the rule's (docs/footskate.md:
@@ -214,8 +214,8 @@ def test_hand_labels_of_the_real_clip_and_the_detectors_on_it():
     import numpy as np
     import pytest
 
-    from stablemo.footskate_bench import hand_labels, label_real_contacts, real_clip_f1, real_clip_removal
-    from stablemo.footskate_guidance import load_vgrf_model
+    from stablemo.bench.footskate import hand_labels, label_real_contacts, real_clip_f1, real_clip_removal
+    from stablemo.skating.cleanup import load_vgrf_model
 
     clip = Path(__file__).parents[1] / "../shared/data/humanml3d-sample/new_joints/012314.npy"
     if not clip.is_file():
@@ -242,7 +242,7 @@ def test_heel_raise_stands_on_the_ball_of_the_foot():
 
     import numpy as np
 
-    from stablemo.footskate_bench import build_motion
+    from stablemo.bench.footskate import build_motion
 
     spec = importlib.util.spec_from_file_location("train_vgrf", Path(__file__).parents[1] / "scripts/footskate/train_vgrf.py")
     mod = importlib.util.module_from_spec(spec)
@@ -432,7 +432,7 @@ def test_stablemo_footskate_skeleton_kit_end_to_end(tmp_path):
     import numpy as np
 
     from stablemo import cli
-    from stablemo.footskate_bench import KIT_FEET, KIT_FPS, build_motion, inject_sliding, stance_speed, to_kit
+    from stablemo.bench.footskate import KIT_FEET, KIT_FPS, build_motion, inject_sliding, stance_speed, to_kit
 
     joints, contacts = build_motion("run", 1000)
     sliding = inject_sliding(joints, contacts, np.random.default_rng(0))

@@ -12,8 +12,8 @@ D = 263
 
 @pytest.fixture(scope="module")
 def bundle(tmp_path_factory):
-    model_mod = pytest.importorskip("stablemo.model")
-    from stablemo.bundle import save_bundle
+    model_mod = pytest.importorskip("stablemo.nets.model")
+    from stablemo.inference.bundle import save_bundle
 
     config = {
         "model": {

@@ -172,7 +172,7 @@ def test_real_published_checkpoint_loads():
 
 
 def test_command_adapter_for_the_published_evaluator(tmp_path):
-    from stablemo.eval.command import GuoTextMotionEvaluator, embed_motions, load_text_motion_evaluator
+    from stablemo.eval.evaluate import GuoTextMotionEvaluator, embed_motions, load_text_motion_evaluator
 
     _, root = _fake_archive(tmp_path)
     adapter = load_text_motion_evaluator(root / "t2m/text_mot_match/model/finest.tar", "humanml3d", root / "glove")

@@ -11,7 +11,7 @@ import torch
 
 from stablemo.errors import StableMoError
 from stablemo.motion import features_to_joints
-from stablemo.pipeline import Pipeline
+from stablemo.inference.pipeline import Pipeline
 from stablemo.timeline import parse_timeline, plan_windows, segment_frames
 from stablemo.timeline.seams import seam_report
 from stablemo.timeline.windows import RootFrame, crossfade
@@ -197,7 +197,7 @@ def test_seam_report_finds_a_jump_and_only_there():
 
 
 def test_generate_timeline_cli_writes_one_motion_of_the_whole_length(tmp_path, capsys):
-    from stablemo.generate import main
+    from stablemo.cli.generate import main
 
     file = tmp_path / "walk jump.txt"
     file.write_text("0 2.5 a person walks forward\n2.5 4.5 a person jumps in place\n")
@@ -232,7 +232,7 @@ def test_generate_timeline_cli_bad_input_is_one_line_before_loading(tmp_path, ca
 
 
 def test_bench_stream_times_teacher_and_student_side_by_side(capsys):
-    from stablemo.bench import main
+    from stablemo.bench.aits import main
 
     assert main(["stream", "--chunks", "1", "--chunk-seconds", "1"]) == 0
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith(("| teacher", "| student"))]

@@ -349,7 +349,7 @@ def test_train_steps_on_synthetic_data(variant, synth_batch):
     """MotionDiffusionModel (MiniLM text) trains on real synthetic batches: finite masked x0 loss, and
     within three AdamW steps every trainable weight (denoiser and text transformer) gets a gradient."""
     from stablemo.diffusion.schedule import NoiseSchedule
-    from stablemo.model import MotionDiffusionModel
+    from stablemo.nets.model import MotionDiffusionModel
 
     torch.manual_seed(0)
     name, kwargs = TINY[variant]

@@ -16,7 +16,7 @@ import torch
 
 from stablemo.cli import main as cli_main
 from stablemo.errors import StableMoError
-from stablemo.model import MotionDiffusionModel
+from stablemo.nets.model import MotionDiffusionModel
 from stablemo.official import layout
 from stablemo.text import NULL_TEXT, TextConditioner
 
@@ -123,7 +123,7 @@ def test_layout_maps_every_key_both_ways_and_recovers_the_network(run):
 
 
 def test_import_writes_the_ema_weights_stats_and_official_variants(run, bundle):
-    from stablemo.bundle import load_bundle
+    from stablemo.inference.bundle import load_bundle
 
     loaded = load_bundle(bundle)
     assert loaded.state_dict.keys() == run["ema"].state_dict().keys()
@@ -138,7 +138,7 @@ def test_import_writes_the_ema_weights_stats_and_official_variants(run, bundle):
 
 
 def test_no_ema_imports_the_raw_weights(run):
-    from stablemo.bundle import load_bundle
+    from stablemo.inference.bundle import load_bundle
 
     out = run["root"] / "raw_bundle"
     assert cli_main(["import-official", str(run["ckpt"]), "--out", str(out), "--clip", str(run["root"] / "clip"),
@@ -148,7 +148,7 @@ def test_no_ema_imports_the_raw_weights(run):
 
 
 def test_dataset_stats_get_the_official_feat_bias(run):
-    from stablemo.bundle import load_bundle
+    from stablemo.inference.bundle import load_bundle
 
     meta, out = run["root"] / "run" / "meta", run["root"] / "feat_bias_bundle"
     assert cli_main(["import-official", str(run["ckpt"]), "--out", str(out), "--clip", str(run["root"] / "clip"),
@@ -181,7 +181,7 @@ def test_official_text_path_keeps_77_positions_and_the_null_text_has_none(run):
 
 def test_unconditional_pass_is_the_network_without_cross_attention(bundle):
     """The published CFG's unconditional half skips cross-attention: the null condition adds exactly 0."""
-    from stablemo.pipeline import Pipeline
+    from stablemo.inference.pipeline import Pipeline
 
     pipe = Pipeline.from_bundle(bundle, fast=False)
     null_text, null_mask = pipe.null_condition(2)
@@ -220,9 +220,9 @@ def test_bench_aits_runs_on_an_imported_bundle(bundle, capsys, monkeypatch):
 
 
 def test_imported_bundle_distils(bundle, tmp_path):
-    from stablemo.bundle import save_bundle
-    from stablemo.distill.module import ConsistencyDistillation
-    from stablemo.pipeline import Pipeline
+    from stablemo.inference.bundle import save_bundle
+    from stablemo.training.distill_module import ConsistencyDistillation
+    from stablemo.inference.pipeline import Pipeline
 
     module = ConsistencyDistillation(teacher=str(bundle), mode="lcm", ddim_steps=10)
     gen = torch.Generator().manual_seed(0)

@@ -33,7 +33,7 @@ def pair(tmp_path_factory):
     pytest.importorskip("einops", reason="the official models/unet.py imports einops")
     from stablemo.official import reference
     from stablemo.official.convert import import_official
-    from stablemo.pipeline import Pipeline
+    from stablemo.inference.pipeline import Pipeline
 
     root = tmp_path_factory.mktemp("equality")
     clip, tokenizer = write_tiny_clip(root / "clip")

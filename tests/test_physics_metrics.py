@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from stablemo.eval.control import control_errors
-from stablemo.eval.physics import foot_skating_ratio, ground_metrics
+from stablemo.skating.metrics import foot_skating_ratio, ground_metrics
 
 
 def _walker(T, foot_speed, foot_height=0.02):

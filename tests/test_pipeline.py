@@ -8,10 +8,10 @@ from torch import nn
 from stablemo.diffusion.guidance import CFGDenoiser
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.errors import StableMoError
-from stablemo.bench import baseline_denoiser
-from stablemo.hooks import AtSteps
-from stablemo.inference_config import InferenceConfig
-from stablemo.pipeline import Pipeline
+from stablemo.bench.aits import baseline_denoiser
+from stablemo.inference.hooks import AtSteps
+from stablemo.inference.config import InferenceConfig
+from stablemo.inference.pipeline import Pipeline
 
 D = 263  # HumanML3D features, so joints can be recovered
 
@@ -237,8 +237,8 @@ def tiny_bundle_config():
 
 @pytest.fixture(scope="module")
 def tiny_bundle(tmp_path_factory):
-    model_mod = pytest.importorskip("stablemo.model")
-    from stablemo.bundle import save_bundle
+    model_mod = pytest.importorskip("stablemo.nets.model")
+    from stablemo.inference.bundle import save_bundle
 
     config = tiny_bundle_config()
     torch.manual_seed(0)
@@ -299,7 +299,7 @@ def test_inference_config_comes_from_the_bundle_or_its_older_keys():
 
 
 def test_shipped_demo_bundle_states_its_inference_config():
-    from stablemo.generate import DEFAULT_BUNDLE
+    from stablemo.cli.generate import DEFAULT_BUNDLE
     import json
 
     config = json.loads((DEFAULT_BUNDLE / "config.json").read_text())

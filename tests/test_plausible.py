@@ -14,7 +14,7 @@ from stablemo.cli import main
 from stablemo.control import JointControl
 from stablemo.errors import StableMoError
 from stablemo.motion.plausible import MAX_TIMELINE_SECONDS
-from stablemo.render import _View, render_animation
+from stablemo.outputs.render import _View, render_animation
 from stablemo.timeline.spec import parse_timeline
 
 DEMO = Path(__file__).resolve().parents[1] / "stablemo" / "assets" / "demo_bundle"
@@ -131,7 +131,7 @@ def test_render_cost_is_bounded_by_the_image_not_the_extent():
         view = _View(motion, __import__("stablemo.motion", fromlist=["HUMANML3D"]).HUMANML3D)
         assert 4 <= len(view.grid) <= 2 * 41 + 2
     # a 40-frame walk keeps the familiar 0.5 m grid
-    from stablemo.render import _grid_spacing
+    from stablemo.outputs.render import _grid_spacing
 
     assert _grid_spacing(6.0, 1.0) == 0.5 and _grid_spacing(1e6, 1.0) >= 1e6 / 40 and _grid_spacing(1e6, 1.0) in (5e4, 1e5)
 

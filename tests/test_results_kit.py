@@ -16,8 +16,8 @@ import torch
 import yaml
 
 from stablemo.errors import StableMoError
-from stablemo.eval.command import SYNTH_EVALUATOR
-from stablemo.eval.command import main as evaluate_main
+from stablemo.eval.evaluate import SYNTH_EVALUATOR
+from stablemo.eval.evaluate import main as evaluate_main
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "stablemo" / "assets" / "demo_bundle"
@@ -235,8 +235,8 @@ def test_run_folder_holds_checkpoints_and_logs_and_resumes(tmp_path):
     sys.path.insert(0, str(REPO / "tests"))
     from test_training import TINY_MODEL, write_random_dataset
 
-    from stablemo.lit.checkpoint_io import load_checkpoint_file
-    from stablemo.lit.cli import main_fit
+    from stablemo.training.checkpoint_io import load_checkpoint_file
+    from stablemo.training.lightning_cli import main_fit
 
     data = write_random_dataset(tmp_path / "data", num=12, splits=(8, 2))
     config = {"seed_everything": 0,

@@ -24,7 +24,7 @@ from fastapi.testclient import TestClient
 
 from stablemo.cli import main as cli_main
 from stablemo.errors import StableMoError
-from stablemo.pipeline import Request
+from stablemo.inference.pipeline import Request
 from stablemo.serve import vendor as vendor_mod
 from stablemo.serve.api import STATIC_DIR, Busy, Worker, create_app
 from stablemo.serve.local import serving
@@ -142,7 +142,7 @@ def test_no_page_of_the_server_needs_the_network(client):
 
 
 def test_the_demo_student_is_served_by_default_and_equals_offline(tmp_path):
-    from stablemo.serve.command import DEMO_MODELS, bundles_from_args
+    from stablemo.cli.serve import DEMO_MODELS, bundles_from_args
 
     assert bundles_from_args(None) == DEMO_MODELS and list(DEMO_MODELS) == ["student", "teacher"]
     student = ModelSet({"student": DEMO_MODELS["student"]})

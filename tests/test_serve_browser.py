@@ -36,7 +36,7 @@ from stablemo.serve.models import ModelSet
 
 ASSETS = Path(__file__).resolve().parents[1] / "stablemo" / "assets"
 PROMPT = "a person jumps, then turns left"
-# the page's limb colours (stablemo.render): left, right, centre
+# the page's limb colours (stablemo.outputs.render): left, right, centre
 LIMBS = np.array([[0x1F, 0x6F, 0xD1], [0xD6, 0x2F, 0x2F], [0x44, 0x44, 0x44]], dtype=float)
 
 

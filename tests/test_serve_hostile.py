@@ -33,7 +33,7 @@ from fastapi.testclient import TestClient
 
 from stablemo.cli import main as cli_main
 from stablemo.errors import StableMoError
-from stablemo.pipeline import Request
+from stablemo.inference.pipeline import Request
 from stablemo.serve import guard as guard_mod
 from stablemo.serve.api import Busy, Worker, create_app
 from stablemo.serve.guard import MAX_BODY_BYTES, Guard
@@ -297,7 +297,7 @@ def test_a_download_over_its_render_budget_is_a_one_line_503(models):
 # ---- the serve command ----------------------------------------------------------------------------
 
 def test_serve_host_widens_the_host_list_with_a_warning(monkeypatch, capsys):
-    from stablemo.serve.command import allowed_hosts
+    from stablemo.cli.serve import allowed_hosts
 
     assert allowed_hosts("127.0.0.1") == allowed_hosts("localhost") == allowed_hosts("::1") == ("127.0.0.1", "localhost", "[::1]")
     assert allowed_hosts("192.168.1.20") == ("127.0.0.1", "localhost", "[::1]", "192.168.1.20")

@@ -13,7 +13,7 @@ from stablemo.data.synth import compose
 from stablemo.data.synth.body import BONE_LENGTHS, bone_lengths
 from stablemo.data.synth.writer import motion_rng
 from stablemo.errors import StableMoError
-from stablemo.eval.physics import foot_skating_ratio
+from stablemo.skating.metrics import foot_skating_ratio
 from stablemo.motion import features_to_joints, joints_to_features
 
 N_SAMPLE = 60

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from stablemo.errors import StableMoError
-from stablemo.model import MotionDiffusionModel
+from stablemo.nets.model import MotionDiffusionModel
 from stablemo.text import NULL_TEXT, FrozenTextEncoder, TextConditioner, get_encoder
 
 SMALL = dict(latent_dim=32, num_layers=2, num_heads=4, ff_dim=64, dropout=0.0)

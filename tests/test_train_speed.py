@@ -28,7 +28,7 @@ from stablemo.fast.train import (
     TrainResBlock1D,
     accelerate_training,
 )
-from stablemo.lit.checkpoint_io import load_checkpoint_file
+from stablemo.training.checkpoint_io import load_checkpoint_file
 from stablemo.nets import build_denoiser
 
 D, C = 12, 16
@@ -278,7 +278,7 @@ def _read_losses(run: Path) -> list[float]:
 def test_module_trains_through_the_fast_layers_with_the_stock_losses(tiny_data, tmp_path):
     """fit with fast_training (the default) and without: the same losses step by step (the fp32
     fast path changes rounding only), the fast layers and the fused AdamW really in use."""
-    from stablemo.lit.module import DiffusionModule
+    from stablemo.training.module import DiffusionModule
 
     module = DiffusionModule(model=TINY_MODEL)
     assert any(isinstance(m, TrainConv1d) for m in module.model.modules())
@@ -317,7 +317,7 @@ def test_bf16_mixed_trains_with_float32_weights_and_ema(tiny_data, tmp_path):
 def test_paired_bench_rows_ratios_and_memory(tmp_path, capsys):
     import json
 
-    from stablemo.lit.bench_train import main as bench_main
+    from stablemo.bench.train import main as bench_main
 
     config = tmp_path / "net.yaml"
     config.write_text("model:\n  model:\n    denoiser: {name: unet, input_dim: 12, base_channels: 16, channel_mults: [1, 2],"

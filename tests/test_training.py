@@ -15,11 +15,11 @@ from lightning.pytorch import Trainer
 from lightning.pytorch.callbacks import ModelCheckpoint
 from torch import nn
 
-from stablemo.bundle import load_bundle
+from stablemo.inference.bundle import load_bundle
 from stablemo.errors import StableMoError
-from stablemo.lit.callbacks import NonFiniteGuard, NonFiniteLossError
-from stablemo.lit.checkpoint_io import AtomicCheckpointIO, load_checkpoint_file
-from stablemo.lit.ema import EMA
+from stablemo.training.callbacks import NonFiniteGuard, NonFiniteLossError
+from stablemo.training.checkpoint_io import AtomicCheckpointIO, load_checkpoint_file
+from stablemo.training.ema import EMA
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -87,7 +87,7 @@ def tiny_config(tmp: Path, data_dir: Path, **overrides) -> Path:
 
 
 def make_module(**kwargs):
-    from stablemo.lit.module import DiffusionModule
+    from stablemo.training.module import DiffusionModule
 
     return DiffusionModule(model=TINY_MODEL, **kwargs)
 
@@ -212,7 +212,7 @@ def test_tiny_model_overfits_a_tiny_batch(tiny_data, tmp_path):
 
     model = dict(TINY_MODEL, denoiser=dict(TINY_MODEL["denoiser"], dropout=0.0),
                  text=dict(TINY_MODEL["text"], dropout=0.0))
-    from stablemo.lit.module import DiffusionModule
+    from stablemo.training.module import DiffusionModule
 
     module = DiffusionModule(model=model, lr=5e-3, lr_step=1000, cond_drop_prob=0.0, seed=0)
     data = tmp_path / "four"
@@ -262,7 +262,7 @@ def test_checkpoint_loading_never_unpickles_objects(tmp_path):
 
 
 def _fit(config: Path, *extra: str) -> None:
-    from stablemo.lit.cli import main_fit
+    from stablemo.training.lightning_cli import main_fit
 
     assert main_fit(["--config", str(config), *extra]) == 0
 
@@ -293,7 +293,7 @@ def test_resume_is_exact(tiny_data, tmp_path):
 
 
 def test_nan_loss_stops_and_keeps_last_good_checkpoint(tiny_data, tmp_path):
-    from stablemo.lit.module import DiffusionModule
+    from stablemo.training.module import DiffusionModule
 
     class PoisonedAt(DiffusionModule):
         def training_step(self, batch, batch_idx):
@@ -324,9 +324,9 @@ def test_nan_loss_stops_and_keeps_last_good_checkpoint(tiny_data, tmp_path):
 
 
 def test_export_round_trip_reproduces_the_ema_model(tiny_data, tmp_path):
-    from stablemo.lit.export import main as export_main
-    from stablemo.lit.module import DiffusionModule
-    from stablemo.model import MotionDiffusionModel
+    from stablemo.training.export import main as export_main
+    from stablemo.training.module import DiffusionModule
+    from stablemo.nets.model import MotionDiffusionModel
 
     run = tmp_path / "run"
     _fit(tiny_config(run, tiny_data, **{"trainer.max_steps": 3}))
@@ -396,7 +396,7 @@ CONFIG_SETS = [["synth_small.yaml"], ["humanml3d.yaml"], ["kit.yaml"]] + [
 
 @pytest.mark.parametrize("files", CONFIG_SETS, ids=lambda f: f[-1])
 def test_shipped_configs_parse(files, capsys):
-    from stablemo.lit.cli import main_fit
+    from stablemo.training.lightning_cli import main_fit
 
     args = [a for f in files for a in ("--config", str(REPO / "configs" / f))]
     with pytest.raises(SystemExit) as exit_:
@@ -405,7 +405,7 @@ def test_shipped_configs_parse(files, capsys):
     printed = yaml.safe_load(capsys.readouterr().out)
     assert printed["trainer"]["gradient_clip_val"] == 1.0
     assert printed["checkpoint"]["save_last"] is True
-    assert printed["model"]["class_path"] == "stablemo.lit.module.DiffusionModule"  # the default LightningModule
+    assert printed["model"]["class_path"] == "stablemo.training.module.DiffusionModule"  # the default LightningModule
     model = printed["model"]["init_args"]
     assert model["prediction_type"] == "sample" and model["cond_drop_prob"] == 0.1
     assert model["schedule"] == {"num_train_timesteps": 1000, "beta_start": 1e-4, "beta_end": 0.02,
@@ -422,7 +422,7 @@ def test_shipped_configs_parse(files, capsys):
 
 @pytest.mark.parametrize("variant", ABLATION)
 def test_ablation_variants_build_and_pad_consistently(variant):
-    from stablemo.lit.module import DiffusionModule
+    from stablemo.training.module import DiffusionModule
 
     common = yaml.safe_load((REPO / "configs/ablation/common.yaml").read_text())["model"]
     own = yaml.safe_load((REPO / f"configs/ablation/{variant}.yaml").read_text())["model"]
@@ -434,7 +434,7 @@ def test_ablation_variants_build_and_pad_consistently(variant):
 def test_bench_train_reports_speed_and_memory(tiny_data, tmp_path, capsys):
     import json
 
-    from stablemo.lit.bench_train import main as bench_main
+    from stablemo.bench.train import main as bench_main
 
     cfg = tiny_config(tmp_path, tiny_data)
     out = tmp_path / "bench.json"

@@ -172,7 +172,7 @@ def load(args) -> dict:
     with server() as (url, info):
         model = args.model or info["default"]
         # /api/info names bundles, not their paths: the server runs the packaged demo models
-        from stablemo.serve.command import DEMO_MODELS
+        from stablemo.cli.serve import DEMO_MODELS
 
         bundle = DEMO_MODELS[model]
 
@@ -186,7 +186,7 @@ def load(args) -> dict:
         with ThreadPoolExecutor(args.concurrency) as pool:
             answers = list(pool.map(one, seeds))
         wall = time.perf_counter() - start
-    from stablemo.pipeline import Pipeline, Request
+    from stablemo.inference.pipeline import Pipeline, Request
 
     pipe = Pipeline.from_bundle(bundle)
     frames = round(args.seconds * pipe.fps)

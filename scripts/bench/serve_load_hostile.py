@@ -179,7 +179,7 @@ def decode(arr: dict) -> np.ndarray:
 
 def mismatched(answers: list[dict], pipe, frames: int) -> list[int]:
     """Seeds whose answer is not offline generation's motion, bit for bit (or is not a 200)."""
-    from stablemo.pipeline import Request
+    from stablemo.inference.pipeline import Request
 
     bad = []
     for a in answers:
@@ -265,8 +265,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     import torch
 
-    from stablemo.pipeline import Pipeline
-    from stablemo.serve.command import DEMO_MODELS
+    from stablemo.inference.pipeline import Pipeline
+    from stablemo.cli.serve import DEMO_MODELS
 
     torch.set_num_threads(1)  # as the server's worker (--threads 1)
     pipe = Pipeline.from_bundle(DEMO_MODELS[args.model])

@@ -47,7 +47,7 @@ def motions(demo: bool) -> dict[str, np.ndarray]:
     if demo:
         import torch
 
-        from stablemo.pipeline import Pipeline, Request
+        from stablemo.inference.pipeline import Pipeline, Request
 
         torch.set_num_threads(1)
         pipe = Pipeline.from_bundle(ROOT / "stablemo" / "assets" / "demo_bundle", device="cpu")

@@ -40,8 +40,8 @@ def main(argv=None) -> int:
     from stablemo.control.parts import keep_mask
     from stablemo.io import check_output_dir
     from stablemo.motion import features_to_joints
-    from stablemo.pipeline import Pipeline
-    from stablemo.render import render_strip
+    from stablemo.inference.pipeline import Pipeline
+    from stablemo.outputs.render import render_strip
 
     out = check_output_dir(args.out, "--out")
     pipe = Pipeline.from_bundle(args.bundle)

@@ -3,7 +3,7 @@
     python scripts/control/report.py --bundle stablemo/assets/demo_bundle --student LCM=bundles/demo_lcm \
         --data data/synth --replications 3 --max-items 128 --out docs/data/results/results_control.json
 
-`--controlnet NAME=DIR` adds a ControlNet bundle (stablemo.controlnet; docs/control.md), scored at its
+`--controlnet NAME=DIR` adds a ControlNet bundle (stablemo.control.controlnet; docs/control.md), scored at its
 own steps with the hint alone and with the hint plus the guidance refinement (Request.control_guidance);
 `--rows pelvis:100%,none:100%` limits the rows (default: all).
 
@@ -34,9 +34,9 @@ COLS = [("fid", "FID"), ("r3", "R@3"), ("diversity", "Div."), ("skate_ratio", "S
 
 
 def _rows(pipe, name: str, steps: int, data, evaluator, args, guidance: bool = True) -> dict:
-    from stablemo.eval.command import evaluate
+    from stablemo.eval.evaluate import evaluate
     from stablemo.eval.control import ControlProtocol
-    from stablemo.pipeline import Request
+    from stablemo.inference.pipeline import Request
 
     out = {}
     lo, hi = pipe.min_length, pipe.max_length
@@ -117,9 +117,9 @@ def main(argv=None) -> int:
     torch.set_num_threads(args.threads)
 
     from stablemo.data import MotionDataset
-    from stablemo.eval.command import default_evaluator
+    from stablemo.eval.evaluate import default_evaluator
     from stablemo.eval.text_motion import load_text_motion_evaluator
-    from stablemo.pipeline import Pipeline
+    from stablemo.inference.pipeline import Pipeline
 
     data = MotionDataset.from_folder(args.data, "test", "humanml3d", crop="eval", seed=args.seed, progress=False)
     evaluator = load_text_motion_evaluator(args.evaluator or default_evaluator(args.data), "humanml3d", None)

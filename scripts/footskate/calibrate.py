@@ -59,7 +59,7 @@ class _Forces:
 def calibrate(vgrf, seeds=(3000, 4000), per_type: int = 8, skeleton: str = "humanml3d", margins=MARGINS,
               supports=SUPPORTS, rests=RESTS) -> dict:
     from footskate.cleanup import detect_contacts
-    from stablemo.footskate_bench import TYPES, _f1_score, _skeleton, build_set, f1
+    from stablemo.bench.footskate import TYPES, _f1_score, _skeleton, build_set, f1
 
     sets = [build_set(s, per_type, skeleton=skeleton) for s in seeds]
     vgrf = _Forces(vgrf)
@@ -92,7 +92,7 @@ def calibrate(vgrf, seeds=(3000, 4000), per_type: int = 8, skeleton: str = "huma
 
 
 def main(argv=None) -> int:
-    from stablemo.footskate_guidance import load_vgrf_model
+    from stablemo.skating.cleanup import load_vgrf_model
     from stablemo.io import write_text
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])

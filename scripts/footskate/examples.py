@@ -33,7 +33,7 @@ def _figure(plain: np.ndarray, clean: np.ndarray, contacts: np.ndarray, fps: flo
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from stablemo.render import save_png
+    from stablemo.outputs.render import save_png
 
     t = np.arange(len(plain)) / fps
     fig = plt.figure(figsize=(11, 10))
@@ -82,11 +82,11 @@ def main(argv=None) -> int:
     torch.set_num_threads(args.threads)
 
     from footskate.cleanup import detect_contacts
-    from stablemo.eval.physics import foot_skating_ratio
-    from stablemo.footskate_guidance import _topology, load_vgrf_model
-    from stablemo.hooks import make_hooks
+    from stablemo.skating.metrics import foot_skating_ratio
+    from stablemo.skating.cleanup import _topology, load_vgrf_model
+    from stablemo.inference.hooks import make_hooks
     from stablemo.motion import features_to_joints
-    from stablemo.pipeline import Pipeline
+    from stablemo.inference.pipeline import Pipeline
 
     pipe = Pipeline.from_bundle(args.bundle)
     topo = _topology(pipe.skeleton)

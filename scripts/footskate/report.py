@@ -25,14 +25,14 @@ import numpy as np
 import torch
 
 from stablemo.errors import run_script
-from stablemo.eval.physics import foot_skating_ratio, ground_metrics
-from stablemo.hooks import make_hooks
-from stablemo.footskate_guidance import (_topology, clean_features, load_vgrf_model,
+from stablemo.skating.metrics import foot_skating_ratio, ground_metrics
+from stablemo.inference.hooks import make_hooks
+from stablemo.skating.cleanup import (_topology, clean_features, load_vgrf_model,
                                          standard_joints)
 from stablemo.io import write_text
 from stablemo.motion import canonicalize_joints, features_to_joints
-from stablemo.pipeline import Pipeline
-from stablemo.inference_config import PAPER_CFG, PAPER_STEPS
+from stablemo.inference.pipeline import Pipeline
+from stablemo.inference.config import PAPER_CFG, PAPER_STEPS
 
 PROMPTS = [
     "a person walks forward", "a person walks forward slowly", "a person jogs forward",

@@ -6,7 +6,7 @@
         [--steps 3000] [--batch 32] [--window 64] [--lr 1e-4] [--seed 0] [--heel-raise 0.5] [--threads 1] [--log train.log]
 
 Training motions: `--motions` from the synthetic dataset's generator (its usual mix of actions,
-seed `--seed`) plus `--per-type` motions of each benchmark type (stablemo.footskate_bench.TYPES,
+seed `--seed`) plus `--per-type` motions of each benchmark type (stablemo.bench.footskate.TYPES,
 dance included) from seeds 10000 and up — the benchmark's tuning seed is 0 and its held-out seeds
 are 1000-1999, so neither is trained on. Every motion is also added
 
@@ -21,9 +21,9 @@ are 1000-1999, so neither is trained on. Every motion is also added
   shipped: validation margin +0.0041 against +0.0051 without it.
 
 `--skeleton kit`: every sequence is mapped to the KIT-ML skeleton at 12.5 fps
-(stablemo.footskate_bench.to_kit: a joint map, the metatarsal 2/3 of the way from ankle to toe)
+(stablemo.bench.footskate.to_kit: a joint map, the metatarsal 2/3 of the way from ankle to toe)
 and the network starts from the V22 with its first convolution's inputs mapped joint by joint
-(stablemo.footskate_bench.kit_from_v22).
+(stablemo.bench.footskate.kit_from_v22).
 
 Labels: footskate.forces from the ground-truth contacts. Heading, position and ±10 % scale
 augmentation as footskate.train. At the end, contact F1 per motion type of the network, the gated
@@ -131,7 +131,7 @@ def build_training_set(motions: int, per_type: int, seed: int, log, skeleton: st
     from footskate import HUMANML3D, KIT
     from footskate.forces import forces_from_contacts
     from stablemo.data.synth import generate_motion
-    from stablemo.footskate_bench import (
+    from stablemo.bench.footskate import (
         KIT_FPS,
         TYPES,
         build_motion,
@@ -180,7 +180,7 @@ def build_training_set(motions: int, per_type: int, seed: int, log, skeleton: st
 
 def heldout_f1(model, seed: int = 1000, per_type: int = 6, skeleton: str = "humanml3d") -> dict:
     from footskate.cleanup import detect_contacts
-    from stablemo.footskate_bench import _f1_score, _skeleton, build_set, f1
+    from stablemo.bench.footskate import _f1_score, _skeleton, build_set, f1
 
     data = build_set(seed, per_type, skeleton=skeleton)
     FEET, fps, _ = _skeleton(data)
@@ -237,7 +237,7 @@ def main(argv=None) -> int:
                                         args.shuffle)
     log(f"{len(joints)} training sequences ({sum(len(j) for j in joints)} frames) in {time.time() - started:.0f}s")
     if args.skeleton == "kit" and model.num_joints == 22:
-        from stablemo.footskate_bench import kit_from_v22
+        from stablemo.bench.footskate import kit_from_v22
 
         model = kit_from_v22(model)
     before = heldout_f1(model.eval(), skeleton=args.skeleton)

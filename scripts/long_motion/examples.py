@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from stablemo.errors import run_script
-from stablemo.pipeline import Pipeline
+from stablemo.inference.pipeline import Pipeline
 from stablemo.timeline import read_timeline
 
 FEET = [7, 8, 10, 11]
@@ -29,7 +29,7 @@ def plot_path(motion, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from stablemo.render import save_png
+    from stablemo.outputs.render import save_png
 
     fig, (top, side) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [1, 1.6]})
     root = motion.joints[:, 0]
@@ -66,7 +66,7 @@ def main(argv=None) -> None:
     p.add_argument("--gif", action="store_true")
     args = p.parse_args(argv)
     torch.set_num_threads(1)
-    from stablemo.render import render_animation, render_contact_sheet
+    from stablemo.outputs.render import render_animation, render_contact_sheet
 
     pipe = Pipeline.from_bundle(args.bundle)
     motion = pipe.generate_timeline(read_timeline(args.timeline), seed=args.seed, source=args.timeline)

@@ -29,7 +29,7 @@ import torch
 from stablemo.errors import run_script
 from stablemo.io import write_text
 from stablemo.motion import features_to_joints
-from stablemo.pipeline import Pipeline
+from stablemo.inference.pipeline import Pipeline
 from stablemo.timeline.seams import data_percentiles, seam_report
 
 TUNING = [

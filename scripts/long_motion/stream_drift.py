@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from stablemo.errors import run_script
-from stablemo.pipeline import Pipeline
+from stablemo.inference.pipeline import Pipeline
 
 TEXTS = ["a person walks forward", "a person turns left", "a person jumps in place", "a person runs forward",
          "a person walks backwards", "a person turns right", "a person walks in a circle clockwise"]

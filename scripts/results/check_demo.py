@@ -22,7 +22,7 @@ import torch
 
 from stablemo.errors import run_script
 from stablemo.motion import features_to_joints
-from stablemo.pipeline import Pipeline
+from stablemo.inference.pipeline import Pipeline
 
 PROBES = [  # (prompt, caption pattern in the data)
     ("a person walks forward", r"\bwalks forward\b"),

@@ -49,8 +49,8 @@ import torch
 
 from stablemo.errors import StableMoError, run_script
 from stablemo.eval import metrics
-from stablemo.eval.command import REAL_ROW, SYNTH_EVALUATOR, evaluate, load_text_motion_evaluator
-from stablemo.inference_config import PAPER_CFG
+from stablemo.eval.evaluate import REAL_ROW, SYNTH_EVALUATOR, evaluate, load_text_motion_evaluator
+from stablemo.inference.config import PAPER_CFG
 from stablemo.io import check_output_file, write_text
 
 REPO = Path(__file__).resolve().parents[2]
@@ -204,7 +204,7 @@ class Context:
 
     def pipe(self, bundle: str, dtype: str):
         if (bundle, dtype) not in self.pipes:
-            from stablemo.pipeline import Pipeline
+            from stablemo.inference.pipeline import Pipeline
 
             self.pipes[(bundle, dtype)] = Pipeline.from_bundle(bundle, dtype=dtype)
             self.checksums.setdefault(f"bundle {bundle}", folder_checksums(bundle))
@@ -299,7 +299,7 @@ def run_paper_aits(args, raw: dict, save, ctx_out_of_time: bool = False) -> None
         return
     from tempfile import TemporaryDirectory
 
-    from stablemo.bench import main as bench
+    from stablemo.bench.aits import main as bench
 
     argv = ["aits", "--random-weights", "--skip-ddpm", "--skip-student", "--repeats", str(args.paper_aits_repeats),
             "--threads", str(torch.get_num_threads()), "--seed", str(args.seed)]
@@ -653,8 +653,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 def check_args(args) -> None:
     """Every argument checked before any compute (one line naming it)."""
-    from stablemo.inference_config import check_finite, check_positive_int, check_seed
-    from stablemo.runtime import resolve_device, resolve_dtype
+    from stablemo.inference.config import check_finite, check_positive_int, check_seed
+    from stablemo.checks import resolve_device, resolve_dtype
 
     for flag in ("replications", "max_items", "ddpm_items", "aits_sentences"):
         check_positive_int(f"--{flag.replace('_', '-')}", getattr(args, flag))

@@ -59,14 +59,14 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 def train_variant(variant: str, args: argparse.Namespace, run_dir: Path) -> dict:
     import torch
-    from stablemo.lit.cli import run_cli
-    from stablemo.lit.module import DiffusionModule
+    from stablemo.training.lightning_cli import run_cli
+    from stablemo.training.module import DiffusionModule
 
     cli_args = [
         "--config", str(CONFIGS / "common.yaml"), "--config", str(CONFIGS / f"{variant}.yaml"),
         f"--seed_everything={args.seed}", f"--model.seed={args.seed}", f"--data.seed={args.seed}",
         f"--data.data_dir={args.data}",
-        f"--trainer.default_root_dir={run_dir}",  # its checkpoints/ and logs/ follow (stablemo.lit.cli)
+        f"--trainer.default_root_dir={run_dir}",  # its checkpoints/ and logs/ follow (stablemo.training.lightning_cli)
         f"--trainer.enable_progress_bar={str(args.progress).lower()}",
     ]
     if args.dataset:
@@ -104,9 +104,9 @@ def train_variant(variant: str, args: argparse.Namespace, run_dir: Path) -> dict
 
 
 def evaluate_variant(row: dict, args: argparse.Namespace, run_dir: Path) -> None:
-    from stablemo.eval.command import REAL_ROW
-    from stablemo.eval.command import main as evaluate_main
-    from stablemo.lit.export import export
+    from stablemo.eval.evaluate import REAL_ROW
+    from stablemo.eval.evaluate import main as evaluate_main
+    from stablemo.training.export import export
 
     bundle = export(row["checkpoint"], run_dir / "bundle")
     out = run_dir / "evaluation.json"
@@ -150,7 +150,7 @@ def bar_chart(rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from stablemo.render import save_png
+    from stablemo.outputs.render import save_png
 
     colours = {"Conv1D UNet": "#4C72B0", "DiT": "#DD8452", "RetNet": "#55A868"}
     metrics = [("val_loss", "validation loss (EMA) ↓")]

@@ -109,7 +109,7 @@ def plot(args: argparse.Namespace) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from stablemo.render import save_png
+    from stablemo.outputs.render import save_png
 
     fig, (ax_t, ax_v) = plt.subplots(1, 2, figsize=(11, 4))
     for spec in args.runs:

@@ -16,7 +16,7 @@ from stablemo.diffusion.guidance import precision_context
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.distill.consistency import ddim_jump, guidance_embedding, lcm_consistency, lower_edge
 from stablemo.errors import StableMoError
-from stablemo.model import MotionDiffusionModel
+from stablemo.nets.model import MotionDiffusionModel
 
 MODES = ("lcm", "pcm")
 

@@ -284,7 +284,7 @@ def load_evaluator(path: str | Path) -> EvaluatorModule:
             raise StableMoError(f"{cfg_path}: not a StableMo evaluator (format={config.get('format')!r})")
         hparams, state = config.get("hparams", {}), load_file(str(weights))
     elif path.is_file():
-        from stablemo.lit.checkpoint_io import load_checkpoint_file
+        from stablemo.training.checkpoint_io import load_checkpoint_file
 
         ckpt = load_checkpoint_file(path)
         if "state_dict" not in ckpt or "hyper_parameters" not in ckpt:
@@ -302,7 +302,7 @@ def load_evaluator(path: str | Path) -> EvaluatorModule:
 
 def export_evaluator(checkpoint: str | Path, out_dir: str | Path) -> Path:
     """Write an evaluator folder (config.json + model.safetensors) from a training checkpoint, atomically."""
-    from stablemo.bundle import write_weights_folder
+    from stablemo.inference.bundle import write_weights_folder
 
     out_dir = _check_evaluator_target(Path(out_dir))  # before the checkpoint loads
     model = load_evaluator(checkpoint)

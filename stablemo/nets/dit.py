@@ -109,7 +109,7 @@ class DiT(nn.Module):
             h = self.block(i, h, emb, ctx)
         return self.readout(h, emb, ctx)
 
-    # Named steps of `forward`, so a ControlNet (stablemo.controlnet) can run a copy of the first
+    # Named steps of `forward`, so a ControlNet (stablemo.control.controlnet) can run a copy of the first
     # blocks and add to the outputs of the frozen ones. The frame tokens are always the last T of h.
 
     def embed(self, x, t, ctx: "DiTConditioning") -> tuple[torch.Tensor, torch.Tensor]:

@@ -158,7 +158,7 @@ class RetNet(nn.Module):
             h = self.block(i, h, seq, ctx)
         return self.readout(h, seq, ctx)
 
-    # Named steps of `forward`, so a ControlNet (stablemo.controlnet) can run a copy of the first
+    # Named steps of `forward`, so a ControlNet (stablemo.control.controlnet) can run a copy of the first
     # blocks and add to the outputs of the frozen ones. The frame tokens are always the last T of h.
 
     def embed(self, x, t, ctx: "RetNetConditioning") -> tuple[torch.Tensor, "RetNetSequence"]:

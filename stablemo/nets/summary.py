@@ -14,7 +14,7 @@ import argparse
 import torch
 
 from stablemo.errors import StableMoError, one_line
-from stablemo.inference_config import MAX_FRAMES, check_seed
+from stablemo.inference.config import MAX_FRAMES, check_seed
 from stablemo.nets import build_denoiser
 from stablemo.nets.config import load_denoiser_config
 

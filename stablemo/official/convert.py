@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from stablemo.bundle import check_bundle_target, save_bundle
+from stablemo.inference.bundle import check_bundle_target, save_bundle
 from stablemo.errors import StableMoError
-from stablemo.inference_config import MAX_FRAMES, InferenceConfig
+from stablemo.inference.config import MAX_FRAMES, InferenceConfig
 from stablemo.io import load_npy
 from stablemo.motion.plausible import check_feature_stats
 from stablemo.official import layout
@@ -123,7 +123,7 @@ def import_official(ckpt: str | Path, out: str | Path, clip: str = DEFAULT_CLIP,
                     overwrite: bool = False, log=print) -> Path:
     """Convert the checkpoint `ckpt` into a bundle at `out`; see `stablemo import-official --help`."""
     from stablemo.diffusion.schedule import NoiseSchedule, check_prediction_type
-    from stablemo.model import MotionDiffusionModel
+    from stablemo.nets.model import MotionDiffusionModel
 
     ckpt = Path(ckpt)
     check_bundle_target(out, overwrite, flag="--out")

@@ -37,7 +37,7 @@ from fastapi.responses import FileResponse, JSONResponse, Response, StreamingRes
 from fastapi.staticfiles import StaticFiles
 
 from stablemo.errors import StableMoError, one_line
-from stablemo.generate import slugify
+from stablemo.cli.generate import slugify
 from stablemo.serve.guard import LOOPBACK_HOSTS, Guard, read_json
 from stablemo.serve.models import ModelSet, Motion, encode_array, json_short, motion_json
 
@@ -235,7 +235,7 @@ def bvh_bytes(motion: Motion) -> bytes:
 def gif_bytes(motion: Motion) -> bytes:
     """The motion as `stablemo render` draws it. The renderer writes files, so it writes into a
     private temporary folder that is removed with everything in it when the bytes are read."""
-    from stablemo.render import render_animation
+    from stablemo.outputs.render import render_animation
 
     with tempfile.TemporaryDirectory(prefix="stablemo-serve-") as tmp:
         path = render_animation(motion.joints, Path(tmp) / "motion.gif", motion.info["skeleton"], fps=motion.fps,

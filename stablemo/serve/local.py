@@ -14,7 +14,7 @@ def serving(app, host: str = "127.0.0.1", port: int = 0, timeout: float = 30.0) 
     = a free one. The server stops when the block ends."""
     import uvicorn
 
-    from stablemo.serve.command import SHUTDOWN_S
+    from stablemo.cli.serve import SHUTDOWN_S
 
     # as `stablemo serve`: requests still running when the block ends are cancelled, not waited for
     server = uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level="warning", lifespan="on",

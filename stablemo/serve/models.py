@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from stablemo.errors import StableMoError
-from stablemo.inference_config import check_finite, check_positive_int, check_seed
-from stablemo.pipeline import Pipeline, Request
+from stablemo.inference.config import check_finite, check_positive_int, check_seed
+from stablemo.inference.pipeline import Pipeline, Request
 from stablemo.timeline.stream import chunk_frames
 
 DEFAULT_SECONDS = 6.0
@@ -232,7 +232,7 @@ class ModelSet:
             if spec in self._cache:
                 self._cache.move_to_end(spec)
                 return self._cache[spec], True
-        from stablemo.hooks import make_hooks
+        from stablemo.inference.hooks import make_hooks
 
         pipe = self.models[spec.model].pipeline
         start = time.perf_counter()

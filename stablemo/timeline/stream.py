@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stablemo.errors import StableMoError
-from stablemo.inference_config import check_seed
+from stablemo.inference.config import check_seed
 from stablemo.timeline.compose import DEFAULT_OVERLAP_S, DEFAULT_SETTLE_S
 from stablemo.timeline.windows import RootFrame, Sampling, generate_window, settle
 

@@ -1,7 +1,7 @@
 """A dance step for the foot-skate benchmark: step-touch on the beat with a hip twist and a bounce.
 
 Not part of the captioned dataset's action mix (ACTIONS/BUILDERS), so `stablemo data synth`
-output is unchanged; stablemo.footskate_bench builds it directly. Its contacts are short and
+output is unchanged; stablemo.bench.footskate builds it directly. Its contacts are short and
 pivoting (each foot lands with a new heading), which is what makes dances hard to clean.
 """
 

@@ -32,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=8, help="frames per row")
     parser.add_argument("--only", nargs="*", help="restrict to these actions")
     args = parser.parse_args(argv)
-    from stablemo.render import render_contact_sheet
+    from stablemo.outputs.render import render_contact_sheet
 
     gallery = action_gallery(args.seed)
     if args.only:

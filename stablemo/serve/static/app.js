@@ -6,7 +6,7 @@ import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
 const $ = (id) => document.getElementById(id);
-const COLOURS = { left: 0x1f6fd1, right: 0xd62f2f, center: 0x444444 };  // as stablemo.render
+const COLOURS = { left: 0x1f6fd1, right: 0xd62f2f, center: 0x444444 };  // as stablemo.outputs.render
 const PATH_COLOUR = 0x2a9d5c;
 const DEBOUNCE_MS = 40;
 const CAMERA_OFFSET = new THREE.Vector3(2.4, 1.1, 3.4);  // from the pelvis: front-left, above
@@ -379,7 +379,7 @@ async function download(format) {
 
 // ---- joint control: a pelvis path drawn on the floor, keyframes by dragging joints --------------
 
-const TARGET_COLOUR = 0xe08a00;  // as stablemo.render's targets
+const TARGET_COLOUR = 0xe08a00;  // as stablemo.outputs.render's targets
 const raycaster = new THREE.Raycaster();
 const pointer = new THREE.Vector2();
 const floorPlane = new THREE.Plane(new THREE.Vector3(0, 1, 0), 0);

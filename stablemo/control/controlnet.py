@@ -1,0 +1,348 @@
+"""A motion ControlNet for every denoiser (MotionLCM's control, in motion space; facts-distillation §4).
+
+- `HintEncoder`: per-frame hint (masked global joint positions + the mask, (B, T, 4 J), and with
+  `path=True` the targets' path channels, (B, T, 12 J): hints.py) ->
+  convolutions over time -> a zero-initialised 1x1 projection to the feature width. In motion
+  space the hint already has a time axis, so MotionLCM's trajectory transformer with its global
+  token (needed for MLD's time-less latent) is not needed.
+- `UNetControlNet` (CondUNet1D): a trainable copy of the frozen UNet's encoder half (time/text
+  embeddings, down stages, down-samplings, middle stage), fed x_t plus the encoded hint, and one
+  zero-initialised 1x1 convolution per down stage and for the middle stage. Their outputs are
+  added to the frozen network's skip features and middle output.
+- `TokenControlNet` (DiT, RetNet): a trainable copy of the input embedding and of the first half
+  of the blocks, its frame tokens plus the encoded hint, and one zero-initialised linear layer per
+  copied block; their outputs are added to the frame tokens the frozen blocks put out (the
+  ControlNet-Transformer form: the transformers have no skips to inject into).
+- `make_controlnet(denoiser, ...)` picks the form; each has `prepare`, `residuals` and `run_base`
+  (the frozen network's forward with the residuals added, through the network's named steps).
+- `ControlledModel`: the frozen base (a MotionDiffusionModel or a ConsistencyStudent) and its
+  ControlNet, with the base's `prepare`/`denoise` contract plus a hint.
+
+At initialisation every injection is exactly zero, so a controlled model is its base. A sample
+whose hint has no target gets no injection at all (a per-sample gate), so a free prompt served by a
+controlled bundle is exactly its base's motion, and a batch mixing free and controlled prompts
+gives each the motion it would get alone. Every operator masks padded frames, so the controlled
+model stays exactly padding invariant.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from stablemo.control.hints import hint_channels
+from stablemo.errors import StableMoError
+from stablemo.nets.conditioning import Conditioning
+from stablemo.nets.dit import DiT
+from stablemo.nets.layers import zero_pad_bct, zero_pad_btc
+from stablemo.nets.retnet import RetNet
+from stablemo.nets.unet import CondUNet1D
+
+
+def _zeroed(layer: nn.Module) -> nn.Module:
+    """A zero-initialised injection (weight and bias): the controlled model starts as its base."""
+    nn.init.zeros_(layer.weight)
+    nn.init.zeros_(layer.bias)
+    return layer
+
+
+class HintEncoder(nn.Module):
+    """hint (B, T, hint_dim), motion_mask (B, T) -> (B, out_dim, T), zero on padding (and, at
+    initialisation, everywhere: the last layer is a zero 1x1 convolution)."""
+
+    def __init__(self, hint_dim: int, out_dim: int, channels: int = 64, layers: int = 3, kernel_size: int = 3):
+        super().__init__()
+        dims = [hint_dim] + [channels] * layers
+        self.convs = nn.ModuleList(nn.Conv1d(dims[i], dims[i + 1], kernel_size, padding=kernel_size // 2)
+                                   for i in range(layers))
+        self.out = _zeroed(nn.Conv1d(channels, out_dim, 1))
+
+    def forward(self, hint: torch.Tensor, motion_mask: torch.Tensor) -> torch.Tensor:
+        h = zero_pad_bct(hint.transpose(1, 2), motion_mask)  # (B, hint_dim, T)
+        for conv in self.convs:  # padded frames zero before every temporal convolution
+            h = zero_pad_bct(F.mish(conv(h)), motion_mask)
+        return zero_pad_bct(self.out(h), motion_mask)
+
+
+def _encoder_copy(unet: CondUNet1D) -> CondUNet1D:
+    """A trainable copy of `unet` with its decoder removed: its `stages()` are then the down stages
+    and the middle, so its own `prepare`/`step_adagn` cover exactly the encoder half. It trains
+    (dropout on) even when the base was frozen in eval mode."""
+    enc = copy.deepcopy(unet)
+    enc.up, enc.upsample = nn.ModuleList(), nn.ModuleList()
+    enc.final_conv = enc.final_norm = None
+    enc.out = nn.Identity()
+    return enc.requires_grad_(True).train()
+
+
+@dataclass
+class Residuals:
+    """What a ControlNet adds to its frozen network at one step: `inner`, one tensor per injection
+    point inside the network (UNet: each skip (B, C_i, T_i), then the middle; DiT/RetNet: each copied
+    block's frame tokens (B, T, C)), `output` (B, T, D) added to its output and `output_scale`
+    (B, T, D) scaling it first (out * (1 + scale) + output: where the hint determines a channel the
+    ControlNet can replace the base's value instead of correcting it blind), each or None."""
+
+    inner: list[torch.Tensor]
+    output: torch.Tensor | None = None
+    output_scale: torch.Tensor | None = None
+
+    def apply_output(self, out: torch.Tensor) -> torch.Tensor:
+        """The network's output (B, T, D) with the output injection: out * (1 + output_scale) + output."""
+        if self.output_scale is not None:
+            out = out + out * self.output_scale
+        return out if self.output is None else out + self.output
+
+
+@dataclass
+class ControlConditioning(Conditioning):
+    """A controlled step's per-request inputs: the frozen network's context, the copy's, the
+    encoded hint (B, D, T) (constant over the steps of a request, so encoded once) and the gate
+    (B, 1, 1): 1 where the sample has at least one target, else 0 (no injection)."""
+
+    base: Conditioning
+    copy: Conditioning
+    hint: torch.Tensor
+    gate: torch.Tensor
+
+
+class _ControlNetBase(nn.Module):
+    """What both forms share: the hint encoder, the hint check and the per-sample gate. Subclasses
+    set `self.encoder` (the trainable copy, with the base's `prepare`)."""
+
+    encoder: nn.Module
+
+    def __init__(self, joints: int, hint_width: int, channels: int, layers: int, path: bool):
+        super().__init__()
+        self.joints, self.path = int(joints), bool(path)
+        self.hint_width = hint_channels(self.joints, self.path)
+        self.hint_encoder = HintEncoder(self.hint_width, hint_width, channels, layers)
+
+    def prepare(self, text, text_mask, motion_mask, time_cond, timesteps,
+                hint) -> tuple[Conditioning, torch.Tensor, torch.Tensor]:
+        """(the copy's context, the encoded hint (B, C, T), the gate (B, 1, 1)); hint: (B, T, 4 J) or
+        (B, T, 12 J) with the path channels."""
+        if hint.shape != (*motion_mask.shape, self.hint_width):
+            raise StableMoError(f"hint: expected shape {(*motion_mask.shape, self.hint_width)}, got {tuple(hint.shape)}")
+        ctx = self.encoder.prepare(text, text_mask, motion_mask, time_cond, timesteps)
+        targets = hint[..., 3 * self.joints:] * motion_mask[..., None]  # (B, T, J): the mask channels on valid frames
+        gate = (targets.flatten(1) > 0).any(1).to(text.dtype)[:, None, None]  # (B, 1, 1)
+        return ctx, self.hint_encoder(hint.to(text.dtype), motion_mask), gate
+
+
+class UNetControlNet(_ControlNetBase):
+    """unet: the frozen network to control (its encoder half is copied now, with its weights);
+    joints: J of the skeleton; channels/layers: the hint encoder's; path: the hint carries the
+    targets' path channels (hints.py); output: one more zero-initialised 1x1 convolution, from the
+    copy's full-resolution features straight onto the network's output, so the hint can set output
+    channels (the root's) by a near-linear path instead of only through the frozen decoder;
+    output_scale: one more, scaling the network's output per frame and channel before that shift
+    (zero-initialised too), so the injection can replace the base's value of a channel the hint
+    determines rather than add to a value it cannot see (the base's output at t = 999 depends on the
+    noise)."""
+
+    def __init__(self, unet: CondUNet1D, joints: int, channels: int = 64, layers: int = 3, path: bool = False,
+                 output: bool = False, output_scale: bool = False):
+        super().__init__(joints, unet.input_dim, channels, layers, path)
+        self.encoder = _encoder_copy(unet)
+        widths = [stage.blocks[-1].conv2.out_channels for stage in unet.down]
+        self.skip_convs = nn.ModuleList(_zeroed(nn.Conv1d(c, c, 1)) for c in widths)
+        self.mid_conv = _zeroed(nn.Conv1d(widths[-1], widths[-1], 1))
+        self.out_conv = _zeroed(nn.Conv1d(widths[0], unet.input_dim, 1)) if output else None
+        self.out_scale_conv = _zeroed(nn.Conv1d(widths[0], unet.input_dim, 1)) if output_scale else None
+
+    def residuals(self, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning, hint: torch.Tensor,
+                  gate: torch.Tensor) -> Residuals:
+        """The injections: one (B, C_i, T_i) per down stage (into its skip), then the middle's, and
+        (with `output`) the output's (B, T, D); each times the gate (B, 1, 1), so a sample without
+        targets gets exact zeros."""
+        enc = self.encoder
+        adagn = enc.step_adagn(t, ctx)
+        h = zero_pad_bct(x.transpose(1, 2), ctx.masks[0]) + hint  # (B, D, T)
+        out, to_output, scale = [], None, None
+        for i, stage in enumerate(enc.down):
+            h = stage(h, adagn[i], ctx.text_contexts[i], ctx.masks[i])
+            out.append(zero_pad_bct(self.skip_convs[i](h), ctx.masks[i]) * gate)
+            if i == 0:
+                to_output = _frames_out(self.out_conv, h, ctx.masks[0], gate)
+                scale = _frames_out(self.out_scale_conv, h, ctx.masks[0], gate)
+            if i < len(enc.downsample):
+                h = enc.resample(enc.downsample[i], h, ctx.masks[i + 1])
+        n = len(enc.down)
+        h = enc.mid(h, adagn[n], ctx.text_contexts[n], ctx.masks[-1])
+        out.append(zero_pad_bct(self.mid_conv(h), ctx.masks[-1]) * gate)
+        return Residuals(out, to_output, scale)
+
+    @staticmethod
+    def run_base(unet: CondUNet1D, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning,
+                 residuals: Residuals) -> torch.Tensor:
+        """CondUNet1D.forward with the residuals added to each skip, to the middle output and to
+        the output (the same named steps, so a fast network keeps its fused pieces). x: (B, T, D)."""
+        inner = residuals.inner
+        adagn = unet.step_adagn(t, ctx)
+        n = len(unet.down)
+        h = zero_pad_bct(x.transpose(1, 2), ctx.masks[0])
+        skips = []
+        for i, stage in enumerate(unet.down):
+            h = stage(h, adagn[i], ctx.text_contexts[i], ctx.masks[i])
+            skips.append(h + inner[i])
+            if i < len(unet.downsample):
+                h = unet.resample(unet.downsample[i], h, ctx.masks[i + 1])
+        h = unet.mid(h, adagn[n], ctx.text_contexts[n], ctx.masks[-1]) + inner[n]
+        for j, stage in enumerate(unet.up):
+            level = n - 1 - j
+            if unet.upsample_first:
+                h = unet.resample(unet.upsample[j], h, ctx.masks[level])
+            h = stage(unet.merge_skip(h, skips.pop()), adagn[n + 1 + j], ctx.text_contexts[n + 1 + j], ctx.masks[level])
+            if not unet.upsample_first and j < len(unet.upsample):
+                h = unet.resample(unet.upsample[j], h, ctx.masks[level - 1])
+        return residuals.apply_output(unet.head(h, ctx.masks[0]).transpose(1, 2))  # (B, T, D)
+
+
+def _block_copy(net: nn.Module, blocks: int) -> nn.Module:
+    """A trainable copy of a DiT/RetNet keeping its input embedding and its first `blocks` blocks
+    (its own `prepare` then plans just those blocks' text contexts); no read-out."""
+    enc = copy.deepcopy(net)
+    enc.blocks = enc.blocks[:blocks]
+    enc.final_norm = enc.out = None
+    if hasattr(enc, "final_ada"):
+        enc.final_ada = None
+    return enc.requires_grad_(True).train()
+
+
+class TokenControlNet(_ControlNetBase):
+    """net: the frozen DiT or RetNet (its embedding and first `blocks` blocks, default half, are
+    copied now); joints, channels, layers, path, output as for the UNet (output: from the last
+    copied block's frame tokens). The hint is added to the copy's frame tokens; residual i goes onto
+    the frame tokens of the frozen block i's output."""
+
+    def __init__(self, net: nn.Module, joints: int, channels: int = 64, layers: int = 3, path: bool = False,
+                 output: bool = False, output_scale: bool = False, blocks: int | None = None):
+        super().__init__(joints, net.latent_dim, channels, layers, path)
+        n = len(net.blocks)
+        blocks = (n + 1) // 2 if blocks is None else int(blocks)
+        if not 1 <= blocks <= n:
+            raise StableMoError(f"controlnet.blocks: need 1..{n} for this network, got {blocks}")
+        self.encoder = _block_copy(net, blocks)
+        self.block_out = nn.ModuleList(_zeroed(nn.Linear(net.latent_dim, net.latent_dim)) for _ in range(blocks))
+        self.out_linear = _zeroed(nn.Linear(net.latent_dim, net.input_dim)) if output else None
+        self.out_scale_linear = _zeroed(nn.Linear(net.latent_dim, net.input_dim)) if output_scale else None
+
+    def residuals(self, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning, hint: torch.Tensor,
+                  gate: torch.Tensor) -> Residuals:
+        """One (B, T, C) per copied block and (with `output`) the output's (B, T, D), times the
+        gate; hint: (B, C, T) encoded."""
+        enc, mask = self.encoder, ctx.motion_mask
+        h, layout = enc.embed(x, t, ctx)
+        h = _add_to_frames(h, hint.transpose(1, 2))
+        out = []
+        for i in range(len(enc.blocks)):
+            h = enc.block(i, h, layout, ctx)
+            out.append(zero_pad_btc(self.block_out[i](h[:, -mask.shape[1]:]), mask) * gate)
+        frames = h[:, -mask.shape[1]:]
+        to_output, scale = (None if layer is None else zero_pad_btc(layer(frames), mask) * gate
+                            for layer in (self.out_linear, self.out_scale_linear))
+        return Residuals(out, to_output, scale)
+
+    @staticmethod
+    def run_base(net: nn.Module, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning,
+                 residuals: Residuals) -> torch.Tensor:
+        """The frozen network's forward with residual i added to block i's frame tokens and the
+        output residual to its output. x: (B, T, D)."""
+        h, layout = net.embed(x, t, ctx)
+        for i in range(len(net.blocks)):
+            h = net.block(i, h, layout, ctx)
+            if i < len(residuals.inner):
+                h = _add_to_frames(h, residuals.inner[i])
+        return residuals.apply_output(net.readout(h, layout, ctx))
+
+
+def _frames_out(conv: nn.Module | None, h: torch.Tensor, mask: torch.Tensor, gate: torch.Tensor) -> torch.Tensor | None:
+    """An output injection from full-resolution features h (B, C, T): conv(h), zero on padding,
+    times the gate, as (B, T, D); None without the layer."""
+    return None if conv is None else (zero_pad_bct(conv(h), mask) * gate).transpose(1, 2)
+
+
+def _add_to_frames(h: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
+    """h: (B, S, C) tokens whose last T are the frames; frames: (B, T, C) added to those."""
+    T = frames.shape[1]
+    return torch.cat([h[:, :-T], h[:, -T:] + frames], dim=1) if h.shape[1] > T else h + frames
+
+
+def make_controlnet(denoiser: nn.Module, joints: int, **control) -> _ControlNetBase:
+    """The ControlNet form for `denoiser` (a CondUNet1D, DiT or RetNet), with its copy made now;
+    control: channels, layers, path, output, output_scale (and blocks for a DiT/RetNet)."""
+    if isinstance(denoiser, CondUNet1D):
+        form, known = UNetControlNet, {"channels", "layers", "path", "output", "output_scale"}
+    elif isinstance(denoiser, (DiT, RetNet)):
+        form, known = TokenControlNet, {"channels", "layers", "path", "output", "output_scale", "blocks"}
+    else:
+        raise StableMoError(f"controlnet: a {type(denoiser).__name__} denoiser cannot be controlled "
+                            "(supported: unet, dit, retnet)")
+    unknown = sorted(set(control) - known)
+    if unknown:
+        raise StableMoError(f"controlnet.control: unknown key(s) {unknown} for a {type(denoiser).__name__} "
+                            f"(known: {sorted(known)})")
+    return form(denoiser, joints, **control)
+
+
+class ControlledModel(nn.Module):
+    """A frozen base model plus its ControlNet.
+
+    base: a MotionDiffusionModel ("diffusion") or a ConsistencyStudent ("consistency"); control:
+    the ControlNet's kwargs (make_controlnet); joints: J. `prepare(text, text_mask, motion_mask,
+    cond, timesteps, hint)` takes the base's own condition (`time_cond` for a diffusion model, the
+    guidance w (B,) for a student) and the hint (B, T, 4 J or 12 J); `denoise(x, t, ctx)` as the base's.
+    """
+
+    def __init__(self, base: nn.Module, base_kind: str, joints: int, control: dict | None = None):
+        super().__init__()
+        if base_kind not in ("diffusion", "consistency"):
+            raise StableMoError(f"controlnet.base_kind: expected 'diffusion' or 'consistency', got {base_kind!r}")
+        self.base, self.base_kind = base, base_kind
+        self.control = make_controlnet(self.denoiser, joints, **dict(control or {}))
+
+    @property
+    def net(self) -> nn.Module:
+        """The base's MotionDiffusionModel (a student wraps its teacher's network)."""
+        return self.base.model if self.base_kind == "consistency" else self.base
+
+    @property
+    def denoiser(self) -> nn.Module:
+        return self.net.denoiser
+
+    @property
+    def length_multiple(self) -> int:
+        return self.net.length_multiple
+
+    @property
+    def joints(self) -> int:
+        return self.control.joints
+
+    def encode_text(self, texts: list[str]):
+        return self.base.encode_text(texts)
+
+    def time_cond(self, cond: torch.Tensor | None) -> torch.Tensor | None:
+        """The features added to the timestep's: a student's embedded guidance w, else cond itself."""
+        return self.base.guidance_features(cond) if self.base_kind == "consistency" and cond is not None else cond
+
+    def prepare(self, text, text_mask, motion_mask, cond=None, timesteps=(), hint=None) -> ControlConditioning:
+        """hint None: the empty hint (no targets), as for a prompt without control."""
+        if hint is None:
+            hint = torch.zeros(*motion_mask.shape, self.control.hint_width, device=motion_mask.device)
+        time_cond = self.time_cond(cond)
+        base = self.net.prepare(text, text_mask, motion_mask, time_cond, timesteps)
+        copy_ctx, encoded, gate = self.control.prepare(text, text_mask, motion_mask, time_cond, timesteps, hint)
+        return ControlConditioning(motion_mask, time_cond, base.timesteps, base, copy_ctx, encoded, gate)
+
+    def denoise(self, x, t, ctx: ControlConditioning) -> torch.Tensor:
+        residuals = self.control.residuals(x, t, ctx.copy, ctx.hint, ctx.gate)
+        return self.control.run_base(self.denoiser, x, t, ctx.base, residuals)
+
+    def forward(self, x, t, text, text_mask, motion_mask, hint, cond=None) -> torch.Tensor:
+        """One call with its own conditioning (training)."""
+        return self.denoise(x, t, self.prepare(text, text_mask, motion_mask, cond, (), hint))

@@ -1,1 +1,0 @@
-"""Motion ControlNet (MotionLCM's control in motion space): network, hints, bundle kind, training."""

@@ -1,0 +1,467 @@
+"""Generation: text -> motion features and joints, with the paper's inference tricks (§4.3).
+
+- text is encoded once per request (the frozen encoder also caches by string across requests),
+- classifier-free guidance runs its conditional and unconditional halves as one batched forward,
+- the network alone runs in low precision (fp16 on CUDA, bf16 on CPU if asked); the solver,
+  x0 conversion and noise stay float32,
+- prompts of different lengths share a batch: each sample is padded to the network's length
+  multiple with a mask, and draws its start noise and per-step noise from its own generator at its
+  own length, so a sample's result does not depend on what else is in the batch (the denoisers are
+  exactly padding invariant),
+- sample hooks (stablemo.inference.hooks) may rewrite the predicted x0 at chosen steps (foot-skate
+  cleanup, and in the same interface any other editing of a sample while it is denoised).
+
+A request is a `Request` (texts, lengths, seeds, sampler, steps, guidance, hooks); what a bundle's
+kind contributes (network, samplers, denoiser) comes from stablemo.inference.kinds, and the defaults from the
+bundle's inference config (stablemo.inference.config).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+from stablemo.diffusion.schedule import NoiseSchedule, check_prediction_type
+from stablemo.errors import StableMoError
+from stablemo.fast import accelerate
+from stablemo.checks import resolve_device, resolve_dtype
+from stablemo.inference.hooks import SampleHook, StepState, apply_hooks
+from stablemo.inference.config import InferenceConfig, check_finite, check_positive_int, check_seed
+from stablemo.motion.plausible import check_feature_stats
+from stablemo.inference.kinds import ControlTargets, Denoise, ModelKind, model_kind
+from stablemo.control.spec import Inpaint, JointControl
+
+# (pipeline, texts, motion_mask (B, T), cfg, network dtype, planned timesteps) -> denoise(x_t, t).
+# The default encodes the texts once and asks the bundle's kind; the benchmarks pass their
+# baselines (no text cache, serial CFG) this way.
+DenoiserFactory = Callable[["Pipeline", list, torch.Tensor, float, "torch.dtype | None", list], Denoise]
+
+
+@dataclass
+class Request:
+    """One generation request. seed: an int (sample i uses seed + i) or one per text; sampler,
+    steps, cfg: None = the bundle's inference config; dtype: network precision (None = the
+    pipeline's); hooks: sample hooks, applied in this order; batch_size: split large requests into
+    chunks (results do not depend on it); inpaint: known features per prompt (`stablemo.control.
+    Inpaint`, or None for a free prompt), imposed inside the sampler; control: joint targets per
+    prompt (`stablemo.control.JointControl` or None): a ControlNet bundle reads them as its hint,
+    and with control_guidance (default) the joint-guidance hook refines x0 towards them after the
+    other hooks at every step (a 1-step student: one refinement after its step)."""
+
+    texts: Sequence[str]
+    lengths: int | Sequence[int]
+    seed: int | Sequence[int] = 0
+    sampler: str | None = None
+    steps: int | None = None
+    cfg: float | None = None
+    dtype: str | torch.dtype | None = None
+    hooks: Sequence[SampleHook] = ()
+    batch_size: int | None = None
+    progress: bool = False
+    inpaint: "Inpaint | Sequence[Inpaint | None] | None" = None
+    control: "JointControl | Sequence[JointControl | None] | None" = None
+    control_guidance: bool = True
+
+
+@dataclass
+class Generation:
+    """A batch of generated motions; padded tensors with a mask, plus per-sample views.
+
+    features: (B, T, D) de-normalised, zero on padding; joints: (B, T, J, 3), zero on padding;
+    normalized: (B, T, D) the sampler's output in model space; mask: (B, T) bool.
+    """
+
+    texts: list[str]
+    lengths: list[int]
+    seeds: list[int]
+    features: torch.Tensor
+    joints: torch.Tensor
+    normalized: torch.Tensor
+    mask: torch.Tensor
+    info: dict = field(default_factory=dict)
+
+    def feature_list(self) -> list[np.ndarray]:
+        return [self.features[i, :n].numpy() for i, n in enumerate(self.lengths)]
+
+    def joint_list(self) -> list[np.ndarray]:
+        return [self.joints[i, :n].numpy() for i, n in enumerate(self.lengths)]
+
+
+class _PerSampleNoise:
+    """N(0, I) draws where sample i comes from its own generator at its own length (T_i, D)."""
+
+    def __init__(self, generators: list[torch.Generator], lengths: list[int]):
+        self.generators, self.lengths = generators, lengths
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        z = torch.zeros(x.shape, dtype=torch.float32)
+        for i, (gen, n) in enumerate(zip(self.generators, self.lengths)):
+            z[i, :n] = torch.randn((n,) + tuple(x.shape[2:]), generator=gen, dtype=torch.float32)
+        return z.to(x.device, x.dtype)
+
+
+class Pipeline:
+    """A trained model plus what generation needs around it (schedule, stats, skeleton, inference config)."""
+
+    def __init__(
+        self,
+        model: nn.Module,
+        schedule: NoiseSchedule,
+        mean: Sequence[float] | np.ndarray,
+        std: Sequence[float] | np.ndarray,
+        prediction_type: str = "sample",
+        skeleton: str = "humanml3d",
+        kind: str = "diffusion",
+        device: str | torch.device | None = None,
+        dtype=None,
+        config: dict | None = None,
+        inference: InferenceConfig | None = None,
+        fast: bool = True,
+    ) -> None:
+        check_prediction_type(prediction_type)
+        self.config = config or {}
+        self.kind: ModelKind = model_kind(kind)
+        self.device = resolve_device(device)
+        self.dtype = resolve_dtype(dtype, self.device)
+        self.model = model.eval().requires_grad_(False).to(self.device)
+        if fast:  # GEMM convolutions, fused blocks, cached low-precision weights (stablemo.fast)
+            self.model = accelerate(self.model)
+        self.schedule, self.prediction_type = schedule, prediction_type
+        self.mean = torch.as_tensor(np.asarray(mean, dtype=np.float32))
+        self.std = torch.as_tensor(np.asarray(std, dtype=np.float32))
+        if self.mean.shape != self.std.shape or self.mean.dim() != 1:
+            raise StableMoError(f"mean/std: expected two (D,) vectors, got {tuple(self.mean.shape)} and {tuple(self.std.shape)}")
+        self.skeleton = skeleton
+        self.inference = inference or InferenceConfig.from_bundle(self.config)
+        self._null: tuple[torch.Tensor, torch.Tensor] | None = None
+        # frozen text encoders wherever the model holds a text conditioner (a student wraps its teacher's)
+        frozen = (getattr(m, "frozen", None) for m in self.model.modules())
+        self._frozen_encoders = list({id(f): f for f in frozen if hasattr(f, "clear_cache")}.values())
+        self.samplers = self.kind.samplers(self.config, schedule)
+        if self.inference.sampler not in self.samplers:
+            raise StableMoError(f"inference.sampler: {self.inference.sampler!r} is not a sampler of this model "
+                                f"(choose from {sorted(self.samplers)})")
+
+    # ---- construction -----------------------------------------------------------------------
+
+    @classmethod
+    def from_bundle(cls, path: str | Path, device=None, dtype=None, fast: bool = True,
+                    random_weights: bool = False) -> "Pipeline":
+        """Load a bundle; `random_weights` keeps the network's fresh initialisation (benchmarks)."""
+        from stablemo.inference.bundle import load_bundle
+
+        device = resolve_device(device)  # a wrong device is reported before any loading
+        bundle = load_bundle(path)
+        config = bundle.config
+        cfg_file = str(Path(path) / "config.json")
+        for key in ("model", "mean", "std"):
+            if key not in config:
+                raise StableMoError(f"{cfg_file}: missing key {key!r}")
+        kind_name = config.get("kind", "diffusion")
+        kind = model_kind(kind_name, cfg_file)
+        try:
+            model = kind.build_model(config, cfg_file)
+        except TypeError as err:
+            raise StableMoError(f"{cfg_file}: 'model' does not describe a network ({err})") from None
+        _check_stats(config, cfg_file)
+        if not random_weights:
+            weights_file = Path(path) / "model.safetensors"
+            bad = [k for k, v in bundle.state_dict.items() if v.is_floating_point() and not torch.isfinite(v).all()]
+            if bad:
+                raise StableMoError(f"{weights_file}: {len(bad)} weight tensor(s) hold NaN/Inf (e.g. {bad[0]}); "
+                                    "the bundle is broken, export it again from a good checkpoint")
+            try:
+                model.load_state_dict(bundle.state_dict, strict=True)
+            except RuntimeError as err:
+                raise StableMoError(f"{weights_file}: weights do not fit the config ({err})") from None
+        return cls(
+            model,
+            NoiseSchedule(**config.get("schedule", {})),
+            config["mean"],
+            config["std"],
+            prediction_type=config.get("prediction_type", "sample"),
+            skeleton=config.get("skeleton") or config.get("dataset", "humanml3d"),
+            kind=kind_name,
+            device=device,
+            dtype=dtype,
+            config=config,
+            inference=InferenceConfig.from_bundle(config, cfg_file),
+            fast=fast,
+        )
+
+    # ---- helpers ----------------------------------------------------------------------------
+
+    @property
+    def fps(self) -> float:
+        return self.inference.fps
+
+    @property
+    def min_length(self) -> int:
+        return self.inference.min_length
+
+    @property
+    def max_length(self) -> int:
+        return self.inference.max_length
+
+    @property
+    def length_multiple(self) -> int:
+        return int(getattr(self.model, "length_multiple", 1))
+
+    def normalize(self, features: torch.Tensor) -> torch.Tensor:
+        return (features - self.mean.to(features.device)) / self.std.to(features.device)
+
+    def denormalize(self, x: torch.Tensor) -> torch.Tensor:
+        return x * self.std.to(x.device) + self.mean.to(x.device)
+
+    def encode(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
+        """(text (B,L,C), text_mask (B,L)) on the pipeline's device, one conditioner pass."""
+        with torch.no_grad():
+            text, mask = self.model.encode_text(list(texts))
+        return text.to(self.device, torch.float32), mask.to(self.device)
+
+    def null_condition(self, batch: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """The empty-prompt encoding, computed once per pipeline and expanded to the batch."""
+        if self._null is None:
+            self._null = self.encode([""])
+        text, mask = self._null
+        return text.expand(batch, -1, -1), mask.expand(batch, -1)
+
+    def clear_text_caches(self, keep_null: bool = False) -> None:
+        """Forget cached text encodings (every frozen encoder's string cache, and the null prompt's
+        unless `keep_null`: it is a constant of the model, which AITS counts as loading).
+
+        The frozen encoders are shared across the process, so this also clears what other pipelines
+        cached in the same encoder.
+        """
+        if not keep_null:
+            self._null = None
+        for frozen in self._frozen_encoders:
+            frozen.clear_cache()
+
+    def make_denoiser(self, texts: list[str], motion_mask: torch.Tensor, cfg: float, dtype, timesteps,
+                      control: ControlTargets | None = None) -> Denoise:
+        """The default DenoiserFactory: texts encoded once, the bundle kind's denoiser (which may read
+        the batch's joint targets, `control`)."""
+        text, text_mask = self.encode(texts)
+        return self.kind.make_denoiser(self, text, text_mask, motion_mask, cfg, dtype, timesteps, control=control)
+
+    def resolve(self, request: Request) -> Request:
+        """The request with every default filled in from the inference config, checked: one clear
+        error naming the field for anything a sampler could not run or would turn into NaN."""
+        texts = [request.texts] if isinstance(request.texts, str) else list(request.texts)
+        if not texts:
+            raise StableMoError("texts: no prompts given")
+        for i, text in enumerate(texts):
+            if not isinstance(text, str) or not text.strip():
+                raise StableMoError(f"texts[{i}]: empty prompt")
+        lengths = request.lengths
+        lengths = [lengths] * len(texts) if isinstance(lengths, (int, np.integer)) else list(lengths)
+        if len(lengths) != len(texts):
+            raise StableMoError(f"lengths: {len(lengths)} lengths for {len(texts)} prompts")
+        lengths = [check_positive_int(f"lengths[{i}]", n) for i, n in enumerate(lengths)]
+        for i, n in enumerate(lengths):
+            if not self.min_length <= n <= self.max_length:
+                raise StableMoError(f"lengths[{i}]: {n} frames is outside this model's range "
+                                    f"[{self.min_length}, {self.max_length}] ({self.fps:g} fps)")
+        if isinstance(request.seed, (int, np.integer)):
+            seeds = [check_seed("seed", request.seed, len(texts)) + i for i in range(len(texts))]
+        else:
+            seeds = [check_seed(f"seed[{i}]", s) for i, s in enumerate(request.seed)]
+            if len(seeds) != len(texts):
+                raise StableMoError(f"seed: {len(seeds)} seeds for {len(texts)} prompts")
+        sampler = request.sampler or self.inference.sampler
+        if sampler not in self.samplers:
+            raise StableMoError(f"sampler: unknown {sampler!r}; choose from {sorted(self.samplers)}")
+        steps = check_positive_int("steps", self.inference.steps if request.steps is None else request.steps)
+        cfg = check_finite("cfg", self.inference.cfg if request.cfg is None else request.cfg, low=0.0, high=100.0)
+        self.samplers[sampler].timesteps(self.schedule, steps)  # the sampler's own check of steps
+        if request.batch_size is not None:
+            check_positive_int("batch_size", request.batch_size)
+        for i, hook in enumerate(request.hooks):
+            if not (callable(hook) and callable(getattr(hook, "active", None))):
+                raise StableMoError(f"hooks[{i}]: {type(hook).__name__} is not a sample hook "
+                                    "(it needs active(step, steps) and __call__(state); see stablemo.inference.hooks)")
+        if not isinstance(request.control_guidance, bool):
+            raise StableMoError(f"control_guidance: expected True or False, got {request.control_guidance!r}")
+        dtype = self.dtype if request.dtype is None else resolve_dtype(request.dtype, self.device)
+        inpaint = self._per_prompt(request.inpaint, Inpaint, "inpaint", lengths,
+                                   lambda spec, n, what: spec.resolve(n, self.mean.shape[0], what))
+        control = self._per_prompt(request.control, JointControl, "control", lengths,
+                                   lambda spec, n, what: spec.resolve(n, self.skeleton, what))
+        return replace(request, texts=texts, lengths=lengths, seed=seeds, sampler=sampler, steps=steps, cfg=cfg,
+                       dtype=dtype, hooks=list(request.hooks), inpaint=inpaint, control=control)
+
+    @staticmethod
+    def _per_prompt(value, cls, name: str, lengths: list[int], resolve) -> list | None:
+        """One checked spec (arrays) or None per prompt; None when no prompt has one."""
+        if value is None:
+            return None
+        items = [value] * len(lengths) if isinstance(value, cls) else list(value)
+        if len(items) != len(lengths):
+            raise StableMoError(f"{name}: {len(items)} entries for {len(lengths)} prompts")
+        out = []
+        for i, (item, n) in enumerate(zip(items, lengths)):
+            if item is None:
+                out.append(None)
+            elif isinstance(item, cls):
+                out.append(resolve(item, n, f"{name}[{i}]"))
+            else:
+                raise StableMoError(f"{name}[{i}]: expected a {cls.__name__} or None, got {type(item).__name__}")
+        return out if any(item is not None for item in out) else None
+
+    # ---- generation -------------------------------------------------------------------------
+
+    def generate(self, request: Request | str | Sequence[str], lengths: int | Sequence[int] | None = None,
+                 denoiser: DenoiserFactory | None = None, **fields) -> Generation:
+        """Sample one motion per prompt: `generate(Request(...))` or `generate(texts, lengths, steps=...)`
+        with the fields of `Request`. denoiser: a DenoiserFactory replacing the kind's (benchmarks).
+
+        A result that is not finite everywhere (diverged weights, a hook gone wrong) is an error
+        naming the prompt, never a returned motion.
+        """
+        if not isinstance(request, Request):
+            if lengths is None:
+                raise StableMoError("lengths: give the motion lengths in frames")
+            try:
+                request = Request(request, lengths, **fields)
+            except TypeError as err:
+                raise StableMoError(f"generate: {err}") from None
+        elif lengths is not None or fields:
+            raise StableMoError("generate: pass either a Request or texts, lengths and options, not both")
+        req = self.resolve(request)
+        factory = denoiser or Pipeline.make_denoiser
+        chunk = req.batch_size or len(req.texts)
+        parts = []
+        for start in range(0, len(req.texts), chunk):
+            sl = slice(start, start + chunk)
+            parts.append(self._generate_batch(req.texts[sl], req.lengths[sl], req.seed[sl], req, factory,
+                                              req.inpaint[sl] if req.inpaint else None,
+                                              req.control[sl] if req.control else None))
+        T = max(p.shape[1] for p in parts)
+        normalized = torch.cat([torch.nn.functional.pad(p, (0, 0, 0, T - p.shape[1])) for p in parts])
+        mask = torch.arange(T)[None, :] < torch.tensor(req.lengths)[:, None]
+        features = torch.where(mask[..., None], self.denormalize(normalized), torch.zeros(()))
+        joints = self.to_joints(features, mask)
+        for i, text in enumerate(req.texts):
+            if not (torch.isfinite(features[i]).all() and torch.isfinite(joints[i]).all()):
+                raise StableMoError(f"prompt {i + 1} ({text!r}): the model produced non-finite values "
+                                    f"(check the bundle's weights and the sampler settings); nothing was written")
+        info = {"steps": req.steps, "cfg": req.cfg, "sampler": req.sampler,
+                "dtype": str(req.dtype).replace("torch.", "")}
+        return Generation(req.texts, req.lengths, req.seed, features, joints, normalized, mask, info)
+
+    def generate_timeline(self, segments, seed: int = 0, **options):
+        """A timeline [(start_s, end_s, text), ...] (or `stablemo.timeline.Segment`s) -> one motion of
+        exactly its length (`stablemo.timeline.TimelineMotion`); options: overlap, blend (seconds),
+        steps, sampler, cfg, dtype, hooks. docs/long_motion.md."""
+        from stablemo.timeline import generate_timeline
+
+        return generate_timeline(self, segments, seed=seed, **options)
+
+    def stream(self, texts_or_callback, chunk_seconds: float = 2.0, **options):
+        """An iterator of `stablemo.timeline.Chunk`s of one continuing motion, each conditioned on the
+        frames already produced; the text may change between chunks (a list, or a callable
+        (index, previous chunk) -> text or None). Options: seed, context_seconds, max_chunks, steps,
+        sampler, cfg, dtype, hooks, control. docs/long_motion.md."""
+        from stablemo.timeline import stream
+
+        return stream(self, texts_or_callback, chunk_seconds=chunk_seconds, **options)
+
+    def to_joints(self, features: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """De-normalised features (B,T,D) -> joints (B,T,J,3), zero on padding (root integration is causal)."""
+        from stablemo.motion import features_to_joints
+
+        joints = features_to_joints(features, self.skeleton)
+        return torch.where(mask[:, :, None, None], joints, torch.zeros((), dtype=joints.dtype))
+
+    def _generate_batch(self, texts, lengths, seeds, req: Request, factory: DenoiserFactory,
+                        inpaint: list | None = None, control: list | None = None) -> torch.Tensor:
+        B, D = len(texts), self.mean.shape[0]
+        mult = self.length_multiple
+        T = int(math.ceil(max(lengths) / mult) * mult)
+        mask = (torch.arange(T)[None, :] < torch.tensor(lengths)[:, None]).to(self.device)
+        generators = [torch.Generator().manual_seed(s) for s in seeds]
+        noise = _PerSampleNoise(generators, lengths)
+        x_T = noise(torch.empty(B, T, D)).to(self.device)
+        sampler = self.samplers[req.sampler]
+        timesteps = sampler.timesteps(self.schedule, req.steps)
+        targets = None if control is None else self._control_targets(control, T)
+        # a factory that ignores control (a benchmark baseline) is only asked for it when there is some
+        extra_args = {} if targets is None else {"control": targets}
+        denoise = factory(self, list(texts), mask, req.cfg, req.dtype, timesteps, **extra_args)
+
+        hooks = list(req.hooks)
+        if targets is not None and req.control_guidance:  # last: after the other hooks (e.g. foot skating) moved the body
+            from stablemo.control.guidance import JointGuidance
+
+            hooks.append(JointGuidance(targets.targets, targets.mask, self.mean, self.std, self.skeleton))
+        extra = {}
+        if inpaint is not None:
+            extra["inpaint"] = self._inpainting(inpaint, x_T)
+        callback = None
+        if hooks:
+            def callback(i, t, x0):
+                return apply_hooks(hooks, StepState(i, req.steps, int(t), x0, mask, list(lengths)))
+
+        # inference_mode is the fastest context, but its tensors cannot enter autograd: with hooks
+        # the loop runs under no_grad so a hook may differentiate through its own computations
+        with torch.no_grad() if hooks else torch.inference_mode():
+            x0 = sampler.run(denoise, x_T, self.schedule, req.steps, noise=noise, callback=callback,
+                             prediction_type=self.prediction_type, progress=req.progress, **extra)
+        x0 = torch.where(mask[..., None], x0.float(), torch.zeros((), device=x0.device))
+        return x0.cpu()
+
+
+    def _inpainting(self, specs: list, x_T: torch.Tensor):
+        """The batch's Inpainting: known values normalised, padded to x_T's (B, T, D)."""
+        from stablemo.diffusion.inpainting import Inpainting
+
+        values, known = torch.zeros_like(x_T), torch.zeros(x_T.shape, dtype=torch.bool, device=x_T.device)
+        for i, spec in enumerate(specs):
+            if spec is not None:
+                feats, keep = (torch.from_numpy(a).to(x_T.device) for a in spec)
+                n = feats.shape[0]
+                values[i, :n] = torch.where(keep, self.normalize(feats), torch.zeros(()))
+                known[i, :n] = keep
+        return Inpainting(values, known, x_T)
+
+    def _control_targets(self, specs: list, T: int) -> ControlTargets:
+        """The batch's joint targets: targets (B, T, J, 3) and mask (B, T, J), padded, on the device."""
+        from stablemo.motion.skeleton import get_skeleton
+
+        J = get_skeleton(self.skeleton).num_joints
+        targets, mask = torch.zeros(len(specs), T, J, 3), torch.zeros(len(specs), T, J, dtype=torch.bool)
+        for i, spec in enumerate(specs):
+            if spec is not None:
+                pos, keep = spec
+                targets[i, :pos.shape[0]] = torch.from_numpy(pos)
+                mask[i, :keep.shape[0]] = torch.from_numpy(keep)
+        return ControlTargets(targets.to(self.device), mask.to(self.device))
+
+
+def _check_stats(config: dict, source: str) -> None:
+    """Mean/Std: finite vectors of the network's feature width, Std > 0 (it divides). Called after
+    the kind built the network, so config["model"]["denoiser"] is known to be complete."""
+    width = int(config["model"]["denoiser"]["input_dim"])
+    values = {}
+    for key in ("mean", "std"):
+        try:
+            values[key] = np.asarray(config[key], dtype=np.float64) if isinstance(config[key], list) else None
+        except (TypeError, ValueError):
+            values[key] = None
+        if values[key] is None or values[key].ndim != 1:
+            raise StableMoError(f"{source}: {key!r} must be a list of numbers")
+        if len(values[key]) != width:
+            raise StableMoError(f"{source}: {key!r} has {len(values[key])} values, the network's features have {width}")
+        if not np.isfinite(values[key]).all():
+            raise StableMoError(f"{source}: {key!r} holds NaN/Inf")
+    if (values["std"] <= 0).any():
+        raise StableMoError(f"{source}: 'std' holds values <= 0")
+    for key in ("mean", "std"):
+        check_feature_stats(values[key], f"{source}: {key!r}")

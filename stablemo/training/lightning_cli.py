@@ -1,0 +1,328 @@
+"""`stablemo fit|validate|test --config configs/x.yaml [--trainer.max_steps=...]` via LightningCLI.
+
+Everything is configured in YAML and overridable on the command line. Two callbacks are always
+present and configurable under their own keys: `checkpoint` (ModelCheckpoint that also saves the
+final step; save_last on) and
+`guard` (NonFiniteGuard). The run folder `trainer.default_root_dir` holds a run's checkpoints
+(`<root>/checkpoints`) and CSV log (`<root>/logs`) unless `checkpoint.dirpath` or `trainer.logger`
+say otherwise. Checkpoints are written atomically and loaded with weights_only=True
+(AtomicCheckpointIO) unless the config names another CheckpointIO plugin.
+A config whose `model:` has a `class_path` trains that LightningModule instead of DiffusionModule
+(e.g. `stablemo.eval.evaluator.EvaluatorModule` in configs/evaluator_*.yaml), with that class's own
+defaults for every argument the config does not set; DiffusionModule is the default class only for
+a command line whose configs and flags name none (see `names_model_class`).
+"""
+
+from __future__ import annotations
+
+import inspect
+import re
+import signal
+import sys
+import warnings
+from pathlib import Path
+
+from jsonargparse import Namespace
+from lightning.fabric.utilities.exceptions import MisconfigurationException
+from lightning.pytorch.cli import LightningCLI
+from lightning.pytorch.plugins.io import CheckpointIO
+
+from stablemo.errors import StableMoError, one_line, yaml_error_line
+from stablemo.training.callbacks import FinalStepCheckpoint, NonFiniteGuard
+from stablemo.training.checkpoint_io import AtomicCheckpointIO, load_checkpoint_file
+from stablemo.training.module import DiffusionModule
+
+
+class StableMoCLI(LightningCLI):
+    def __init__(self, *args, **kwargs) -> None:
+        # `stablemo fit ...` hands LightningCLI its own argv; sys.argv must stay intact for DDP's
+        # re-launch of the same command, so the "args and sys.argv both given" warning is noise here.
+        warnings.filterwarnings("ignore", message="LightningCLI's args parameter is intended")
+        argv = inspect.signature(LightningCLI.__init__).bind_partial(self, *args, **kwargs).arguments.get("args")
+        # read by add_arguments_to_parser, which LightningCLI calls from its __init__
+        self._default_model_class = not names_model_class(sys.argv[1:] if argv is None else argv)
+        super().__init__(*args, **kwargs)
+
+    def _parse_ckpt_path(self) -> None:
+        """Merge the hyperparameters stored in `--ckpt_path` into the config, as LightningCLI does.
+
+        LightningCLI reads the file here with a bare torch.load, before the Trainer and its
+        CheckpointIO exist: a truncated file or a pickle that weights_only refuses ended in a raw
+        traceback. The file is read with load_checkpoint_file instead (one error line naming it);
+        the merge below is LightningCLI's own.
+        """
+        subcommand = self.config.get("subcommand")
+        if not subcommand:
+            return
+        ckpt_path = self.config[subcommand].get("ckpt_path")
+        if not (ckpt_path and Path(ckpt_path).is_file()):
+            return  # "last", "best", URLs and missing files are resolved (and reported) by the Trainer
+        hparams = load_checkpoint_file(ckpt_path).get("hyper_parameters") or {}
+        if not isinstance(hparams, dict):
+            return
+        hparams = dict(hparams)
+        hparams.pop("_instantiator", None)
+        if not hparams:
+            return
+        if "_class_path" in hparams:
+            hparams = {"class_path": hparams.pop("_class_path"), "dict_kwargs": hparams}
+        try:
+            self.config = self.parser.parse_object({subcommand: {"model": hparams}}, self.config)
+        except SystemExit:
+            sys.stderr.write("Parsing of ckpt_path hyperparameters failed!\n")
+            raise
+
+    def add_arguments_to_parser(self, parser) -> None:
+        parser.add_lightning_class_args(FinalStepCheckpoint, "checkpoint")
+        parser.set_defaults({
+            "checkpoint.save_last": True,
+            "checkpoint.every_n_train_steps": 500,
+            "checkpoint.save_top_k": 1,  # keep the newest step-named file beside last.ckpt
+            # a resumed run (even with other checkpoint settings) keeps writing last.ckpt, not last-v1.ckpt
+            "checkpoint.enable_version_counter": False,
+        })
+        if self.subclass_mode_model and self._default_model_class:
+            # any LightningModule by `model.class_path` (e.g. ConsistencyDistillation); a command line
+            # that gives only init arguments trains the diffusion model. Only then: jsonargparse keeps
+            # a default class's init_args (filled with its defaults) that the class a config switches
+            # to also accepts, so ControlNetTraining trained with DiffusionModule's cond_drop_prob=0.1
+            # and weight_decay=0.01 instead of its own 0.0 while this default was always set.
+            parser.set_defaults({"model": {"class_path": f"{DiffusionModule.__module__}.{DiffusionModule.__qualname__}"}})
+        parser.add_lightning_class_args(NonFiniteGuard, "guard")
+
+    def before_instantiate_classes(self) -> None:
+        """The run folder (`trainer.default_root_dir`) holds the run: checkpoints go to
+        `<root>/checkpoints` and, when the config names no logger, the CSV log to `<root>/logs`, unless
+        `checkpoint.dirpath` / `trainer.logger` are set explicitly. So `--trainer.default_root_dir DIR`
+        moves the whole run, and `--ckpt_path last` finds the checkpoints of an earlier run in the
+        same folder (Lightning's own default, `<root>/lightning_logs/version_N/checkpoints`, is a new
+        folder per run, where "last" finds nothing to resume)."""
+        config = self.config[self.subcommand] if self.subcommand else self.config
+        root = config.get("trainer", {}).get("default_root_dir")
+        if not root:
+            return  # no run folder: Lightning's defaults
+        if config.get("checkpoint") is not None and config["checkpoint"].get("dirpath") is None:
+            config["checkpoint"]["dirpath"] = str(Path(root) / "checkpoints")
+        if config["trainer"].get("logger") is None:
+            config["trainer"]["logger"] = Namespace(class_path="lightning.pytorch.loggers.CSVLogger",
+                                                    init_args=Namespace(save_dir=str(root), name="logs"))
+
+    def _run_subcommand(self, subcommand: str) -> None:
+        """Lightning answers a Ctrl-C during fit/validate/test with its own shutdown and `sys.exit(1)`,
+        leaving SIGINT ignored: it is a KeyboardInterrupt again here, so that `stablemo` reports it
+        as every command does (one line, exit 130), and a second Ctrl-C works again."""
+        try:
+            super()._run_subcommand(subcommand)
+        except SystemExit:
+            if not self.trainer.interrupted:
+                raise
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+            raise KeyboardInterrupt from None
+
+    def instantiate_trainer(self, **kwargs):
+        plugins = self._get(self.config_init, "trainer", default={}).get("plugins") or []
+        plugins = list(plugins) if isinstance(plugins, (list, tuple)) else [plugins]
+        if not any(isinstance(p, CheckpointIO) for p in plugins):
+            plugins.append(AtomicCheckpointIO())
+        kwargs.setdefault("plugins", plugins)
+        return super().instantiate_trainer(**kwargs)
+
+
+def names_model_class(argv) -> bool:
+    """Whether a command line names the model's class itself: a `--config`/`-c` file (or YAML
+    string) whose `model:` has a `class_path` (or is a class name), or a `--model.class_path` /
+    `--model` flag that gives one. Anything unreadable counts as naming none (jsonargparse then
+    reports it as before)."""
+    argv = [str(a) for a in argv or []]
+    i = 0
+    while i < len(argv):
+        arg = argv[i]
+        key, eq, value = arg.partition("=")
+        if key in ("--config", "-c", "--model", "--model.class_path"):
+            if not eq:
+                if i + 1 >= len(argv):
+                    break
+                value = argv[i + 1]
+                i += 1
+            if key == "--model.class_path":
+                return True
+            if key == "--model" and _model_value_names_class(value):
+                return True
+            if key in ("--config", "-c") and _config_names_model_class(_load_yaml(value)):
+                return True
+        i += 1
+    return False
+
+
+def _load_yaml(value: str):
+    """A config file's content, or `value` itself as YAML (jsonargparse takes both); None if neither."""
+    import yaml
+
+    try:
+        path = Path(value)
+        text = path.read_text() if path.is_file() else value
+        return yaml.safe_load(text)
+    except (OSError, ValueError, yaml.YAMLError):
+        return None
+
+
+def _model_value_names_class(value) -> bool:
+    if isinstance(value, dict):
+        return bool(value.get("class_path"))
+    if isinstance(value, str) and value.strip():
+        loaded = _load_yaml(value)
+        if isinstance(loaded, dict):
+            return bool(loaded.get("class_path"))
+        return isinstance(loaded, str)  # a class name (full or short)
+    return False
+
+
+def _config_names_model_class(config) -> bool:
+    if not isinstance(config, dict):
+        return False
+    if "model" in config and _model_value_names_class(config["model"]):
+        return True
+    # a top-level config (before the subcommand) holds each subcommand's settings under its name
+    return any(isinstance(config.get(sub), dict) and _model_value_names_class(config[sub].get("model"))
+               for sub in ("fit", "validate", "test", "predict"))
+
+
+def run_cli(model_class, argv: list[str], **kwargs) -> StableMoCLI:
+    """StableMoCLI(model_class, MotionDataModule, args=argv, **kwargs) with every configuration
+    error as one StableMoError line: a bad config or flag (instead of ~80 lines of usage), and a
+    StableMoError raised while jsonargparse instantiates a class_path'd module (it wraps it)."""
+    from jsonargparse import ArgumentError
+
+    from stablemo.data import MotionDataModule
+
+    try:
+        return StableMoCLI(model_class, MotionDataModule, args=argv, parser_kwargs={"exit_on_error": False},
+                           **kwargs)
+    except StableMoError as err:
+        err.args = (one_line(str(err)),)  # same exception type (NonFiniteLossError, ...), one line
+        raise
+    except ArgumentError as err:
+        raise StableMoError(argument_error_line(str(err), argv)) from None
+    except MisconfigurationException as err:
+        # the Trainer's own checks of its settings (max_steps >= -1, ...) and of the run's set-up
+        raise StableMoError(misconfiguration_line(str(err))) from None
+    except (ValueError, TypeError) as err:
+        # jsonargparse instantiates the class_path'd module inside its own checks and wraps what the
+        # module's __init__ raised ("Does not validate against any of the Union subtypes"): a
+        # StableMoError underneath is the message the user needs
+        cause = _stablemo_cause(err)
+        if cause is None:
+            raise
+        raise type(cause)(one_line(str(cause))) from None
+
+
+def _stablemo_cause(err: BaseException) -> StableMoError | None:
+    seen = set()
+    while err is not None and id(err) not in seen:
+        if isinstance(err, StableMoError):
+            return err
+        seen.add(id(err))
+        err = err.__cause__ or err.__context__
+    return None
+
+
+def _run(subcommand: str, argv: list[str]) -> int:
+    from lightning.pytorch import LightningModule
+
+    run_cli(
+        LightningModule,
+        [subcommand, *argv],
+        subclass_mode_model=True,
+        # the same config file may be reused for a resumed run in the same folder
+        save_config_kwargs={"overwrite": True},
+        auto_configure_optimizers=False,
+    )
+    return 0
+
+
+def misconfiguration_line(message: str) -> str:
+    """Lightning's MisconfigurationException as one line naming the flag: "`max_steps` must be a
+    non-negative integer ..." -> "--trainer.max_steps: must be a non-negative integer ...". """
+    from lightning.pytorch import Trainer
+
+    message = one_line(message)
+    match = re.match(r"`(\w+)`\s*(.*)", message)
+    if match and match.group(1) in inspect.signature(Trainer.__init__).parameters:
+        return f"--trainer.{match.group(1)}: {match.group(2)}"
+    return message
+
+
+def argument_error_line(message: str, argv: list[str]) -> str:
+    """jsonargparse's error as one line: the dotted key at fault and the innermost reason, e.g.
+    "model.lr: Expected a <class 'float'>. Got value: abc"; a file that is not a config at all is
+    named (jsonargparse would quote its whole content)."""
+    lines = [line.strip() for line in message.splitlines() if line.strip()]
+    if not lines:
+        return "invalid arguments"
+    if lines[0].startswith("Problems parsing config"):
+        broken = broken_yaml_file(argv)
+        if broken is not None:
+            return broken
+    if lines[0].startswith("Unexpected config"):
+        configs = [argv[i + 1] for i, a in enumerate(argv[:-1]) if a in ("--config", "-c")]
+        return f"--config: {', '.join(configs) or 'a config'}: not a StableMo/LightningCLI config (a YAML mapping of settings)"
+    keys, reasons = [], []
+    for line in lines:
+        if line.startswith('Parser key "') and line.count('"') >= 2:
+            key, _, rest = line[len('Parser key "'):].partition('"')
+            keys.append(key)
+            rest = rest.lstrip(": ").strip()
+            if rest:
+                reasons.append(rest)
+        elif not line.startswith(("- ", "Errors:", "Subtypes:", "Given value", "Does not validate")):
+            reasons.append(line)
+    # the most specific reason: an "Expected ..." line if there is one, else the innermost line
+    reason = next((r for r in reversed(reasons) if r.startswith("Expected")), reasons[-1] if reasons else lines[-1])
+    if keys[:1] == ["config"]:
+        keys[0] = "--config"
+    return f"{'.'.join(keys)}: {reason}" if keys else reason
+
+
+def broken_yaml_file(argv: list[str]) -> str | None:
+    """`--config: FILE: line N, column M: not valid YAML (...)` for the first file given on the
+    command line that YAML cannot parse (jsonargparse parses it from a string, so its error says
+    `in "<unicode string>"` and names no file); None when every file parses."""
+    import yaml
+
+    for flag, value in _flag_values(argv):
+        path = Path(value)
+        if not path.is_file():
+            continue  # an inline YAML value, or not a file: jsonargparse's own message stands
+        try:
+            yaml.safe_load(path.read_text())
+        except yaml.YAMLError as err:
+            return f"{flag}: {yaml_error_line(path, err)}"
+        except (OSError, UnicodeDecodeError) as err:
+            return f"{flag}: {path}: cannot be read as YAML ({err})"
+    return None
+
+
+def _flag_values(argv: list[str]) -> list[tuple[str, str]]:
+    """(flag, value) for every `--flag value` and `--flag=value` on a command line."""
+    pairs = []
+    for i, arg in enumerate(argv):
+        if not arg.startswith("-"):
+            continue
+        key, eq, value = arg.partition("=")
+        if eq:
+            pairs.append((key, value))
+        elif i + 1 < len(argv) and not argv[i + 1].startswith("--"):
+            pairs.append((key, argv[i + 1]))
+    return pairs
+
+
+def main_fit(argv: list[str]) -> int:
+    return _run("fit", argv)
+
+
+def main_validate(argv: list[str]) -> int:
+    return _run("validate", argv)
+
+
+def main_test(argv: list[str]) -> int:
+    return _run("test", argv)
