@@ -1,7 +1,7 @@
 """footskate: vGRF networks, contacts, and batched foot-skate cleanup on joint positions (torch only).
 
 Joint positions in (metres, floor at 0), positions / contacts / forces out. StableMo calls this
-package through `stablemo.footskate_guidance`; this package never imports stablemo.
+package through `stablemo.skating.cleanup`; this package never imports stablemo.
 
 The public names load lazily (PEP 562): `footskate.atomicio`, the project's one write helper, is
 imported by every StableMo command and must not pull in torch with it.

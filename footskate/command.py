@@ -2,7 +2,7 @@
 
 Joints in (T, J, 3) or (B, T, J, 3) -> joints out. Features in (T, D) or (B, T, D) -> features
 out, all groups re-derived from the corrected positions; that conversion is StableMo's, so it
-comes in as a `codec` (stablemo.footskate_guidance passes it) and this package stays torch-only.
+comes in as a `codec` (stablemo.skating.cleanup passes it) and this package stays torch-only.
 """
 
 from __future__ import annotations
