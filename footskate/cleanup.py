@@ -12,14 +12,18 @@ batch loss is their sum, so a sample's result does not depend on its batch-mates
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, asdict
+from dataclasses import asdict, dataclass, field
 
 import torch
 
-from footskate.contacts import PART_THRESHOLD, contacts_at_rest, contacts_from_forces, contacts_from_heights
+from footskate.contacts import (
+    PART_THRESHOLD,
+    contacts_at_rest,
+    contacts_from_forces,
+    contacts_from_heights,
+)
 from footskate.errors import FootskateError
 from footskate.vgrf import VGRFNet, msle
-
 
 GATE_MARGIN = 0.05   # m; see CleanupConfig.gate_margin
 GATE_FORCE = 0.25    # body weights; see CleanupConfig.gate_force (a network's own calibrated value comes first)
@@ -321,11 +325,11 @@ def swing_offsets(offsets: torch.Tensor, anchored: torch.Tensor, up_axis: int) -
 
 def _near(contacts: torch.Tensor, direction: int, lengths: torch.Tensor, frames: int = 3) -> torch.Tensor:
     """(B, T, K) bool: a contact within `frames` frames before (direction -1) or after (+1)."""
-    from footskate.contacts import _shifted
+    from footskate.contacts import shifted
 
     out = torch.zeros_like(contacts)
     for k in range(1, frames + 1):  # a few shifts, not a loop over samples
-        out = out | _shifted(contacts, direction * k, lengths)
+        out = out | shifted(contacts, direction * k, lengths)
     return out
 
 
@@ -333,14 +337,14 @@ def _bridge(contacts: torch.Tensor, through: torch.Tensor, frames: int, lengths:
     """(B, T, K) bool: the frames of gaps of at most `frames` frames between two contacts whose
     every frame is in `through` (distances to the contact before and after, one shift per frame;
     a gap of g frames gives its frames distances summing to g + 1)."""
-    from footskate.contacts import _shifted
+    from footskate.contacts import shifted
 
     far = frames + 1
     before = torch.where(contacts, 0, far)                     # frames since a contact, via `through`
     after = torch.where(contacts, 0, far)
     for _ in range(frames):  # a handful of shifts, not a loop over samples
-        before = torch.where(through & ~contacts, torch.minimum(before, _shifted(before, -1, lengths) + 1), before)
-        after = torch.where(through & ~contacts, torch.minimum(after, _shifted(after, 1, lengths) + 1), after)
+        before = torch.where(through & ~contacts, torch.minimum(before, shifted(before, -1, lengths) + 1), before)
+        after = torch.where(through & ~contacts, torch.minimum(after, shifted(after, 1, lengths) + 1), after)
     return ~contacts & through & (before + after <= frames + 1)
 
 

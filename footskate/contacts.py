@@ -11,8 +11,6 @@ each were alone: "replicate" padding repeats each sample's own last valid frame.
 
 from __future__ import annotations
 
-
-
 import torch
 
 from footskate.errors import FootskateError
@@ -36,7 +34,7 @@ def _odd_window(seconds: float, fps: float) -> int:
     return n if n % 2 else n + 1
 
 
-def _shifted(x: torch.Tensor, offset: int, lengths: torch.Tensor | None) -> torch.Tensor:
+def shifted(x: torch.Tensor, offset: int, lengths: torch.Tensor | None) -> torch.Tensor:
     """x (N, F, ...) shifted by `offset` frames along dim 1 with replicate padding at each sample's ends."""
     n, frames = x.shape[:2]
     t = torch.arange(frames, device=x.device) + offset
@@ -57,7 +55,7 @@ def temporal_filter(x: torch.Tensor, weights: torch.Tensor, lengths: torch.Tenso
     radius = weights.numel() // 2
     out = torch.zeros_like(x)
     for k, w in enumerate(weights.tolist()):  # a handful of taps, not a loop over samples
-        out = out + w * _shifted(x, k - radius, lengths)
+        out = out + w * shifted(x, k - radius, lengths)
     return out
 
 
@@ -136,9 +134,9 @@ def contacts_from_heights(feet: torch.Tensor, fps: float, up_axis: int = 1, leng
     frame rate; frame t uses the displacement t -> t+1 (the last valid frame repeats the previous one).
     """
     x, lead = _flatten(feet.float(), 2)
-    nxt = _shifted(x, 1, lengths)
+    nxt = shifted(x, 1, lengths)
     disp = (nxt - x).norm(dim=-1)                          # (N, F, 4)
-    prev_disp = (x - _shifted(x, -1, lengths)).norm(dim=-1)
+    prev_disp = (x - shifted(x, -1, lengths)).norm(dim=-1)
     frames = x.shape[1]
     last = (lengths.to(x.device) - 1) if lengths is not None else torch.full((x.shape[0],), frames - 1, device=x.device)
     idx = torch.arange(frames, device=x.device)[None, :]
@@ -181,7 +179,7 @@ def contacts_at_rest(feet: torch.Tensor, fps: float, up_axis: int, lengths: torc
       5 mm jitter lowered it by ~1 cm on the real clip, and a resting joint then left the gate)."""
     half = max(1, round(span_s * fps / 2))
     x, lead = _flatten(feet.float(), 2)
-    disp = (_shifted(x, half, lengths) - _shifted(x, -half, lengths)).norm(dim=-1)       # (N, F, 4)
+    disp = (shifted(x, half, lengths) - shifted(x, -half, lengths)).norm(dim=-1)       # (N, F, 4)
     h, floor = span_floor(x[..., up_axis], fps, lengths, span_s)                          # span means, (N, 1, 4)
     still = (h - floor < height) & (disp * fps / (2 * half) < speed)
     return long_runs(still, max(2, round(seconds * fps)), lengths).reshape(*lead, *still.shape[1:])

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import torch
 
-from footskate.contacts import BACK_CELLS, FRONT_CELLS, _shifted, temporal_filter
+from footskate.contacts import BACK_CELLS, FRONT_CELLS, shifted, temporal_filter
 
 G = 9.81
 SMOOTH_SIGMA_S = 0.05      # seconds: COM height smoothing before differentiating twice
@@ -31,7 +31,7 @@ def total_vertical_force(joints: torch.Tensor, fps: float, up_axis: int = 1,
     """(B, T, J, 3) -> (B, T) ground reaction force in body weights, 1 + a_com / g, clamped to [0, MAX]."""
     com = joints.mean(-2)[..., up_axis]                                 # (B, T)
     com = temporal_filter(com[..., None], _gaussian(fps, SMOOTH_SIGMA_S), lengths)[..., 0]
-    acc = (_shifted(com[..., None], 1, lengths) - 2 * com[..., None] + _shifted(com[..., None], -1, lengths))[..., 0]
+    acc = (shifted(com[..., None], 1, lengths) - 2 * com[..., None] + shifted(com[..., None], -1, lengths))[..., 0]
     return (1.0 + acc * fps * fps / G).clamp(0.0, MAX_FORCE)
 
 

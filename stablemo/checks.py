@@ -1,8 +1,13 @@
-"""Where and in what precision the network runs: devices and dtypes from user arguments, checked
-with one clear error each (a device this torch build lacks, fp16 on a CPU, an unknown name).
+"""The small checks every entry point shares, each one clear error naming the argument or field:
+numbers (finite, in range, whole, a seed), and where and in what precision the network runs
+(devices and dtypes from user arguments: a device this torch build lacks, fp16 on a CPU, an
+unknown name). The CLI, the Python API and the server call these, never their own copies.
 """
 
 from __future__ import annotations
+
+import math
+import numbers
 
 import torch
 
@@ -43,3 +48,39 @@ def resolve_device(device) -> torch.device:
     if dev.type == "cuda" and dev.index is not None and dev.index >= torch.cuda.device_count():
         raise StableMoError(f"device: {device} does not exist ({torch.cuda.device_count()} CUDA device(s))")
     return dev
+
+
+def check_finite(name: str, value, low: float | None = None, high: float | None = None, strict: bool = False) -> float:
+    """A finite number within [low, high] (low excluded when strict), else one clear error."""
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise StableMoError(f"{name}: expected a number, got {value!r}") from None
+    if not math.isfinite(value):
+        raise StableMoError(f"{name}: must be a finite number, got {value}")
+    if low is not None and (value < low or (strict and value == low)):
+        raise StableMoError(f"{name}: must be {'>' if strict else '>='} {low:g}, got {value:g}")
+    if high is not None and value > high:
+        raise StableMoError(f"{name}: must be <= {high:g}, got {value:g}")
+    return value
+
+
+def check_positive_int(name: str, value) -> int:
+    if isinstance(value, bool) or not (isinstance(value, numbers.Integral)
+                                       or (isinstance(value, float) and value.is_integer())):
+        raise StableMoError(f"{name}: expected a whole number, got {value!r}")
+    if int(value) < 1:
+        raise StableMoError(f"{name}: must be >= 1, got {value}")
+    return int(value)
+
+
+MAX_SEED = 2**63 - 1  # torch generators take a 64-bit seed; sample i of a request uses seed + i
+
+
+def check_seed(name: str, value, count: int = 1) -> int:
+    """A whole-number seed in [0, 2^63 - 1 - (count - 1)], so that seed + i stays a valid seed."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise StableMoError(f"{name}: expected a whole number, got {value!r}")
+    if not 0 <= int(value) <= MAX_SEED - (count - 1):
+        raise StableMoError(f"{name}: must be in [0, {MAX_SEED - (count - 1)}], got {value}")
+    return int(value)

@@ -6,11 +6,11 @@ import pytest
 import torch
 from torch import nn
 
+from stablemo.errors import StableMoError
 from stablemo.fast import accelerate
 from stablemo.fast import gemm as accel
 from stablemo.fast.blocks import FastMish, fast_mish
 from stablemo.fast.gemm import CachedCastLinear, GemmConv1d, GemmConvTranspose1d
-from stablemo.errors import StableMoError
 
 
 @pytest.mark.parametrize("k, s, p", [(5, 1, 2), (3, 2, 1), (1, 1, 0), (4, 1, 0), (3, 2, 0), (5, 1, 3), (5, 3, 2), (2, 1, 1), (1, 1, 1)])

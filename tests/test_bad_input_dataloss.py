@@ -19,11 +19,11 @@ import pytest
 import torch
 
 from footskate import atomicio
-from stablemo import generate
 from stablemo.cli import main
 from stablemo.data.synth import writer
 from stablemo.data.synth.writer import MANIFEST, write_dataset
 from stablemo.errors import StableMoError
+from stablemo.outputs import files as outputs_files
 
 REPO = Path(__file__).resolve().parents[1]
 STABLEMO = Path(sys.executable).with_name("stablemo")
@@ -397,8 +397,8 @@ def test_edit_name_must_be_a_plain_file_name(capsys, tmp_path, name, what):
 
 def test_output_names_from_text_never_escape():
     for text in ("../../etc/passwd", "/abs/path", "..", ".", "a\\b\x00c", "ÄÖÜ ∂", "-" * 80, "x" * 500):
-        slug = generate.slugify(text)
-        assert generate.check_output_name(slug) == slug  # always a plain, visible, short name
+        slug = outputs_files.slugify(text)
+        assert outputs_files.check_output_name(slug) == slug  # always a plain, visible, short name
         assert slug[0] not in "-." and "/" not in slug
 
 
@@ -414,11 +414,11 @@ def test_edit_a_too_short_input_says_so(capsys, bundle, tmp_path, frames, words)
 
 
 def test_unique_slugs_are_chosen_after_all_slugs_are_known():
-    assert generate.unique_slugs(["a person walks", "a person walks", "a person walks 2"]) == [
+    assert outputs_files.unique_slugs(["a person walks", "a person walks", "a person walks 2"]) == [
         "a-person-walks", "a-person-walks-3", "a-person-walks-2"]
-    assert generate.unique_slugs(["x", "x-2", "x", "x", "x-3"]) == ["x", "x-2", "x-4", "x-5", "x-3"]
+    assert outputs_files.unique_slugs(["x", "x-2", "x", "x", "x-3"]) == ["x", "x-2", "x-4", "x-5", "x-3"]
     for texts in (["x"] * 5 + ["x 2", "x-3", "X 4"], ["b", "b-2", "b-2", "b"]):
-        slugs = generate.unique_slugs(texts)
+        slugs = outputs_files.unique_slugs(texts)
         assert len(set(slugs)) == len(texts)
 
 

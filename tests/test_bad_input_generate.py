@@ -13,7 +13,7 @@ from safetensors.torch import load_file, save_file
 
 from stablemo import cli
 from stablemo.errors import StableMoError
-from stablemo.cli.generate import DEFAULT_BUNDLE
+from stablemo.inference.bundle import DEMO_BUNDLE as DEFAULT_BUNDLE
 
 FAST = ["--frames", "40", "--steps", "1", "--no-render"]
 
@@ -79,7 +79,7 @@ def test_python_api_refuses_non_finite_and_out_of_range_settings():
 
 def test_a_non_finite_result_is_an_error_naming_the_prompt():
     """A hook (or diverged weights) that produces NaN: an error, never a returned motion."""
-    from stablemo.inference.hooks import AtSteps
+    from stablemo.diffusion.hooks import AtSteps
     from stablemo.inference.pipeline import Pipeline
 
     class Poison(AtSteps):

@@ -166,7 +166,9 @@ def test_bvh_of_one_frame_writes_and_of_zero_frames_is_one_line(tmp_path, capsys
 
 
 def _tiny_fit_config(tmp_path: Path, data: Path) -> Path:
-    from test_training import tiny_config  # the training tests' tiny model and run folder
+    from test_training import (
+        tiny_config,  # the training tests' tiny model and run folder
+    )
 
     return tiny_config(tmp_path / "run", data)
 
@@ -297,7 +299,7 @@ def test_ctrl_c_during_fit_is_one_interrupted_line_with_exit_130(tmp_path, capsy
 def test_resume_with_a_new_lr_trains_at_it(tmp_path, tiny_data):
     """--model.lr given when resuming is the optimiser's lr (the checkpoint's was kept before), so
     a diverged run resumed "with a lower --model.lr", as the guard's message advises, takes it."""
-    from stablemo.training.lightning_cli import main_fit
+    from stablemo.cli.train import main_fit
 
     config = _tiny_fit_config(tmp_path, tiny_data)  # lr 1e-3
     last = tmp_path / "run" / "checkpoints" / "last.ckpt"

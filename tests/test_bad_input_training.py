@@ -14,11 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-import yaml
+from test_training import tiny_config, write_random_dataset
 
 from stablemo.cli import main as cli
 from stablemo.training.checkpoint_io import load_checkpoint_file
-from test_training import TINY_MODEL, tiny_config, write_random_dataset
 
 REPO = Path(__file__).resolve().parents[1]
 

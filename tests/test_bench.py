@@ -5,7 +5,8 @@ import json
 import pytest
 import torch
 
-from stablemo import bench
+from stablemo.bench import aits as bench
+from stablemo.cli import bench as bench_cli
 from stablemo.errors import StableMoError
 
 TINY = """
@@ -25,7 +26,7 @@ def tiny_config(tmp_path):
 def test_aits_table_and_json(tiny_config, tmp_path, capsys):
     out = tmp_path / "aits.json"
     threads = torch.get_num_threads()
-    rc = bench.main(["aits", "--config", str(tiny_config), "--frames", "12", "--repeats", "1", "--steps", "3",
+    rc = bench_cli.main(["aits", "--config", str(tiny_config), "--frames", "12", "--repeats", "1", "--steps", "3",
                      "--ddpm-steps", "2", "--threads", "1", "--json", str(out)])
     assert rc == 0 and torch.get_num_threads() == threads  # thread setting restored
     text = capsys.readouterr().out
@@ -54,10 +55,10 @@ def test_aits_table_and_json(tiny_config, tmp_path, capsys):
 
 def test_flops_per_step_counts_both_cfg_halves(tiny_config):
     from stablemo.diffusion.schedule import NoiseSchedule
-    from stablemo.nets.model import MotionDiffusionModel
     from stablemo.inference.pipeline import Pipeline
+    from stablemo.nets.model import MotionDiffusionModel
 
-    kwargs, _ = bench._model_kwargs(str(tiny_config))
+    kwargs, _ = bench.model_kwargs(str(tiny_config))
     pipe = Pipeline(MotionDiffusionModel(**kwargs), NoiseSchedule(), [0.0] * 263, [1.0] * 263, device="cpu")
     one, two = bench.denoiser_flops(pipe, 12, 1), bench.denoiser_flops(pipe, 12, 2)
     assert one > 0 and two == pytest.approx(2 * one)
@@ -96,42 +97,42 @@ def test_matmul_reference_takes_the_fastest_product():
 def test_model_description_formats(tmp_path):
     denoiser_only = tmp_path / "d.yaml"
     denoiser_only.write_text("name: unet\nbase_channels: 8\ntext_dim: 32\n")
-    kwargs, _ = bench._model_kwargs(str(denoiser_only))
+    kwargs, _ = bench.model_kwargs(str(denoiser_only))
     assert kwargs["denoiser"]["name"] == "unet" and kwargs["denoiser"]["input_dim"] == 263
     assert kwargs["text"]["latent_dim"] == 32 and kwargs["text"]["encoder"] == "minilm"
     lightning = tmp_path / "l.yaml"
     lightning.write_text("model:\n  model:\n    denoiser: {name: dit, input_dim: 251}\n    text: {latent_dim: 64}\n")
-    kwargs, _ = bench._model_kwargs(str(lightning))
+    kwargs, _ = bench.model_kwargs(str(lightning))
     assert kwargs["denoiser"] == {"name": "dit", "input_dim": 251, "text_dim": 64} and kwargs["text"]["latent_dim"] == 64
-    kwargs, source = bench._model_kwargs(None)  # the paper network by default
+    kwargs, source = bench.model_kwargs(None)  # the paper network by default
     assert kwargs["denoiser"]["base_channels"] == 512 and list(kwargs["denoiser"]["channel_mults"]) == [2, 2, 2, 2]
 
 
 def test_bad_arguments(tmp_path):
     with pytest.raises(StableMoError, match="--config: .*missing.yaml: file not found"):
-        bench.main(["aits", "--config", str(tmp_path / "missing.yaml")])
+        bench_cli.main(["aits", "--config", str(tmp_path / "missing.yaml")])
     with pytest.raises(StableMoError, match="--ddpm-steps"):
-        bench.main(["aits", "--ddpm-steps", "0"])
+        bench_cli.main(["aits", "--ddpm-steps", "0"])
     empty = tmp_path / "empty.yaml"
     empty.write_text("trainer: {max_steps: 3}\n")
     with pytest.raises(StableMoError, match="no model description"):
-        bench.main(["aits", "--config", str(empty)])
+        bench_cli.main(["aits", "--config", str(empty)])
     with pytest.raises(StableMoError, match="unknown benchmark 'speed'"):
-        bench.main(["speed"])
+        bench_cli.main(["speed"])
 
 
 def test_flops_are_the_same_with_and_without_the_fused_attention_kernel(tiny_config):
     """The fused cross-attention read is invisible to the FLOP counter; its products are counted
     from the call shapes, so the count equals the PyTorch path's."""
+    from stablemo.diffusion.schedule import NoiseSchedule
     from stablemo.fast import kernels as fused
     from stablemo.fast.blocks import FusedLinearCrossAttention
-    from stablemo.diffusion.schedule import NoiseSchedule
-    from stablemo.nets.model import MotionDiffusionModel
     from stablemo.inference.pipeline import Pipeline
+    from stablemo.nets.model import MotionDiffusionModel
 
     if fused.kernels() is None:
         pytest.skip("the fused CPU kernels cannot be built here")
-    kwargs, _ = bench._model_kwargs(str(tiny_config))
+    kwargs, _ = bench.model_kwargs(str(tiny_config))
     pipe = Pipeline(MotionDiffusionModel(**kwargs), NoiseSchedule(), [0.0] * 263, [1.0] * 263, device="cpu")
     stock = bench.denoiser_flops(pipe, 12, 2)
     for stage in pipe.model.denoiser.stages():  # the tiny model is below the kernels' width: switch by hand

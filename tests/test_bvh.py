@@ -213,8 +213,8 @@ def test_kit_features(tmp_path):
 
 
 def test_bvh_command_writes_bvh_and_smpl_npz(tmp_path, capsys):
-    from stablemo.cli.bvh import main
     from stablemo.bvh.smpl import SMPL_PARENTS
+    from stablemo.cli.bvh import main
 
     joints = heading(synth_joints("jump", 11), 200)
     src = tmp_path / "m.joints.npy"
@@ -281,7 +281,7 @@ def test_write_bvh_rejects_bad_motion():
 
 
 def test_generate_writes_bvh_beside_the_animation(tmp_path, bundle):  # noqa: F811  (the imported fixture)
-    from stablemo import generate
+    from stablemo.cli import generate
 
     out = tmp_path / "out"
     assert generate.main(["a person walks", "--frames", "16", "--steps", "2", "--bundle", str(bundle), "--out", str(out),

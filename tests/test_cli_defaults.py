@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from stablemo.training.lightning_cli import main_fit
+from stablemo.cli.train import main_fit
 
 REPO = Path(__file__).resolve().parents[1]
 CONTROLNET = "stablemo.training.controlnet_module.ControlNetTraining"

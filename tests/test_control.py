@@ -8,16 +8,16 @@ import numpy as np
 import pytest
 import torch
 
-from stablemo.inference.bundle import save_bundle
 from stablemo.control import Inpaint, JointControl
 from stablemo.control.guidance import JointGuidance, project_root
+from stablemo.diffusion.hooks import StepState
 from stablemo.diffusion.inpainting import Inpainting
 from stablemo.diffusion.samplers import SAMPLER_TABLE
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.errors import StableMoError
-from stablemo.inference.hooks import StepState
-from stablemo.motion import features_to_joints
+from stablemo.inference.bundle import save_bundle
 from stablemo.inference.pipeline import Pipeline
+from stablemo.motion import features_to_joints
 
 DEMO = Path(__file__).resolve().parents[1] / "stablemo" / "assets" / "demo_bundle"
 D, J = 263, 22

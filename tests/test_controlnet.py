@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import torch
 
-from stablemo.inference.bundle import save_bundle
-from stablemo.control.hints import TRAIN_JOINTS, hint_input, sample_hint_mask
 from stablemo.control.controlnet import ControlledModel
+from stablemo.control.hints import TRAIN_JOINTS, hint_input, sample_hint_mask
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.errors import StableMoError
+from stablemo.inference.bundle import save_bundle
 from stablemo.nets.model import MotionDiffusionModel
 
 D, J = 263, 22
@@ -323,11 +323,12 @@ def test_bench_aits_times_student_and_controlled_bundles_beside_their_base(stude
                                                                             tmp_path, capsys):
     import json
 
-    from stablemo import bench
+    from stablemo.bench import aits as bench
+    from stablemo.cli import bench as bench_cli
 
     def run(bundle):
         out = tmp_path / f"{Path(bundle).name}.json"
-        assert bench.main(["aits", "--bundle", str(bundle), "--frames", "24", "--repeats", "1", "--threads", "1",
+        assert bench_cli.main(["aits", "--bundle", str(bundle), "--frames", "24", "--repeats", "1", "--threads", "1",
                            "--json", str(out)]) == 0
         return json.loads(out.read_text())["rows"], capsys.readouterr().out
 
@@ -414,8 +415,8 @@ def test_export_writes_the_controlnet_ema_over_the_frozen_base(student_bundle, t
 
 
 def test_bad_bundles_and_bases_are_named(teacher_bundle, student_bundle, tmp_path):
-    from stablemo.training.controlnet_module import ControlNetTraining
     from stablemo.inference.pipeline import Pipeline
+    from stablemo.training.controlnet_module import ControlNetTraining
 
     path, config = controlled_bundle(student_bundle, tmp_path, "ok")
     broken = dict(config)
@@ -434,7 +435,7 @@ def test_bad_bundles_and_bases_are_named(teacher_bundle, student_bundle, tmp_pat
 def test_shipped_control_configs_parse(name, capsys):
     import yaml
 
-    from stablemo.training.lightning_cli import main_fit
+    from stablemo.cli.train import main_fit
 
     with pytest.raises(SystemExit) as exit_:
         main_fit(["--config", str(REPO / "configs" / "control" / name), "--print_config"])
@@ -451,10 +452,10 @@ def test_fit_resume_and_export_through_the_cli(student_bundle, tmp_path):
     """3 + 3 steps resumed == 6 straight (weights, EMA, optimiser), then export serves."""
     import yaml
 
-    from stablemo.training.checkpoint_io import load_checkpoint_file
-    from stablemo.training.lightning_cli import main_fit
-    from stablemo.training.export import export
     from stablemo.inference.pipeline import Pipeline
+    from stablemo.training.checkpoint_io import load_checkpoint_file
+    from stablemo.training.export import export
+    from stablemo.cli.train import main_fit
     from tests.test_training import write_random_dataset
 
     data = write_random_dataset(tmp_path / "data")

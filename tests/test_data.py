@@ -15,7 +15,12 @@ from stablemo.data.cache import load_split
 from stablemo.data.collate import pad_motions
 from stablemo.data.dataset import crop_window
 from stablemo.data.layout import parse_caption_line
-from stablemo.data.stats import apply_feat_bias, compute_stats, denormalize, feature_groups
+from stablemo.data.stats import (
+    apply_feat_bias,
+    compute_stats,
+    denormalize,
+    feature_groups,
+)
 from stablemo.errors import StableMoError
 
 WHOLE = "a person walks forward#a/DET person/NOUN walk/VERB forward/ADV#0.0#0.0"

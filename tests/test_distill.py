@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 import torch
 
-from stablemo.inference.bundle import save_bundle
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.distill.consistency import (
     CLEAN,
@@ -20,6 +19,7 @@ from stablemo.distill.consistency import (
 )
 from stablemo.distill.sampling import lcm_timesteps, pcm_path, sample_lcm, sample_pcm
 from stablemo.distill.student import ConsistencyStudent
+from stablemo.inference.bundle import save_bundle
 from stablemo.nets.model import MotionDiffusionModel
 
 D = 263
@@ -169,8 +169,8 @@ def test_distillation_loss_decreases_on_a_tiny_set(teacher_bundle):
 
 
 def test_student_bundle_samples_through_the_pipeline(teacher_bundle, tmp_path):
-    from stablemo.training.distill_module import ConsistencyDistillation
     from stablemo.inference.pipeline import Pipeline
+    from stablemo.training.distill_module import ConsistencyDistillation
 
     for mode in ("lcm", "pcm"):
         module = ConsistencyDistillation(teacher=str(teacher_bundle), mode=mode, ddim_steps=50, phases=4)
@@ -187,8 +187,8 @@ def test_student_bundle_samples_through_the_pipeline(teacher_bundle, tmp_path):
 
 def test_student_pipeline_clears_the_shared_text_cache(teacher_bundle, tmp_path):
     """AITS times each sentence with cold text caches; a student's pipeline must reach its encoder."""
-    from stablemo.training.distill_module import ConsistencyDistillation
     from stablemo.inference.pipeline import Pipeline
+    from stablemo.training.distill_module import ConsistencyDistillation
 
     module = ConsistencyDistillation(teacher=str(teacher_bundle), mode="lcm", ddim_steps=50)
     config, state = module.bundle()

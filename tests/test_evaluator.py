@@ -5,7 +5,13 @@ import pytest
 import torch
 
 from stablemo.errors import StableMoError
-from stablemo.eval.evaluator import EvaluatorModule, MotionEncoder, export_evaluator, info_nce, load_evaluator
+from stablemo.eval.evaluator import (
+    EvaluatorModule,
+    MotionEncoder,
+    export_evaluator,
+    info_nce,
+    load_evaluator,
+)
 
 CLASSES = ["a person walks forward", "a person jumps up and down", "someone waves with the right hand",
            "a man sits down on a chair"]
@@ -154,7 +160,7 @@ def test_benchmark_protocol_with_constructed_generators(trained):
 def test_evaluate_command_real_motion_only(trained, capsys):
     import json
 
-    from stablemo.eval.evaluate import main
+    from stablemo.cli.evaluate import main
 
     out = trained["tmp"] / "results.json"
     assert main(["--data", str(trained["root"]), "--evaluator", str(trained["ckpt"]), "--split", "train",
@@ -172,8 +178,8 @@ def test_evaluate_command_with_a_bundle(trained, capsys):
     """End to end through Pipeline.from_bundle with a tiny untrained model: table, footskate, AITS, JSON."""
     import json
 
+    from stablemo.cli.evaluate import main
     from stablemo.inference.bundle import save_bundle
-    from stablemo.eval.evaluate import main
     from stablemo.nets.model import MotionDiffusionModel
 
     torch.manual_seed(0)

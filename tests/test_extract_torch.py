@@ -8,13 +8,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from test_motion import random_motion
 
 from stablemo.errors import StableMoError
 from stablemo.motion import HUMANML3D, KIT, canonicalize_joints, features_to_joints
-from stablemo.motion.extract_torch import canonicalize_joints_batched, joints_to_features_batched
+from stablemo.motion.extract_torch import (
+    canonicalize_joints_batched,
+    joints_to_features_batched,
+)
 from stablemo.motion.features import joints_to_features_f64
 from stablemo.motion.quaternion import qrot_np
-from test_motion import random_motion
 
 SAMPLE = Path(__file__).resolve().parents[2] / "shared/data/humanml3d-sample"
 TOL = 1e-9  # float64; KIT is in millimetres, its values ~1e3 (measured errors ~1e-12 there)
@@ -152,12 +155,12 @@ def test_errors_are_named():
 def test_footskate_hook_path_uses_no_numpy(monkeypatch):
     """FootskateHook on a StepState: no numpy conversion and no numpy extraction on its path, and
     the batched result equals cleaning each sample alone."""
+    import stablemo.motion.features as numpy_features
     from stablemo.data.synth import generate_motion
     from stablemo.data.synth.writer import motion_rng
+    from stablemo.diffusion.hooks import StepState
     from stablemo.skating.cleanup import joints_to_consistent_features
-    from stablemo.inference.hooks import StepState
     from stablemo.skating.hook import FootskateHook
-    import stablemo.motion.features as numpy_features
 
     motions = [generate_motion(motion_rng(1, i)).joints[:n] for i, n in enumerate((48, 30))]
     batch, lengths = _pad(motions, 0.0)

@@ -9,9 +9,20 @@ import numpy as np
 import pytest
 import torch
 
-from footskate import HUMANML3D, CleanupConfig, FootskateError, VGRFNet, anchor_drift, cleanup
+from footskate import (
+    HUMANML3D,
+    CleanupConfig,
+    FootskateError,
+    VGRFNet,
+    anchor_drift,
+    cleanup,
+)
 from footskate.cleanup import contact_ranges, detect_contacts, leg_joints
-from footskate.contacts import contacts_from_forces, contacts_from_heights, majority_filter
+from footskate.contacts import (
+    contacts_from_forces,
+    contacts_from_heights,
+    majority_filter,
+)
 from footskate.forces import forces_from_contacts
 from footskate.vgrf import ATTRIBUTION, load_underpressure, load_vgrf, save_vgrf
 
@@ -377,7 +388,7 @@ def test_retarget_to_underpressure_skeleton():
 
 
 def test_distillation_command_with_a_stand_in_v23(tmp_path, capsys):
-    from footskate.retarget import main as retarget_main
+    from footskate.distill import main as retarget_main
 
     torch.manual_seed(0)
     v23 = tmp_path / "pretrained.tar"
@@ -441,8 +452,8 @@ def test_stablemo_footskate_features_are_consistent(tmp_path):
 def test_clean_features_reproduce_the_cleaned_joints():
     """Features out of clean_features give back exactly the joints it returns (no refit moves the
     anchored feet), on the standard skeleton, with less skating than the input."""
-    from stablemo.skating.cleanup import clean_features, joints_to_consistent_features
     from stablemo.motion import canonicalize_joints, features_to_joints
+    from stablemo.skating.cleanup import clean_features, joints_to_consistent_features
 
     x = standing_pose().expand(60, 22, 3).clone()              # (60, 22, 3)
     x[:, :, 2] += 0.1 * torch.sin(torch.arange(60) * torch.pi / 10)[:, None]  # body and feet sway ±10 cm, up to 0.6 m/s
@@ -468,11 +479,11 @@ def test_clean_features_reproduce_the_cleaned_joints():
 @pytest.mark.skipif(not (SAMPLE / "new_joints/012314.npy").is_file(), reason="HumanML3D sample not present")
 def test_guidance_hook_cleans_x0_inside_denoising():
     from stablemo.diffusion.schedule import NoiseSchedule
+    from stablemo.inference.config import InferenceConfig
+    from stablemo.inference.pipeline import Pipeline
+    from stablemo.motion import features_to_joints
     from stablemo.skating.cleanup import joints_to_consistent_features
     from stablemo.skating.hook import FootskateHook
-    from stablemo.inference.config import InferenceConfig
-    from stablemo.motion import features_to_joints
-    from stablemo.inference.pipeline import Pipeline
 
     clip = torch.from_numpy(np.load(SAMPLE / "new_joints/012314.npy")).float()[:64]
     contacts, _ = detect_contacts(clip[None], None, FEET, 20.0, 1)

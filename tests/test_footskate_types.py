@@ -214,7 +214,12 @@ def test_hand_labels_of_the_real_clip_and_the_detectors_on_it():
     import numpy as np
     import pytest
 
-    from stablemo.bench.footskate import hand_labels, label_real_contacts, real_clip_f1, real_clip_removal
+    from stablemo.bench.footskate import (
+        hand_labels,
+        label_real_contacts,
+        real_clip_f1,
+        real_clip_removal,
+    )
     from stablemo.skating.cleanup import load_vgrf_model
 
     clip = Path(__file__).parents[1] / "../shared/data/humanml3d-sample/new_joints/012314.npy"
@@ -432,7 +437,14 @@ def test_stablemo_footskate_skeleton_kit_end_to_end(tmp_path):
     import numpy as np
 
     from stablemo import cli
-    from stablemo.bench.footskate import KIT_FEET, KIT_FPS, build_motion, inject_sliding, stance_speed, to_kit
+    from stablemo.bench.footskate import (
+        KIT_FEET,
+        KIT_FPS,
+        build_motion,
+        inject_sliding,
+        stance_speed,
+        to_kit,
+    )
 
     joints, contacts = build_motion("run", 1000)
     sliding = inject_sliding(joints, contacts, np.random.default_rng(0))

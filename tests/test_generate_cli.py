@@ -4,8 +4,11 @@ import numpy as np
 import pytest
 import torch
 
-from stablemo import cli, generate
+from stablemo import cli
+from stablemo.cli import generate
 from stablemo.errors import StableMoError
+from stablemo.inference import bundle as bundle_module
+from stablemo.outputs import files as outputs_files
 
 D = 263
 
@@ -93,7 +96,7 @@ def test_bad_input_errors(bundle, tmp_path, argv, message):
 def test_missing_bundles(tmp_path, monkeypatch, capsys):
     with pytest.raises(StableMoError, match="--bundle: .*nope: bundle folder not found"):
         generate.main(["walk", "--bundle", str(tmp_path / "nope")])
-    monkeypatch.setattr(generate, "DEFAULT_BUNDLE", tmp_path / "demo_bundle")
+    monkeypatch.setattr(bundle_module, "DEMO_BUNDLE", tmp_path / "demo_bundle")
     with pytest.raises(StableMoError, match=r"packaged demo model is missing .*demo_bundle.*stablemo export"):
         generate.main(["walk"])
     # through the console entry point: one line on stderr, exit code 2
@@ -102,9 +105,9 @@ def test_missing_bundles(tmp_path, monkeypatch, capsys):
 
 
 def test_slugs_are_safe_and_unique():
-    assert generate.slugify("A person: walks / forward!!") == "a-person-walks-forward"
-    assert generate.slugify("???") == "motion"
-    assert generate.unique_slugs(["Jump", "jump", "JUMP"]) == ["jump", "jump-2", "jump-3"]
+    assert outputs_files.slugify("A person: walks / forward!!") == "a-person-walks-forward"
+    assert outputs_files.slugify("???") == "motion"
+    assert outputs_files.unique_slugs(["Jump", "jump", "JUMP"]) == ["jump", "jump-2", "jump-3"]
 
 
 def test_footskate_flag_cleans_inside_denoising(bundle, tmp_path):

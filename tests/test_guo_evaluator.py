@@ -10,8 +10,12 @@ import torch
 
 from stablemo.errors import StableMoError
 from stablemo.eval import guo
-from stablemo.eval.word_vectorizer import (POS_INDEX, WordVectorizer, convert_words_to_text,
-                                           read_pickled_strings)
+from stablemo.eval.word_vectorizer import (
+    POS_INDEX,
+    WordVectorizer,
+    convert_words_to_text,
+    read_pickled_strings,
+)
 
 # Shapes of every tensor in the published HumanML3D finest.tar (facts-humanml3d.md §7).
 EXPECTED = {
@@ -172,7 +176,11 @@ def test_real_published_checkpoint_loads():
 
 
 def test_command_adapter_for_the_published_evaluator(tmp_path):
-    from stablemo.eval.evaluate import GuoTextMotionEvaluator, embed_motions, load_text_motion_evaluator
+    from stablemo.eval.evaluate import (
+        GuoTextMotionEvaluator,
+        embed_motions,
+        load_text_motion_evaluator,
+    )
 
     _, root = _fake_archive(tmp_path)
     adapter = load_text_motion_evaluator(root / "t2m/text_mot_match/model/finest.tar", "humanml3d", root / "glove")

@@ -10,8 +10,8 @@ import pytest
 import torch
 
 from stablemo.errors import StableMoError
-from stablemo.motion import features_to_joints
 from stablemo.inference.pipeline import Pipeline
+from stablemo.motion import features_to_joints
 from stablemo.timeline import parse_timeline, plan_windows, segment_frames
 from stablemo.timeline.seams import seam_report
 from stablemo.timeline.windows import RootFrame, crossfade
@@ -232,7 +232,7 @@ def test_generate_timeline_cli_bad_input_is_one_line_before_loading(tmp_path, ca
 
 
 def test_bench_stream_times_teacher_and_student_side_by_side(capsys):
-    from stablemo.bench.aits import main
+    from stablemo.cli.bench import main
 
     assert main(["stream", "--chunks", "1", "--chunk-seconds", "1"]) == 0
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith(("| teacher", "| student"))]

@@ -18,7 +18,13 @@ from stablemo.motion import (
     get_skeleton,
     joints_to_features,
 )
-from stablemo.motion.quaternion import qbetween_np, qmul_np, qrot_np, quat_to_matrix_np, rot6d_to_matrix
+from stablemo.motion.quaternion import (
+    qbetween_np,
+    qmul_np,
+    qrot_np,
+    quat_to_matrix_np,
+    rot6d_to_matrix,
+)
 
 SAMPLE = Path(__file__).resolve().parents[2] / "shared/data/humanml3d-sample"
 CLIP = "012314"

@@ -12,8 +12,8 @@ import torch
 
 from stablemo.errors import StableMoError
 from stablemo.nets import build_denoiser
-from stablemo.nets.summary import load_denoiser_config
-from stablemo.nets.summary import main as summary_main
+from stablemo.nets.config import load_denoiser_config
+from stablemo.cli.nets import main as summary_main
 
 D, C = 12, 16  # feature width, text width of the tiny test configs
 

@@ -208,12 +208,13 @@ def test_imported_bundle_generates_with_footskate_cleanup(bundle, tmp_path):
 
 
 def test_bench_aits_runs_on_an_imported_bundle(bundle, capsys, monkeypatch):
-    from stablemo import bench
+    from stablemo.bench import aits as bench
+    from stablemo.cli import bench as bench_cli
 
     # the 2048^3 matmul reference (sampled ~7 times) is most of the run's time; a small one here
     measure = bench.matmul_gflops
     monkeypatch.setattr(bench, "matmul_gflops", lambda dtype=torch.float32: measure(dtype, n=256, repeats=1))
-    assert bench.main(["aits", "--bundle", str(bundle), "--frames", "32", "--repeats", "1", "--steps", "2",
+    assert bench_cli.main(["aits", "--bundle", str(bundle), "--frames", "32", "--repeats", "1", "--steps", "2",
                        "--skip-ddpm", "--threads", "1"]) == 0
     report = capsys.readouterr().out
     assert "+ parallel CFG" in report and "1-step LCM student" in report
@@ -221,8 +222,8 @@ def test_bench_aits_runs_on_an_imported_bundle(bundle, capsys, monkeypatch):
 
 def test_imported_bundle_distils(bundle, tmp_path):
     from stablemo.inference.bundle import save_bundle
-    from stablemo.training.distill_module import ConsistencyDistillation
     from stablemo.inference.pipeline import Pipeline
+    from stablemo.training.distill_module import ConsistencyDistillation
 
     module = ConsistencyDistillation(teacher=str(bundle), mode="lcm", ddim_steps=10)
     gen = torch.Generator().manual_seed(0)

@@ -14,7 +14,6 @@ import os
 import numpy as np
 import pytest
 import torch
-
 from test_official import write_tiny_clip
 
 SRC = os.environ.get("STABLEMO_OFFICIAL_SRC")
@@ -31,9 +30,9 @@ def rel(ours: torch.Tensor, theirs: torch.Tensor) -> float:
 def pair(tmp_path_factory):
     """(official T2MUnet holding the EMA weights, the imported StableMo pipeline)."""
     pytest.importorskip("einops", reason="the official models/unet.py imports einops")
+    from stablemo.inference.pipeline import Pipeline
     from stablemo.official import reference
     from stablemo.official.convert import import_official
-    from stablemo.inference.pipeline import Pipeline
 
     root = tmp_path_factory.mktemp("equality")
     clip, tokenizer = write_tiny_clip(root / "clip")

@@ -5,11 +5,11 @@ import pytest
 import torch
 from torch import nn
 
+from stablemo.bench.aits import baseline_denoiser
 from stablemo.diffusion.guidance import CFGDenoiser
+from stablemo.diffusion.hooks import AtSteps
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.errors import StableMoError
-from stablemo.bench.aits import baseline_denoiser
-from stablemo.inference.hooks import AtSteps
 from stablemo.inference.config import InferenceConfig
 from stablemo.inference.pipeline import Pipeline
 
@@ -299,8 +299,9 @@ def test_inference_config_comes_from_the_bundle_or_its_older_keys():
 
 
 def test_shipped_demo_bundle_states_its_inference_config():
-    from stablemo.cli.generate import DEFAULT_BUNDLE
     import json
+
+    from stablemo.inference.bundle import DEMO_BUNDLE as DEFAULT_BUNDLE
 
     config = json.loads((DEFAULT_BUNDLE / "config.json").read_text())
     assert InferenceConfig.from_bundle(config) == InferenceConfig("dpmpp_2m_sde", 10, 2.5, 40, 196, 20.0)

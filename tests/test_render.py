@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from stablemo import render
 from stablemo.cli import main as cli_main
 from stablemo.errors import StableMoError
 from stablemo.motion import HUMANML3D, KIT, joints_to_features
 from stablemo.motion.quaternion import qrot_np
+from stablemo.cli import render as render_cli
+from stablemo.outputs import render
 
 
 def walk(num_frames: int = 24, skeleton=HUMANML3D) -> np.ndarray:
@@ -126,7 +127,7 @@ def test_cli_features_and_joints(tmp_path, capsys):
     joints = walk(20)
     np.save(tmp_path / "joints.npy", joints.astype(np.float32))
     np.save(tmp_path / "feats.npy", joints_to_features(joints, HUMANML3D))
-    assert render.main([str(tmp_path / "joints.npy"), "--out", str(tmp_path / "j.gif"), "--frames"]) == 0
+    assert render_cli.main([str(tmp_path / "joints.npy"), "--out", str(tmp_path / "j.gif"), "--frames"]) == 0
     assert (tmp_path / "j.gif").exists() and (tmp_path / "j_frames.png").exists()
     assert cli_main(["render", str(tmp_path / "feats.npy"), "--out", str(tmp_path / "f.gif"), "--fps", "10"]) == 0
     with Image.open(tmp_path / "f.gif") as gif:
@@ -134,26 +135,26 @@ def test_cli_features_and_joints(tmp_path, capsys):
     # KIT is detected from the width
     kit = walk(12, KIT)
     np.save(tmp_path / "kit.npy", joints_to_features(kit, KIT))
-    assert render.main([str(tmp_path / "kit.npy"), "--out", str(tmp_path / "k.gif")]) == 0
+    assert render_cli.main([str(tmp_path / "kit.npy"), "--out", str(tmp_path / "k.gif")]) == 0
     assert "skeleton kit" in capsys.readouterr().out
     # a batch needs --index
     np.save(tmp_path / "batch.npy", np.stack([joints_to_features(joints, HUMANML3D)] * 3))
     with pytest.raises(StableMoError, match="--index"):
-        render.main([str(tmp_path / "batch.npy"), "--out", str(tmp_path / "b.gif")])
+        render_cli.main([str(tmp_path / "batch.npy"), "--out", str(tmp_path / "b.gif")])
     with pytest.raises(StableMoError, match="out of range"):
-        render.main([str(tmp_path / "batch.npy"), "--index", "3", "--out", str(tmp_path / "b.gif")])
-    assert render.main([str(tmp_path / "batch.npy"), "--index", "1", "--out", str(tmp_path / "b.gif")]) == 0
+        render_cli.main([str(tmp_path / "batch.npy"), "--index", "3", "--out", str(tmp_path / "b.gif")])
+    assert render_cli.main([str(tmp_path / "batch.npy"), "--index", "1", "--out", str(tmp_path / "b.gif")]) == 0
 
 
 def test_cli_errors(tmp_path, capsys):
     np.save(tmp_path / "wrong.npy", np.zeros((10, 100), np.float32))
     with pytest.raises(StableMoError, match="wrong.npy"):
-        render.main([str(tmp_path / "wrong.npy"), "--out", str(tmp_path / "w.gif")])
+        render_cli.main([str(tmp_path / "wrong.npy"), "--out", str(tmp_path / "w.gif")])
     with pytest.raises(StableMoError, match="not found"):
-        render.main([str(tmp_path / "missing.npy"), "--out", str(tmp_path / "m.gif")])
+        render_cli.main([str(tmp_path / "missing.npy"), "--out", str(tmp_path / "m.gif")])
     np.save(tmp_path / "j.npy", walk(5).astype(np.float32))
     with pytest.raises(StableMoError, match="kit"):
-        render.main([str(tmp_path / "j.npy"), "--skeleton", "kit", "--out", str(tmp_path / "k.gif")])
+        render_cli.main([str(tmp_path / "j.npy"), "--skeleton", "kit", "--out", str(tmp_path / "k.gif")])
     (tmp_path / "junk.npy").write_text("not numpy")
     assert cli_main(["render", str(tmp_path / "junk.npy"), "--out", str(tmp_path / "x.gif")]) == 2
     assert "junk.npy" in capsys.readouterr().err

@@ -17,7 +17,7 @@ import yaml
 
 from stablemo.errors import StableMoError
 from stablemo.eval.evaluate import SYNTH_EVALUATOR
-from stablemo.eval.evaluate import main as evaluate_main
+from stablemo.cli.evaluate import main as evaluate_main
 
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "stablemo" / "assets" / "demo_bundle"
@@ -236,7 +236,7 @@ def test_run_folder_holds_checkpoints_and_logs_and_resumes(tmp_path):
     from test_training import TINY_MODEL, write_random_dataset
 
     from stablemo.training.checkpoint_io import load_checkpoint_file
-    from stablemo.training.lightning_cli import main_fit
+    from stablemo.cli.train import main_fit
 
     data = write_random_dataset(tmp_path / "data", num=12, splits=(8, 2))
     config = {"seed_everything": 0,

@@ -5,7 +5,14 @@ import math
 import pytest
 import torch
 
-from stablemo.diffusion.samplers import SAMPLERS, ddim, ddpm, dpm_coefficients, dpmpp_2m, dpmpp_2m_sde
+from stablemo.diffusion.samplers import (
+    SAMPLERS,
+    ddim,
+    ddpm,
+    dpm_coefficients,
+    dpmpp_2m,
+    dpmpp_2m_sde,
+)
 from stablemo.diffusion.schedule import NoiseSchedule
 
 SCHEDULE = NoiseSchedule()

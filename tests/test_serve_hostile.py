@@ -23,7 +23,6 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 pytest.importorskip("fastapi")
@@ -34,7 +33,6 @@ from fastapi.testclient import TestClient
 from stablemo.cli import main as cli_main
 from stablemo.errors import StableMoError
 from stablemo.inference.pipeline import Request
-from stablemo.serve import guard as guard_mod
 from stablemo.serve.api import Busy, Worker, create_app
 from stablemo.serve.guard import MAX_BODY_BYTES, Guard
 from stablemo.serve.local import serving

@@ -3,18 +3,18 @@
 from __future__ import annotations
 
 import re
+
 import numpy as np
 import pytest
 
-from stablemo.data.synth import ACTIONS, generate_motion, write_dataset
+from stablemo.data.synth import ACTIONS, compose, generate_motion, write_dataset
 from stablemo.data.synth import actions as synth_actions
 from stablemo.data.synth import captions as synth_captions
-from stablemo.data.synth import compose
 from stablemo.data.synth.body import BONE_LENGTHS, bone_lengths
 from stablemo.data.synth.writer import motion_rng
 from stablemo.errors import StableMoError
-from stablemo.skating.metrics import foot_skating_ratio
 from stablemo.motion import features_to_joints, joints_to_features
+from stablemo.skating.metrics import foot_skating_ratio
 
 N_SAMPLE = 60
 FPS = 20

@@ -28,8 +28,8 @@ from stablemo.fast.train import (
     TrainResBlock1D,
     accelerate_training,
 )
-from stablemo.training.checkpoint_io import load_checkpoint_file
 from stablemo.nets import build_denoiser
+from stablemo.training.checkpoint_io import load_checkpoint_file
 
 D, C = 12, 16
 SMALL = {"base_channels": 16, "channel_mults": [1, 2, 2], "time_dim": 32, "num_groups": 2, "num_heads": 2,

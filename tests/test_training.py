@@ -15,8 +15,8 @@ from lightning.pytorch import Trainer
 from lightning.pytorch.callbacks import ModelCheckpoint
 from torch import nn
 
-from stablemo.inference.bundle import load_bundle
 from stablemo.errors import StableMoError
+from stablemo.inference.bundle import load_bundle
 from stablemo.training.callbacks import NonFiniteGuard, NonFiniteLossError
 from stablemo.training.checkpoint_io import AtomicCheckpointIO, load_checkpoint_file
 from stablemo.training.ema import EMA
@@ -262,7 +262,7 @@ def test_checkpoint_loading_never_unpickles_objects(tmp_path):
 
 
 def _fit(config: Path, *extra: str) -> None:
-    from stablemo.training.lightning_cli import main_fit
+    from stablemo.cli.train import main_fit
 
     assert main_fit(["--config", str(config), *extra]) == 0
 
@@ -324,9 +324,9 @@ def test_nan_loss_stops_and_keeps_last_good_checkpoint(tiny_data, tmp_path):
 
 
 def test_export_round_trip_reproduces_the_ema_model(tiny_data, tmp_path):
+    from stablemo.nets.model import MotionDiffusionModel
     from stablemo.training.export import main as export_main
     from stablemo.training.module import DiffusionModule
-    from stablemo.nets.model import MotionDiffusionModel
 
     run = tmp_path / "run"
     _fit(tiny_config(run, tiny_data, **{"trainer.max_steps": 3}))
@@ -396,7 +396,7 @@ CONFIG_SETS = [["synth_small.yaml"], ["humanml3d.yaml"], ["kit.yaml"]] + [
 
 @pytest.mark.parametrize("files", CONFIG_SETS, ids=lambda f: f[-1])
 def test_shipped_configs_parse(files, capsys):
-    from stablemo.training.lightning_cli import main_fit
+    from stablemo.cli.train import main_fit
 
     args = [a for f in files for a in ("--config", str(REPO / "configs" / f))]
     with pytest.raises(SystemExit) as exit_:

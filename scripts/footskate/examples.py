@@ -83,13 +83,13 @@ def main(argv=None) -> int:
 
     from footskate.cleanup import detect_contacts
     from stablemo.skating.metrics import foot_skating_ratio
-    from stablemo.skating.cleanup import _topology, load_vgrf_model
+    from stablemo.skating.cleanup import topology, load_vgrf_model
     from stablemo.inference.hooks import make_hooks
     from stablemo.motion import features_to_joints
     from stablemo.inference.pipeline import Pipeline
 
     pipe = Pipeline.from_bundle(args.bundle)
-    topo = _topology(pipe.skeleton)
+    topo = topology(pipe.skeleton)
     frames = min(max(int(round(args.seconds * topo.fps)), pipe.min_length), pipe.max_length)
     vgrf = load_vgrf_model(None, pipe.skeleton)
     for key, text in PROMPTS.items():

@@ -27,7 +27,7 @@ import torch
 from stablemo.errors import run_script
 from stablemo.skating.metrics import foot_skating_ratio, ground_metrics
 from stablemo.inference.hooks import make_hooks
-from stablemo.skating.cleanup import (_topology, clean_features, load_vgrf_model,
+from stablemo.skating.cleanup import (topology, clean_features, load_vgrf_model,
                                          standard_joints)
 from stablemo.io import write_text
 from stablemo.motion import canonicalize_joints, features_to_joints
@@ -89,7 +89,7 @@ def main(argv=None) -> dict:
     plain = pipe.generate(texts, lengths.tolist(), **gen)
     joints_plain = features_to_joints(plain.features)                      # (B, T, J, 3)
 
-    topo = _topology(pipe.skeleton)
+    topo = topology(pipe.skeleton)
     vgrf = load_vgrf_model(None, pipe.skeleton)
     clean_features(plain.features[:2], [frames] * 2, pipe.skeleton, vgrf)  # warm-up (first-call allocations)
     started = time.perf_counter()

@@ -299,7 +299,7 @@ def run_paper_aits(args, raw: dict, save, ctx_out_of_time: bool = False) -> None
         return
     from tempfile import TemporaryDirectory
 
-    from stablemo.bench.aits import main as bench
+    from stablemo.cli.bench import main as bench
 
     argv = ["aits", "--random-weights", "--skip-ddpm", "--skip-student", "--repeats", str(args.paper_aits_repeats),
             "--threads", str(torch.get_num_threads()), "--seed", str(args.seed)]
@@ -653,7 +653,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 def check_args(args) -> None:
     """Every argument checked before any compute (one line naming it)."""
-    from stablemo.inference.config import check_finite, check_positive_int, check_seed
+    from stablemo.checks import check_finite, check_positive_int, check_seed
     from stablemo.checks import resolve_device, resolve_dtype
 
     for flag in ("replications", "max_items", "ddpm_items", "aits_sentences"):

@@ -105,7 +105,7 @@ def train_variant(variant: str, args: argparse.Namespace, run_dir: Path) -> dict
 
 def evaluate_variant(row: dict, args: argparse.Namespace, run_dir: Path) -> None:
     from stablemo.eval.evaluate import REAL_ROW
-    from stablemo.eval.evaluate import main as evaluate_main
+    from stablemo.cli.evaluate import main as evaluate_main
     from stablemo.training.export import export
 
     bundle = export(row["checkpoint"], run_dir / "bundle")

@@ -33,11 +33,10 @@ so that OpenMP threads waiting for a descheduled sibling do not spin and inflate
 
 from __future__ import annotations
 
-import argparse
 import json
 import statistics
 import sys
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import torch
@@ -49,9 +48,12 @@ from stablemo.bench.measure import (  # noqa: F401 (re-exported: tests and scrip
     matmul_gflops,
     time_generation,
 )
-from stablemo.fast import gemm
-from stablemo.inference.config import MAX_FRAMES, PAPER_CFG, PAPER_STEPS, InferenceConfig, check_finite, check_positive_int, check_seed
 from stablemo.errors import StableMoError
+from stablemo.fast import gemm
+from stablemo.inference.config import (
+    MAX_FRAMES,
+    InferenceConfig,
+)
 from stablemo.nets.config import load_model_config
 
 # StableMoFusion's network as the HumanML3D training config describes it (paper §4.1.1, §5.1):
@@ -117,7 +119,7 @@ class Row:
 # ---- model --------------------------------------------------------------------------------------
 
 
-def _model_kwargs(config_path: str | None) -> tuple[dict, str]:
+def model_kwargs(config_path: str | None) -> tuple[dict, str]:
     """MotionDiffusionModel kwargs from YAML (stablemo.nets.config): by default the paper network of
     configs/humanml3d.yaml with the packaged text encoder; a denoiser-only file gets that config's
     text conditioner."""
@@ -136,14 +138,14 @@ def _model_kwargs(config_path: str | None) -> tuple[dict, str]:
 
 def _build_pipeline(args, fast: bool):
     from stablemo.diffusion.schedule import NoiseSchedule
-    from stablemo.nets.model import MotionDiffusionModel
     from stablemo.inference.pipeline import Pipeline
+    from stablemo.nets.model import MotionDiffusionModel
 
     if args.bundle:
         pipe = Pipeline.from_bundle(args.bundle, device=args.device, fast=fast, random_weights=args.random_weights)
         source = f"bundle {args.bundle}" + (" (random weights)" if args.random_weights else "")
         return pipe, source
-    kwargs, source = _model_kwargs(args.config)
+    kwargs, source = model_kwargs(args.config)
     if args.text_encoder:
         kwargs["text"]["encoder"] = args.text_encoder
     torch.manual_seed(args.seed)
@@ -164,7 +166,7 @@ def _sibling_pipeline(pipe, model, kind: str, config: dict, inference, fast: boo
                     config=config, inference=inference, fast=fast)
 
 
-def _student_pipeline(pipe, fast: bool):
+def student_pipeline(pipe, fast: bool):
     """A 1-step LCM student of `pipe`'s network (stablemo.distill's defaults), with the teacher's weights."""
     from stablemo.distill.student import ConsistencyStudent
 
@@ -319,7 +321,7 @@ def _run_aits(args) -> dict:
         rows.append(Row(name, sampler, steps, cache, parallel, dtype, seconds, cpu_seconds, measured, flops_cfg))
         print(f"  measured {name}: {statistics.mean(seconds):.2f} s over {measured} step(s)", file=sys.stderr)
     if not args.skip_student:
-        student = _student_pipeline(pipe, fast=not args.stock)
+        student = student_pipeline(pipe, fast=not args.stock)
         flops_one = denoiser_flops(pipe, args.frames, B)  # the same network, batch 1 (no CFG pass)
         time_generation(student, "warm up", args.frames, "lcm", 2, args.cfg, True, True, "fp32", 0)  # 2 calls: packs
         seconds, cpu_seconds, _ = time_sentences(student, args, "lcm", 1, True, True, "fp32")
@@ -442,80 +444,3 @@ def format_report(result: dict) -> str:
     return "\n".join(lines)
 
 
-def _aits_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="stablemo bench aits", description=__doc__.split("\n\n")[0])
-    src = p.add_mutually_exclusive_group()
-    src.add_argument("--config", help="YAML with the model description (default: the paper network of "
-                                      "configs/humanml3d.yaml with the packaged text encoder)")
-    src.add_argument("--bundle", help="an inference bundle folder")
-    p.add_argument("--random-weights", action="store_true", help="with --bundle: do not load its weights")
-    p.add_argument("--text-encoder", help="override the config's frozen text encoder (e.g. minilm when CLIP is not available)")
-    p.add_argument("--frames", type=int, default=MAX_FRAMES, help=f"motion length (default {MAX_FRAMES})")
-    p.add_argument("--repeats", type=int, default=3, help="timed sentences per row (default 3)")
-    p.add_argument("--steps", type=int, default=PAPER_STEPS, help=f"steps of the fast sampler (default {PAPER_STEPS})")
-    p.add_argument("--cfg", type=float, default=PAPER_CFG, help=f"guidance scale (default {PAPER_CFG})")
-    p.add_argument("--ddpm-steps", type=int, default=None,
-                   help="run only this many of the 1000 DDPM steps and extrapolate (label shown in the table)")
-    p.add_argument("--skip-ddpm", action="store_true", help="leave out the DDPM baseline row")
-    p.add_argument("--skip-student", action="store_true", help="leave out the 1-step consistency student row")
-    p.add_argument("--skip-controlnet", action="store_true",
-                   help="leave out the 1-step student + ControlNet rows (with and without a guidance refinement)")
-    p.add_argument("--stock", action="store_true", help="stock PyTorch convolutions (no stablemo.fast)")
-    p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
-    p.add_argument("--device", default="cpu")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--json", help="also write the results as JSON to this file")
-    return p
-
-
-def main_aits(argv: list[str]) -> int:
-    args = _aits_parser().parse_args(argv)
-    if not 1 <= args.frames <= CONFIG_MAX_FRAMES:  # the widest range any model here gets (check_frames)
-        raise StableMoError(f"--frames: must be in [1, {CONFIG_MAX_FRAMES}], got {args.frames}")
-    if args.repeats < 1:
-        raise StableMoError(f"--repeats: must be >= 1, got {args.repeats}")
-    if args.ddpm_steps is not None and not 1 <= args.ddpm_steps <= 1000:
-        raise StableMoError(f"--ddpm-steps: must be in [1, 1000], got {args.ddpm_steps}")
-    check_positive_int("--steps", args.steps)
-    check_finite("--cfg", args.cfg, low=0.0, high=100.0)
-    check_seed("--seed", args.seed)
-    if args.threads is not None:
-        check_positive_int("--threads", args.threads)
-    if args.json:
-        from stablemo.io import check_output_file
-
-        check_output_file(args.json, "--json")
-    result = run_aits(args)
-    print(format_report(result))
-    if args.json:
-        from stablemo.io import write_text
-
-        data = dict(result, rows=[dict(asdict(r), aits=r.aits, best=r.best, cpu=r.cpu) for r in result["rows"]])
-        write_text(args.json, json.dumps(data, indent=2) + "\n")
-    return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    usage = "usage: stablemo bench {aits,stream,train} [options]"
-    if not argv or argv[0] in ("-h", "--help"):
-        print(usage + "\n\n  aits   inference time per sentence (paper Table 5) and FLOP efficiency\n"
-                      "  stream per-chunk cost of Pipeline.stream, teacher and 1-step student (stablemo.bench.timeline)\n"
-                      "  train  training throughput (stablemo.bench.train)")
-        return 0
-    name, rest = argv[0], argv[1:]
-    if name == "aits":
-        return main_aits(rest)
-    if name == "stream":
-        from stablemo.bench.timeline import main as main_stream  # per-chunk cost of Pipeline.stream
-
-        return main_stream(rest)
-    if name == "train":
-        from stablemo.bench.train import main as main_train  # owned by the training package
-
-        return int(main_train(rest) or 0)
-    raise StableMoError(f"bench: unknown benchmark {name!r}; {usage}")
-
-
-if __name__ == "__main__":
-    sys.exit(main())

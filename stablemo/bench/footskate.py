@@ -24,13 +24,13 @@ drift too) for the gated and the rule's contacts.
 
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import torch
+
+from stablemo.errors import StableMoError
 
 TYPES = ("walk", "run", "jump", "hop", "turn_in_place", "side_step", "kick", "dance")
 FPS = 20.0
@@ -397,24 +397,12 @@ def format_table(report: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None) -> dict:
-    from stablemo.errors import StableMoError
-    from stablemo.skating.cleanup import load_vgrf_model
+def run_footskate_bench(args) -> dict:
+    """The benchmark of `stablemo bench footskate` (args: its parsed options): prints the table,
+    writes args.json if given, returns the report."""
     from stablemo.io import write_text
+    from stablemo.skating.cleanup import load_vgrf_model
 
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--seed", type=int, default=1000, help="first seed (held-out seeds: 1000 and up)")
-    p.add_argument("--per-type", type=int, default=6)
-    p.add_argument("--contacts", choices=("heuristic", "gated", "vgrf", "gt"), default="heuristic")
-    p.add_argument("--no-vgrf", action="store_true", help="no network (no vGRF term, no vGRF F1)")
-    p.add_argument("--weights", default=None, help="vGRF weights (default: the shipped V22, or V21 for kit)")
-    p.add_argument("--skeleton", choices=("humanml3d", "kit"), default="humanml3d",
-                   help="kit: the motions mapped to the KIT-ML skeleton at 12.5 fps (stablemo.bench.footskate.to_kit)")
-    p.add_argument("--threads", type=int, default=1)
-    p.add_argument("--json", default=None)
-    p.add_argument("--real", default=None, help="also: contact F1 on this real clip (new_joints .npy), labelled "
-                                                "by label_real_contacts")
-    args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
     vgrf = None if args.no_vgrf else load_vgrf_model(args.weights, args.skeleton)
     if args.contacts in ("gated", "vgrf") and vgrf is None:
@@ -432,9 +420,3 @@ def main(argv=None) -> dict:
     if args.json:
         write_text(Path(args.json), json.dumps(report, indent=2) + "\n")
     return report
-
-
-if __name__ == "__main__":
-    from stablemo.errors import run_script
-
-    sys.exit(run_script(main, "stablemo.bench.footskate", sys.argv[1:]))

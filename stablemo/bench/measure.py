@@ -9,9 +9,9 @@ import time
 
 import torch
 
+from stablemo.diffusion.hooks import AtSteps, StepState
 from stablemo.fast import flops as fast_flops
 from stablemo.fast import gemm
-from stablemo.inference.hooks import AtSteps, StepState
 from stablemo.inference.pipeline import Request
 
 

@@ -44,9 +44,9 @@ TEXT_TOKENS = 77
 
 
 def _denoiser_kwargs(config: str | None) -> dict:
-    from stablemo.bench.aits import _model_kwargs
+    from stablemo.bench.aits import model_kwargs
 
-    kwargs, _ = _model_kwargs(config)
+    kwargs, _ = model_kwargs(config)
     denoiser = dict(kwargs["denoiser"])
     if denoiser.pop("name") != "unet":
         raise StableMoError(f"--config: --paired compares UNets (CondUNet1D); {config} describes another denoiser")

@@ -13,7 +13,6 @@ starts it: its timing is a trained student's, its motion is not).
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import time
 from pathlib import Path
@@ -21,23 +20,9 @@ from pathlib import Path
 import torch
 
 from stablemo.errors import StableMoError
-from stablemo.inference.config import check_finite, check_positive_int
-from stablemo.timeline.stream import DEFAULT_CONTEXT_S
 
 STUDENT_ASSET = Path(__file__).resolve().parents[1] / "assets" / "demo_student"
 PROMPTS = ["a person walks forward", "a person turns left", "a person jumps in place", "a person runs forward"]
-
-
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="stablemo bench stream", description=__doc__.split("\n\n")[0])
-    p.add_argument("--bundle", default=None, help="teacher bundle (default: the packaged demo model)")
-    p.add_argument("--student", default=None, help="student bundle (default: see the module docstring)")
-    p.add_argument("--chunks", type=int, default=20, help="timed chunks per row (default 20)")
-    p.add_argument("--chunk-seconds", type=float, default=2.0)
-    p.add_argument("--context-seconds", type=float, default=DEFAULT_CONTEXT_S)
-    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
-    p.add_argument("--seed", type=int, default=0)
-    return p
 
 
 def _student(pipe, path: str | None):
@@ -49,16 +34,16 @@ def _student(pipe, path: str | None):
         return Pipeline.from_bundle(path), path
     if (STUDENT_ASSET / "config.json").is_file():
         return Pipeline.from_bundle(STUDENT_ASSET), str(STUDENT_ASSET)
-    from stablemo.bench.aits import _student_pipeline
+    from stablemo.bench.aits import student_pipeline
 
-    return _student_pipeline(pipe, fast=True), "1-step LCM student with the teacher's weights (timing only)"
+    return student_pipeline(pipe, fast=True), "1-step LCM student with the teacher's weights (timing only)"
 
 
 def run_stream_bench(args) -> dict:
-    from stablemo.cli.generate import _bundle_path
+    from stablemo.inference.bundle import bundle_or_demo
     from stablemo.inference.pipeline import Pipeline
 
-    pipe = Pipeline.from_bundle(_bundle_path(args.bundle))
+    pipe = Pipeline.from_bundle(bundle_or_demo(args.bundle))
     student, student_name = _student(pipe, args.student)
     texts = lambda i, prev: PROMPTS[(i // 3) % len(PROMPTS)]  # the text changes every 3 chunks
     rows = {
@@ -91,19 +76,4 @@ def format_report(result: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str]) -> int:
-    args = _parser().parse_args(argv)
-    check_positive_int("--chunks", args.chunks)
-    check_positive_int("--threads", args.threads)
-    check_finite("--chunk-seconds", args.chunk_seconds, low=0.0, strict=True)
-    check_finite("--context-seconds", args.context_seconds, low=0.0)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(args.threads)
-    try:
-        print(format_report(run_stream_bench(args)))
-    finally:
-        torch.set_num_threads(threads)
-    return 0
-
-
-__all__ = ["format_report", "main", "run_stream_bench"]
+__all__ = ["format_report", "run_stream_bench"]

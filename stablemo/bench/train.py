@@ -12,7 +12,6 @@ network side by side in one process (stablemo.bench.paired): what the step costs
 
 from __future__ import annotations
 
-import argparse
 import json
 import resource
 import sys
@@ -44,36 +43,9 @@ def peak_memory_mb(device: torch.device) -> tuple[str, float]:
     return "process peak RSS", rss / (2**20 if sys.platform == "darwin" else 2**10)
 
 
-def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="stablemo bench train", description=__doc__.splitlines()[0])
-    parser.add_argument("--config", default=None,
-                        help="training YAML (as for `stablemo fit --config`); --paired: default configs/humanml3d.yaml")
-    parser.add_argument("--steps", type=int, default=20, help="timed optimiser steps (default 20)")
-    parser.add_argument("--warmup", type=int, default=3, help="untimed steps first, >= 1 (default 3)")
-    parser.add_argument("--batch-size", type=int, default=None, help="override data.batch_size")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's)")
-    parser.add_argument("--json", default=None, help="also write the result to this JSON file")
-    parser.add_argument("--paired", action="store_true",
-                        help="time the denoiser step of stock PyTorch, StableMo (fp32, bf16-mixed) and, with "
-                             "STABLEMO_OFFICIAL_SRC, the official network, alternating (see --rounds)")
-    parser.add_argument("--rounds", type=int, default=5, help="--paired: timed rounds, one step of each row per round")
-    parser.add_argument("--frames", type=int, default=196, help="--paired: motion length (padded as the network needs)")
-    parser.add_argument("--rows", default=None,
-                        help="--paired: comma-separated rows to run (default all available: stock,stablemo,"
-                             "stablemo-onednn,stablemo-bf16,official-variant,official-variant-onednn,official)")
-    parser.add_argument("--profile", action="store_true",
-                        help="--paired: then profile one step of each row (torch.profiler: phases, top ops, backward nodes)")
-    parser.add_argument("--optimizer", choices=("adamw", "none"), default="adamw",
-                        help="--paired: include the AdamW step (default) or time forward + backward only")
-    parser.add_argument("overrides", nargs="*", help="extra LightningCLI overrides, e.g. --model.lr=1e-4 (after --)")
-    args = parser.parse_args(argv)
-    if args.config is None and not args.paired:
-        raise StableMoError("--config: a training YAML is required (or --paired)")
-    if args.steps < 1 or args.warmup < 1:
-        raise StableMoError("--steps and --warmup must be >= 1")
-    if args.threads:
-        torch.set_num_threads(args.threads)
+def run_train_bench(args) -> int:
+    """Time `args.steps` optimiser steps of a training config (or, with args.paired, the denoiser
+    step of each implementation side by side); prints the table, writes args.json if given."""
     if args.paired:
         from stablemo.bench.paired import run_paired
 

@@ -1,7 +1,9 @@
-"""`stablemo` console script: one table of subcommands, each a `main(argv)` in its own module.
+"""`stablemo` console script: one table of subcommands, each a `main(argv)` in a module of this package.
 
-Training commands (fit/validate/test) go to the LightningCLI; the others are small argparse
-front-ends living next to the code they drive. Imports are lazy so `stablemo --help` is instant.
+Training commands (fit/validate/test) go to the LightningCLI (stablemo.cli.train); the others are
+small argparse front-ends over the library. Imports are lazy so `stablemo --help` is instant. Bad
+input is one line and exit 2, a refusal of the machine (full disk, read-only) one line and exit 1,
+Ctrl-C one line and exit 130.
 """
 
 from __future__ import annotations
@@ -14,24 +16,25 @@ import warnings
 
 from stablemo.errors import StableMoError, one_line
 
-# name -> (module, function, one-line help)
+# name -> (module of stablemo.cli, function, one-line help): every subcommand's options live in this
+# package; the modules below it never parse argv nor import a command module
 COMMANDS: dict[str, tuple[str, str, str]] = {
-    "fit": ("stablemo.training.lightning_cli", "main_fit", "train a model (LightningCLI)"),
-    "validate": ("stablemo.training.lightning_cli", "main_validate", "validate a model (LightningCLI)"),
-    "test": ("stablemo.training.lightning_cli", "main_test", "test a model (LightningCLI)"),
-    "export": ("stablemo.training.export", "main", "export a training checkpoint to an inference bundle"),
-    "import-official": ("stablemo.cli.official", "main", "convert a published StableMoFusion checkpoint to a bundle"),
-    "generate": ("stablemo.cli.generate", "main", "generate motions from text"),
-    "edit": ("stablemo.cli.edit", "main", "regenerate part of a motion (body parts, frames) with a new text"),
-    "control-file": ("stablemo.cli.control_file", "main", "write a joint-control file (.npz) from joints"),
-    "render": ("stablemo.outputs.render", "main", "render features or joints (.npy) as an animation"),
-    "data": ("stablemo.cli.data", "main", "dataset tools: synth, check, import-bvh"),
-    "nets": ("stablemo.nets.summary", "main", "denoiser tools: summary"),
-    "bench": ("stablemo.bench.aits", "main", "benchmarks: aits, train"),
-    "evaluate": ("stablemo.eval.evaluate", "main", "evaluate a bundle against a dataset"),
-    "footskate": ("stablemo.skating.cleanup", "main", "remove foot skating from a motion file"),
-    "bvh": ("stablemo.cli.bvh", "main", "write features or joints (.npy) as BVH or an SMPL-order pose (.npz)"),
-    "serve": ("stablemo.cli.serve", "main", "a local web page and JSON API for generating motions"),
+    "fit": ("train", "main_fit", "train a model (LightningCLI)"),
+    "validate": ("train", "main_validate", "validate a model (LightningCLI)"),
+    "test": ("train", "main_test", "test a model (LightningCLI)"),
+    "export": ("export", "main", "export a training checkpoint to an inference bundle"),
+    "import-official": ("official", "main", "convert a published StableMoFusion checkpoint to a bundle"),
+    "generate": ("generate", "main", "generate motions from text"),
+    "edit": ("edit", "main", "regenerate part of a motion (body parts, frames) with a new text"),
+    "control-file": ("control_file", "main", "write a joint-control file (.npz) from joints"),
+    "render": ("render", "main", "render features or joints (.npy) as an animation"),
+    "data": ("data", "main", "dataset tools: synth, check, import-bvh"),
+    "nets": ("nets", "main", "denoiser tools: summary"),
+    "bench": ("bench", "main", "benchmarks: aits, stream, train, footskate"),
+    "evaluate": ("evaluate", "main", "evaluate a bundle against a dataset"),
+    "footskate": ("footskate", "main", "remove foot skating from a motion file"),
+    "bvh": ("bvh", "main", "write features or joints (.npy) as BVH or an SMPL-order pose (.npz)"),
+    "serve": ("serve", "main", "a local web page and JSON API for generating motions"),
 }
 
 
@@ -55,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     # torch warns about the protocol of a raw pickle before refusing it: the refusal is the one line
     warnings.filterwarnings("ignore", message="Detected pickle protocol", category=UserWarning)
     try:
-        func = getattr(importlib.import_module(module_name), func_name)
+        func = getattr(importlib.import_module(f"stablemo.cli.{module_name}"), func_name)
         return int(func(rest) or 0)
     except StableMoError as err:
         print(f"stablemo {name}: error: {one_line(str(err))}", file=sys.stderr)

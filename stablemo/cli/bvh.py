@@ -35,7 +35,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    from stablemo.inference.config import check_finite
+    from stablemo.checks import check_finite
     from stablemo.io import check_output_file, load_npy
 
     for flag in ("fps", "source_fps"):

@@ -16,7 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from stablemo.control.files import control_from_joints, density_frames, joint_index, parse_frames, save_control
+from stablemo.control.files import (
+    control_from_joints,
+    density_frames,
+    joint_index,
+    parse_frames,
+    save_control,
+)
 from stablemo.errors import StableMoError
 from stablemo.io import check_output_file, load_npy
 from stablemo.motion.skeleton import get_skeleton, skeleton_for_shape

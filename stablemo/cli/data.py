@@ -51,7 +51,10 @@ def main(argv: list[str]) -> int:
         clips = import_bvh_dir(args.dir, args.out, texts=args.texts, name_map=args.map, up=args.up, seed=args.seed)
         print(f"wrote {len(clips)} clips ({sum(len(c.features) for c in clips)} frames at 20 fps) to {args.out}")
         return 0
-    from stablemo.data.synth.writer import check_num, write_dataset  # owned by the synthetic-dataset module
+    from stablemo.data.synth.writer import (  # owned by the synthetic-dataset module
+        check_num,
+        write_dataset,
+    )
 
     if args.num is not None:
         check_num(args.num, "--num")  # the cap and the minimum, before anything else

@@ -16,10 +16,11 @@ import sys
 
 import numpy as np
 
+from stablemo.checks import check_finite, check_positive_int, check_seed
 from stablemo.errors import StableMoError
-from stablemo.cli.generate import _bundle_path, check_output_name, slugify, write_motion
-from stablemo.inference.config import check_finite, check_positive_int, check_seed
+from stablemo.inference.bundle import bundle_or_demo
 from stablemo.io import check_output_dir, check_output_file, load_npy
+from stablemo.outputs.files import check_output_name, slugify, write_motion
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -79,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.name is not None:
         check_output_name(args.name, "--name")  # a plain name: the files never land outside --out
     feats = _read_features(args.features)
-    bundle = _bundle_path(args.bundle)
+    bundle = bundle_or_demo(args.bundle)
     out = check_output_dir(args.out, "--out")
     slug = args.name if args.name is not None else slugify(args.text)
     formats = [] if args.no_render else list(dict.fromkeys(args.format or ["gif"]))

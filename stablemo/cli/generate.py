@@ -11,64 +11,16 @@ Every file is written atomically: an interrupted run leaves no half-written outp
 from __future__ import annotations
 
 import argparse
-import os
-import re
 import sys
 from pathlib import Path
 
+from stablemo.checks import check_finite, check_positive_int, check_seed
 from stablemo.errors import StableMoError
-from stablemo.inference.config import check_finite, check_positive_int, check_seed
+from stablemo.inference.bundle import DEMO_BUNDLE, bundle_or_demo
 from stablemo.io import check_output_dir, check_output_file
+from stablemo.outputs.files import unique_slugs, write_motion
 
-DEFAULT_BUNDLE = Path(__file__).resolve().parent / "assets" / "demo_bundle"
 DEFAULT_SECONDS = 6.0
-
-
-def slugify(text: str, max_len: int = 60) -> str:
-    """A file name stem from user text: only [a-z0-9-], never empty, never '.', '..' or a path."""
-    slug = re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-")[:max_len].rstrip("-")
-    return slug or "motion"
-
-
-def unique_slugs(texts: list[str]) -> list[str]:
-    """One distinct file stem per text, in order. The first text of each slug keeps it; a repeat
-    gets the first `<slug>-N` (N = 2, 3, ...) that no text's own slug and no earlier pick took, so
-    "x", "x", "x 2" -> x, x-3, x-2 (never two prompts writing the same files)."""
-    slugs = [slugify(text) for text in texts]
-    taken = set(slugs)
-    seen: set[str] = set()
-    out = []
-    for slug in slugs:
-        if slug in seen:
-            n = 2
-            while f"{slug}-{n}" in taken:
-                n += 1
-            taken.add(f"{slug}-{n}")
-            out.append(f"{slug}-{n}")
-        else:
-            seen.add(slug)
-            out.append(slug)
-    return out
-
-
-NAME_MAX = 200  # bytes; the longest suffix (".features.npy") and the temp name's must still fit 255
-
-
-def check_output_name(name: str, flag: str = "--name") -> str:
-    """A user-given file name stem: one plain name inside --out, so the outputs never land elsewhere.
-    Refused: empty, a path (any separator, '..', absolute), a hidden name, control characters."""
-    if not name or not name.strip():
-        raise StableMoError(f"{flag}: empty name")
-    seps = {"/", "\\", os.sep, os.altsep or "/"}
-    if any(sep in name for sep in seps) or os.path.isabs(name) or name in (".", ".."):
-        raise StableMoError(f"{flag}: {name!r} is a path; give a plain file name (the files go into --out)")
-    if name.startswith("."):
-        raise StableMoError(f"{flag}: {name!r} starts with '.'; give a plain, visible file name")
-    if any(ord(c) < 32 or ord(c) == 127 for c in name):
-        raise StableMoError(f"{flag}: {name!r} holds control characters; give a plain file name")
-    if len(os.fsencode(name)) > NAME_MAX:
-        raise StableMoError(f"{flag}: name is {len(os.fsencode(name))} bytes long; at most {NAME_MAX}")
-    return name
 
 
 def read_prompts(path: str) -> list[str]:
@@ -97,7 +49,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="classifier-free guidance scale (default: the bundle's, 2.5 for the paper; 1 = off; a student's absorbed 1 + w)")
     p.add_argument("--sampler", default=None, help="ddpm, ddim, dpmpp_2m, dpmpp_2m_sde (default: the bundle kind's default)")
     p.add_argument("--seed", type=int, default=0, help="seed; prompt i uses seed + i (default 0)")
-    p.add_argument("--bundle", default=None, help=f"bundle folder (default: the packaged demo model, {DEFAULT_BUNDLE})")
+    p.add_argument("--bundle", default=None, help=f"bundle folder (default: the packaged demo model, {DEMO_BUNDLE})")
     p.add_argument("--out", default="outputs", help="output folder (default ./outputs)")
     p.add_argument("--format", action="append", choices=["gif", "mp4", "bvh"], default=None,
                    help="output format, may repeat: gif (default), mp4 (needs ffmpeg), bvh (for Blender and game engines, docs/bvh.md)")
@@ -120,28 +72,13 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def _bundle_path(arg: str | None) -> Path:
-    if arg is not None:
-        path = Path(arg)
-        if not path.is_dir():
-            raise StableMoError(f"--bundle: {path}: bundle folder not found")
-        return path
-    if not (DEFAULT_BUNDLE / "config.json").is_file():
-        raise StableMoError(
-            f"no bundle given and the packaged demo model is missing ({DEFAULT_BUNDLE}). Train one "
-            "(`stablemo fit --config <config.yaml>`), export it (`stablemo export CKPT --out DIR`) "
-            "and pass `--bundle DIR`"
-        )
-    return DEFAULT_BUNDLE
-
-
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     if args.timeline is not None:
         from stablemo.cli.timeline import run_timeline
 
         _check_numbers(args)
-        return run_timeline(args, _bundle_path(args.bundle), check_output_dir(args.out, "--out"))
+        return run_timeline(args, bundle_or_demo(args.bundle), check_output_dir(args.out, "--out"))
     prompts = [p.strip() for p in args.prompt]
     for i, p in enumerate(prompts):
         if not p:
@@ -151,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     if not prompts:
         raise StableMoError("prompt: give a text prompt or --prompts FILE")
     _check_numbers(args)
-    bundle = _bundle_path(args.bundle)
+    bundle = bundle_or_demo(args.bundle)
     out = check_output_dir(args.out, "--out")
     slugs = unique_slugs(prompts)
     formats = [] if args.no_render else list(dict.fromkeys(args.format or ["gif"]))
@@ -196,29 +133,6 @@ def main(argv: list[str] | None = None) -> int:
         written = write_motion(out, slug, feats, joints, pipe, formats, text, targets)
         print(f"{text!r}: {frames} frames -> {out}/{{{', '.join(written)}}}")
     return 0
-
-
-def write_motion(out: Path, slug: str, feats, joints, pipe, formats: list[str], title: str,
-                 targets=None) -> list[str]:
-    """Features, joints and each of `formats` (gif, mp4: an animation; bvh) of one motion; the names written.
-    targets: joint-control targets (positions, mask) drawn in the animation."""
-    from stablemo.io import save_npy
-
-    save_npy(out / f"{slug}.features.npy", feats)
-    save_npy(out / f"{slug}.joints.npy", joints)
-    written = [f"{slug}.features.npy", f"{slug}.joints.npy"]
-    for fmt in formats:
-        if fmt == "bvh":
-            from stablemo.bvh import write_bvh
-
-            write_bvh(out / f"{slug}.bvh", joints, skeleton=pipe.skeleton, source_fps=pipe.fps)
-        else:
-            from stablemo.outputs.render import render_animation
-
-            render_animation(joints, out / f"{slug}.{fmt}", pipe.skeleton, fps=pipe.fps, title=title,
-                             targets=targets)
-        written.append(f"{slug}.{fmt}")
-    return written
 
 
 def _check_numbers(args) -> None:

@@ -17,10 +17,10 @@ from stablemo.errors import StableMoError
 
 def run_timeline(args, bundle: Path, out: Path) -> int:
     """The --timeline path of `stablemo generate` (args: its parsed arguments, numbers already checked)."""
-    from stablemo.cli.generate import slugify, write_motion
     from stablemo.inference.hooks import make_hooks
-    from stablemo.io import check_output_file, write_text
     from stablemo.inference.pipeline import Pipeline
+    from stablemo.io import check_output_file, write_text
+    from stablemo.outputs.files import slugify, write_motion
     from stablemo.timeline import generate_timeline, read_timeline
     from stablemo.timeline.seams import seam_report
 

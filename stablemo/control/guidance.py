@@ -23,7 +23,7 @@ import math
 
 import torch
 
-from stablemo.inference.hooks import StepState
+from stablemo.diffusion.hooks import StepState
 from stablemo.motion.features import feature_slices, features_to_joints, recover_root
 from stablemo.motion.quaternion import qinv, qrot
 from stablemo.motion.skeleton import get_skeleton

@@ -114,3 +114,13 @@ class JointControl:
 
 
 __all__ = ["Inpaint", "JointControl"]
+
+
+@dataclass
+class ControlTargets:
+    """A batch's joint targets as the pipeline resolved them from the requests' JointControl specs:
+    targets (B, T, J, 3) in dataset units, zero where free; mask (B, T, J) bool. A kind that reads
+    them (a ControlNet) takes them in `make_denoiser(..., control=)`; the others ignore them."""
+
+    targets: torch.Tensor
+    mask: torch.Tensor

@@ -5,8 +5,21 @@
 
 from stablemo.data.collate import Collate, pad_motions
 from stablemo.data.dataset import MotionDataset, build_items, crop_window
-from stablemo.data.layout import DATASETS, Caption, DatasetSpec, get_spec, read_captions, read_split
-from stablemo.data.stats import apply_feat_bias, compute_stats, denormalize, load_model_stats, normalize
+from stablemo.data.layout import (
+    DATASETS,
+    Caption,
+    DatasetSpec,
+    get_spec,
+    read_captions,
+    read_split,
+)
+from stablemo.data.stats import (
+    apply_feat_bias,
+    compute_stats,
+    denormalize,
+    load_model_stats,
+    normalize,
+)
 
 __all__ = [
     "DATASETS", "Caption", "Collate", "DatasetSpec", "MotionDataModule", "MotionDataset", "apply_feat_bias",

@@ -15,12 +15,12 @@ from stablemo.data.cache import SplitData, load_split
 from stablemo.data.check import range_problems, stats_problems, without_clips
 from stablemo.data.collate import Collate
 from stablemo.data.dataset import CROPS, MotionDataset
-from stablemo.inference.config import MAX_FRAMES
 from stablemo.data.layout import check_root, get_spec, split_path
 from stablemo.data.resumable import ResumableLoader
 from stablemo.data.sampler import EpochSampler
 from stablemo.data.stats import load_model_stats
 from stablemo.errors import StableMoError
+from stablemo.inference.config import MAX_FRAMES
 
 
 def seed_worker(worker_id: int) -> None:

@@ -15,7 +15,13 @@ import torch
 from stablemo.diffusion.inpainting import Inpainting
 from stablemo.diffusion.samplers import Sampler
 from stablemo.diffusion.schedule import NoiseSchedule
-from stablemo.distill.consistency import CLEAN, ddim_jump, ddim_grid, lcm_consistency, renoise
+from stablemo.distill.consistency import (
+    CLEAN,
+    ddim_grid,
+    ddim_jump,
+    lcm_consistency,
+    renoise,
+)
 from stablemo.errors import StableMoError
 
 Denoise = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]

@@ -14,7 +14,12 @@ from torch import nn
 
 from stablemo.diffusion.guidance import precision_context
 from stablemo.diffusion.schedule import NoiseSchedule
-from stablemo.distill.consistency import ddim_jump, guidance_embedding, lcm_consistency, lower_edge
+from stablemo.distill.consistency import (
+    ddim_jump,
+    guidance_embedding,
+    lcm_consistency,
+    lower_edge,
+)
 from stablemo.errors import StableMoError
 from stablemo.nets.model import MotionDiffusionModel
 

@@ -18,6 +18,14 @@ from safetensors.torch import save as safetensors_bytes
 from stablemo.errors import StableMoError
 from stablemo.io import atomic_dir, output_dir_problem, write_bytes, write_text
 
+# the bundles that ship inside the package (stablemo/assets): the demo teacher, its 1-step student,
+# the ControlNet on that student, and the synthetic benchmark's evaluator
+ASSETS = Path(__file__).resolve().parents[1] / "assets"
+DEMO_BUNDLE = ASSETS / "demo_bundle"
+DEMO_STUDENT = ASSETS / "demo_student"
+DEMO_CONTROLNET = ASSETS / "demo_controlnet"
+EVALUATOR_SYNTH = ASSETS / "evaluator_synth"
+
 BUNDLE_FORMAT = "stablemo-bundle"
 BUNDLE_VERSION = 1
 CONFIG_NAME = "config.json"
@@ -118,6 +126,22 @@ def write_weights_folder(out_dir: Path, config: dict, tensors: dict[str, torch.T
     except FileExistsError:
         raise StableMoError(f"{out_dir}: changed while the {what} was written; nothing replaced") from None
     return out_dir
+
+
+def bundle_or_demo(arg: "str | os.PathLike | None", flag: str = "--bundle") -> Path:
+    """The bundle folder a user named (`flag`), or the packaged demo teacher when none is given."""
+    if arg is not None:
+        path = Path(arg)
+        if not path.is_dir():
+            raise StableMoError(f"{flag}: {path}: bundle folder not found")
+        return path
+    if not (DEMO_BUNDLE / "config.json").is_file():
+        raise StableMoError(
+            f"no bundle given and the packaged demo model is missing ({DEMO_BUNDLE}). Train one "
+            "(`stablemo fit --config <config.yaml>`), export it (`stablemo export CKPT --out DIR`) "
+            "and pass `--bundle DIR`"
+        )
+    return DEMO_BUNDLE
 
 
 def load_bundle(path: str | os.PathLike) -> Bundle:

@@ -8,10 +8,9 @@ derived from their other keys (a consistency student's own steps and absorbed gu
 
 from __future__ import annotations
 
-import math
-import numbers
 from dataclasses import asdict, dataclass, replace
 
+from stablemo.checks import check_finite, check_positive_int
 from stablemo.errors import StableMoError
 
 # StableMoFusion §4.3: SDE variant of DPM-Solver++(2M) with Karras sigmas, 10 steps, CFG 2.5;
@@ -74,37 +73,3 @@ def student_inference(config: dict, source: str = "config.json") -> InferenceCon
     return replace(own, min_length=inherited.min_length, max_length=inherited.max_length, fps=inherited.fps)
 
 
-def check_finite(name: str, value, low: float | None = None, high: float | None = None, strict: bool = False) -> float:
-    """A finite number within [low, high] (low excluded when strict), else one clear error."""
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise StableMoError(f"{name}: expected a number, got {value!r}") from None
-    if not math.isfinite(value):
-        raise StableMoError(f"{name}: must be a finite number, got {value}")
-    if low is not None and (value < low or (strict and value == low)):
-        raise StableMoError(f"{name}: must be {'>' if strict else '>='} {low:g}, got {value:g}")
-    if high is not None and value > high:
-        raise StableMoError(f"{name}: must be <= {high:g}, got {value:g}")
-    return value
-
-
-def check_positive_int(name: str, value) -> int:
-    if isinstance(value, bool) or not (isinstance(value, numbers.Integral)
-                                       or (isinstance(value, float) and value.is_integer())):
-        raise StableMoError(f"{name}: expected a whole number, got {value!r}")
-    if int(value) < 1:
-        raise StableMoError(f"{name}: must be >= 1, got {value}")
-    return int(value)
-
-
-MAX_SEED = 2**63 - 1  # torch generators take a 64-bit seed; sample i of a request uses seed + i
-
-
-def check_seed(name: str, value, count: int = 1) -> int:
-    """A whole-number seed in [0, 2^63 - 1 - (count - 1)], so that seed + i stays a valid seed."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise StableMoError(f"{name}: expected a whole number, got {value!r}")
-    if not 0 <= int(value) <= MAX_SEED - (count - 1):
-        raise StableMoError(f"{name}: must be in [0, {MAX_SEED - (count - 1)}], got {value}")
-    return int(value)

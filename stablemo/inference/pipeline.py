@@ -8,7 +8,7 @@
   multiple with a mask, and draws its start noise and per-step noise from its own generator at its
   own length, so a sample's result does not depend on what else is in the batch (the denoisers are
   exactly padding invariant),
-- sample hooks (stablemo.inference.hooks) may rewrite the predicted x0 at chosen steps (foot-skate
+- sample hooks (stablemo.diffusion.hooks) may rewrite the predicted x0 at chosen steps (foot-skate
   cleanup, and in the same interface any other editing of a sample while it is denoised).
 
 A request is a `Request` (texts, lengths, seeds, sampler, steps, guidance, hooks); what a bundle's
@@ -27,15 +27,21 @@ import numpy as np
 import torch
 from torch import nn
 
+from stablemo.checks import (
+    check_finite,
+    check_positive_int,
+    check_seed,
+    resolve_device,
+    resolve_dtype,
+)
+from stablemo.control.spec import ControlTargets, Inpaint, JointControl
+from stablemo.diffusion.hooks import SampleHook, StepState, apply_hooks
 from stablemo.diffusion.schedule import NoiseSchedule, check_prediction_type
 from stablemo.errors import StableMoError
 from stablemo.fast import accelerate
-from stablemo.checks import resolve_device, resolve_dtype
-from stablemo.inference.hooks import SampleHook, StepState, apply_hooks
-from stablemo.inference.config import InferenceConfig, check_finite, check_positive_int, check_seed
+from stablemo.inference.config import InferenceConfig
+from stablemo.inference.kinds import Denoise, DenoiserInputs, ModelKind, model_kind
 from stablemo.motion.plausible import check_feature_stats
-from stablemo.inference.kinds import ControlTargets, Denoise, ModelKind, model_kind
-from stablemo.control.spec import Inpaint, JointControl
 
 # (pipeline, texts, motion_mask (B, T), cfg, network dtype, planned timesteps) -> denoise(x_t, t).
 # The default encodes the texts once and asks the bundle's kind; the benchmarks pass their
@@ -249,7 +255,8 @@ class Pipeline:
         """The default DenoiserFactory: texts encoded once, the bundle kind's denoiser (which may read
         the batch's joint targets, `control`)."""
         text, text_mask = self.encode(texts)
-        return self.kind.make_denoiser(self, text, text_mask, motion_mask, cfg, dtype, timesteps, control=control)
+        return self.kind.make_denoiser(DenoiserInputs(self.model, self.config, text, text_mask, motion_mask, cfg, dtype,
+                                                      timesteps, self.null_condition, control))
 
     def resolve(self, request: Request) -> Request:
         """The request with every default filled in from the inference config, checked: one clear
@@ -286,7 +293,7 @@ class Pipeline:
         for i, hook in enumerate(request.hooks):
             if not (callable(hook) and callable(getattr(hook, "active", None))):
                 raise StableMoError(f"hooks[{i}]: {type(hook).__name__} is not a sample hook "
-                                    "(it needs active(step, steps) and __call__(state); see stablemo.inference.hooks)")
+                                    "(it needs active(step, steps) and __call__(state); see stablemo.diffusion.hooks)")
         if not isinstance(request.control_guidance, bool):
             raise StableMoError(f"control_guidance: expected True or False, got {request.control_guidance!r}")
         dtype = self.dtype if request.dtype is None else resolve_dtype(request.dtype, self.device)

@@ -1,5 +1,9 @@
 """Motion representation: skeletons, rotations, HumanML3D features <-> joint positions."""
 
+from stablemo.motion.extract_torch import (
+    canonicalize_joints_batched,
+    joints_to_features_batched,
+)
 from stablemo.motion.features import (
     canonicalize_joints,
     feature_slices,
@@ -8,8 +12,13 @@ from stablemo.motion.features import (
     recover_root,
     uniform_skeleton,
 )
-from stablemo.motion.extract_torch import canonicalize_joints_batched, joints_to_features_batched
-from stablemo.motion.skeleton import HUMANML3D, KIT, Skeleton, get_skeleton, skeleton_for_shape
+from stablemo.motion.skeleton import (
+    HUMANML3D,
+    KIT,
+    Skeleton,
+    get_skeleton,
+    skeleton_for_shape,
+)
 
 __all__ = [
     "HUMANML3D",

@@ -19,7 +19,6 @@ from torch import nn
 
 from stablemo.errors import StableMoError
 
-
 # ----------------------------------------------------------------------------- masking helpers
 
 

@@ -51,9 +51,9 @@ def _rel(ours: torch.Tensor, theirs: torch.Tensor) -> float:
 
 def build(src: str, clip: str | None, size: str, seed: int, work: Path):
     """(official T2MUnet in eval mode, StableMo Pipeline of its import, the CLIP folder used)."""
+    from stablemo.inference.pipeline import Pipeline
     from stablemo.io import atomic_open, save_npy
     from stablemo.official.convert import import_official
-    from stablemo.inference.pipeline import Pipeline
 
     if clip is None:
         clip_dir = work / "clip"

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from stablemo.inference.bundle import check_bundle_target, save_bundle
 from stablemo.errors import StableMoError
+from stablemo.inference.bundle import check_bundle_target, save_bundle
 from stablemo.inference.config import MAX_FRAMES, InferenceConfig
 from stablemo.io import load_npy
 from stablemo.motion.plausible import check_feature_stats

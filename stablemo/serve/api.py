@@ -37,9 +37,15 @@ from fastapi.responses import FileResponse, JSONResponse, Response, StreamingRes
 from fastapi.staticfiles import StaticFiles
 
 from stablemo.errors import StableMoError, one_line
-from stablemo.cli.generate import slugify
+from stablemo.outputs.files import slugify
 from stablemo.serve.guard import LOOPBACK_HOSTS, Guard, read_json
-from stablemo.serve.models import ModelSet, Motion, encode_array, json_short, motion_json
+from stablemo.serve.models import (
+    ModelSet,
+    Motion,
+    encode_array,
+    json_short,
+    motion_json,
+)
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 DOWNLOADS = {"joints.npy": "application/octet-stream", "features.npy": "application/octet-stream",

@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from stablemo.checks import check_finite, check_positive_int, check_seed
 from stablemo.errors import StableMoError
-from stablemo.inference.config import check_finite, check_positive_int, check_seed
 from stablemo.inference.pipeline import Pipeline, Request
 from stablemo.timeline.stream import chunk_frames
 

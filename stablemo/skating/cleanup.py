@@ -16,7 +16,11 @@ import torch
 
 from stablemo.errors import StableMoError
 from stablemo.motion import features_to_joints, get_skeleton
-from stablemo.motion.extract_torch import canonicalize_joints_batched, joints_to_features_batched, valid_lengths
+from stablemo.motion.extract_torch import (
+    canonicalize_joints_batched,
+    joints_to_features_batched,
+    valid_lengths,
+)
 
 
 def joints_to_consistent_features(joints, lengths, skeleton="humanml3d", refit: bool = False):
@@ -89,7 +93,7 @@ class StableMoCodec:
         return joints_to_consistent_features(joints, lengths, self.skeleton)
 
 
-def _topology(skeleton):
+def topology(skeleton):
     from footskate.skeletons import TOPOLOGIES
 
     name = get_skeleton(skeleton).name
@@ -111,11 +115,11 @@ def check_footskate_options(footskate: bool, weights, flags: bool = False) -> No
 
 def load_vgrf_model(weights: str | Path | None, skeleton="humanml3d"):
     """vGRF model for a skeleton: `weights` (ours or a user's UnderPressure .tar), else the shipped V22, else None."""
-    from footskate.vgrf import resolve_vgrf
     from footskate.errors import FootskateError
+    from footskate.vgrf import resolve_vgrf
 
     try:
-        return resolve_vgrf(None if weights is None else str(weights), _topology(skeleton))
+        return resolve_vgrf(None if weights is None else str(weights), topology(skeleton))
     except FootskateError as err:
         raise StableMoError(str(err)) from None
 
@@ -134,7 +138,7 @@ def clean_features(features, lengths, skeleton="humanml3d", vgrf=None, config=No
     from footskate.cleanup import CleanupConfig, anchor_drift, cleanup
     from footskate.errors import FootskateError
 
-    topo = _topology(skeleton)
+    topo = topology(skeleton)
     skel = get_skeleton(skeleton)
     feats, as_numpy = _as_tensor(features)
     feats = feats.float()                                                  # (B, T, D)
@@ -160,12 +164,3 @@ def clean_features(features, lengths, skeleton="humanml3d", vgrf=None, config=No
     return cleaned, out_joints, res.info
 
 
-def main(argv: list[str]) -> int:
-    """`stablemo footskate IN.npy --out OUT.npy [--weights PATH] [--iters N]` (joints or features)."""
-    from footskate.command import main as footskate_main
-    from footskate.errors import FootskateError
-
-    try:
-        return footskate_main(argv, codec_factory=StableMoCodec)
-    except FootskateError as err:
-        raise StableMoError(str(err)) from None

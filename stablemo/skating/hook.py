@@ -14,7 +14,7 @@ from typing import Sequence
 
 import torch
 
-from stablemo.inference.hooks import AtSteps, StepState
+from stablemo.diffusion.hooks import AtSteps, StepState
 
 # Correct x0 at the last step only. Demo model, 8 prompts x 120 frames, 10 SDE steps, gated vGRF
 # contacts (issue #22): skating ratio 0.267 plain -> 0.025 (last step) / 0.026 (last two) / 0.022
@@ -32,12 +32,12 @@ class FootskateHook(AtSteps):
                  steps: Sequence[int] | None = DEFAULT_HOOK_STEPS):
         super().__init__(steps)
         from footskate.cleanup import CleanupConfig
-        from stablemo.skating.cleanup import _topology, load_vgrf_model
+        from stablemo.skating.cleanup import topology, load_vgrf_model
 
         self.pipeline = pipeline
         self.skeleton = pipeline.skeleton
         self.vgrf = load_vgrf_model(weights, self.skeleton) if vgrf == "auto" else vgrf
-        self.config = CleanupConfig(fps=pipeline.fps, up_axis=_topology(self.skeleton).up_axis)
+        self.config = CleanupConfig(fps=pipeline.fps, up_axis=topology(self.skeleton).up_axis)
         if iters is not None:
             self.config.iters = int(iters)
         self.calls: list[dict] = []

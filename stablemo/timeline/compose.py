@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from stablemo.checks import check_seed
 from stablemo.errors import StableMoError
-from stablemo.inference.config import check_seed
 from stablemo.motion.features import features_to_joints
 from stablemo.timeline.spec import Segment, check_segments, segment_frames
 from stablemo.timeline.windows import Sampling, crossfade, generate_window, settle

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stablemo.checks import check_seed
 from stablemo.errors import StableMoError
-from stablemo.inference.config import check_seed
 from stablemo.timeline.compose import DEFAULT_OVERLAP_S, DEFAULT_SETTLE_S
 from stablemo.timeline.windows import RootFrame, Sampling, generate_window, settle
 

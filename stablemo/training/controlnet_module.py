@@ -26,17 +26,22 @@ from typing import Any
 import torch
 from lightning.pytorch import LightningModule
 
-from stablemo.inference.bundle import load_bundle
-from stablemo.control.hints import PATH_SCALE, TRAIN_JOINTS, hint_input, sample_hint_mask
 from stablemo.control.controlnet import ControlledModel
+from stablemo.control.hints import (
+    PATH_SCALE,
+    TRAIN_JOINTS,
+    hint_input,
+    sample_hint_mask,
+)
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.errors import StableMoError
+from stablemo.inference.bundle import load_bundle
 from stablemo.inference.config import InferenceConfig
 from stablemo.inference.kinds import model_kind
-from stablemo.training.ema import EMA
-from stablemo.training.module import CHECKPOINT_KEY, derive_seed, masked_mse
 from stablemo.motion import features_to_joints
 from stablemo.motion.skeleton import get_skeleton
+from stablemo.training.ema import EMA
+from stablemo.training.module import CHECKPOINT_KEY, derive_seed, masked_mse
 
 # HumanML3D / KIT root features: rotation velocity (1), velocity in the body's frame (x, z), height
 ROOT_CHANNELS = 4

@@ -19,15 +19,27 @@ from typing import Any
 import torch
 from lightning.pytorch import LightningModule
 
-from stablemo.inference.bundle import load_bundle
 from stablemo.diffusion.schedule import NoiseSchedule
-from stablemo.distill.consistency import CLEAN, cfg_x0, ddim_grid, ddim_jump, lower_edge, masked_pseudo_huber, phase_edges
-from stablemo.distill.discriminator import TeacherFeatureDiscriminator, hinge_d_loss, hinge_g_loss
+from stablemo.distill.consistency import (
+    CLEAN,
+    cfg_x0,
+    ddim_grid,
+    ddim_jump,
+    lower_edge,
+    masked_pseudo_huber,
+    phase_edges,
+)
+from stablemo.distill.discriminator import (
+    TeacherFeatureDiscriminator,
+    hinge_d_loss,
+    hinge_g_loss,
+)
 from stablemo.distill.student import MODES, ConsistencyStudent, consistency_fn
 from stablemo.errors import StableMoError
+from stablemo.inference.bundle import load_bundle
 from stablemo.inference.config import InferenceConfig, student_inference
-from stablemo.training.module import CHECKPOINT_KEY, derive_seed
 from stablemo.nets.model import MotionDiffusionModel
+from stablemo.training.module import CHECKPOINT_KEY, derive_seed
 
 
 def _frozen(module: torch.nn.Module) -> torch.nn.Module:

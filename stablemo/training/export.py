@@ -11,14 +11,13 @@ instant, and leftovers of a killed export beside it are removed by the next one.
 
 from __future__ import annotations
 
-import argparse
 import inspect
 from pathlib import Path
 
 import torch
 
-from stablemo.inference.bundle import check_bundle_target, save_bundle
 from stablemo.errors import StableMoError
+from stablemo.inference.bundle import check_bundle_target, save_bundle
 from stablemo.inference.config import InferenceConfig, student_inference
 from stablemo.training.checkpoint_io import load_checkpoint_file
 from stablemo.training.module import CHECKPOINT_KEY
@@ -121,16 +120,3 @@ def export(ckpt: str | Path, out: str | Path, weights: str = "ema", overwrite: b
     return save_bundle(out, config, state, overwrite=overwrite)
 
 
-def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="stablemo export", description=__doc__.splitlines()[0])
-    parser.add_argument("ckpt", help="Lightning checkpoint (.ckpt) written by `stablemo fit`")
-    parser.add_argument("--out", required=True,
-                        help="bundle folder to write: a new or empty folder (written atomically)")
-    parser.add_argument("--overwrite", action="store_true",
-                        help="replace an existing bundle at --out (never anything that is not a bundle)")
-    parser.add_argument("--weights", choices=WEIGHTS, default="ema", help="EMA weights (default) or the raw weights")
-    args = parser.parse_args(argv)
-    check_bundle_target(args.out, args.overwrite, flag="--out")  # before the checkpoint is even read
-    path = export(args.ckpt, args.out, weights=args.weights, overwrite=args.overwrite)
-    print(f"wrote {path}")
-    return 0

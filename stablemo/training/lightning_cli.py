@@ -226,20 +226,6 @@ def _stablemo_cause(err: BaseException) -> StableMoError | None:
     return None
 
 
-def _run(subcommand: str, argv: list[str]) -> int:
-    from lightning.pytorch import LightningModule
-
-    run_cli(
-        LightningModule,
-        [subcommand, *argv],
-        subclass_mode_model=True,
-        # the same config file may be reused for a resumed run in the same folder
-        save_config_kwargs={"overwrite": True},
-        auto_configure_optimizers=False,
-    )
-    return 0
-
-
 def misconfiguration_line(message: str) -> str:
     """Lightning's MisconfigurationException as one line naming the flag: "`max_steps` must be a
     non-negative integer ..." -> "--trainer.max_steps: must be a non-negative integer ...". """
@@ -314,15 +300,3 @@ def _flag_values(argv: list[str]) -> list[tuple[str, str]]:
         elif i + 1 < len(argv) and not argv[i + 1].startswith("--"):
             pairs.append((key, argv[i + 1]))
     return pairs
-
-
-def main_fit(argv: list[str]) -> int:
-    return _run("fit", argv)
-
-
-def main_validate(argv: list[str]) -> int:
-    return _run("validate", argv)
-
-
-def main_test(argv: list[str]) -> int:
-    return _run("test", argv)

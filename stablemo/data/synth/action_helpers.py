@@ -11,17 +11,17 @@ from stablemo.data.synth.timeline import Timeline
 G = 9.81
 
 
-def _dir2(theta):
+def dir2(theta):
     """World xz direction of a body heading (yaw)."""
     theta = np.asarray(theta, float)
     return np.stack([np.sin(theta), np.cos(theta)], -1)
 
 
-def _body_to_world(yaw, x, z):
+def body_to_world(yaw, x, z):
     """Body-frame (left x, forward z) offsets -> world xz."""
     yaw = np.asarray(yaw, float)
     left = np.stack([np.cos(yaw), -np.sin(yaw)], -1)
-    return np.asarray(x)[..., None] * left + np.asarray(z)[..., None] * _dir2(yaw)
+    return np.asarray(x)[..., None] * left + np.asarray(z)[..., None] * dir2(yaw)
 
 
 def envelope(n: int, rise: float, fall: float) -> np.ndarray:
@@ -35,11 +35,11 @@ def _unit(v):
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def _tile(v, n):
+def tile(v, n):
     return np.tile(_unit(v), (n, 1))
 
 
-def _hold_root(tl: Timeline, n: int) -> slice:
+def hold_root(tl: Timeline, n: int) -> slice:
     sl = tl.frames(n)
     tl.set_root(sl, np.tile(tl.pos, (n, 1)), np.full(n, tl.heading))
     return sl

@@ -13,11 +13,25 @@ from __future__ import annotations
 import numpy as np
 
 from stablemo.data.synth.action_helpers import G, envelope, gaussian_smooth
-from stablemo.data.synth.gestures import RAISE_POSES, build_clap, build_punch, build_raise_arms, build_wave
+from stablemo.data.synth.gestures import (
+    RAISE_POSES,
+    build_clap,
+    build_punch,
+    build_raise_arms,
+    build_wave,
+)
 from stablemo.data.synth.leaps import build_hop, build_jump, build_kick
 from stablemo.data.synth.locomotion import (
-    GAITS, build_circle, build_jog, build_run, build_stand, build_turn, build_walk, build_walk_backward,
-    build_walk_sideways)
+    GAITS,
+    build_circle,
+    build_jog,
+    build_run,
+    build_stand,
+    build_turn,
+    build_walk,
+    build_walk_backward,
+    build_walk_sideways,
+)
 from stablemo.data.synth.lowering import build_bow, build_crouch, build_squat
 
 __all__ = [

@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 
 from stablemo.data.synth import body
-from stablemo.data.synth.action_helpers import _body_to_world, _tile, envelope
+from stablemo.data.synth.action_helpers import body_to_world, tile, envelope
 from stablemo.data.synth.body import LEFT, RIGHT, SIDE_SIGN
 from stablemo.data.synth.gait import smoothstep
-from stablemo.data.synth.locomotion import _place_steps
+from stablemo.data.synth.locomotion import place_steps
 from stablemo.data.synth.timeline import FPS, Timeline
 
 DANCE_GAIT = {"heel_off": 1.5, "off_pitch": 0.4, "slap": 1.0, "land_pitch": -0.1, "clearance": 0.07, "under": 0.5, "toe_out": 0.1}
@@ -43,21 +43,21 @@ def build_dance(tl: Timeline, p: dict) -> None:
     lateral = np.array(sides)[idx] + (np.array(sides)[idx + 1] - np.array(sides)[idx]) * u
     heading = tl.heading
     twist = p["twist"] * np.sin(np.pi * k) * envelope(n, beat, beat)
-    xz = tl.pos + _body_to_world(heading, lateral, np.zeros(n))
+    xz = tl.pos + body_to_world(heading, lateral, np.zeros(n))
     tl.set_root(sl, xz, heading + twist)
     lifts = [[], []]
     for b in range(count):
         lead = first if b % 2 == 0 else 1 - first
         lifts[lead].append(tl.t + b * beat + 0.05 * beat)
         lifts[1 - lead].append(tl.t + b * beat + 0.5 * beat)
-    _place_steps(tl, lifts, 0.4 * beat, tl.t + count * beat, body.STANCE_HALF_WIDTH, DANCE_GAIT)
+    place_steps(tl, lifts, 0.4 * beat, tl.t + count * beat, body.STANCE_HALF_WIDTH, DANCE_GAIT)
     bounce = 0.5 - 0.5 * np.cos(2 * np.pi * k)
     tl.root_y[sl] -= 0.04 * bounce * envelope(n, beat, beat)
     tl.torso_twist[sl] -= 0.5 * twist
     for s in (LEFT, RIGHT):
         sg = SIDE_SIGN[s]
         swing = 0.5 + 0.5 * np.sin(np.pi * k + (0 if s == LEFT else np.pi))
-        tl.blend_arm(s, sl, _tile([sg * 0.8, 0.3, 0.4], n), _tile([sg * 0.2, 0.8, 0.5], n),
+        tl.blend_arm(s, sl, tile([sg * 0.8, 0.3, 0.4], n), tile([sg * 0.2, 0.8, 0.5], n),
                      0.8 * swing * envelope(n, beat, beat))
     tl.t += n
     tl.add_part("dance", p, start)

@@ -15,7 +15,6 @@ import numpy as np
 
 from stablemo.data.synth.body import ANKLE_FLAT_HEIGHT, FOOT_LENGTH, FOOT_PITCH
 
-
 CONTACT_TOL = 0.01  # metres
 SWING_DELAY = (0.14, 0.09)  # fractions of a swing spent lifting / setting down the foot in place
 BUMP_SKEW = 1.0  # < 1: the foot rises quickly after lift-off and comes down gently

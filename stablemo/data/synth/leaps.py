@@ -5,11 +5,17 @@ from __future__ import annotations
 import numpy as np
 
 from stablemo.data.synth import body
-from stablemo.data.synth.action_helpers import G, _body_to_world, _dir2, _hold_root, _tile, gaussian_smooth
+from stablemo.data.synth.action_helpers import (
+    G,
+    body_to_world,
+    dir2,
+    hold_root,
+    tile,
+    gaussian_smooth,
+)
 from stablemo.data.synth.body import LEFT, RIGHT, SIDE_SIGN
 from stablemo.data.synth.gait import Plant, Swing, minjerk, smoothstep
 from stablemo.data.synth.timeline import FPS, Timeline
-
 
 # --- jumps and hops ----------------------------------------------------------------------------
 
@@ -18,7 +24,7 @@ def _jump_feet(tl: Timeline, sides, takeoff: float, land: float, forward: float,
     for s in sides:
         cur = tl.current_plant(s)
         cur.end, cur.heel_off, cur.off_pitch = takeoff, 3.0, 0.75
-        xz = cur.xz + _dir2(tl.heading) * forward
+        xz = cur.xz + dir2(tl.heading) * forward
         tl.plants[s].append(Plant(land, np.inf, xz, cur.yaw, slap=1.5,
                                   swing=Swing(clearance=apex + 0.06, land_pitch=-0.1)))
 
@@ -32,7 +38,7 @@ def build_jump(tl: Timeline, p: dict) -> None:
     prep, absorb = 0.45 * FPS, 0.4 * FPS
     per = prep + flight + absorb
     n = int(np.ceil(count * per + 0.35 * FPS))
-    sl = _hold_root(tl, n)
+    sl = hold_root(tl, n)
     f = np.arange(n, dtype=float)
     y = np.full(n, body.STAND_HEIGHT)
     xz = np.tile(tl.pos, (n, 1))
@@ -54,7 +60,7 @@ def build_jump(tl: Timeline, p: dict) -> None:
         landing = (u >= 0) & (u <= 1)
         y -= np.where(landing, 0.14 * np.sin(np.pi * np.clip(u, 0, 1)) ** 1.0 + 0.03 * (1 - np.clip(u, 0, 1)), 0.0)
         if forward:
-            xz += _dir2(tl.heading) * forward * minjerk((fl - takeoff + 2) / (flight + 4))[:, None]
+            xz += dir2(tl.heading) * forward * minjerk((fl - takeoff + 2) / (flight + 4))[:, None]
         arms_back += crouch * (1 - push)
         arms_up += np.clip(push + air + (1 - smoothstep(u)) * (u >= 0) * (u < 1), 0, 1)
         pitch += 0.35 * crouch * (1 - push) + 0.25 * np.where(landing, np.sin(np.pi * np.clip(u, 0, 1)), 0.0)
@@ -64,9 +70,9 @@ def build_jump(tl: Timeline, p: dict) -> None:
     tl.torso_pitch[sl] += pitch
     for s in (LEFT, RIGHT):
         sg = SIDE_SIGN[s]
-        tl.blend_arm(s, sl, _tile([sg * 0.15, -0.8, -0.55], n), _tile([sg * 0.1, -0.9, -0.2], n),
+        tl.blend_arm(s, sl, tile([sg * 0.15, -0.8, -0.55], n), tile([sg * 0.1, -0.9, -0.2], n),
                      np.clip(arms_back, 0, 1) * 0.9)
-        tl.blend_arm(s, sl, _tile([sg * 0.2, 0.45, 0.85], n), _tile([sg * 0.1, 0.6, 0.8], n),
+        tl.blend_arm(s, sl, tile([sg * 0.2, 0.45, 0.85], n), tile([sg * 0.1, 0.6, 0.8], n),
                      gaussian_smooth(np.clip(arms_up, 0, 1), 1.5) * 0.85)
     tl.t += n
     tl.add_part("jump_forward" if forward else "jump", p, start)
@@ -82,7 +88,7 @@ def build_hop(tl: Timeline, p: dict) -> None:
     per = 0.3 * FPS + flight
     shift, lift = 0.35 * FPS, 0.3 * FPS
     n = int(np.ceil(shift + lift + count * per + lift + shift + 0.2 * FPS))
-    sl = _hold_root(tl, n)
+    sl = hold_root(tl, n)
     f = np.arange(n, dtype=float) + tl.t
     t_lift = tl.t + shift
     t_hops = t_lift + lift
@@ -91,7 +97,7 @@ def build_hop(tl: Timeline, p: dict) -> None:
     # Pelvis over the stance foot while the other leg is up.
     over = smoothstep((f - tl.t) / shift) * (1 - smoothstep((f - t_end) / shift))
     foot_xz = tl.current_plant(stance).xz
-    target = foot_xz + _body_to_world(tl.heading, -SIDE_SIGN[stance] * 0.02, body.ANKLE_BACK)
+    target = foot_xz + body_to_world(tl.heading, -SIDE_SIGN[stance] * 0.02, body.ANKLE_BACK)
     xz = tl.pos + (target - tl.pos) * 0.85 * over[:, None]
     tl.set_root(sl, xz, np.full(n, tl.heading))
     tl.torso_roll[sl] += SIDE_SIGN[stance] * -0.06 * over
@@ -121,11 +127,11 @@ def build_hop(tl: Timeline, p: dict) -> None:
 
     def path(frames):
         idx = np.clip(frames.astype(int), 0, len(root_y) - 1)
-        hip = root_xz[idx] + _body_to_world(heading, SIDE_SIGN[free] * 0.08, 0.0)
+        hip = root_xz[idx] + body_to_world(heading, SIDE_SIGN[free] * 0.08, 0.0)
         # The free leg pumps with the hops (foot swings forward and back under the knee).
         phase = 2 * np.pi * (frames - t_hops) / per
         pump = np.sin(phase) * smoothstep((frames - t_hops) / 4) * (1 - smoothstep((frames - t_down + 4) / 4))
-        raised_xz = hip + _body_to_world(heading, 0.0, -0.26 + 0.12 * pump)
+        raised_xz = hip + body_to_world(heading, 0.0, -0.26 + 0.12 * pump)
         raised_y = root_y[idx] - 0.55 + 0.05 * pump
         w = smoothstep((frames - t_lift) / lift) * (1 - smoothstep((frames - t_down) / lift))
         xz_ = base + (raised_xz - base) * w[:, None]
@@ -137,7 +143,7 @@ def build_hop(tl: Timeline, p: dict) -> None:
     tl.plants[free].append(Plant(t_end, np.inf, base, plant.yaw, swing=Swing(path=path)))
     for s in (LEFT, RIGHT):
         sg = SIDE_SIGN[s]
-        tl.blend_arm(s, sl, _tile([sg * 0.75, -0.55, 0.15], n), _tile([sg * 0.5, -0.3, 0.8], n), over * 0.8)
+        tl.blend_arm(s, sl, tile([sg * 0.75, -0.55, 0.15], n), tile([sg * 0.5, -0.3, 0.8], n), over * 0.8)
     tl.t += n
     tl.add_part("hop", p, start)
 
@@ -149,7 +155,7 @@ def build_kick(tl: Timeline, p: dict) -> None:
     support = 1 - kick
     shift, wind, strike, ret = 0.4 * FPS, 0.45 * FPS, 0.25 * FPS, 0.65 * FPS
     n = int(np.ceil(shift + wind + strike + ret + shift + 0.2 * FPS))
-    sl = _hold_root(tl, n)
+    sl = hold_root(tl, n)
     f = np.arange(n, dtype=float) + tl.t
     t_up = tl.t + shift
     t_strike = t_up + wind
@@ -157,7 +163,7 @@ def build_kick(tl: Timeline, p: dict) -> None:
     t_down = t_back + ret
     over = smoothstep((f - tl.t) / shift) * (1 - smoothstep((f - t_down) / shift))
     foot_xz = tl.current_plant(support).xz
-    target = foot_xz + _body_to_world(tl.heading, 0.0, body.ANKLE_BACK)
+    target = foot_xz + body_to_world(tl.heading, 0.0, body.ANKLE_BACK)
     xz = tl.pos + (target - tl.pos) * 0.7 * over[:, None]
     tl.set_root(sl, xz, np.full(n, tl.heading))
     tl.root_y[sl] -= 0.03 * over
@@ -167,7 +173,7 @@ def build_kick(tl: Timeline, p: dict) -> None:
     flat_y = body.ANKLE_FLAT_HEIGHT[kick]
     height = p.get("height", 0.5)
     # The strike puts the ankle at (almost) full leg reach from the hip, forward and up.
-    hip_fwd = float(np.dot(xz[int(t_strike - tl.t)] - base, _dir2(heading)))
+    hip_fwd = float(np.dot(xz[int(t_strike - tl.t)] - base, dir2(heading)))
     hip_y = body.STAND_HEIGHT - 0.03 - 0.086
     reach = 0.96 * body.LEG_REACH[kick]
     strike_fwd = hip_fwd + np.sqrt(max(reach**2 - (hip_y - height) ** 2, 0.04))
@@ -187,14 +193,14 @@ def build_kick(tl: Timeline, p: dict) -> None:
         fwd = keys_fwd[seg] + (keys_fwd[seg + 1] - keys_fwd[seg]) * u
         y = keys_y[seg] + (keys_y[seg + 1] - keys_y[seg]) * u
         pt = keys_pitch[seg] + (keys_pitch[seg + 1] - keys_pitch[seg]) * u
-        xz_ = base + _body_to_world(heading, 0.0, fwd)
+        xz_ = base + body_to_world(heading, 0.0, fwd)
         return np.stack([xz_[:, 0], y, xz_[:, 1]], -1), np.full(len(frames), plant.yaw), pt
 
     plant.end = t_up
     tl.plants[kick].append(Plant(t_down, np.inf, base, plant.yaw, swing=Swing(path=path)))
     for s in (LEFT, RIGHT):
         sg = SIDE_SIGN[s]
-        tl.blend_arm(s, sl, _tile([sg * 0.6, -0.7, 0.2 if s == kick else -0.1], n),
-                     _tile([sg * 0.3, -0.5, 0.7], n), over * 0.8)
+        tl.blend_arm(s, sl, tile([sg * 0.6, -0.7, 0.2 if s == kick else -0.1], n),
+                     tile([sg * 0.3, -0.5, 0.7], n), over * 0.8)
     tl.t += n
     tl.add_part("kick", p, start)

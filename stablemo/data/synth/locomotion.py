@@ -6,12 +6,11 @@ from __future__ import annotations
 import numpy as np
 
 from stablemo.data.synth import body
-from stablemo.data.synth.action_helpers import G, _body_to_world, _dir2, envelope
+from stablemo.data.synth.action_helpers import G, body_to_world, dir2, envelope
 from stablemo.data.synth.body import LEFT, RIGHT, SIDE_SIGN
 from stablemo.data.synth.gait import Plant, Swing, minjerk, smoothstep
-from stablemo.data.synth.gestures import _arm_sides, _wave_arms
+from stablemo.data.synth.gestures import arm_sides, wave_arms
 from stablemo.data.synth.timeline import FPS, Timeline
-
 
 # ---------------------------------------------------------------------------------------------
 # Stepping: foot placements follow the pelvis (each foot lands where the hip will be at the
@@ -20,7 +19,7 @@ from stablemo.data.synth.timeline import FPS, Timeline
 # ---------------------------------------------------------------------------------------------
 
 
-def _place_steps(tl: Timeline, lifts: list[list[float]], swing_frames: float, rest_time: float,
+def place_steps(tl: Timeline, lifts: list[list[float]], swing_frames: float, rest_time: float,
                  half_width: float, gait: dict) -> float:
     """Schedule steps for both feet from lift-off times; returns the last touchdown frame."""
     for s in (LEFT, RIGHT):
@@ -36,7 +35,7 @@ def _place_steps(tl: Timeline, lifts: list[list[float]], swing_frames: float, re
             xz, yaw = tl.root_at(np.array([mid]))
             # The closing steps bring the feet back to a normal standing width.
             width = body.STANCE_HALF_WIDTH if nxt_lift is None else half_width
-            foot_xz = xz[0] + _body_to_world(yaw[0], SIDE_SIGN[s] * width, -body.ANKLE_BACK)
+            foot_xz = xz[0] + body_to_world(yaw[0], SIDE_SIGN[s] * width, -body.ANKLE_BACK)
             tl.plants[s].append(Plant(
                 start=land, end=np.inf if nxt_lift is None else nxt_lift, xz=foot_xz,
                 yaw=float(yaw[0] + SIDE_SIGN[s] * gait.get("toe_out", 0.06)),
@@ -91,7 +90,7 @@ def _locomote(tl: Timeline, params: dict, gait_name: str, direction: float, curv
     s = np.concatenate([[0.0], np.cumsum(0.5 * (vel[1:] + vel[:-1]) / sub)])
     heading = tl.heading + curvature * s
     ds = 0.5 * (vel[1:] + vel[:-1]) / sub  # metres per sub-step
-    step_xz = _dir2(0.5 * (heading[1:] + heading[:-1]) + direction) * ds[:, None]
+    step_xz = dir2(0.5 * (heading[1:] + heading[:-1]) + direction) * ds[:, None]
     xz = tl.pos + np.concatenate([[[0.0, 0.0]], np.cumsum(step_xz, 0)])
 
     sw = (1.0 - g["stance"]) * cycle
@@ -131,7 +130,7 @@ def _locomote(tl: Timeline, params: dict, gait_name: str, direction: float, curv
     gp["under"] = g.get("under", 0.5)
     gp["heel_off"] = g["heel_off"] * cycle
     gp["slap"] = g["slap"] * cycle
-    last_land = _place_steps(tl, lifts, sw, rest_time, half_width, gp)
+    last_land = place_steps(tl, lifts, sw, rest_time, half_width, gp)
     # The body is still once travel has ended and the last foot is down (the frames reserved
     # above keep holding the final root).
     tl.t += min(n, int(np.ceil(max(last_land, rest_time) - tl.t)) + int(0.25 * FPS))
@@ -143,8 +142,8 @@ def build_walk(tl: Timeline, p: dict) -> None:
     if p.get("waving"):  # "walks forward while waving": the gesture replaces that arm's swing
         sl = slice(start, tl.t)
         env = envelope(tl.t - start, 0.5 * FPS, 0.5 * FPS)
-        _wave_arms(tl, sl, p["waving"], env)
-        for s in _arm_sides(p["waving"]):
+        wave_arms(tl, sl, p["waving"], env)
+        for s in arm_sides(p["waving"]):
             tl.arm_swing[sl, s] *= 1 - env
     tl.add_part("walk", p, start)
 
@@ -201,7 +200,7 @@ def build_turn(tl: Timeline, p: dict) -> None:
     gap = (duration - sw) / max(n_steps - 1, 1)
     for i in range(n_steps):
         lifts[lead if i % 2 == 0 else 1 - lead].append(tl.t + 1.0 + i * gap)
-    _place_steps(tl, lifts, sw, tl.t + duration, body.STANCE_HALF_WIDTH, GAITS["turn"])
+    place_steps(tl, lifts, sw, tl.t + duration, body.STANCE_HALF_WIDTH, GAITS["turn"])
     tl.arm_swing[sl] += 0.08 * envelope(n, 4, 4)[:, None]
     tl.t += n
     tl.add_part("turn", p, start)
@@ -215,7 +214,7 @@ def build_stand(tl: Timeline, p: dict) -> None:
     f = np.arange(n, dtype=float)
     phase = p.get("phase", 0.0)
     sway = 0.015 * np.sin(2 * np.pi * f / (2.5 * FPS) + phase) * envelope(n, 10, 10)
-    xz = tl.pos + _body_to_world(tl.heading, sway, 0.0 * sway)
+    xz = tl.pos + body_to_world(tl.heading, sway, 0.0 * sway)
     tl.set_root(sl, xz, np.full(n, tl.heading))
     tl.torso_roll[sl] += -0.4 * sway
     tl.head_pitch[sl] += 0.05 * np.sin(2 * np.pi * f / (3.1 * FPS) + phase) * envelope(n, 10, 10)

@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from stablemo.data.synth.action_helpers import _body_to_world, _hold_root, _tile, gaussian_smooth
+from stablemo.data.synth.action_helpers import (
+    body_to_world,
+    hold_root,
+    tile,
+    gaussian_smooth,
+)
 from stablemo.data.synth.body import LEFT, RIGHT, SIDE_SIGN
 from stablemo.data.synth.gait import smoothstep
 from stablemo.data.synth.timeline import FPS, Timeline
-
 
 # --- lowering the body ---------------------------------------------------------------------------
 
@@ -18,7 +22,7 @@ def build_squat(tl: Timeline, p: dict) -> None:
     count, depth = p["count"], p.get("depth", 0.36)
     per = p.get("period", 1.7) * FPS
     n = int(np.ceil(count * per + 0.5 * FPS))
-    sl = _hold_root(tl, n)
+    sl = hold_root(tl, n)
     f = np.arange(n, dtype=float)
     down = np.zeros(n)
     for i in range(count):
@@ -28,7 +32,7 @@ def build_squat(tl: Timeline, p: dict) -> None:
     arms = smoothstep(gaussian_smooth(down, 2.0) * 1.6)
     for s in (LEFT, RIGHT):
         sg = SIDE_SIGN[s]
-        tl.blend_arm(s, sl, _tile([sg * 0.12, 0.0, 1.0], n), _tile([sg * 0.08, 0.05, 1.0], n), arms)
+        tl.blend_arm(s, sl, tile([sg * 0.12, 0.0, 1.0], n), tile([sg * 0.08, 0.05, 1.0], n), arms)
     tl.t += n
     tl.add_part("squat", p, start)
 
@@ -38,14 +42,14 @@ def build_crouch(tl: Timeline, p: dict) -> None:
     hold = p.get("hold", 1.2) * FPS
     go = 0.8 * FPS
     n = int(np.ceil(2 * go + hold + 0.4 * FPS))
-    sl = _hold_root(tl, n)
+    sl = hold_root(tl, n)
     f = np.arange(n, dtype=float)
     down = smoothstep((f - 2) / go) * (1 - smoothstep((f - 2 - go - hold) / go))
     _lower(tl, sl, down, p.get("depth", 0.42), back=0.12, lean=0.7)
     tl.head_pitch[sl] += -0.3 * down
     for s in (LEFT, RIGHT):
         sg = SIDE_SIGN[s]
-        tl.blend_arm(s, sl, _tile([sg * 0.1, -0.55, 0.85], n), _tile([sg * 0.02, -0.75, 0.6], n), down)
+        tl.blend_arm(s, sl, tile([sg * 0.1, -0.55, 0.85], n), tile([sg * 0.02, -0.75, 0.6], n), down)
     tl.t += n
     tl.add_part("crouch", p, start)
 
@@ -54,7 +58,7 @@ def _lower(tl: Timeline, sl: slice, down: np.ndarray, depth: float, back: float,
     """Bend the knees: pelvis down and back, chest forward, knees out over the toes."""
     n = len(down)
     tl.root_y[sl] -= depth * down
-    xz = tl.root_xz[sl] + _body_to_world(np.full(n, tl.heading), 0.0, -back * down)
+    xz = tl.root_xz[sl] + body_to_world(np.full(n, tl.heading), 0.0, -back * down)
     tl.set_root(sl, xz, tl.yaw[sl].copy())
     tl.torso_pitch[sl] += lean * down
     tl.knee_out[sl] += 0.35 * down
@@ -65,12 +69,12 @@ def build_bow(tl: Timeline, p: dict) -> None:
     angle = np.deg2rad(p.get("angle", 50.0))
     go, hold = 0.7 * FPS, p.get("hold", 0.6) * FPS
     n = int(np.ceil(2 * go + hold + 0.4 * FPS))
-    sl = _hold_root(tl, n)
+    sl = hold_root(tl, n)
     f = np.arange(n, dtype=float)
     w = smoothstep((f - 2) / go) * (1 - smoothstep((f - 2 - go - hold) / go))
     tl.torso_pitch[sl] += angle * w
     tl.head_pitch[sl] += 0.25 * w
-    xz = tl.root_xz[sl] + _body_to_world(np.full(n, tl.heading), 0.0, -0.09 * w * angle)
+    xz = tl.root_xz[sl] + body_to_world(np.full(n, tl.heading), 0.0, -0.09 * w * angle)
     tl.set_root(sl, xz, tl.yaw[sl].copy())
     tl.root_y[sl] -= 0.02 * w
     tl.t += n

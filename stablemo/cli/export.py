@@ -1,0 +1,23 @@
+"""`stablemo export CKPT --out DIR`: a Lightning training checkpoint -> an inference bundle (stablemo.training.export)."""
+
+from __future__ import annotations
+
+import argparse
+
+from stablemo.inference.bundle import check_bundle_target
+from stablemo.training.export import WEIGHTS, export
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="stablemo export", description=__doc__.splitlines()[0])
+    parser.add_argument("ckpt", help="Lightning checkpoint (.ckpt) written by `stablemo fit`")
+    parser.add_argument("--out", required=True,
+                        help="bundle folder to write: a new or empty folder (written atomically)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an existing bundle at --out (never anything that is not a bundle)")
+    parser.add_argument("--weights", choices=WEIGHTS, default="ema", help="EMA weights (default) or the raw weights")
+    args = parser.parse_args(argv)
+    check_bundle_target(args.out, args.overwrite, flag="--out")  # before the checkpoint is even read
+    path = export(args.ckpt, args.out, weights=args.weights, overwrite=args.overwrite)
+    print(f"wrote {path}")
+    return 0

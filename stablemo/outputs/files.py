@@ -1,0 +1,84 @@
+"""What a generated motion becomes on disk: file names from prompt text, and the files themselves.
+
+`slugify`/`unique_slugs` turn prompts into distinct file stems that can never leave the output
+folder; `write_motion` writes a motion's features, joints and chosen formats (GIF/MP4, BVH), each
+atomically. `stablemo generate`, `edit`, the timeline path and the server's downloads share them.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+from stablemo.errors import StableMoError
+
+
+def slugify(text: str, max_len: int = 60) -> str:
+    """A file name stem from user text: only [a-z0-9-], never empty, never '.', '..' or a path."""
+    slug = re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-")[:max_len].rstrip("-")
+    return slug or "motion"
+
+
+def unique_slugs(texts: list[str]) -> list[str]:
+    """One distinct file stem per text, in order. The first text of each slug keeps it; a repeat
+    gets the first `<slug>-N` (N = 2, 3, ...) that no text's own slug and no earlier pick took, so
+    "x", "x", "x 2" -> x, x-3, x-2 (never two prompts writing the same files)."""
+    slugs = [slugify(text) for text in texts]
+    taken = set(slugs)
+    seen: set[str] = set()
+    out = []
+    for slug in slugs:
+        if slug in seen:
+            n = 2
+            while f"{slug}-{n}" in taken:
+                n += 1
+            taken.add(f"{slug}-{n}")
+            out.append(f"{slug}-{n}")
+        else:
+            seen.add(slug)
+            out.append(slug)
+    return out
+
+
+NAME_MAX = 200  # bytes; the longest suffix (".features.npy") and the temp name's must still fit 255
+
+
+def check_output_name(name: str, flag: str = "--name") -> str:
+    """A user-given file name stem: one plain name inside --out, so the outputs never land elsewhere.
+    Refused: empty, a path (any separator, '..', absolute), a hidden name, control characters."""
+    if not name or not name.strip():
+        raise StableMoError(f"{flag}: empty name")
+    seps = {"/", "\\", os.sep, os.altsep or "/"}
+    if any(sep in name for sep in seps) or os.path.isabs(name) or name in (".", ".."):
+        raise StableMoError(f"{flag}: {name!r} is a path; give a plain file name (the files go into --out)")
+    if name.startswith("."):
+        raise StableMoError(f"{flag}: {name!r} starts with '.'; give a plain, visible file name")
+    if any(ord(c) < 32 or ord(c) == 127 for c in name):
+        raise StableMoError(f"{flag}: {name!r} holds control characters; give a plain file name")
+    if len(os.fsencode(name)) > NAME_MAX:
+        raise StableMoError(f"{flag}: name is {len(os.fsencode(name))} bytes long; at most {NAME_MAX}")
+    return name
+
+
+def write_motion(out: Path, slug: str, feats, joints, pipe, formats: list[str], title: str,
+                 targets=None) -> list[str]:
+    """Features, joints and each of `formats` (gif, mp4: an animation; bvh) of one motion; the names written.
+    targets: joint-control targets (positions, mask) drawn in the animation."""
+    from stablemo.io import save_npy
+
+    save_npy(out / f"{slug}.features.npy", feats)
+    save_npy(out / f"{slug}.joints.npy", joints)
+    written = [f"{slug}.features.npy", f"{slug}.joints.npy"]
+    for fmt in formats:
+        if fmt == "bvh":
+            from stablemo.bvh import write_bvh
+
+            write_bvh(out / f"{slug}.bvh", joints, skeleton=pipe.skeleton, source_fps=pipe.fps)
+        else:
+            from stablemo.outputs.render import render_animation
+
+            render_animation(joints, out / f"{slug}.{fmt}", pipe.skeleton, fps=pipe.fps, title=title,
+                             targets=targets)
+        written.append(f"{slug}.{fmt}")
+    return written
