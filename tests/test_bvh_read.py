@@ -122,7 +122,7 @@ def _renamed(anim: Animation, names: dict[str, str], extra_child_of: str | None 
 
 @pytest.mark.parametrize("style", ["mixamo", "cmu"])
 def test_name_maps_find_our_joints(tmp_path, style):
-    from stablemo.bvh.importer import bvh_joints
+    from stablemo.data.bvh_import import bvh_joints
 
     joints = walk_joints(1)
     anim = motion_to_animation(joints)
@@ -136,7 +136,7 @@ def test_name_maps_find_our_joints(tmp_path, style):
 
 
 def test_unknown_names_ask_for_a_map_and_a_yaml_map_works(tmp_path):
-    from stablemo.bvh.importer import bvh_joints
+    from stablemo.data.bvh_import import bvh_joints
     from stablemo.bvh.names import load_name_map
 
     joints = walk_joints(2)
@@ -156,7 +156,7 @@ def test_unknown_names_ask_for_a_map_and_a_yaml_map_works(tmp_path):
 
 
 def test_z_up_files_are_turned_upright(tmp_path):
-    from stablemo.bvh.importer import bvh_joints
+    from stablemo.data.bvh_import import bvh_joints
 
     joints = walk_joints(3)
     zup = joints @ np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]).T  # (x, y, z) -> (x, -z, y)
@@ -222,7 +222,7 @@ def test_round_trip_features_bvh_import_features(tmp_path):
     if not SAMPLE.is_dir():
         pytest.skip("the HumanML3D sample clip is not available")
     from stablemo.bvh import write_bvh
-    from stablemo.bvh.importer import import_bvh_dir
+    from stablemo.data.bvh_import import import_bvh_dir
 
     feats = np.load(SAMPLE / "new_joint_vecs" / "012314.npy")
     reference = np.load(SAMPLE / "features_from_new_joints.npy")  # the official extraction of its joints

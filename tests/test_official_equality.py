@@ -119,15 +119,15 @@ def test_official_output_depends_on_padding_ours_does_not(pair):
 
 
 def test_compare_tool_reports_equality_padding_and_both_loops(tmp_path):
-    """`python -m stablemo.official.compare` (the numbers of docs/official.md), at a small size."""
+    """`stablemo bench official` (the numbers of docs/official.md), at a small size."""
     import json
 
     pytest.importorskip("einops", reason="the official models/unet.py imports einops")
     pytest.importorskip("diffusers", reason="the official sampling loop uses diffusers' scheduler")
-    from stablemo.official import compare
+    from stablemo.cli.bench import main_official
 
     out = tmp_path / "compare.json"
-    assert compare.main(["--official-src", SRC, "--size", "small", "--frames", "40", "--aits", "--repeats", "1",
+    assert main_official(["--official-src", SRC, "--size", "small", "--frames", "40", "--aits", "--repeats", "1",
                          "--json", str(out)]) == 0
     result = json.loads(out.read_text())
     assert max(v for k, v in result["equality"].items() if k != "frames") < RTOL

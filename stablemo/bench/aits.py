@@ -50,6 +50,7 @@ from stablemo.bench.measure import (  # noqa: F401 (re-exported: tests and scrip
 )
 from stablemo.errors import StableMoError
 from stablemo.fast import gemm
+from stablemo.inference.bundle import DEMO_CONTROLNET
 from stablemo.inference.config import (
     MAX_FRAMES,
     InferenceConfig,
@@ -60,7 +61,7 @@ from stablemo.nets.config import load_model_config
 # Conv1D UNet, base 512, multipliers [2, 2, 2, 2], time embedding 512, text latent 256 with 4
 # transformer layers. The paper's frozen encoder is CLIP ViT-B/32; the packaged MiniLM stands in
 # for it here unless --text-encoder says otherwise (it runs once per request, not per step).
-PAPER_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "humanml3d.yaml"
+PAPER_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "humanml3d.yaml"  # of a source checkout
 STAND_IN_ENCODER = "minilm"
 
 PROMPTS = [
@@ -177,7 +178,7 @@ def student_pipeline(pipe, fast: bool):
     return _sibling_pipeline(pipe, student, "consistency", config, inference, fast)
 
 
-CONTROLNET_ASSET = Path(__file__).resolve().parent / "assets" / "demo_controlnet"
+CONTROLNET_ASSET = DEMO_CONTROLNET
 
 
 def _shipped_control_form() -> dict:

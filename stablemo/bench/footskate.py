@@ -1,6 +1,6 @@
 """Foot-skate benchmark by motion type: synthetic motions with known contacts, injected sliding.
 
-    python -m stablemo.bench.footskate [--seed 1000] [--per-type 6] [--contacts heuristic|vgrf|gt]
+    stablemo bench footskate [--seed 1000] [--per-type 6] [--contacts heuristic|vgrf|gt]
         [--threads 1] [--json out.json]
 
 For each motion type (walk, run, jump, hop, turn in place, side step, kick, dance) `--per-type`

@@ -20,8 +20,9 @@ from pathlib import Path
 import torch
 
 from stablemo.errors import StableMoError
+from stablemo.inference.bundle import DEMO_STUDENT
 
-STUDENT_ASSET = Path(__file__).resolve().parents[1] / "assets" / "demo_student"
+STUDENT_ASSET = DEMO_STUDENT
 PROMPTS = ["a person walks forward", "a person turns left", "a person jumps in place", "a person runs forward"]
 
 

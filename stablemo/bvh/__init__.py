@@ -15,7 +15,7 @@ motion's joints back):
 
 Reading: `read_bvh(path) -> Animation`, `forward_kinematics(anim) -> (T, J, 3)`;
 `stablemo data import-bvh` turns a folder of BVH files into a HumanML3D-layout dataset
-(stablemo/bvh/importer.py). See docs/bvh.md.
+(stablemo/data/bvh_import.py). See docs/bvh.md.
 """
 
 from stablemo.bvh.resample import resample

@@ -19,7 +19,8 @@ from stablemo.bench.aits import CONFIG_MAX_FRAMES, format_report, run_aits
 from stablemo.bench.timeline import run_stream_bench
 from stablemo.checks import check_finite, check_positive_int, check_seed
 from stablemo.errors import StableMoError
-from stablemo.inference.config import MAX_FRAMES, PAPER_CFG, PAPER_STEPS
+from stablemo.inference.config import PAPER_CFG, PAPER_STEPS
+from stablemo.motion.skeleton import MAX_FRAMES
 from stablemo.timeline.stream import DEFAULT_CONTEXT_S
 
 BENCHMARKS = {
@@ -27,6 +28,7 @@ BENCHMARKS = {
     "stream": ("main_stream", "per-chunk cost of Pipeline.stream, teacher and 1-step student"),
     "train": ("main_train", "training throughput"),
     "footskate": ("main_footskate", "foot-skate cleanup: injected sliding and contact F1 per motion type"),
+    "official": ("main_official", "StableMo's network against the official StableMoFusion code: equality, AITS"),
 }
 
 
@@ -174,4 +176,22 @@ def main_footskate(argv: list[str]) -> int:
     from stablemo.bench.footskate import run_footskate_bench
 
     run_footskate_bench(args)
+    return 0
+
+
+def main_official(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog="stablemo bench official", description="StableMo's UNet against a checkout of the official code: outputs, padding, AITS.")
+    p.add_argument("--official-src", required=True, help="a checkout of github.com/Linketic/StableMoFusion")
+    p.add_argument("--clip", help="a local CLIP folder (default: a random CLIP text model of width 512)")
+    p.add_argument("--size", choices=["paper", "small"], default="paper")
+    p.add_argument("--frames", type=int, default=196)
+    p.add_argument("--aits", action="store_true", help="also time the official loop and StableMo's pipeline")
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--threads", type=int, default=None)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", help="also write the results as JSON to this file")
+    args = p.parse_args(argv)
+    from stablemo.official.compare import run_compare
+
+    run_compare(args)
     return 0

@@ -1,5 +1,5 @@
-"""`stablemo data check DIR [--dataset humanml3d|kit]`, `stablemo data synth --out DIR [--num N] [--seed S]`
-and `stablemo data import-bvh DIR --out DATASET [--texts CSV] [--map YAML]` (stablemo/bvh/importer.py)."""
+"""`stablemo data check DIR [--dataset humanml3d|kit]`, `stablemo data synth --out DIR [--num N] [--seed S]`,
+`stablemo data preview OUT.png` and `stablemo data import-bvh DIR --out DATASET [--texts CSV] [--map YAML]` (stablemo/data/bvh_import.py)."""
 
 from __future__ import annotations
 
@@ -32,11 +32,25 @@ def _parser() -> argparse.ArgumentParser:
     imp.add_argument("--map", default=None, help="YAML {our joint name: file joint name} (default: ours/Mixamo or CMU names)")
     imp.add_argument("--up", default="y", choices=["y", "z"], help="the files' up axis (default y)")
     imp.add_argument("--seed", type=int, default=0, help="seed of the train/val/test split")
+    preview = sub.add_parser("preview", help="a PNG contact sheet of one synthetic motion per action")
+    preview.add_argument("out", help="PNG path")
+    preview.add_argument("--seed", type=int, default=0)
+    preview.add_argument("--frames", type=int, default=8, help="frames per row")
+    preview.add_argument("--only", nargs="*", help="restrict to these actions")
     return parser
 
 
 def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
+    if args.command == "preview":
+        from stablemo.data.synth.preview import write_contact_sheet
+        from stablemo.io import check_output_file
+
+        check_output_file(args.out, "out")
+        if args.frames < 1:
+            raise StableMoError(f"--frames: must be >= 1, got {args.frames}")
+        print(f"wrote {write_contact_sheet(args.out, args.seed, args.frames, args.only)}")
+        return 0
     if args.command == "check":
         from stablemo.data.check import check_dataset, format_report
 
@@ -44,7 +58,7 @@ def main(argv: list[str]) -> int:
         print(format_report(report, max_problems=len(report.problems) if args.all_problems else 30))
         return 0 if report.ok else 1
     if args.command == "import-bvh":
-        from stablemo.bvh.importer import import_bvh_dir  # owned by the BVH module
+        from stablemo.data.bvh_import import import_bvh_dir  # owned by the BVH module
 
         if args.seed < 0:
             raise StableMoError(f"--seed={args.seed}: must be >= 0")

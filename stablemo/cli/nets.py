@@ -7,10 +7,10 @@ import argparse
 import torch
 
 from stablemo.errors import StableMoError, one_line
-from stablemo.inference.config import MAX_FRAMES
+from stablemo.motion.skeleton import MAX_FRAMES
 from stablemo.nets import build_denoiser
 from stablemo.nets.config import load_denoiser_config
-from stablemo.nets.summary import human, check_options, count_parameters, summarize
+from stablemo.nets.summary import check_options, count_parameters, human, summarize
 
 
 def main(argv: list[str]) -> int:

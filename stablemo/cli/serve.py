@@ -11,10 +11,11 @@ import argparse
 from pathlib import Path
 
 from stablemo.errors import StableMoError
+from stablemo.inference.bundle import ASSETS, DEMO_BUNDLE, DEMO_STUDENT
 from stablemo.serve.guard import bracket_host
+from stablemo.serve.local import SHUTDOWN_S
 
-ASSETS = Path(__file__).resolve().parent.parent / "assets"
-DEMO_MODELS = {"student": ASSETS / "demo_student", "teacher": ASSETS / "demo_bundle"}
+DEMO_MODELS = {"student": DEMO_STUDENT, "teacher": DEMO_BUNDLE}
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -94,13 +95,9 @@ def main(argv: list[str] | None = None) -> int:
     if not _is_loopback(args.host):
         print(f"stablemo serve: warning: listening on {args.host}, not this machine only: anyone who can reach "
               f"it can use it (there is no authentication)", flush=True)
-    # SHUTDOWN_S: on SIGTERM/Ctrl-C, requests still running (a long stream, a download waiting for its
-    # file) are cancelled after this instead of being waited for; the worker threads are daemons
     uvicorn.run(app, host=args.host, port=args.port, log_level="warning", timeout_graceful_shutdown=SHUTDOWN_S)
     return 0
 
-
-SHUTDOWN_S = 0.3
 
 
 def _is_loopback(host: str) -> bool:

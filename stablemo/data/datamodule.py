@@ -20,7 +20,7 @@ from stablemo.data.resumable import ResumableLoader
 from stablemo.data.sampler import EpochSampler
 from stablemo.data.stats import load_model_stats
 from stablemo.errors import StableMoError
-from stablemo.inference.config import MAX_FRAMES
+from stablemo.motion.skeleton import MAX_FRAMES
 
 
 def seed_worker(worker_id: int) -> None:

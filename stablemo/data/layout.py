@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from stablemo.errors import StableMoError
-from stablemo.inference.config import MAX_FRAMES
+from stablemo.motion.skeleton import MAX_FRAMES
 
 FEATURE_DIR = "new_joint_vecs"
 JOINT_DIR = "new_joints"

@@ -18,13 +18,14 @@ from stablemo.eval.text_motion import (  # noqa: F401 (re-exported: the evaluato
     OurEvaluator,
     load_text_motion_evaluator,
 )
+from stablemo.inference.bundle import EVALUATOR_SYNTH
 from stablemo.motion import features_to_joints
 from stablemo.skating.metrics import foot_skating_ratio
 
 REAL_ROW = "Real motion"
 # StableMo's evaluator of the synthetic benchmark, shipped so that `stablemo evaluate` runs out of the
 # box (made by scripts/train/make_evaluator_asset.sh: data synth seed 0, configs/evaluator_synth.yaml)
-SYNTH_EVALUATOR = Path(__file__).resolve().parents[1] / "assets" / "evaluator_synth"
+SYNTH_EVALUATOR = EVALUATOR_SYNTH
 COLUMNS = [  # (json key, table header, lower/higher/closer-is-better hint only for readers)
     ("r1", "R@1"), ("r2", "R@2"), ("r3", "R@3"), ("fid", "FID"), ("mm_dist", "MM-Dist"),
     ("diversity", "Diversity"), ("multimodality", "MModality"), ("skate_ratio", "Skate"),

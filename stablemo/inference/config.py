@@ -12,11 +12,11 @@ from dataclasses import asdict, dataclass, replace
 
 from stablemo.checks import check_finite, check_positive_int
 from stablemo.errors import StableMoError
+from stablemo.motion.skeleton import FPS, MAX_FRAMES
 
 # StableMoFusion §4.3: SDE variant of DPM-Solver++(2M) with Karras sigmas, 10 steps, CFG 2.5;
-# HumanML3D's motions are 20 fps and at most 196 frames (9.8 s).
+# the length range and frame rate default to HumanML3D's (stablemo.motion.skeleton).
 PAPER_SAMPLER, PAPER_STEPS, PAPER_CFG = "dpmpp_2m_sde", 10, 2.5
-MAX_FRAMES, FPS = 196, 20.0
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,10 @@ import numpy as np
 
 from stablemo.errors import StableMoError
 
+# HumanML3D's motions are 20 fps and at most 196 frames (9.8 s): the defaults of a model's length
+# range and frame rate (a bundle states its own in its inference config).
+MAX_FRAMES, FPS = 196, 20.0
+
 
 @dataclass(frozen=True, eq=False)
 class Skeleton:

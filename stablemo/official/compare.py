@@ -1,6 +1,6 @@
 """Official T2MUnet vs its StableMo import, side by side in one run (numbers for docs/official.md).
 
-    python -m stablemo.official.compare --official-src DIR [--clip PATH] [--size paper|small]
+    stablemo bench official --official-src DIR [--clip PATH] [--size paper|small]
         [--frames 196] [--aits] [--repeats 3] [--threads 1] [--seed 0] [--json FILE]
 
 1. Builds the official network with the official code (a checkout at DIR, see reference.py), its
@@ -22,7 +22,6 @@ the networks' weights are random either way: the numbers measure the code, not a
 
 from __future__ import annotations
 
-import argparse
 import copy
 import json
 import statistics
@@ -167,18 +166,9 @@ def aits(official, pipe, frames: int, repeats: int, seed: int) -> dict:
                    "cpu_samples": cpu[name]} for name, v in times.items()}
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m stablemo.official.compare", description=__doc__.splitlines()[0])
-    p.add_argument("--official-src", required=True, help="a checkout of github.com/Linketic/StableMoFusion")
-    p.add_argument("--clip", help="a local CLIP folder (default: a random CLIP text model of width 512)")
-    p.add_argument("--size", choices=sorted(SIZES), default="paper")
-    p.add_argument("--frames", type=int, default=196)
-    p.add_argument("--aits", action="store_true", help="also time the official loop and StableMo's pipeline")
-    p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--threads", type=int, default=None)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--json", help="also write the results as JSON to this file")
-    args = p.parse_args(argv)
+def run_compare(args) -> dict:
+    """`stablemo bench official` (args: its options): equality, padding effect and, with args.aits,
+    the paired timing; prints them, writes args.json if given, returns the result."""
     if not 16 <= args.frames <= 10_000:
         raise StableMoError(f"--frames: must be in [16, 10000], got {args.frames}")
     if args.json:
@@ -201,8 +191,5 @@ def main(argv: list[str] | None = None) -> int:
         from stablemo.io import write_text
 
         write_text(args.json, json.dumps(result, indent=2) + "\n")
-    return 0
+    return result
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -19,9 +19,10 @@ import torch
 
 from stablemo.errors import StableMoError
 from stablemo.inference.bundle import check_bundle_target, save_bundle
-from stablemo.inference.config import MAX_FRAMES, InferenceConfig
+from stablemo.inference.config import InferenceConfig
 from stablemo.io import load_npy
 from stablemo.motion.plausible import check_feature_stats
+from stablemo.motion.skeleton import MAX_FRAMES
 from stablemo.official import layout
 
 DEFAULT_CLIP = "openai/clip-vit-base-patch32"

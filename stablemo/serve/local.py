@@ -7,14 +7,16 @@ import threading
 import time
 from collections.abc import Iterator
 
+# on SIGTERM/Ctrl-C, requests still running (a long stream, a download waiting for its file) are
+# cancelled after this many seconds instead of being waited for; the worker threads are daemons
+SHUTDOWN_S = 0.3
+
 
 @contextlib.contextmanager
 def serving(app, host: str = "127.0.0.1", port: int = 0, timeout: float = 30.0) -> Iterator[str]:
     """Serve `app` with uvicorn on a thread; yields its base URL ("http://127.0.0.1:PORT"), port 0
     = a free one. The server stops when the block ends."""
     import uvicorn
-
-    from stablemo.cli.serve import SHUTDOWN_S
 
     # as `stablemo serve`: requests still running when the block ends are cancelled, not waited for
     server = uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level="warning", lifespan="on",

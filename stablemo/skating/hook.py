@@ -32,7 +32,7 @@ class FootskateHook(AtSteps):
                  steps: Sequence[int] | None = DEFAULT_HOOK_STEPS):
         super().__init__(steps)
         from footskate.cleanup import CleanupConfig
-        from stablemo.skating.cleanup import topology, load_vgrf_model
+        from stablemo.skating.cleanup import load_vgrf_model, topology
 
         self.pipeline = pipeline
         self.skeleton = pipeline.skeleton

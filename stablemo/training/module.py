@@ -18,7 +18,7 @@ import torch
 from lightning.pytorch import LightningModule
 
 from stablemo.errors import StableMoError
-from stablemo.inference.config import MAX_FRAMES
+from stablemo.motion.skeleton import MAX_FRAMES
 from stablemo.training.ema import EMA
 
 PREDICTION_TYPES = ("sample", "epsilon")

@@ -8,7 +8,7 @@ import numpy as np
 
 from stablemo.data.synth import actions, captions
 from stablemo.data.synth.timeline import FPS, Built, Timeline
-from stablemo.inference.config import MAX_FRAMES as HUMANML3D_MAX_FRAMES
+from stablemo.motion.skeleton import MAX_FRAMES as HUMANML3D_MAX_FRAMES
 
 MIN_FRAMES = 40  # feature frames (HumanML3D's minimum clip length)
 MAX_FRAMES = HUMANML3D_MAX_FRAMES  # feature frames (HumanML3D's maximum motion length)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from stablemo.data.synth import body
-from stablemo.data.synth.action_helpers import body_to_world, tile, envelope
+from stablemo.data.synth.action_helpers import body_to_world, envelope, tile
 from stablemo.data.synth.body import LEFT, RIGHT, SIDE_SIGN
 from stablemo.data.synth.gait import smoothstep
 from stablemo.data.synth.locomotion import place_steps

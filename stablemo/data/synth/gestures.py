@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stablemo.data.synth.action_helpers import hold_root, tile, envelope
+from stablemo.data.synth.action_helpers import envelope, hold_root, tile
 from stablemo.data.synth.body import LEFT, RIGHT, SIDE_SIGN
 from stablemo.data.synth.gait import smoothstep
 from stablemo.data.synth.timeline import FPS, Timeline

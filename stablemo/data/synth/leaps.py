@@ -9,9 +9,9 @@ from stablemo.data.synth.action_helpers import (
     G,
     body_to_world,
     dir2,
+    gaussian_smooth,
     hold_root,
     tile,
-    gaussian_smooth,
 )
 from stablemo.data.synth.body import LEFT, RIGHT, SIDE_SIGN
 from stablemo.data.synth.gait import Plant, Swing, minjerk, smoothstep

@@ -6,9 +6,9 @@ import numpy as np
 
 from stablemo.data.synth.action_helpers import (
     body_to_world,
+    gaussian_smooth,
     hold_root,
     tile,
-    gaussian_smooth,
 )
 from stablemo.data.synth.body import LEFT, RIGHT, SIDE_SIGN
 from stablemo.data.synth.gait import smoothstep

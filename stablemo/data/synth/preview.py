@@ -1,11 +1,10 @@
 """One motion of every action on a contact sheet (docs/data/synth/synth_contact_sheet.png).
 
-    python -m stablemo.data.synth.preview docs/data/synth/synth_contact_sheet.png [--seed 0] [--frames 8]
+    stablemo data preview docs/data/synth/synth_contact_sheet.png [--seed 0] [--frames 8]
 """
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
@@ -25,23 +24,13 @@ def action_gallery(seed: int = 0) -> list[tuple[str, np.ndarray]]:
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("out", help="PNG path")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--frames", type=int, default=8, help="frames per row")
-    parser.add_argument("--only", nargs="*", help="restrict to these actions")
-    args = parser.parse_args(argv)
+def write_contact_sheet(out: Path, seed: int = 0, frames_per_row: int = 8, only: list[str] | None = None) -> Path:
+    """A PNG contact sheet of one motion per action (`only`: these actions)."""
     from stablemo.outputs.render import render_contact_sheet
 
-    gallery = action_gallery(args.seed)
-    if args.only:
-        keep = [i for i, a in enumerate(actions.ACTIONS) if a in args.only]
+    gallery = action_gallery(seed)
+    if only:
+        keep = [i for i, a in enumerate(actions.ACTIONS) if a in only]
         gallery = [gallery[i] for i in keep]
-    render_contact_sheet([j for _, j in gallery], [t for t, _ in gallery], Path(args.out), "humanml3d",
-                         frames_per_row=args.frames)
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+    return render_contact_sheet([j for _, j in gallery], [t for t, _ in gallery], Path(out), "humanml3d",
+                                frames_per_row=frames_per_row)
