@@ -4,17 +4,17 @@ Joint positions in (metres, floor at 0), positions / contacts / forces out. Stab
 package through `stablemo.skating.cleanup`; this package never imports stablemo.
 
 The public names load lazily (PEP 562): `footskate.atomicio`, the project's one write helper, is
-imported by every StableMo command and must not pull in torch with it.
+imported by every StableMo command and must not pull in torch with it. The cleanup itself is
+`footskate.cleanup.cleanup` (the package's `cleanup` is that module).
 """
 
 from __future__ import annotations
 
 import importlib
-import sys
-import types
 
 _EXPORTS = {
-    "footskate.cleanup": ("CleanupConfig", "CleanupResult", "anchor_drift", "cleanup", "detect_contacts"),
+    # the function `cleanup` is footskate.cleanup.cleanup: the package attribute `cleanup` is its module
+    "footskate.cleanup": ("CleanupConfig", "CleanupResult", "anchor_drift", "detect_contacts"),
     "footskate.contacts": ("contacts_from_forces", "contacts_from_heights"),
     "footskate.errors": ("FootskateError",),
     "footskate.skeletons": ("HUMANML3D", "KIT", "UP23", "Topology"),
@@ -35,15 +35,3 @@ def __getattr__(name: str):
 
 def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_WHERE))
-
-
-class _Package(types.ModuleType):
-    def __setattr__(self, name: str, value) -> None:
-        # Importing submodule footskate.cleanup binds the module here; the package's `cleanup` is
-        # the function of that name (as with the former eager `from footskate.cleanup import cleanup`).
-        if isinstance(value, types.ModuleType) and _WHERE.get(name) == value.__name__:
-            value = getattr(value, name)
-        super().__setattr__(name, value)
-
-
-sys.modules[__name__].__class__ = _Package

@@ -9,15 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from footskate import (
-    HUMANML3D,
-    CleanupConfig,
-    FootskateError,
-    VGRFNet,
-    anchor_drift,
-    cleanup,
-)
-from footskate.cleanup import contact_ranges, detect_contacts, leg_joints
+from footskate import HUMANML3D, CleanupConfig, FootskateError, VGRFNet, anchor_drift
+from footskate.cleanup import cleanup, contact_ranges, detect_contacts, leg_joints
 from footskate.contacts import (
     contacts_from_forces,
     contacts_from_heights,

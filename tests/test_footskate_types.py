@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import torch
 
-from footskate import HUMANML3D, CleanupConfig, cleanup
+from footskate import HUMANML3D
+from footskate.cleanup import CleanupConfig, cleanup
 from footskate.cleanup import REST_SPEED, contact_ranges, detect_contacts, swing_offsets
 
 FEET = list(HUMANML3D.feet)

@@ -335,7 +335,7 @@ def real_clip_removal(path: Path, vgrf, seeds=(0, 1, 2, 3)) -> dict:
     its labelled stances (hand labels where the clip has them): root overshoot alone ("overshoot",
     the way the issue's real-clip measurement injects it) and with the per-foot drift too
     ("overshoot+drift", the synthetic benchmark's injection), for each contact source."""
-    from footskate import CleanupConfig, cleanup
+    from footskate.cleanup import CleanupConfig, cleanup
 
     joints = np.load(path, allow_pickle=False).astype(np.float32)
     labels = hand_labels(Path(path).stem, len(joints))
@@ -360,7 +360,7 @@ def real_clip_removal(path: Path, vgrf, seeds=(0, 1, 2, 3)) -> dict:
 
 def run(seed: int = 1000, per_type: int = 6, contacts: str = "heuristic", vgrf=None, config=None, types=TYPES,
         skeleton: str = "humanml3d") -> dict:
-    from footskate import CleanupConfig, cleanup
+    from footskate.cleanup import CleanupConfig, cleanup
     from footskate.cleanup import detect_contacts
 
     data = build_set(seed, per_type, types, skeleton)
