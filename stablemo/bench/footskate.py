@@ -360,8 +360,7 @@ def real_clip_removal(path: Path, vgrf, seeds=(0, 1, 2, 3)) -> dict:
 
 def run(seed: int = 1000, per_type: int = 6, contacts: str = "heuristic", vgrf=None, config=None, types=TYPES,
         skeleton: str = "humanml3d") -> dict:
-    from footskate.cleanup import CleanupConfig, cleanup
-    from footskate.cleanup import detect_contacts
+    from footskate.cleanup import CleanupConfig, cleanup, detect_contacts
 
     data = build_set(seed, per_type, types, skeleton)
     feet_idx, fps, parents = _skeleton(data)

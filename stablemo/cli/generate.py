@@ -17,10 +17,9 @@ from pathlib import Path
 from stablemo.checks import check_finite, check_positive_int, check_seed
 from stablemo.errors import StableMoError
 from stablemo.inference.bundle import DEMO_BUNDLE, bundle_or_demo
+from stablemo.inference.config import DEFAULT_SECONDS
 from stablemo.io import check_output_dir, check_output_file
 from stablemo.outputs.files import unique_slugs, write_motion
-
-DEFAULT_SECONDS = 6.0
 
 
 def read_prompts(path: str) -> list[str]:
@@ -113,12 +112,9 @@ def main(argv: list[str] | None = None) -> int:
     elif control is not None:
         frames, flag = len(control.positions), f"--control {args.control} ({len(control.positions)} frames)"
     else:
-        frames, flag = min(round(DEFAULT_SECONDS * pipe.fps), pipe.max_length), None
-    if flag and not pipe.min_length <= frames <= pipe.max_length:
-        raise StableMoError(
-            f"{flag}: {frames} frames is outside this model's range [{pipe.min_length}, {pipe.max_length}] frames "
-            f"({pipe.min_length / pipe.fps:g}-{pipe.max_length / pipe.fps:g} s at {pipe.fps:g} fps)"
-        )
+        frames, flag = pipe.inference.default_frames, None
+    if flag:
+        pipe.inference.check_length(frames, flag)
     targets = None
     if control is not None:  # checked against the length now, before any network call
         targets = control.resolve(frames, pipe.skeleton, what=f"--control {args.control}")

@@ -17,6 +17,7 @@ from stablemo.motion.skeleton import FPS, MAX_FRAMES
 # StableMoFusion §4.3: SDE variant of DPM-Solver++(2M) with Karras sigmas, 10 steps, CFG 2.5;
 # the length range and frame rate default to HumanML3D's (stablemo.motion.skeleton).
 PAPER_SAMPLER, PAPER_STEPS, PAPER_CFG = "dpmpp_2m_sde", 10, 2.5
+DEFAULT_SECONDS = 6.0  # a motion's length when none is asked for (capped at the model's maximum)
 
 
 @dataclass(frozen=True)
@@ -39,6 +40,21 @@ class InferenceConfig:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    @property
+    def default_frames(self) -> int:
+        """The length of a motion when none is asked for: DEFAULT_SECONDS, within the model's range."""
+        return min(max(round(DEFAULT_SECONDS * self.fps), self.min_length), self.max_length)
+
+    def check_length(self, frames: int, what: str, said: str | None = None) -> int:
+        """`frames` within [min_length, max_length], else one error naming `what` (the flag or field;
+        `said`: how the caller's value reads, e.g. "30 s is 600 frames,"). The one range check of the
+        CLI, the Python API and the server."""
+        if not self.min_length <= frames <= self.max_length:
+            lo, hi = self.min_length, self.max_length
+            raise StableMoError(f"{what}: {said or f'{frames} frames is'} outside this model's range [{lo}, {hi}] "
+                                f"frames ({lo / self.fps:g}-{hi / self.fps:g} s at {self.fps:g} fps)")
+        return frames
 
     @classmethod
     def from_bundle(cls, config: dict, source: str = "config.json") -> "InferenceConfig":

@@ -273,9 +273,7 @@ class Pipeline:
             raise StableMoError(f"lengths: {len(lengths)} lengths for {len(texts)} prompts")
         lengths = [check_positive_int(f"lengths[{i}]", n) for i, n in enumerate(lengths)]
         for i, n in enumerate(lengths):
-            if not self.min_length <= n <= self.max_length:
-                raise StableMoError(f"lengths[{i}]: {n} frames is outside this model's range "
-                                    f"[{self.min_length}, {self.max_length}] ({self.fps:g} fps)")
+            self.inference.check_length(n, f"lengths[{i}]")
         if isinstance(request.seed, (int, np.integer)):
             seeds = [check_seed("seed", request.seed, len(texts)) + i for i in range(len(texts))]
         else:

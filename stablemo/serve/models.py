@@ -25,7 +25,6 @@ from stablemo.errors import StableMoError
 from stablemo.inference.pipeline import Pipeline, Request
 from stablemo.timeline.stream import chunk_frames
 
-DEFAULT_SECONDS = 6.0
 MAX_TEXT_CHARS = 1000  # the text encoders keep far fewer tokens; longer is a pasting accident
 ENCODINGS = ("lists", "base64")
 MAX_STREAM_SECONDS = 300.0  # a bound on one request's work; a longer show is several requests
@@ -177,7 +176,7 @@ class ModelSet:
     def warm_up(self, name: str) -> None:
         """One generation at the default length, uncached: first-call costs are paid at start-up."""
         pipe = self.models[name].pipeline
-        pipe.generate(Request(["a person walks forward"], min(round(DEFAULT_SECONDS * pipe.fps), pipe.max_length)))
+        pipe.generate(Request(["a person walks forward"], pipe.inference.default_frames))
 
     def parse_stream(self, body: Any) -> StreamJob:
         """A JSON timeline request -> a StreamJob whose chunks are computed when pulled. Every error
@@ -349,16 +348,14 @@ def _frames(body: dict, pipe) -> int:
         frames = body["frames"]
         if isinstance(frames, bool) or not isinstance(frames, int):
             raise StableMoError(f"frames: expected a whole number, got {json_short(frames)}")
-        flag = f"frames: {frames}"
+        flag = ("frames",)
     elif body.get("seconds") is not None:
         seconds = check_finite("seconds", _number("seconds", body["seconds"]), low=0.0, strict=True)
-        frames, flag = round(seconds * pipe.fps), f"seconds: {seconds:g} s is {round(seconds * pipe.fps)} frames,"
+        frames = round(seconds * pipe.fps)
+        flag = ("seconds", f"{seconds:g} s is {frames} frames,")
     else:
-        return min(round(DEFAULT_SECONDS * pipe.fps), pipe.max_length)
-    if not pipe.min_length <= frames <= pipe.max_length:
-        raise StableMoError(f"{flag} outside this model's range [{pipe.min_length}, {pipe.max_length}] frames "
-                            f"({pipe.min_length / pipe.fps:g}-{pipe.max_length / pipe.fps:g} s at {pipe.fps:g} fps)")
-    return frames
+        return pipe.inference.default_frames
+    return pipe.inference.check_length(frames, *flag)
 
 
 def _number(name: str, value: Any) -> float:
