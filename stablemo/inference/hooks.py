@@ -2,22 +2,19 @@
 
 from __future__ import annotations
 
-from typing import Sequence
-
 from stablemo.diffusion.hooks import SampleHook
 
 
-def make_hooks(pipeline, *, footskate: bool = False, footskate_weights=None, footskate_iters: int | None = None,
-               footskate_steps: Sequence[int] | None = None) -> list[SampleHook]:
+def make_hooks(pipeline, *, footskate: bool = False, footskate_weights=None) -> list[SampleHook]:
     """The hooks a request asks for by options (the CLI flags of `generate` and `evaluate`, and the
-    Python API), in the order they apply."""
+    Python API), in the order they apply. A hook with other settings (steps, iterations) is built
+    directly, e.g. `stablemo.skating.hook.FootskateHook(pipe, steps=(-2, -1))`."""
     from stablemo.skating.cleanup import check_footskate_options
 
     check_footskate_options(footskate, footskate_weights)  # weights without the hook: an error, not ignored
     hooks: list[SampleHook] = []
     if footskate:
-        from stablemo.skating.hook import DEFAULT_HOOK_STEPS, FootskateHook
+        from stablemo.skating.hook import FootskateHook
 
-        hooks.append(FootskateHook(pipeline, weights=footskate_weights, iters=footskate_iters,
-                                   steps=DEFAULT_HOOK_STEPS if footskate_steps is None else footskate_steps))
+        hooks.append(FootskateHook(pipeline, weights=footskate_weights))
     return hooks
