@@ -1,7 +1,8 @@
 """HumanML3D (22 joints, y-up, 20 fps) -> UnderPressure's 23-joint skeleton (z-up, 100 Hz).
 
 The retargeting is a fixed, differentiable map, so V23 can also stand in for V22 inside the
-cleanup (`UPAdapter`): joint correspondence (facts §4; UP's spine_4 is the midpoint of spine_3 and
+cleanup (`UPAdapter`): joint correspondence (by joint name, as in StableMoFusion's
+`scripts/train_UnderPressure_model.py`; UP's spine_4 is the midpoint of spine_3 and
 the neck), (x, y, z) -> (x, -z, y), a per-sequence scale from the leg length, a height offset that
 puts the lowest toe at UP's toe height, linear resampling 20 -> 100 Hz, and back to 20 Hz by
 taking every 5th output frame.

@@ -1,4 +1,4 @@
-"""Joint topologies footskate needs (facts of the public formats; no dependency on stablemo).
+"""Joint topologies footskate needs (from the formats' public code; no dependency on stablemo).
 
 Feet are given in contact order [L_heel, L_toe, R_heel, R_toe] (heel = ankle joint, toe = the
 toe/ball joint), matching stablemo's `feet_left + feet_right`.
@@ -37,7 +37,7 @@ KIT = Topology(
     parents=(-1, 0, 1, 2, 3, 3, 5, 6, 3, 8, 9, 0, 11, 12, 13, 14, 0, 16, 17, 18, 19),
     feet=(19, 20, 14, 15), up_axis=1, fps=12.5, unit=0.001)
 
-# UnderPressure's 23-joint skeleton (facts §1), z-up, 100 Hz. Contact joints: ankle (heel) and
+# UnderPressure's 23-joint skeleton (its `data.py` TOPOLOGY), z-up, 100 Hz. Contact joints: ankle (heel) and
 # "foot" (toe segment origin).
 UP23 = Topology(
     name="underpressure",

@@ -1,6 +1,6 @@
 """Vertical ground reaction force (vGRF) networks: UnderPressure's layout generalised to J joints.
 
-One `nn.Sequential` whose module indices match UnderPressure's checkpoint keys (facts §1), so
+One `nn.Sequential` whose module indices match UnderPressure's checkpoint keys (its `models.py`), so
 a user's own `pretrained.tar` loads into `VGRFNet(23)` with `weights_only=True`. The same stack
 with 3·J input channels is V22 (HumanML3D, y-up, 20 fps) or V21 (KIT).
 

@@ -55,7 +55,7 @@ def gmd_skating_ratio(joints: torch.Tensor, lengths: torch.Tensor) -> torch.Tens
     try:
         from stablemo.skating.metrics import foot_skating_ratio
         return torch.as_tensor(foot_skating_ratio(joints, lengths=lengths))
-    except ImportError:  # the definition (facts §5), for a checkout without the eval package
+    except ImportError:  # GMD's definition (Karunratanakul et al. 2023), for a checkout without the eval package
         feet = joints[:, :, [10, 11]].double()
         v = 20 * (feet[:, 1:, :, [0, 2]] - feet[:, :-1, :, [0, 2]]).norm(dim=-1)
         valid = (torch.arange(joints.shape[1] - 1)[None] < (lengths - 1)[:, None])

@@ -17,7 +17,7 @@ from stablemo.eval.word_vectorizer import (
     read_pickled_strings,
 )
 
-# Shapes of every tensor in the published HumanML3D finest.tar (facts-humanml3d.md §7).
+# Shapes of every tensor in the published HumanML3D finest.tar (text-to-motion `networks/modules.py`).
 EXPECTED = {
     "movement_encoder": {
         "main.0.weight": (512, 259, 4), "main.0.bias": (512,), "main.3.weight": (512, 512, 4),

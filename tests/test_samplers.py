@@ -168,7 +168,7 @@ def test_runtime_does_not_import_diffusers():
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
-# ---- identities (facts §3-4) ------------------------------------------------------------------
+# ---- identities (Lu et al. 2022 vs DDPM / DDIM) ------------------------------------------------
 
 
 @pytest.mark.parametrize("t, t_prev", [(999, 800), (500, 300), (40, 0)])

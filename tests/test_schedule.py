@@ -13,7 +13,7 @@ def test_tables_match_closed_form():
     assert s.betas[0].item() == pytest.approx(1e-4) and s.betas[-1].item() == pytest.approx(0.02)
     expected = torch.cumprod(1 - torch.linspace(1e-4, 0.02, 1000, dtype=torch.float64), 0)
     torch.testing.assert_close(s.alphas_cumprod.double(), expected, rtol=1e-5, atol=1e-7)
-    # facts sheet: sigma_min = 0.0100013, sigma_max = 157.40727
+    # as diffusers' DPMSolverMultistepScheduler computes them: sigma_min = 0.0100013, sigma_max = 157.40727
     assert s.sigmas[0].item() == pytest.approx(0.0100013, rel=1e-5)
     assert s.sigmas[-1].item() == pytest.approx(157.40727, rel=1e-6)
 

@@ -1,4 +1,4 @@
-"""A motion ControlNet for every denoiser (MotionLCM's control, in motion space; facts-distillation §4).
+"""A motion ControlNet for every denoiser (MotionLCM's control, Dai et al. 2024 Sec. 3.3, in motion space).
 
 - `HintEncoder`: per-frame hint (masked global joint positions + the mask, (B, T, 4 J), and with
   `path=True` the targets' path channels, (B, T, 12 J): hints.py) ->

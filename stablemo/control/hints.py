@@ -8,7 +8,7 @@ rate. Those are what the root's feature channels hold (HumanML3D's root features
 velocity, a velocity in the body's frame and a height), so the network reads them off locally
 instead of differentiating positions itself, and a dense path needs no long receptive field to
 tell the direction of travel from the turning. Training hints follow MotionLCM
-(facts-distillation §4): per sample one joint from {pelvis, left foot, right foot, head, left
+(which follows OmniControl, Xie et al. 2024): per sample one joint from {pelvis, left foot, right foot, head, left
 wrist, right wrist} and a random set of frames; the targets are the clip's own joints.
 """
 

@@ -25,7 +25,7 @@ class Network(Protocol):
 
 
 def to_x0(output: torch.Tensor, x: torch.Tensor, alpha: float, sigma: float, prediction_type: str) -> torch.Tensor:
-    """x0 estimate from a raw network output at state x = alpha x0 + sigma eps (facts §2)."""
+    """x0 estimate from a raw network output at state x = alpha x0 + sigma eps (Ho et al. 2020, Eq. 15)."""
     check_prediction_type(prediction_type)
     if prediction_type == "sample":
         return output

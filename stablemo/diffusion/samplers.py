@@ -14,7 +14,7 @@
   noise level before each network call, on every x0 estimate after the callback, and on the result.
 
 All state is float32 (float64 if x_T is); coefficients are float64 Python floats. Multistep history is local to each
-call, so every call starts fresh. Formulas: `shared/design/facts-sampler.md` §3–4; DPM-Solver++
+call, so every call starts fresh. Formulas: diffusers' `DPMSolverMultistepScheduler`; DPM-Solver++
 is Lu et al. 2022 (arXiv:2211.01095) Alg. 2 (2M) and its SDE variant §4 / eq. (18).
 """
 

@@ -3,7 +3,7 @@
 Tables are built exactly as diffusers builds them (float32 betas and cumulative products) so a
 model trained here samples identically there; everything derived from them for sampling (Karras
 sigmas, sigma -> timestep interpolation, solver coefficients) is computed in float64 and only cast
-at the point of use. Formulas: `shared/design/facts-sampler.md` §1.
+at the point of use. Formulas: Karras et al. 2022 (EDM) Eq. 5 and diffusers' `DPMSolverMultistepScheduler`.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The arithmetic of consistency distillation in motion space, as small named functions.
 
-Notation (facts-distillation.md): abar_t is the cumulative alpha product of the teacher's DDPM
+Notation (LCM, Luo et al. 2023; MotionLCM): abar_t is the cumulative alpha product of the teacher's DDPM
 schedule, alpha_t = sqrt(abar_t), sigma_t = sqrt(1 - abar_t), T = 1000 training steps, N DDIM grid
 steps, skip k = T / N. Timestep tensors are integer (B,); motion tensors are (B, T, D).
 

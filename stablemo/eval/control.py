@@ -1,4 +1,4 @@
-"""Joint-trajectory control errors (facts-distillation.md §4; OmniControl / MotionLCM convention).
+"""Joint-trajectory control errors (OmniControl, Xie et al. ICLR 2024; MotionLCM reports the same).
 
 For each controlled entry (sample b, frame t, joint j with hint_mask = 1) the error is
 d = ‖Ĵ_{b,t,j} − H_{b,t,j}‖ in metres (global joint positions of the generated motion vs the hint).

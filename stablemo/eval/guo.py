@@ -1,7 +1,8 @@
 """The published text–motion matching evaluator of Guo et al. (CVPR 2022), weight-compatible.
 
 Module and parameter names follow the state-dict layout of `t2m/text_mot_match/model/finest.tar`
-(facts-humanml3d.md §7), so a user's checkpoint loads with `torch.load(weights_only=True)` and
+(Guo et al.'s text-to-motion `networks/modules.py`), so a user's checkpoint loads with
+`torch.load(weights_only=True)` and
 `load_state_dict(strict=True)`. Inputs to `encode_motion` are features normalised with the
 *evaluator's* statistics (not the model's), contact dims included (they are dropped here).
 """
@@ -87,7 +88,7 @@ class MotionEncoderBiGRUCo(_BiGRUCo):
         return self._encode(movements, lengths)
 
 
-# Key order inside `output_net`: 0 Linear, 1 LayerNorm, 2 LeakyReLU, 3 Linear (facts §7).
+# Key order inside `output_net`: 0 Linear, 1 LayerNorm, 2 LeakyReLU, 3 Linear (text-to-motion `networks/modules.py`).
 DATASET_DIMS = {"humanml3d": 263, "kit": 251}
 # Subfolders of the published evaluator archive (checkpoints root), per dataset.
 _ARCHIVE = {

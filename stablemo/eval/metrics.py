@@ -1,4 +1,4 @@
-"""Text–motion metrics on evaluator embeddings (facts-humanml3d.md §8).
+"""Text–motion metrics on evaluator embeddings (Guo et al. 2022; text-to-motion's `utils/metrics.py`).
 
 All functions take numpy arrays of embeddings (N, E) and return plain floats, so the same code
 scores the published Guo et al. evaluator and our own. Randomness (Diversity, MultiModality,

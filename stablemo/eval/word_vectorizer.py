@@ -21,7 +21,7 @@ import numpy as np
 from stablemo.errors import StableMoError
 from stablemo.io import load_npy, write_text
 
-# 15-class POS one-hot of Guo et al. (facts-humanml3d.md §7)
+# 15-class POS one-hot of Guo et al. (text-to-motion `utils/word_vectorizer.py`: POS_enumerator, VIP_dict)
 POS_INDEX = {
     "VERB": 0, "NOUN": 1, "DET": 2, "ADP": 3, "NUM": 4, "AUX": 5, "PRON": 6, "ADJ": 7, "ADV": 8,
     "Loc_VIP": 9, "Body_VIP": 10, "Obj_VIP": 11, "Act_VIP": 12, "Desc_VIP": 13, "OTHER": 14,

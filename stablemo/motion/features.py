@@ -1,7 +1,7 @@
 """HumanML3D motion features <-> joint positions.
 
-Extraction (numpy, float64 inside, float32 out) follows facts-humanml3d.md §4 step by step;
-recovery (torch, differentiable) follows §5. Layout per frame (J joints, D = 12J − 1):
+Extraction (numpy, float64 inside, float32 out) follows HumanML3D's `motion_representation.ipynb` step by step;
+recovery (torch, differentiable) follows its `recover_from_ric`. Layout per frame (J joints, D = 12J − 1):
 root angular velocity 1 | root linear velocity xz 2 | root height 1 | ric 3(J−1) | rot 6D 6(J−1)
 | local velocity 3J | foot contacts 4.
 

@@ -1,6 +1,7 @@
 """Skeleton definitions of HumanML3D (22 joints, SMPL body) and KIT-ML (21 joints, MMM).
 
-Numbers follow ../shared/design/facts-humanml3d.md §2–3. Parents are derived from the kinematic
+Numbers follow HumanML3D's `paramUtil.py` / `motion_representation.ipynb` (KIT: text-to-motion's
+`utils/motion_process.py`). Parents are derived from the kinematic
 chains (each chain starts at an already-placed joint). Conventions: y up, body faces +z after
 canonicalisation, left side at +x.
 """
@@ -27,7 +28,7 @@ class Skeleton:
     bone_lengths: np.ndarray  # (J,) target lengths parent -> joint (root: 0), dataset units
     feet_left: tuple[int, int]
     feet_right: tuple[int, int]
-    face_joints: tuple[int, int, int, int]  # [r_hip, l_hip, r_shoulder, l_shoulder] as the facts sheet orders them
+    face_joints: tuple[int, int, int, int]  # [r_hip, l_hip, r_shoulder, l_shoulder]: HumanML3D's face_joint_indx order
     leg_bones: tuple[int, int]  # child joints of the two bones whose lengths set the scale
     contact_threshold: float  # squared per-frame displacement
     fps: float
@@ -96,7 +97,7 @@ HUMANML3D = Skeleton(
     raw_offsets=_raw_offsets(
         22, {(1, 0, 0): (1, 13), (-1, 0, 0): (2, 14), (0, 1, 0): (3, 6, 9, 12), (0, 0, 1): (10, 11, 15)}
     ),
-    # The facts sheet gives these to 4 decimals (.1031, .1099, …); that rounding alone moves joints
+    # Rounded to 4 decimals (.1031, .1099, …) these would move joints
     # by ~1e-4 m. The reference clip 012314's joints (`new_joints`, made by FK with the exact target
     # offsets) keep every bone at one length to 2e-6 m; these are those lengths (median over frames).
     bone_lengths=np.array(
@@ -113,7 +114,7 @@ HUMANML3D = Skeleton(
     units="m",
 )
 
-# KIT-ML (MMM). Sides follow the facts sheet's contact and facing conventions (chain 0-11-… is the
+# KIT-ML (MMM). Sides follow text-to-motion's KIT fid_l / face_joint_indx conventions (chain 0-11-… is the
 # right leg, 0-16-… the left, 3-5-… the right arm, 3-8-… the left arm: contacts store [19, 20]
 # first as the left pair). MMM's own marker names (root BP BT BLN BUN LS LE LW RS RE RW LH LK LA
 # LMrot LF RH RK RA RMrot RF) call those sides the other way round, and the raw offsets put

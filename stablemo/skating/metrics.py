@@ -1,6 +1,6 @@
 """Physical plausibility metrics on global joint positions (y up, metres), batched with masks.
 
-Foot-skating ratio: the GMD definition (facts-footskate.md §5). Penetration / floating / sliding:
+Foot-skating ratio: as defined by GMD (Karunratanakul et al., ICCV 2023). Penetration / floating / sliding:
 PhysDiff-style ground metrics of the lowest joint. Every function takes joints (B, T, J, 3) and a
 validity mask (B, T) bool (or lengths) and scores each sample on its valid frames only, so a batch
 of padded motions gives exactly the per-sample results.

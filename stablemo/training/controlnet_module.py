@@ -1,6 +1,6 @@
 """ControlNetTraining: a motion ControlNet trained on a frozen bundle (teacher or consistency student).
 
-One step, per batch of clean clips x0 (B, T, D) (facts-distillation §4, MotionLCM Eq. 9):
+One step, per batch of clean clips x0 (B, T, D) (MotionLCM, Dai et al. ECCV 2024, Sec. 3.3, Eq. 9):
 1. hints: per sample one joint of TRAIN_JOINTS and a random set of frames (hints.sample_hint_mask),
    the targets being the clip's own global joint positions;
 2. noise x0 to t (uniform over the schedule, or drawn from `train_timesteps`: a 1-step student

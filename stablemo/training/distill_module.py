@@ -1,6 +1,7 @@
 """ConsistencyDistillation: LCM-style or phased (PCM) distillation of a trained bundle, as a LightningModule.
 
-One training step (facts-distillation.md §1-3), per sample of a batch of clean clips x0 (B, T, D):
+One training step (LCM / MotionLCM Sec. 3.2, PCM / MotionPCM; docs/distillation.md), per sample
+of a batch of clean clips x0 (B, T, D):
 1. draw a grid index i: t_hi = tau_i, t_lo = max(tau_i - k, 0); noise x0 to t_hi; draw w ~ U[w_min, w_max];
 2. teacher (frozen, eval): CFG-augmented x0 at (x_hi, t_hi), then the DDIM step to t_lo (ratio form);
 3. target network (EMA of the student, eval, no grad) gives the consistency target at (x_lo, t_lo);
