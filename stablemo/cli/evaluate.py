@@ -4,8 +4,7 @@
         [--steps 10 --sampler dpmpp_2m_sde --cfg 2.5] [--dtype fp32|bf16|fp16] [--footskate] [--multimodality]
         [--split test --seed 0 --out results.json]
 
-Protocol of Guo et al. 2022 (text-to-motion's `final_evaluations.py`; see docs/evaluation.md).
-Each replication r makes two passes over the split's items with
+Protocol: Guo et al. 2022 (docs/evaluation.md). Each replication r makes two passes over the split's items with
 the evaluation crop rule and one random caption per item (the data set's per-epoch randomness):
 pass 2r gives the reference statistics, pass 2r+1 the captions and lengths that are scored. The
 "Real motion" row scores pass 2r+1's real motions (so its FID measures crop/caption noise, ≈ 0);

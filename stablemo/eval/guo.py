@@ -1,8 +1,7 @@
 """The published text–motion matching evaluator of Guo et al. (CVPR 2022), weight-compatible.
 
 Module and parameter names follow the state-dict layout of `t2m/text_mot_match/model/finest.tar`
-(Guo et al.'s text-to-motion `networks/modules.py`), so a user's checkpoint loads with
-`torch.load(weights_only=True)` and
+(Guo et al.'s `networks/modules.py`), so a user's checkpoint loads with `torch.load(weights_only=True)` and
 `load_state_dict(strict=True)`. Inputs to `encode_motion` are features normalised with the
 *evaluator's* statistics (not the model's), contact dims included (they are dropped here).
 """
