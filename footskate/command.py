@@ -18,7 +18,7 @@ import torch
 
 from footskate.atomicio import output_file_problem, same_output
 from footskate.cleanup import CleanupConfig, cleanup
-from footskate.errors import FootskateError
+from footskate.errors import FootskateError, one_line
 from footskate.npyio import load_npy, save_npy
 from footskate.skeletons import TOPOLOGIES, Topology
 from footskate.vgrf import resolve_vgrf
@@ -187,5 +187,5 @@ if __name__ == "__main__":
     try:
         sys.exit(main())
     except FootskateError as err:
-        print(f"footskate: error: {err}", file=sys.stderr)
+        print(f"footskate: error: {one_line(str(err))}", file=sys.stderr)
         sys.exit(2)

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from footskate.errors import FootskateError
+from footskate.errors import FootskateError, one_line
 from footskate.npyio import load_npy, save_npy
 from footskate.retarget import HML_FPS, UP_FPS, UPAdapter, resample, to_up_skeleton
 from footskate.vgrf import ATTRIBUTION, load_underpressure
@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         else:
             distill(args.v23, args.data, args.out, args.steps, args.seed, args.width)
     except FootskateError as err:
-        print(f"footskate.distill: error: {err}", file=sys.stderr)
+        print(f"footskate.distill: error: {one_line(str(err))}", file=sys.stderr)
         return 2
     return 0
 

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from footskate.contacts import contacts_from_forces, contacts_from_heights
-from footskate.errors import FootskateError
+from footskate.errors import FootskateError, one_line
 from footskate.forces import forces_from_contacts
 from footskate.skeletons import topology_for
 from footskate.vgrf import VGRFNet, msle, save_vgrf
@@ -210,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         train(args.data, args.out, args.steps, args.batch, args.window, args.lr, args.width, args.fps, args.seed, log=log)
     except FootskateError as err:
-        print(f"footskate.train: error: {err}", file=sys.stderr)
+        print(f"footskate.train: error: {one_line(str(err))}", file=sys.stderr)
         return 2
     finally:
         if log_file:

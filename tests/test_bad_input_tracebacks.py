@@ -316,3 +316,28 @@ def test_resume_with_a_new_lr_trains_at_it(tmp_path, tiny_data):
     moved = max((after["state_dict"][k] - v).abs().max().item()
                 for k, v in before["state_dict"].items() if v.is_floating_point() and k.startswith("model."))
     assert 0 < moved < 1e-6
+
+
+def test_standalone_footskate_refuses_a_pickle_in_one_line_without_unsafe_advice(tmp_path):
+    """`python -m footskate.command` (no stablemo) cleans torch's refusal as the stablemo CLI does:
+    one line naming the file and the refused global, never the weights_only=False advice."""
+    import subprocess
+    import sys
+
+    import torch
+
+    bad = tmp_path / "bad.pt"
+    torch.save({"x": _Pickled()}, bad)
+    joints = tmp_path / "j.npy"
+    np.save(joints, np.zeros((20, 22, 3), np.float32) + np.linspace(0, 1.7, 22)[None, :, None])
+    proc = subprocess.run([sys.executable, "-m", "footskate.command", str(joints), "--out", str(tmp_path / "o.npy"),
+                           "--weights", str(bad)], capture_output=True, text=True, timeout=120,
+                          cwd=Path(__file__).resolve().parents[1])
+    err = proc.stderr.strip()
+    assert proc.returncode == 2 and len(err.splitlines()) == 1 and str(bad) in err, err
+    assert "refuses" in err and "weights_only=False" not in err and "Re-running" not in err
+    assert not (tmp_path / "o.npy").exists()
+
+
+class _Pickled:
+    pass
