@@ -20,6 +20,7 @@ def matmul_gflops(dtype: torch.dtype = torch.float32, n: int = 2048, repeats: in
     for each GEMM that StableMo's kernels can call: torch.matmul and, for float32 on a CPU with
     oneDNN, oneDNN's packed-weight product (stablemo.fast's default on non-Intel
     CPUs, where it beats MKL's). An efficiency is taken against the fastest of them."""
+    n = _affordable_size(dtype, n)
     a = torch.randn(n, n).to(dtype)
     b = torch.randn(n, n).to(dtype)
     products = {"torch.matmul": lambda: a @ b}
@@ -39,6 +40,24 @@ def matmul_gflops(dtype: torch.dtype = torch.float32, n: int = 2048, repeats: in
                 cpu = min(cpu, time.process_time() - start_cpu)
             result[name] = (flops / wall / 1e9, flops / max(cpu, 1e-9) / 1e9)
     return result
+
+
+def _affordable_size(dtype: torch.dtype, n: int, budget_s: float = 0.5, probe: int = 512) -> int:
+    """`n`, halved until one n x n x n product should take at most `budget_s`, for a low precision.
+    A precision this CPU has no fast kernel for (bf16 without AVX512-BF16 or AMX runs near 1 GFLOP/s,
+    100x below fp32) would otherwise spend minutes on its reference; a CPU with the kernel keeps the
+    full size, and float32 always does."""
+    if dtype == torch.float32 or n <= probe:
+        return n
+    x = torch.randn(probe, probe).to(dtype)
+    with torch.inference_mode():
+        x @ x
+        start = time.perf_counter()
+        x @ x
+        seconds = time.perf_counter() - start
+    while n > probe and seconds * (n / probe) ** 3 > budget_s:
+        n //= 2
+    return n
 
 
 def _fastest(sample: dict[str, tuple[float, float]]) -> tuple[float, float]:
