@@ -243,18 +243,12 @@ def test_hand_labels_of_the_real_clip_and_the_detectors_on_it():
 
 
 def test_heel_raise_stands_on_the_ball_of_the_foot():
-    import importlib.util
-    from pathlib import Path
-
     import numpy as np
 
-    from stablemo.bench.footskate import build_motion
+    from stablemo.bench.footskate import build_motion, heel_raise
 
-    spec = importlib.util.spec_from_file_location("train_vgrf", Path(__file__).parents[1] / "scripts/footskate/train_vgrf.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
     joints, contacts = build_motion("walk", 10000)
-    raised, labels = mod.heel_raise(joints, contacts, np.random.default_rng(0), prob=1.0)
+    raised, labels = heel_raise(joints, contacts, np.random.default_rng(0), prob=1.0)
     length = lambda x, a, b: np.linalg.norm(x[:, a] - x[:, b], axis=-1)
     for a, b in ((10, 7), (11, 8), (7, 4), (8, 5)):                  # foot and shin keep their length
         np.testing.assert_allclose(length(raised, a, b), length(joints, a, b), atol=1e-5)
@@ -268,12 +262,8 @@ def test_heel_raise_stands_on_the_ball_of_the_foot():
 
 
 def test_calibration_picks_the_setting_with_the_largest_smallest_margin():
-    import importlib.util
-    from pathlib import Path
+    from stablemo.bench import footskate_calibrate as mod
 
-    spec = importlib.util.spec_from_file_location("footskate_calibrate", Path(__file__).parents[1] / "scripts/footskate/calibrate.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
     torch.set_num_threads(1)
     out = mod.calibrate(_Forces(), seeds=(3000,), per_type=1)
     margins = [r["min_margin"] for r in out["grid"]]
@@ -285,20 +275,15 @@ def test_calibration_picks_the_setting_with_the_largest_smallest_margin():
 
 
 def test_foot_shuffle_lifts_a_standing_foot_and_takes_its_contact():
-    import importlib.util
-    from pathlib import Path
-
     import numpy as np
 
+    from stablemo.bench.footskate import foot_shuffle
     from stablemo.data.synth import generate_motion
 
-    spec = importlib.util.spec_from_file_location("train_vgrf", Path(__file__).parents[1] / "scripts/footskate/train_vgrf.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
     rng = np.random.default_rng(0)
     m = generate_motion(rng)
     joints, contacts = m.joints.astype(np.float32), m.contacts.astype(bool)
-    moved, labels = mod.foot_shuffle(joints, contacts, np.random.default_rng(0), prob=1.0)
+    moved, labels = foot_shuffle(joints, contacts, np.random.default_rng(0), prob=1.0)
     assert not np.array_equal(labels, contacts)
     assert not (labels & ~contacts).any()                              # contacts are only taken away
     off = contacts & ~labels                                            # (T, 4)

@@ -4,7 +4,7 @@ checkpoints and logs."""
 
 from __future__ import annotations
 
-import importlib.util
+import argparse
 import json
 import re
 import subprocess
@@ -15,6 +15,7 @@ import pytest
 import torch
 import yaml
 
+from stablemo.bench import results as mr
 from stablemo.errors import StableMoError
 from stablemo.eval.evaluate import SYNTH_EVALUATOR
 from stablemo.cli.evaluate import main as evaluate_main
@@ -24,12 +25,18 @@ DEMO = REPO / "stablemo" / "assets" / "demo_bundle"
 MAKE_RESULTS = REPO / "scripts" / "results" / "make_results.py"
 
 
-def _make_results():
-    spec = importlib.util.spec_from_file_location("make_results", MAKE_RESULTS)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault("make_results", module)  # its dataclasses look their module up there
-    spec.loader.exec_module(sys.modules["make_results"])
-    return sys.modules["make_results"]
+def _args(*flags: str, **options) -> argparse.Namespace:
+    """make_results' parsed options before apply_defaults: every option the quick/full defaults
+    fill is unset (None), the rest at make_results' defaults."""
+    args = argparse.Namespace(bundle="stablemo/assets/demo_bundle", quick=False, no_distill=False, replications=None,
+                              max_items=None, ddpm_items=96, ddpm_replications=None, aits_sentences=None,
+                              dtype="fp32", low_precision="bf16", paper_aits_repeats=None, cfg=2.5, seed=0,
+                              out=None, json=None)
+    for flag in flags:
+        setattr(args, flag, True)
+    for key, value in options.items():
+        setattr(args, key, value)
+    return mr.apply_defaults(args)
 
 
 @pytest.fixture(scope="module")
@@ -95,7 +102,6 @@ def test_evaluate_refuses_bad_precision_and_a_missing_evaluator_before_loading(t
 
 
 def test_folder_checksums_say_which_part_changed(tmp_path):
-    mr = _make_results()
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
     (tmp_path / "a" / "x.npy").write_bytes(b"1")
@@ -110,12 +116,11 @@ def test_folder_checksums_say_which_part_changed(tmp_path):
 
 
 def test_quick_mode_defaults_and_explicit_flags():
-    mr = _make_results()
-    quick = mr.parse_args(["--quick"])
+    quick = _args("quick")
     assert (quick.replications, quick.max_items, quick.ddpm_replications, quick.paper_aits_repeats) == (2, 64, 0, 0)
     assert quick.no_distill and quick.out == "outputs/results_quick.md" and quick.json == "outputs/results_quick.json"
-    assert mr.parse_args(["--quick", "--replications", "5"]).replications == 5
-    full = mr.parse_args([])
+    assert _args("quick", replications=5).replications == 5
+    full = _args()
     assert (full.replications, full.max_items, full.out) == (20, 128, "docs/results.md")
     assert full.json == "docs/data/results/results.json"
 
@@ -140,8 +145,7 @@ def _row(fids, r3s):
 
 
 def test_precision_table_pairs_replications_and_checks_the_target():
-    mr = _make_results()
-    args = mr.parse_args(["--low-precision", "bf16"])
+    args = _args(low_precision="bf16")
     pairs = mr.precision_runs(args, [("LCM", "bundles/demo_lcm")])
     labels = [r.label for pair in pairs for r in pair]
     assert labels == [mr.TEACHER_ROW, mr.TEACHER_ROW + ", bf16", "LCM student, 1 step", "LCM student, 1 step, bf16"]

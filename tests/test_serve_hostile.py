@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import asyncio
 import http.client
-import importlib.util
 import json
 import logging
 import os
@@ -558,27 +557,21 @@ def test_fuzz_every_answer_is_200_or_one_line_4xx(tmp_path, monkeypatch, caplog)
 
 # ---- load: honest clients beside hostile ones ----------------------------------------------------
 
-def _load_script():
-    spec = importlib.util.spec_from_file_location("serve_load_hostile", REPO / "scripts/bench/serve_load_hostile.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_honest_answers_stay_exact_and_prompt_under_attack():
     """The hostile mix (every kind) beside two honest clients, through a real socket: every honest
     answer equals offline generation bit for bit, every hostile request gets its refusal (never a
     500), and honest latency stays bounded. A generous bound here (the machine is shared);
     scripts/bench/serve_load_hostile.py prints the strict ratio against a quiet phase of the same run."""
-    script = _load_script()
+    from stablemo.bench import serve_load
+
     models = ModelSet({"student": STUDENT})
     pipe = models.models["student"].pipeline
     app = create_app(models, body_timeout=1.0)  # the slow body is refused after 1 s here (10 s by default)
     with serving(app) as url:
         host, port = url.removeprefix("http://").rsplit(":", 1)
-        result = script.run(host, int(port), pipe, "student", requests=12, concurrency=2, hostile=3, frames=60,
+        result = serve_load.run(host, int(port), pipe, "student", requests=12, concurrency=2, hostile=3, frames=60,
                             slow_seconds=3.0)
-        assert script.honest_request(host, int(port), {"text": "a person walks", "frames": 40})[0] == 200  # still up
+        assert serve_load.honest_request(host, int(port), {"text": "a person walks", "frames": 40})[0] == 200  # still up
     print(json.dumps({k: result[k] for k in ("quiet", "hostile", "p95_ratio", "hostile_counts")}))
     assert result["mismatched"] == {"quiet": [], "hostile": []}
     assert not any(result["unexpected"].values()), result["unexpected"]
