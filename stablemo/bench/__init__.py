@@ -1,1 +1,1 @@
-"""Every benchmark, on public names only: AITS (the paper's Table 5), training speed, streaming, foot-skate cleanup. The commands are `stablemo bench ...` (stablemo.cli.bench)."""
+"""Every benchmark, on public names only: AITS (the paper's Table 5), training speed, streaming, foot-skate cleanup and its calibration, the results report behind docs/results.md, the server's load test. The commands are `stablemo bench ...` (stablemo.cli.bench) and scripts/."""
