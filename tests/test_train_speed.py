@@ -317,7 +317,7 @@ def test_bf16_mixed_trains_with_float32_weights_and_ema(tiny_data, tmp_path):
 def test_paired_bench_rows_ratios_and_memory(tmp_path, capsys):
     import json
 
-    from stablemo.bench.train import main as bench_main
+    from stablemo.cli.bench import main_train as bench_main
 
     config = tmp_path / "net.yaml"
     config.write_text("model:\n  model:\n    denoiser: {name: unet, input_dim: 12, base_channels: 16, channel_mults: [1, 2],"

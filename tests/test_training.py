@@ -325,7 +325,7 @@ def test_nan_loss_stops_and_keeps_last_good_checkpoint(tiny_data, tmp_path):
 
 def test_export_round_trip_reproduces_the_ema_model(tiny_data, tmp_path):
     from stablemo.nets.model import MotionDiffusionModel
-    from stablemo.training.export import main as export_main
+    from stablemo.cli.export import main as export_main
     from stablemo.training.module import DiffusionModule
 
     run = tmp_path / "run"
@@ -434,7 +434,7 @@ def test_ablation_variants_build_and_pad_consistently(variant):
 def test_bench_train_reports_speed_and_memory(tiny_data, tmp_path, capsys):
     import json
 
-    from stablemo.bench.train import main as bench_main
+    from stablemo.cli.bench import main_train as bench_main
 
     cfg = tiny_config(tmp_path, tiny_data)
     out = tmp_path / "bench.json"

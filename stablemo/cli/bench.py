@@ -16,6 +16,7 @@ from dataclasses import asdict
 import torch
 
 from stablemo.bench.aits import CONFIG_MAX_FRAMES, format_report, run_aits
+from stablemo.bench.timeline import format_report as format_stream_report
 from stablemo.bench.timeline import run_stream_bench
 from stablemo.checks import check_finite, check_positive_int, check_seed
 from stablemo.errors import StableMoError
@@ -118,7 +119,7 @@ def main_stream(argv: list[str]) -> int:
     threads = torch.get_num_threads()
     torch.set_num_threads(args.threads)
     try:
-        print(format_report(run_stream_bench(args)))
+        print(format_stream_report(run_stream_bench(args)))
     finally:
         torch.set_num_threads(threads)
     return 0
