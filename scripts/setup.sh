@@ -11,7 +11,9 @@ if [ ! -x .venv/bin/python ]; then
 fi
 .venv/bin/python -m pip install -q --upgrade pip >/dev/null
 .venv/bin/python -m pip install -q "$TORCH_SPEC"
-.venv/bin/python -m pip install -q -e ".[dev,serve]"
+# PYTHONWARNINGS: setuptools warns on every editable install that folders named like the package
+# may shadow it (stablemo/ is that package); errors still print
+PYTHONWARNINGS=ignore .venv/bin/python -m pip install -q -e ".[dev,serve]"
 # `stablemo serve` needs three.js from its npm package (never committed); without npm the command says how to get it
 if command -v npm >/dev/null; then
   .venv/bin/python -m stablemo.serve.vendor || echo "setup: three.js not vendored; \`stablemo serve\` will say how to get it"
