@@ -193,8 +193,9 @@ def stance_speed(joints: torch.Tensor, contacts: torch.Tensor, lengths: torch.Te
 def foot_acceleration(joints: torch.Tensor, lengths: torch.Tensor, feet_idx=FEET,
                       fps: float = FPS) -> tuple[torch.Tensor, torch.Tensor]:
     """Per sample: summed |second difference| (m/s², per coordinate) of the contact joints, and the count."""
-    feet = joints[:, :, feet_idx].double()
-    acc = (feet[:, 2:] - 2 * feet[:, 1:-1] + feet[:, :-2]).abs() * fps * fps  # (B, T-2, 4, 3)
+    from stablemo.skating.metrics import foot_second_difference
+
+    acc = foot_second_difference(joints.double(), feet_idx, fps)  # (B, T-2, 4, 3)
     valid = _valid(lengths - 2, joints.shape[1] - 2)[..., None, None].expand_as(acc)
     return (acc * valid).sum((1, 2, 3)), valid.sum((1, 2, 3)).double()
 

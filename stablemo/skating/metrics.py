@@ -100,13 +100,19 @@ def ground_metrics(joints, mask=None, lengths=None, threshold: float = 0.005) ->
     return {"penetration": penetration.numpy(), "floating": floating.numpy(), "sliding": sliding.numpy()}
 
 
+def foot_second_difference(joints: torch.Tensor, feet, fps: float) -> torch.Tensor:
+    """|second difference| of the `feet` joints' coordinates in m/s²: (B, T, J, 3) -> (B, T-2, F, 3).
+    The one definition of foot acceleration; callers choose how to average it over valid frames."""
+    feet_pos = joints[:, :, list(feet)]
+    return (feet_pos[:, 2:] - 2 * feet_pos[:, 1:-1] + feet_pos[:, :-2]).abs() * fps * fps
+
+
 def foot_acceleration(joints, mask=None, lengths=None, feet=(7, 8, 10, 11), fps: float = 20.0) -> np.ndarray:
     """Mean |second difference| of the feet's (ankles and toes) coordinates, m/s², over valid
     frames; (B,). The jitter measure of foot-skate corrections (scripts/footskate/report.py, docs/
     footskate.md) and of joint control: a target reached by a jerk shows here."""
     j, m = _prepare(joints, mask, lengths)
-    feet_pos = j[:, :, list(feet)]  # (B, T, F, 3)
-    acc = (feet_pos[:, 2:] - 2 * feet_pos[:, 1:-1] + feet_pos[:, :-2]).abs() * fps * fps  # (B, T-2, F, 3)
+    acc = foot_second_difference(j, feet, fps)  # (B, T-2, F, 3)
     valid = (m[:, 2:] & m[:, 1:-1] & m[:, :-2]).double()  # (B, T-2)
     if (valid.sum(1) == 0).any():
         raise StableMoError("foot acceleration: every sample needs at least 3 valid frames")
