@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import make_tiny_bundle
 
 from footskate import atomicio
 from stablemo.cli import main
@@ -353,26 +354,7 @@ def test_export_overwrite_never_deletes_a_folder_named_like_a_bundle_file(capsys
 
 @pytest.fixture(scope="module")
 def bundle(tmp_path_factory):
-    """The tiny bundle of tests/test_generate_cli.py (lengths 8 to 40 frames)."""
-    model_mod = pytest.importorskip("stablemo.nets.model")
-    from stablemo.inference.bundle import save_bundle
-
-    config = {
-        "model": {
-            "denoiser": {"name": "unet", "input_dim": D, "base_channels": 16, "channel_mults": [1, 2],
-                         "time_dim": 32, "num_groups": 4, "num_heads": 2, "dropout": 0.0},
-            "text": {"encoder": "minilm", "latent_dim": 32, "num_layers": 1, "num_heads": 2, "ff_dim": 64,
-                     "dropout": 0.0},
-        },
-        "schedule": {"num_train_timesteps": 1000},
-        "prediction_type": "sample", "dataset": "humanml3d", "skeleton": "humanml3d", "fps": 20,
-        "mean": [0.0] * D, "std": [0.1] * D, "min_length": 8, "max_length": 40, "kind": "diffusion",
-    }
-    torch.manual_seed(0)
-    model = model_mod.MotionDiffusionModel(**config["model"])
-    for p in model.parameters():  # the output conv is zero-initialised; give the net a real output
-        torch.nn.init.normal_(p, std=0.05)
-    return save_bundle(tmp_path_factory.mktemp("gen") / "bundle", config, model.state_dict())
+    return make_tiny_bundle(tmp_path_factory.mktemp("gen") / "bundle")
 
 
 def features_file(tmp_path: Path, frames: int) -> Path:

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-import torch
+from conftest import make_tiny_bundle
 
 from stablemo import cli
 from stablemo.cli import generate
@@ -15,31 +15,7 @@ D = 263
 
 @pytest.fixture(scope="module")
 def bundle(tmp_path_factory):
-    model_mod = pytest.importorskip("stablemo.nets.model")
-    from stablemo.inference.bundle import save_bundle
-
-    config = {
-        "model": {
-            "denoiser": {"name": "unet", "input_dim": D, "base_channels": 16, "channel_mults": [1, 2],
-                         "time_dim": 32, "num_groups": 4, "num_heads": 2, "dropout": 0.0},
-            "text": {"encoder": "minilm", "latent_dim": 32, "num_layers": 1, "num_heads": 2, "ff_dim": 64, "dropout": 0.0},
-        },
-        "schedule": {"num_train_timesteps": 1000},
-        "prediction_type": "sample",
-        "dataset": "humanml3d",
-        "skeleton": "humanml3d",
-        "fps": 20,
-        "mean": [0.0] * D,
-        "std": [0.1] * D,
-        "min_length": 8,
-        "max_length": 40,
-        "kind": "diffusion",
-    }
-    torch.manual_seed(0)
-    model = model_mod.MotionDiffusionModel(**config["model"])
-    for p in model.parameters():  # the output conv is zero-initialised; give the net a real output
-        torch.nn.init.normal_(p, std=0.05)
-    return save_bundle(tmp_path_factory.mktemp("gen") / "bundle", config, model.state_dict())
+    return make_tiny_bundle(tmp_path_factory.mktemp("gen") / "bundle")
 
 
 def test_writes_features_joints_and_animation_per_prompt(bundle, tmp_path, capsys):
