@@ -8,6 +8,8 @@
 - `api.py`: the FastAPI app (page, static files, /api/info, /api/generate, /api/download);
 - `vendor.py`: copies three.js from its npm package into `static/vendor/` at setup time, so the
   page needs no network when it runs;
-- `command.py`: the command line;
+- `guard.py`: the checks every request passes before a route sees it (Host, Origin, JSON, size, nesting);
+- `local.py`: the app on a loopback port inside this process (tests, load scripts);
+- the command line is stablemo.cli.serve;
 - `static/`: the page (HTML/JS/CSS written for StableMo; the vendored library is gitignored).
 """

@@ -1,4 +1,4 @@
-"""StableMo side of foot-skate cleanup: consistent features from cleaned joints, the command.
+"""StableMo side of foot-skate cleanup: consistent features from cleaned joints, the vGRF model for a skeleton (the command is stablemo.cli.footskate).
 
 `footskate` works on joint positions and never imports stablemo; this module converts between
 features and joints (stablemo.motion), so that a cleaned motion's features are *all* re-derived

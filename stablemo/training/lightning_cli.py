@@ -1,4 +1,4 @@
-"""`stablemo fit|validate|test --config configs/x.yaml [--trainer.max_steps=...]` via LightningCLI.
+"""The LightningCLI behind `stablemo fit|validate|test --config configs/x.yaml` (stablemo.cli.train).
 
 Everything is configured in YAML and overridable on the command line. Two callbacks are always
 present and configurable under their own keys: `checkpoint` (ModelCheckpoint that also saves the
