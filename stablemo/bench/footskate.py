@@ -183,11 +183,11 @@ def _skeleton(data_or_name) -> tuple[list[int], float, list[int]]:
 
 def stance_speed(joints: torch.Tensor, contacts: torch.Tensor, lengths: torch.Tensor, feet_idx=FEET,
                  fps: float = FPS) -> tuple[torch.Tensor, torch.Tensor]:
-    """Per sample: summed horizontal speed (m/s) of foot joints over frame pairs inside contacts, and the pair count."""
-    feet = joints[:, :, feet_idx][..., [0, 2]].double()                        # (B, T, 4, 2)
-    v = (feet[:, 1:] - feet[:, :-1]).norm(dim=-1) * fps                        # (B, T-1, 4)
-    pairs = contacts[:, 1:] & contacts[:, :-1] & _valid(lengths - 1, joints.shape[1] - 1)[..., None]
-    return (v * pairs).sum((1, 2)), pairs.sum((1, 2)).double()
+    """Per sample: summed horizontal speed (m/s) of foot joints over frame pairs inside contacts, and
+    the pair count (the definition is stablemo.eval.kinematics.stance_speed_sums, shared with evaluate)."""
+    from stablemo.eval.kinematics import stance_speed_sums
+
+    return stance_speed_sums(joints, contacts, lengths, feet_idx, fps)
 
 
 def foot_acceleration(joints: torch.Tensor, lengths: torch.Tensor, feet_idx=FEET,
