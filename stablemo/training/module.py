@@ -20,6 +20,7 @@ from lightning.pytorch import LightningModule
 from stablemo.errors import StableMoError
 from stablemo.motion.skeleton import MAX_FRAMES
 from stablemo.training.ema import EMA
+from stablemo.training.geometry import GEOMETRY_TERMS, GeometricLoss, geometry_weights
 
 PREDICTION_TYPES = ("sample", "epsilon")
 # Minimum clip length per dataset (frames), used when the data module does not say.
@@ -63,6 +64,9 @@ class DiffusionModule(LightningModule):
         gemm_conv: with fast_training, the GEMM convolutions (the faster ones on the Xeon measured);
             False keeps oneDNN's (the faster ones on the AMD EPYC measured; `stablemo bench train
             --paired --rows stablemo,stablemo-onednn` compares them on yours). Same gradients either way.
+        geometry: weights of MDM's geometric losses on the joints of the clean-motion estimate
+            ({positions, velocities, foot_contact, bone_lengths}: see stablemo.training.geometry),
+            added to the per-sample loss; absent or all zero: none is computed.
     """
 
     def __init__(
@@ -81,6 +85,7 @@ class DiffusionModule(LightningModule):
         seed: int = 0,
         fast_training: bool = True,
         gemm_conv: bool = True,
+        geometry: dict[str, float] | None = None,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -90,6 +95,8 @@ class DiffusionModule(LightningModule):
             raise StableMoError(f"cond_drop_prob: must be in [0, 1], got {cond_drop_prob}")
         if lr_step < 1:
             raise StableMoError(f"lr_step: must be >= 1, got {lr_step}")
+        self.geometry_weights = geometry_weights(geometry)  # {} = off
+        self._geometric_loss: tuple[int, GeometricLoss] | None = None  # (id of the data_info it was built for, loss)
         from stablemo.diffusion.schedule import NoiseSchedule
         from stablemo.nets.model import MotionDiffusionModel
 
@@ -165,23 +172,57 @@ class DiffusionModule(LightningModule):
         devices = [x0.device] if x0.device.type == "cuda" else []
         with torch.random.fork_rng(devices=devices):
             torch.manual_seed(derive_seed("dropout", self.hparams.seed, self.global_step, batch_idx, self.global_rank))
-            per_sample = self._loss(x0, mask, texts, t, noise)
+            terms = self.loss_terms(x0, mask, texts, t, noise)
         # frame-weighted mean over the batch: every valid frame counts the same
         frames = mask.float().sum(dim=1)
-        loss = (per_sample * frames).sum() / frames.sum().clamp(min=1.0)
+        loss = self._batch_mean(self._weighted_sum(terms), frames)
         self.last_train_loss = loss.detach()
         bsz = x0.shape[0]
         self.log("train/loss", loss, prog_bar=True, batch_size=bsz)
         self.log("train/cond_dropped", drop.float().mean(), batch_size=bsz)
+        if self.geometry_weights:
+            self.log("train/loss_simple", self._batch_mean(terms["simple"], frames).detach(), batch_size=bsz)
+            for name in self.geometry_weights:
+                self.log(f"train/{GEOMETRY_TERMS[name]}", self._batch_mean(terms[name], frames).detach(), batch_size=bsz)
         return loss
 
-    def _loss(self, x0, mask, texts, t, noise) -> torch.Tensor:
-        """Per-sample masked MSE between the network output and the target. -> (B,)"""
+    @staticmethod
+    def _batch_mean(per_sample: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
+        """Frame-weighted mean of per-sample values (B,) with valid frame counts (B,)."""
+        return (per_sample * frames).sum() / frames.sum().clamp(min=1.0)
+
+    def _weighted_sum(self, terms: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The per-sample objective (B,): the simple loss plus the weighted geometric terms."""
+        total = terms["simple"]
+        for name, weight in self.geometry_weights.items():
+            total = total + weight * terms[name]
+        return total
+
+    def loss_terms(self, x0, mask, texts, t, noise) -> dict[str, torch.Tensor]:
+        """Per-sample unweighted terms {name: (B,)}: "simple", the masked MSE between the network
+        output and its target, and each configured geometric term on the clean-motion estimate x̂0
+        (the output itself for "sample", (x_t - sqrt(1 - abar) eps) / sqrt(abar) for "epsilon")."""
         x_t = self.schedule.q_sample(x0, t, noise)
         text, text_mask = self.model.encode_text(texts)
         pred = self.model(x_t, t, text, text_mask, mask)
         target = self.schedule.target(x0, noise, self.hparams.prediction_type)
-        return masked_mse(pred, target, mask)
+        terms = {"simple": masked_mse(pred, target, mask)}
+        if self.geometry_weights:
+            pred_x0 = self.schedule.predict_x0(pred, x_t, t, self.hparams.prediction_type)
+            terms.update(self.geometric_loss().terms(pred_x0, x0, mask))
+        return terms
+
+    def geometric_loss(self) -> GeometricLoss:
+        """The configured geometric terms for the dataset in data_info (set in setup() or from a checkpoint)."""
+        if self.data_info is None:
+            raise StableMoError("model.geometry: the geometric losses need the dataset's Mean/Std and skeleton, "
+                                "which come from the data module (train through `stablemo fit` or a Trainer with one)")
+        key = id(self.data_info)
+        if self._geometric_loss is None or self._geometric_loss[0] != key:
+            info = self.data_info
+            loss = GeometricLoss(self.geometry_weights, info["skeleton"], info["mean"], info["std"])
+            self._geometric_loss = (key, loss)
+        return self._geometric_loss[1]
 
     def optimizer_step(self, *args, **kwargs) -> None:
         super().optimizer_step(*args, **kwargs)
