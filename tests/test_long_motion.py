@@ -12,6 +12,7 @@ import torch
 from stablemo.errors import StableMoError
 from stablemo.inference.pipeline import Pipeline
 from stablemo.motion import features_to_joints
+from stablemo.motion.skeleton import HUMANML3D
 from stablemo.timeline import parse_timeline, plan_windows, segment_frames
 from stablemo.timeline.seams import seam_report
 from stablemo.timeline.windows import RootFrame, crossfade
@@ -27,6 +28,17 @@ def demo():
 
 def _global_joints(features: np.ndarray) -> np.ndarray:
     return features_to_joints(torch.from_numpy(features.astype(np.float64))).numpy()
+
+
+def _assert_finished_from(joints: np.ndarray, raw_features: np.ndarray) -> None:
+    """Streamed joints (N, J, 3) are the raw rows, concatenated and recovered in one global frame, then
+    finished: the root's path exactly, every joint within the finishing step's few centimetres, every
+    bone at one length."""
+    raw = _global_joints(raw_features)
+    np.testing.assert_allclose(joints[:, 0, [0, 2]], raw[:, 0, [0, 2]], atol=1e-4)
+    assert np.abs(joints - raw).max() < 0.3 and np.median(np.abs(joints - raw)) < 0.03
+    bones = np.linalg.norm(joints[:, 1:] - joints[:, list(HUMANML3D.parents[1:])], axis=-1)  # (N, J-1)
+    assert np.ptp(bones, axis=0).max() < 1e-3
 
 
 # ---------------------------------------------------------------------------------- the timeline file
@@ -99,8 +111,9 @@ def test_blended_windows_keep_the_hard_prefix_and_fade_the_rest(demo):
     segs = [(0, 2, "a person walks forward"), (2, 4, "a person jumps in place")]
     hard = demo.generate_timeline(segs, seed=1, overlap=1.0, blend=0.0, **FAST)
     soft = demo.generate_timeline(segs, seed=1, overlap=1.0, blend=0.5, **FAST)
-    assert np.array_equal(hard.features[:30], soft.features[:30])  # before the faded rows: the first window
-    assert np.abs(hard.features[30:40] - soft.features[30:40]).max() > 1e-4  # the faded rows changed
+    # the windows are joined raw (finishing looks ahead, so compare before it)
+    assert np.array_equal(hard.raw_features[:30], soft.raw_features[:30])  # before the faded rows: the first window
+    assert np.abs(hard.raw_features[30:40] - soft.raw_features[30:40]).max() > 1e-4  # the faded rows changed
     assert soft.windows[1].blend == 10
 
 
@@ -123,9 +136,8 @@ def test_stream_chunks_continue_one_motion_in_one_global_frame(demo):
     chunks = list(demo.stream(texts, chunk_seconds=1.5, context_seconds=0.5, seed=2, **FAST))
     assert [c.index for c in chunks] == list(range(5)) and [c.start for c in chunks] == [0, 30, 60, 90, 120]
     assert [c.text for c in chunks] == texts and all(c.features.shape == (30, 263) for c in chunks)
-    feats = np.concatenate([c.features for c in chunks])
     joints = np.concatenate([c.joints for c in chunks])
-    np.testing.assert_allclose(joints, _global_joints(feats), atol=1e-4)  # heading and position carried
+    _assert_finished_from(joints, np.concatenate([c.raw_features for c in chunks]))  # heading and position carried
     assert np.abs(joints[-1, 0, [0, 2]]).max() > 0.3  # it went somewhere, and the chunks followed it
 
 
@@ -149,8 +161,7 @@ def test_stream_is_conditioned_on_what_it_produced(demo):
                             context_seconds=0, **FAST))
     assert np.abs(a[1].features - free[1].features).max() > 1e-3
     # without context the root still continues: the next chunk starts where the last row's velocity leads
-    np.testing.assert_allclose(np.concatenate([c.joints for c in free]),
-                               _global_joints(np.concatenate([c.features for c in free])), atol=1e-4)
+    _assert_finished_from(np.concatenate([c.joints for c in free]), np.concatenate([c.raw_features for c in free]))
 
 
 @pytest.mark.parametrize("kwargs, message", [
@@ -262,7 +273,7 @@ def test_stream_applies_hooks_and_joint_control_per_chunk(demo):
     for name, ctl in (("free", None), ("control", control)):
         chunks = list(demo.stream("a person walks forward", 2.0, max_chunks=2, seed=1, control=ctl, hooks=[Count()],
                                   **FAST))
-        window = np.concatenate([chunks[0].features[-10:], chunks[1].features])  # chunk 1's window (10 rows of context)
+        window = np.concatenate([chunks[0].raw_features[-10:], chunks[1].raw_features])  # chunk 1's window (10 rows of context)
         runs[name] = (chunks[0].joints[-1, 0], _global_joints(window)[-1, 0])
     assert len(calls) == 2 * 2 * 2  # two runs x two chunks x two steps
     np.testing.assert_allclose(runs["control"][0], target, atol=1e-3)  # chunk 0: the window is the global frame

@@ -92,7 +92,7 @@ def test_outputs_are_trimmed_denormalised_and_padded_with_zeros():
     assert out.features.shape == (3, 40, D) and out.joints.shape == (3, 40, 22, 3) and out.mask.shape == (3, 40)
     assert [f.shape for f in out.feature_list()] == [(20, D), (13, D), (40, D)]
     assert [j.shape for j in out.joint_list()] == [(20, 22, 3), (13, 22, 3), (40, 22, 3)]
-    torch.testing.assert_close(out.features[0, :20], out.normalized[0, :20] * pipe.std + pipe.mean)
+    torch.testing.assert_close(out.raw_features[0, :20], out.normalized[0, :20] * pipe.std + pipe.mean)
     assert (out.features[1, 13:] == 0).all() and (out.joints[1, 13:] == 0).all()
     assert out.seeds == [1, 2, 3] and out.info["sampler"] == "dpmpp_2m_sde"
 
@@ -180,7 +180,7 @@ def test_hook_runs_at_chosen_steps_and_edits_x0():
     assert calls[0][2:] == ((3, 40, D), (3, 40), LENGTHS)
     # the last step returns the (edited) x0 estimate: zero in model space, the mean in feature space
     assert out.normalized.abs().max() == 0
-    torch.testing.assert_close(out.features[0, :20], pipe.mean.expand(20, D))
+    torch.testing.assert_close(out.raw_features[0, :20], pipe.mean.expand(20, D))
 
 
 def test_hooks_compose_in_the_requested_order():

@@ -19,9 +19,9 @@ bundle's inference config (stablemo.inference.config).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Sequence
 
 import numpy as np
 import torch
@@ -40,6 +40,7 @@ from stablemo.diffusion.schedule import NoiseSchedule, check_prediction_type
 from stablemo.errors import StableMoError
 from stablemo.fast import accelerate
 from stablemo.inference.config import InferenceConfig
+from stablemo.inference.finish import Finish
 from stablemo.inference.kinds import Denoise, DenoiserInputs, ModelKind, model_kind
 from stablemo.motion.plausible import check_feature_stats
 
@@ -58,7 +59,9 @@ class Request:
     Inpaint`, or None for a free prompt), imposed inside the sampler; control: joint targets per
     prompt (`stablemo.control.JointControl` or None): a ControlNet bundle reads them as its hint,
     and with control_guidance (default) the joint-guidance hook refines x0 towards them after the
-    other hooks at every step (a 1-step student: one refinement after its step)."""
+    other hooks at every step (a 1-step student: one refinement after its step); finish: put the
+    result on the bundle's rigid body and the floor (stablemo.inference.finish; False: features and
+    joints are the network's raw output, for code that post-processes it itself)."""
 
     texts: Sequence[str]
     lengths: int | Sequence[int]
@@ -70,17 +73,20 @@ class Request:
     hooks: Sequence[SampleHook] = ()
     batch_size: int | None = None
     progress: bool = False
-    inpaint: "Inpaint | Sequence[Inpaint | None] | None" = None
-    control: "JointControl | Sequence[JointControl | None] | None" = None
+    inpaint: Inpaint | Sequence[Inpaint | None] | None = None
+    control: JointControl | Sequence[JointControl | None] | None = None
     control_guidance: bool = True
+    finish: bool = True
 
 
 @dataclass
 class Generation:
     """A batch of generated motions; padded tensors with a mask, plus per-sample views.
 
-    features: (B, T, D) de-normalised, zero on padding; joints: (B, T, J, 3), zero on padding;
-    normalized: (B, T, D) the sampler's output in model space; mask: (B, T) bool.
+    features: (B, T, D) de-normalised, zero on padding; joints: (B, T, J, 3), zero on padding: what
+    the user receives (the rigid body on the floor, unless the request said finish=False);
+    normalized: (B, T, D) the sampler's output in model space; mask: (B, T) bool;
+    raw_features, raw_joints: the network's output before the finishing step (evaluation reads both).
     """
 
     texts: list[str]
@@ -91,6 +97,8 @@ class Generation:
     normalized: torch.Tensor
     mask: torch.Tensor
     info: dict = field(default_factory=dict)
+    raw_features: torch.Tensor | None = None
+    raw_joints: torch.Tensor | None = None
 
     def feature_list(self) -> list[np.ndarray]:
         return [self.features[i, :n].numpy() for i, n in enumerate(self.lengths)]
@@ -145,6 +153,7 @@ class Pipeline:
             raise StableMoError(f"mean/std: expected two (D,) vectors, got {tuple(self.mean.shape)} and {tuple(self.std.shape)}")
         self.skeleton = skeleton
         self.inference = inference or InferenceConfig.from_bundle(self.config)
+        self.finish = Finish.from_config(self.config, skeleton, self.inference.fps)
         self._null: tuple[torch.Tensor, torch.Tensor] | None = None
         # frozen text encoders wherever the model holds a text conditioner (a student wraps its teacher's)
         frozen = (getattr(m, "frozen", None) for m in self.model.modules())
@@ -158,7 +167,7 @@ class Pipeline:
 
     @classmethod
     def from_bundle(cls, path: str | Path, device=None, dtype=None, fast: bool = True,
-                    random_weights: bool = False) -> "Pipeline":
+                    random_weights: bool = False) -> Pipeline:
         """Load a bundle; `random_weights` keeps the network's fresh initialisation (benchmarks)."""
         from stablemo.inference.bundle import load_bundle
 
@@ -292,8 +301,9 @@ class Pipeline:
             if not (callable(hook) and callable(getattr(hook, "active", None))):
                 raise StableMoError(f"hooks[{i}]: {type(hook).__name__} is not a sample hook "
                                     "(it needs active(step, steps) and __call__(state); see stablemo.diffusion.hooks)")
-        if not isinstance(request.control_guidance, bool):
-            raise StableMoError(f"control_guidance: expected True or False, got {request.control_guidance!r}")
+        for name in ("control_guidance", "finish"):
+            if not isinstance(getattr(request, name), bool):
+                raise StableMoError(f"{name}: expected True or False, got {getattr(request, name)!r}")
         dtype = self.dtype if request.dtype is None else resolve_dtype(request.dtype, self.device)
         inpaint = self._per_prompt(request.inpaint, Inpaint, "inpaint", lengths,
                                    lambda spec, n, what: spec.resolve(n, self.mean.shape[0], what))
@@ -351,15 +361,22 @@ class Pipeline:
         T = max(p.shape[1] for p in parts)
         normalized = torch.cat([torch.nn.functional.pad(p, (0, 0, 0, T - p.shape[1])) for p in parts])
         mask = torch.arange(T)[None, :] < torch.tensor(req.lengths)[:, None]
-        features = torch.where(mask[..., None], self.denormalize(normalized), torch.zeros(()))
-        joints = self.to_joints(features, mask)
+        raw_features = torch.where(mask[..., None], self.denormalize(normalized), torch.zeros(()))
+        raw_joints = self.to_joints(raw_features, mask)
         for i, text in enumerate(req.texts):
-            if not (torch.isfinite(features[i]).all() and torch.isfinite(joints[i]).all()):
+            if not (torch.isfinite(raw_features[i]).all() and torch.isfinite(raw_joints[i]).all()):
                 raise StableMoError(f"prompt {i + 1} ({text!r}): the model produced non-finite values "
                                     f"(check the bundle's weights and the sampler settings); nothing was written")
+        features, joints = raw_features, raw_joints
+        if req.finish:
+            targets = None if req.control is None else self._control_targets(req.control, T)
+            if targets is not None:
+                targets = ControlTargets(targets.targets.cpu(), targets.mask.cpu())
+            features, joints = self.finish(raw_features, req.lengths, targets)
         info = {"steps": req.steps, "cfg": req.cfg, "sampler": req.sampler,
-                "dtype": str(req.dtype).replace("torch.", "")}
-        return Generation(req.texts, req.lengths, req.seed, features, joints, normalized, mask, info)
+                "dtype": str(req.dtype).replace("torch.", ""), "finished": req.finish}
+        return Generation(req.texts, req.lengths, req.seed, features, joints, normalized, mask, info,
+                          raw_features, raw_joints)
 
     def generate_timeline(self, segments, seed: int = 0, **options):
         """A timeline [(start_s, end_s, text), ...] (or `stablemo.timeline.Segment`s) -> one motion of

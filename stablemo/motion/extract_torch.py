@@ -217,16 +217,22 @@ def canonicalize_joints_batched(joints: torch.Tensor, lengths, skeleton: Skeleto
 
 
 def joints_to_features_batched(joints: torch.Tensor, lengths, skeleton: Skeleton | str = "humanml3d",
-                               refit: bool = True) -> torch.Tensor:
+                               refit: bool = True, place: bool = True) -> torch.Tensor:
     """Batched twin of joints_to_features: joints (B, T, J, 3), lengths (B,) valid frames (>= 2)
     -> float64 features (B, T−1, D) on the joints' device; sample b has lengths[b] − 1 rows, the
-    rest is zero. refit as in canonicalize_joints."""
+    rest is zero. refit as in canonicalize_joints.
+
+    place=False (implies no refit) skips the canonical placement too: for joints recovered from
+    features (frame-0 root at the origin, root rotation identity at frame 0), whose features then
+    recover exactly these joints, wherever the body faces at frame 0. Placing them would turn the
+    whole motion by the frame-0 facing of the hips and shoulders (a few degrees on generated
+    motions), moving its far end and any joint targets it was asked to meet."""
     skel = get_skeleton(skeleton)
     x = _joints(joints, skel)
     n = valid_lengths(lengths, x.shape[0], x.shape[1], x.device)
     x = fill_padding(x, n)
     if not bool(torch.isfinite(x).all()):
         raise StableMoError("joints: contain NaN or Inf")
-    feats = _features(_canonicalize(x, skel, refit), skel)  # (B, T-1, D)
+    feats = _features(_canonicalize(x, skel, refit) if place else x, skel)  # (B, T-1, D)
     rows = torch.arange(feats.shape[1], device=x.device)[None, :] < (n - 1)[:, None]  # (B, T-1)
     return torch.where(rows[..., None], feats, torch.zeros((), dtype=feats.dtype, device=feats.device))

@@ -47,7 +47,7 @@ MAX_BVH_JOINTS = 1024
 
 def scale(skeleton: Skeleton | str) -> float:
     """Skeleton units per metre (HumanML3D metres: 1; KIT-ML millimetres: 1000)."""
-    return 1000.0 if get_skeleton(skeleton).units == "mm" else 1.0
+    return get_skeleton(skeleton).per_metre
 
 
 def _unit_hint(skel: Skeleton, values_m: np.ndarray, fits) -> str:

@@ -33,6 +33,9 @@ class Skeleton:
     contact_threshold: float  # squared per-frame displacement
     fps: float
     units: str = "m"
+    # two-bone limbs (upper, middle, end): hip-knee-ankle and shoulder-elbow-wrist; the rigid body
+    # step (stablemo.motion.rigid) solves them by IK so hands and feet stay where they were generated
+    ik_limbs: tuple[tuple[int, int, int], ...] = ()
     parents: tuple[int, ...] = field(init=False)
 
     def __post_init__(self) -> None:
@@ -63,6 +66,11 @@ class Skeleton:
     def target_offsets(self) -> np.ndarray:
         """(J, 3) rest offsets parent -> joint: raw direction times target length."""
         return self.raw_offsets * self.bone_lengths[:, None]
+
+    @property
+    def per_metre(self) -> float:
+        """Skeleton units per metre (HumanML3D metres: 1; KIT-ML millimetres: 1000)."""
+        return 1000.0 if self.units == "mm" else 1.0
 
     @property
     def contact_joints(self) -> tuple[int, int, int, int]:
@@ -112,6 +120,7 @@ HUMANML3D = Skeleton(
     contact_threshold=0.002,
     fps=20.0,
     units="m",
+    ik_limbs=((1, 4, 7), (2, 5, 8), (16, 18, 20), (17, 19, 21)),
 )
 
 # KIT-ML (MMM). Sides follow text-to-motion's KIT fid_l / face_joint_indx conventions (chain 0-11-… is the
@@ -150,12 +159,13 @@ KIT = Skeleton(
     contact_threshold=0.05,
     fps=12.5,
     units="mm",
+    ik_limbs=((16, 17, 18), (11, 12, 13), (8, 9, 10), (5, 6, 7)),
 )
 
 SKELETONS = {"humanml3d": HUMANML3D, "t2m": HUMANML3D, "kit": KIT}
 
 
-def get_skeleton(name: "str | Skeleton") -> Skeleton:
+def get_skeleton(name: str | Skeleton) -> Skeleton:
     if isinstance(name, Skeleton):
         return name
     try:

@@ -49,7 +49,8 @@ class Window:
 
 @dataclass
 class TimelineMotion:
-    """features (N, D) de-normalised; joints (N, J, 3) in one global frame; frames: [start, end) of
+    """features (N, D) de-normalised and joints (N, J, 3) in one global frame, both finished (the
+    rigid body on the floor, stablemo.inference.finish); frames: [start, end) of
     each segment; windows: how it was made; joins: global frames where a window's new rows begin."""
 
     segments: list[Segment]
@@ -58,6 +59,7 @@ class TimelineMotion:
     joints: np.ndarray
     fps: float
     windows: list[Window] = field(default_factory=list)
+    raw_features: np.ndarray | None = None  # (N, D) the joined windows before the finishing step
 
     @property
     def joins(self) -> list[int]:
@@ -128,10 +130,11 @@ def generate_timeline(pipe, segments: Sequence[Segment | tuple], seed: int = 0, 
         motion[w.new_start:w.new_end] = settle(motion[:w.new_start], new, h, pipe.skeleton) if w.prefix else new
         if progress:
             print(f"  window {i + 1}/{len(windows)}: frames {w.new_start}-{w.new_end} {w.text!r}", flush=True)
-    joints = features_to_joints(torch.from_numpy(motion.astype(np.float64)), pipe.skeleton).float().numpy()
-    if not np.isfinite(joints).all():
+    raw = torch.from_numpy(motion)[None]  # (1, N, D): windows are joined raw, finished once as a whole
+    if not torch.isfinite(features_to_joints(raw.double(), pipe.skeleton)).all():
         raise StableMoError("timeline: the recovered joints are not finite; nothing was written")
-    return TimelineMotion(segments, frames, motion, joints, pipe.fps, windows)
+    feats, joints = pipe.finish(raw, [raw.shape[1]])
+    return TimelineMotion(segments, frames, feats[0].numpy(), joints[0].float().numpy(), pipe.fps, windows, motion)
 
 
 __all__ = ["TimelineMotion", "Window", "generate_timeline", "plan_windows"]

@@ -20,6 +20,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
 from stablemo.checks import check_seed
 from stablemo.errors import StableMoError
@@ -37,7 +38,8 @@ MIN_CHUNK_FRAMES = 5
 @dataclass
 class Chunk:
     """index: 0, 1, ...; start: global frame of its first row; features (n, D) de-normalised;
-    joints (n, J, 3) in the stream's global frame; window: frames generated for it (context + new)."""
+    joints (n, J, 3) in the stream's global frame, both finished (the rigid body on the floor,
+    stablemo.inference.finish); window: frames generated for it (context + new)."""
 
     index: int
     text: str
@@ -45,6 +47,7 @@ class Chunk:
     features: np.ndarray
     joints: np.ndarray
     window: int
+    raw_features: np.ndarray | None = None  # (n, D) the network's rows before the finishing step
 
 
 TextSource = str | Sequence[str] | Callable[[int, "Chunk | None"], "str | None"]
@@ -124,7 +127,10 @@ def _chunks(pipe, next_text, n: int, k: int, h: int, seed: int, max_chunks, samp
         if p:
             feats[p:] = settle(feats[:p], feats[p:], h, pipe.skeleton)
         joints = frame.joints(feats)  # (p + n, J, 3) global
-        chunk = Chunk(index, text, produced, feats[p:], joints[p:].astype(np.float32), length)
+        # finished with its context, so the floor and the velocities continue across the join
+        body = pipe.finish.joints(torch.from_numpy(joints)[None], [p + n], _global_targets(pipe, spec, frame, length, p + n))
+        done = pipe.finish.features_of(body, [p + n])[0, p:].float().numpy()  # (n, D)
+        chunk = Chunk(index, text, produced, done, body[0, p:].float().numpy(), length, feats[p:])
         if not (np.isfinite(chunk.features).all() and np.isfinite(chunk.joints).all()):
             raise StableMoError(f"stream: chunk {index} ({text!r}) is not finite")
         # the next window starts k rows before the end of this one
@@ -137,4 +143,16 @@ def _chunks(pipe, next_text, n: int, k: int, h: int, seed: int, max_chunks, samp
         yield chunk
 
 
-__all__ = ["Chunk", "MIN_CHUNK_FRAMES", "chunk_frames", "stream"]
+def _global_targets(pipe, spec, frame: RootFrame, length: int, frames: int):
+    """A window's joint control (in the window's frame) as targets in the stream's global frame for
+    the finishing step, cut to the frames kept; None without control."""
+    if spec is None:
+        return None
+    from stablemo.control.spec import ControlTargets
+
+    pos, keep = spec.resolve(length, pipe.skeleton, "control")
+    pos, keep = frame.place(pos[:frames]), keep[:frames]
+    return ControlTargets(torch.from_numpy(pos)[None], torch.from_numpy(keep)[None])
+
+
+__all__ = ["MIN_CHUNK_FRAMES", "Chunk", "chunk_frames", "stream"]

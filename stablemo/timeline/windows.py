@@ -44,7 +44,7 @@ def generate_window(pipe, text: str, length: int, seed: int, context: np.ndarray
         inpaint = [Inpaint(feats, np.ones(hard, bool))]
     result = pipe.generate([text], length, seed=seed, steps=sampling.steps, sampler=sampling.sampler,
                            cfg=sampling.cfg, dtype=sampling.dtype, hooks=list(sampling.hooks), inpaint=inpaint,
-                           control=None if control is None else [control])
+                           control=None if control is None else [control], finish=False)
     return result.feature_list()[0]
 
 
@@ -97,9 +97,12 @@ class RootFrame:
 
     def joints(self, features: np.ndarray) -> np.ndarray:
         """Joints (T, J, 3) in the global frame of features (T, D) starting at this frame."""
-        rel = features_to_joints(torch.from_numpy(features.astype(np.float64)), self.skeleton)  # (T, J, 3)
-        q = self._quat().expand(rel.shape[0], rel.shape[1], 4)
-        out = qrot(qinv(q), rel)
+        return self.place(features_to_joints(torch.from_numpy(features.astype(np.float64)), self.skeleton).numpy())
+
+    def place(self, points: np.ndarray) -> np.ndarray:
+        """Points (..., 3) in the frame of a window starting at this frame -> the global frame (float64)."""
+        rel = torch.from_numpy(np.asarray(points, dtype=np.float64))
+        out = qrot(qinv(self._quat()).expand(*rel.shape[:-1], 4), rel)
         out[..., 0] += self.xz[0]
         out[..., 2] += self.xz[1]
         return out.numpy()

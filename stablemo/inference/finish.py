@@ -1,0 +1,114 @@
+"""The last step of every generation: the network's motion -> one rigid body standing on the floor.
+
+Every output path (generate, edit, control, timelines and streams, the server, the Python API) goes
+through `Finish`: the raw joints are rebuilt on the bundle's body (stablemo.motion.rigid), put on
+the floor (stablemo.motion.floor), and the features are extracted again from those joints, so the
+features file, the joints file, BVH, SMPL, the GIF and the page all show the same body. The
+features are extracted without canonical placement: recovering them gives these joints back (to
+float32 rounding) in the generation's own frame, so joint targets met by the sampler stay met.
+
+The body is the bundle's `body.bone_lengths` (its training data's bone lengths, written by
+`stablemo export`), else the skeleton's standard body, which our feature extraction retargets every
+training clip to.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from stablemo.control.spec import ControlTargets
+from stablemo.errors import StableMoError
+from stablemo.motion.extract_torch import joints_to_features_batched
+from stablemo.motion.features import features_to_joints
+from stablemo.motion.floor import place_on_floor
+from stablemo.motion.rigid import rigid_joints
+from stablemo.motion.skeleton import Skeleton, get_skeleton
+
+
+def body_lengths(config: dict, skeleton: Skeleton | str, source: str = "config.json") -> np.ndarray:
+    """The body's bone lengths (J,) from a bundle config's `body` entry, else the skeleton's."""
+    skel = get_skeleton(skeleton)
+    body = config.get("body")
+    if body is None:
+        return np.array(skel.bone_lengths, dtype=np.float64)
+    values = body.get("bone_lengths") if isinstance(body, dict) else None
+    try:
+        lengths = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        lengths = np.zeros(0)
+    if lengths.shape != (skel.num_joints,) or not np.isfinite(lengths).all() or (lengths[1:] <= 0).any():
+        raise StableMoError(f"{source}: 'body.bone_lengths' must be {skel.num_joints} finite numbers, > 0 after "
+                            f"the root's (skeleton {skel.name})")
+    return lengths
+
+
+@dataclass(frozen=True)
+class Finish:
+    """Raw de-normalised features -> (features, joints) of the rigid body on the floor."""
+
+    skeleton: Skeleton
+    bone_lengths: np.ndarray  # (J,) parent -> joint, root 0, skeleton units
+    fps: float
+
+    @classmethod
+    def from_config(cls, config: dict, skeleton: Skeleton | str, fps: float, source: str = "config.json") -> Finish:
+        skel = get_skeleton(skeleton)
+        return cls(skel, body_lengths(config, skel, source), float(fps))
+
+    def joints(self, joints: torch.Tensor, lengths, control: ControlTargets | None = None) -> torch.Tensor:
+        """Raw joints (B, T, J, 3) -> the rigid body on the floor, same shape (padding as given).
+        control: the joint targets the motion was generated for; frames with targets keep their
+        heights (the root's horizontal path is kept anyway, hands and feet by the IK)."""
+        body = rigid_joints(joints, self.skeleton, self.bone_lengths)
+        if control is None:
+            return place_on_floor(body, lengths, self.skeleton, self.fps)
+        t = body.shape[1]
+        return place_on_floor(body, lengths, self.skeleton, self.fps, control.targets[:, :t].to(body),
+                              control.mask[:, :t].to(body.device))
+
+    def __call__(self, features: torch.Tensor, lengths, control: ControlTargets | None = None
+                 ) -> tuple[torch.Tensor, torch.Tensor]:
+        """features (B, T, D), zero past lengths[b] -> (features (B, T, D), joints (B, T, J, 3)), zero on
+        padding, the joints recovered from the returned features."""
+        n = self._lengths(lengths, features)
+        raw = features_to_joints(features.double(), self.skeleton)  # (B, T, J, 3)
+        feats = self.features_of(self.joints(raw, n, control), n).to(features.dtype)
+        joints = features_to_joints(feats, self.skeleton)
+        mask = torch.arange(features.shape[1], device=features.device)[None, :] < n[:, None]  # (B, T)
+        return feats, torch.where(mask[..., None, None], joints, torch.zeros((), dtype=joints.dtype, device=joints.device))
+
+    def features_of(self, body: torch.Tensor, lengths) -> torch.Tensor:
+        """Features (B, T, D) float64 whose recovery gives these joints (B, T, J, 3) back, in their own
+        frame when frame 0's root is at the origin with identity rotation (as every recovered motion);
+        zero past lengths[b]."""
+        n = self._lengths(lengths, body)
+        b, t = body.shape[:2]
+        # row t's velocities need frame t+1: one more frame, the last pose moved on by the last root
+        # step (a rigid move), so every sample keeps its n rows
+        frames = torch.arange(t + 1, device=body.device)[None, :]
+        last = (n - 1)[:, None]  # (B, 1)
+
+        def at(index: torch.Tensor) -> torch.Tensor:  # index (B, K) -> frames (B, K, J, 3)
+            return body.gather(1, index[..., None, None].expand(b, index.shape[1], *body.shape[2:]))
+
+        flat = torch.tensor([1.0, 0.0, 1.0], dtype=body.dtype, device=body.device)
+        step = (at(last)[:, :, :1] - at(last - 1)[:, :, :1]) * flat  # (B, 1, 1, 3) horizontal root step
+        ahead = (frames - last).clamp(min=0).to(body.dtype)[..., None, None]  # (B, T+1, 1, 1)
+        ext = at(torch.minimum(frames, last)) + ahead * step
+        feats = joints_to_features_batched(ext, n + 1, self.skeleton, refit=False, place=False)  # (B, T, D)
+        mask = frames[:, :t] < n[:, None]
+        return torch.where(mask[..., None], feats, torch.zeros((), dtype=feats.dtype, device=feats.device))
+
+    @staticmethod
+    def _lengths(lengths, like: torch.Tensor) -> torch.Tensor:
+        b, t = like.shape[:2]
+        n = torch.as_tensor(lengths, dtype=torch.long).to(like.device).reshape(-1)
+        if n.numel() != b or bool(((n < 2) | (n > t)).any()):
+            raise StableMoError(f"lengths: expected {b} values in [2, {t}], got {n.tolist()}")
+        return n
+
+
+__all__ = ["Finish", "body_lengths"]

@@ -1,0 +1,108 @@
+"""Put a motion on the floor y = 0: the body's lowest point touches it whenever the body is
+supported, never sinks through it, and leaves it in jumps.
+
+A generated motion's floor drifts: the demo models sink their feet 2-6 cm into the ground, more in
+some stretches than others, so neither one global shift (HumanML3D's own floor: the clip's lowest
+joint) nor clamping every frame to zero (which would glue jumps down) is right. Per frame, the
+lowest joint height h(t) is compared with the ground the motion stands on nearby, g(t) = the lowest
+h within ±`window_s`: frames less than `air` above it are supported, the rest airborne (jumps,
+hops, a run's flight phase). Supported frames are shifted so that their lowest joint is at 0;
+airborne frames take the shift interpolated between the supported frames around them, so the body
+rises and falls as generated. The shift is smoothed over a few frames (generated feet jitter by
+millimetres, and moving the whole body with that jitter would show), and finally raised wherever
+the body would still be below the floor. Only heights change: the path, the pose and planted feet's
+horizontal positions stay exactly as they were.
+
+The lowest point is taken over all joints, so a kneeling, sitting or lying body rests on its knees,
+pelvis or back, as HumanML3D's own floor does.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from stablemo.motion.extract_torch import fill_padding, valid_lengths
+from stablemo.motion.skeleton import Skeleton, get_skeleton
+
+AIR_M = 0.05  # lowest joint this far (metres) above the nearby ground: airborne
+WINDOW_S = 0.5  # the nearby ground is the lowest point within ± this many seconds
+SMOOTH_FRAMES = 1.5  # Gaussian sigma of the shift, frames
+
+
+def _running_min(h: torch.Tensor, radius: int) -> torch.Tensor:
+    """Minimum of h (B, T) over ±radius frames (edges: the frames that exist)."""
+    padded = torch.nn.functional.pad(h[:, None], (radius, radius), mode="replicate")[:, 0]
+    return padded.unfold(1, 2 * radius + 1, 1).amin(-1)
+
+
+def _smooth(v: torch.Tensor, sigma: float) -> torch.Tensor:
+    """Gaussian smoothing of v (B, T) along T, edges replicated."""
+    radius = max(1, int(3.0 * sigma + 0.5))
+    offs = torch.arange(-radius, radius + 1, dtype=v.dtype, device=v.device)
+    kernel = torch.exp(-0.5 * (offs / sigma) ** 2)
+    kernel = kernel / kernel.sum()
+    padded = torch.nn.functional.pad(v[:, None], (radius, radius), mode="replicate")[:, 0]
+    return padded.unfold(1, 2 * radius + 1, 1) @ kernel
+
+
+def _fill_between(values: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
+    """values (B, T) where `known`, linearly interpolated in between (held constant past the ends)."""
+    b, t = values.shape
+    idx = torch.arange(t, device=values.device).expand(b, t)
+    prev = torch.where(known, idx, torch.full_like(idx, -1)).cummax(1).values  # last known <= t
+    nxt = torch.where(known, idx, torch.full_like(idx, t)).flip(1).cummin(1).values.flip(1)  # first known >= t
+    prev_ok, next_ok = prev >= 0, nxt < t
+    prev_c, next_c = prev.clamp(0, t - 1), nxt.clamp(0, t - 1)
+    v_prev, v_next = values.gather(1, prev_c), values.gather(1, next_c)
+    span = (next_c - prev_c).clamp(min=1).to(values.dtype)
+    w = ((idx - prev_c).to(values.dtype) / span).clamp(0, 1)
+    inside = v_prev + w * (v_next - v_prev)
+    return torch.where(prev_ok & next_ok, inside, torch.where(prev_ok, v_prev, v_next))
+
+
+def floor_shift(joints: torch.Tensor, lengths, skeleton: Skeleton | str, fps: float | None = None,
+                pins: torch.Tensor | None = None, pinned: torch.Tensor | None = None) -> torch.Tensor:
+    """The height to add to every joint of each frame: joints (B, T, J, 3) -> shift (B, T), zero on
+    padding (lengths (B,) valid frames). pins (B, T) with pinned (B, T) bool: frames whose shift is
+    given (a joint target's height, which the user asked for, wins over the floor there)."""
+    skel = get_skeleton(skeleton)
+    b, t = joints.shape[:2]
+    n = valid_lengths(lengths, b, t, joints.device, min_frames=1)
+    x = fill_padding(joints, n)
+    fps = float(fps or skel.fps)
+    h = x[..., 1].amin(-1)  # (B, T) lowest joint
+    ground = _running_min(h, max(1, round(WINDOW_S * fps)))
+    valid = torch.arange(t, device=joints.device)[None, :] < n[:, None]  # (B, T)
+    # padding never counts as support: an airborne end holds its last supported shift, as it would
+    # in a batch of its own length
+    supported = ((h - ground) < AIR_M * skel.per_metre) & valid
+    values = -h
+    if pinned is not None:
+        pinned = pinned & valid
+        supported = supported | pinned
+        values = torch.where(pinned, pins.to(h.dtype), values)
+    shift = _fill_between(values, supported)
+    shift = torch.maximum(_smooth(shift, SMOOTH_FRAMES), -h)  # smoothed, then never below the floor
+    if pinned is not None:
+        shift = torch.where(pinned, values, shift)
+    return torch.where(valid, shift, torch.zeros((), dtype=shift.dtype, device=shift.device))
+
+
+def place_on_floor(joints: torch.Tensor, lengths, skeleton: Skeleton | str, fps: float | None = None,
+                   targets: torch.Tensor | None = None, target_mask: torch.Tensor | None = None) -> torch.Tensor:
+    """joints (B, T, J, 3) with each frame raised or lowered onto the floor (see the module doc).
+    targets (B, T, J, 3) with target_mask (B, T, J): joint targets; on a frame that has some, the
+    shift meets their mean height instead."""
+    pins = pinned = None
+    if target_mask is not None:
+        m = target_mask.to(joints.dtype)  # (B, T, J)
+        count = m.sum(-1)  # (B, T)
+        pins = ((targets[..., 1].to(joints.dtype) - joints[..., 1]) * m).sum(-1) / count.clamp(min=1)
+        pinned = count > 0
+    shift = floor_shift(joints, lengths, skeleton, fps, pins, pinned)  # (B, T)
+    up = torch.zeros(3, dtype=joints.dtype, device=joints.device)
+    up[1] = 1.0
+    return joints + shift[..., None, None] * up
+
+
+__all__ = ["AIR_M", "WINDOW_S", "floor_shift", "place_on_floor"]
