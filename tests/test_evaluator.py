@@ -157,6 +157,48 @@ def test_benchmark_protocol_with_constructed_generators(trained):
     assert "R@1" in table and "oracle" in table and "0.123" in table
 
 
+def test_raw_and_final_rows_carry_the_kinematic_measures(trained):
+    """A generator returning the network's raw output beside the final one: both rows, raw after final,
+    with FID and the kinematic measures; a raw output sunk 5 cm reads 5 cm lower at the floor."""
+    from stablemo.eval.evaluate import RAW_SUFFIX, REAL_ROW, OurEvaluator, evaluate, format_csv, format_table
+    from stablemo.motion import features_to_joints
+
+    data = eval_dataset(trained["root"])
+    evaluator = OurEvaluator(trained["ckpt"])
+
+    def finished(texts, lengths, seeds):
+        g = torch.Generator().manual_seed(seeds[0])
+        feats = torch.randn(len(texts), max(lengths), data.spec.feature_dim, generator=g) * torch.from_numpy(data.std)
+        feats = feats + torch.from_numpy(data.mean)
+        joints = features_to_joints(feats, "humanml3d")
+        return feats, joints, feats, joints - torch.tensor([0.0, 0.05, 0.0])
+
+    res = evaluate(data, evaluator, finished, replications=2, seed=0, progress=False, row_name="model")
+    raw, final = res["rows"]["model" + RAW_SUFFIX], res["rows"]["model"]
+    assert list(res["rows"]) == [REAL_ROW, "model", "model" + RAW_SUFFIX]
+    assert {"fid", "r3", "bone_change", "floor_p1", "below_floor", "foot_acc", "airborne"} <= set(raw) & set(final)
+    assert raw["floor_p1"]["mean"] == pytest.approx(final["floor_p1"]["mean"] - 5.0, abs=1e-3)  # float32 joints
+    assert raw["bone_change"]["mean"] == pytest.approx(final["bone_change"]["mean"], abs=1e-6)
+    assert raw["fid"]["values"] == final["fid"]["values"]            # the same features: the same embeddings
+    assert "bone_change" in res["rows"][REAL_ROW]
+    table = format_table(res)
+    assert "Bone Δ cm" in table and "Floor p1 cm" in table and "model [raw]" in table
+    lines = format_csv(res).splitlines()
+    assert lines[0] == "method,metric,mean,conf95,replications"
+    assert any(line.startswith("model [raw],floor_p1,") and line.endswith(",2") for line in lines)
+    plain = evaluate(data, evaluator, lambda t, n, s: finished(t, n, s)[:2], replications=1, seed=0, progress=False,
+                     row_name="model", kinematic_measures=False)
+    assert list(plain["rows"]) == [REAL_ROW, "model"] and "floor_p1" not in plain["rows"]["model"]
+    with pytest.raises(StableMoError, match="generate: expected"):
+        evaluate(data, evaluator, lambda t, n, s: finished(t, n, s)[:3], replications=1, progress=False)
+
+
+def eval_dataset(root):
+    from stablemo.data import MotionDataset
+
+    return MotionDataset.from_folder(root, "train", crop="eval", cache=False, progress=False)
+
+
 def test_evaluate_command_real_motion_only(trained, capsys):
     import json
 
@@ -192,10 +234,10 @@ def test_evaluate_command_with_a_bundle(trained, capsys):
         "model": model_cfg, "schedule": {}, "prediction_type": "sample", "dataset": "humanml3d",
         "skeleton": "humanml3d", "fps": 20.0, "mean": dm.mean.tolist(), "std": dm.std.tolist(),
         "min_length": 40, "max_length": 196, "kind": "diffusion"}, net.state_dict())
-    out = trained["tmp"] / "bundle_results.json"
+    out, out_csv = trained["tmp"] / "bundle_results.json", trained["tmp"] / "bundle_results.csv"
     argv = ["--bundle", str(bundle), "--data", str(trained["root"]), "--evaluator", str(trained["ckpt"]),
             "--split", "train", "--replications", "1", "--steps", "2", "--sampler", "ddim", "--footskate",
-            "--aits", "2", "--max-items", "40", "--out", str(out), "--no-progress"]
+            "--aits", "2", "--max-items", "40", "--out", str(out), "--csv", str(out_csv), "--no-progress"]
     assert main(argv) == 0
     printed = capsys.readouterr().out
     assert "bundle (ddim, 2 steps, cfg 2.5) + footskate" in printed and "Skate" in printed and "AITS" in printed
@@ -206,6 +248,13 @@ def test_evaluate_command_with_a_bundle(trained, capsys):
     # An untrained model is far from the data; the real motions are not.
     assert row["fid"]["mean"] > 5 * result["rows"]["Real motion"]["fid"]["mean"]
     assert result["aits"] > 0 and result["settings"]["items"] == 40
+    # the network's raw output is scored beside what the user receives, kinematic measures included
+    raw = result["rows"]["bundle (ddim, 2 steps, cfg 2.5) + footskate [raw]"]
+    assert set(raw) >= {"fid", "r3", "bone_change", "floor_p1", "below_floor", "foot_acc", "airborne"}
+    assert "Bone Δ cm" in printed and "[raw]" in printed
+    csv_lines = out_csv.read_text().splitlines()
+    assert csv_lines[0] == "method,metric,mean,conf95,replications" and len(csv_lines) > 3 * 10
+    assert any(line.startswith('"bundle (ddim, 2 steps, cfg 2.5) + footskate [raw]",bone_change,') for line in csv_lines)
 
 
 def test_test_stage_restores_statistics_from_checkpoint(trained):

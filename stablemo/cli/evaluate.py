@@ -2,7 +2,7 @@
 
     stablemo evaluate --bundle DIR --data DIR [--evaluator DIR|CKPT] [--replications 20]
         [--steps 10 --sampler dpmpp_2m_sde --cfg 2.5] [--dtype fp32|bf16|fp16] [--footskate] [--multimodality]
-        [--split test --seed 0 --out results.json]
+        [--no-kinematics] [--split test --seed 0 --out results.json --csv results.csv]
 
 Protocol: Guo et al. 2022 (docs/evaluation.md). Each replication r makes two passes over the split's items with
 the evaluation crop rule and one random caption per item (the data set's per-epoch randomness):
@@ -10,7 +10,10 @@ pass 2r gives the reference statistics, pass 2r+1 the captions and lengths that 
 "Real motion" row scores pass 2r+1's real motions (so its FID measures crop/caption noise, ≈ 0);
 the model row generates one motion per scored caption at that length. Items are shuffled per pass
 before forming the R-precision batches of 32. Without --bundle only the real motions are scored
-(a check of the evaluator itself).
+(a check of the evaluator itself). A bundle is scored twice from the same generations: its row is what
+the user receives (the rigid body on the floor), the row marked [raw] the network's output before that
+step. Beside FID and R-precision every row gets the kinematic measures (stablemo.eval.kinematics:
+bone-length change, floor penetration, stance-foot height and speed, foot acceleration, airborne share).
 """
 
 from __future__ import annotations
@@ -26,7 +29,14 @@ import torch
 from stablemo.checks import check_finite, check_positive_int, check_seed
 from stablemo.errors import StableMoError
 from stablemo.eval import metrics
-from stablemo.eval.evaluate import default_evaluator, dtype_name, evaluate, format_table
+from stablemo.eval.evaluate import (
+    default_evaluator,
+    dtype_name,
+    evaluate,
+    format_csv,
+    format_table,
+    generation_outputs,
+)
 from stablemo.eval.text_motion import load_text_motion_evaluator
 
 
@@ -68,7 +78,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="network precision (default: fp32 on the CPU, fp16 on CUDA; fp16 is CUDA-only); "
                         "the solver, guidance and evaluator stay float32")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--no-kinematics", dest="kinematics", action="store_false",
+                   help="leave out the kinematic measures (bone length, floor, stance feet, airborne share)")
     p.add_argument("--out", help="write the results as JSON here")
+    p.add_argument("--csv", help="write the results as CSV here (one line per method and metric)")
     p.add_argument("--no-progress", action="store_true")
     return p
 
@@ -111,10 +124,11 @@ def main(argv: list[str]) -> int:
     evaluator_path = args.evaluator or default_evaluator(args.data)
     if args.control is not None and not args.bundle:
         raise StableMoError("--control: evaluates a model's joint control; give --bundle")
-    if args.out:
-        from stablemo.io import check_output_file
+    from stablemo.io import check_output_file
 
-        check_output_file(args.out, "--out")
+    for flag, path in (("--out", args.out), ("--csv", args.csv)):
+        if path:
+            check_output_file(path, flag)
     from stablemo.data import MotionDataset
 
     torch.manual_seed(args.seed)
@@ -160,14 +174,14 @@ def main(argv: list[str]) -> int:
             gen_lengths = [min(max(n, lo), hi) for n in lengths]
             out = pipe.generate(Request(texts, gen_lengths, seed=seeds, sampler=sampler, steps=steps, cfg=cfg,
                                         hooks=hooks, control=controls, control_guidance=args.control_guidance))
-            return out.features, out.joints
+            return generation_outputs(out)  # what the user receives and the network's raw output
 
     result = evaluate(data, evaluator, generate, replications=args.replications, seed=args.seed,
                       batch_size=args.batch_size, max_items=args.max_items,
                       footskate=args.footskate or args.skate_ratio or control is not None,
                       skeleton=data.spec.skeleton, multimodality=args.multimodality, mm_captions=args.mm_captions,
                       mm_generations=args.mm_generations, row_name=row_name, progress=not args.no_progress,
-                      control=control)
+                      control=control, kinematic_measures=args.kinematics)
     aits = None
     if pipe is not None and args.aits > 0:
         rng = np.random.default_rng(args.seed)
@@ -192,11 +206,14 @@ def main(argv: list[str]) -> int:
     print(f"evaluator: {evaluator.name}; split {args.split}, {result['settings']['items']} items, "
           f"{args.replications} replication(s), mean ± 95% interval")
     print(format_table(result, aits))
-    if args.out:
-        from stablemo.io import write_text
+    from stablemo.io import write_text
 
+    if args.out:
         write_text(args.out, json.dumps(result, indent=2) + "\n")
         print(f"wrote {args.out}")
+    if args.csv:
+        write_text(args.csv, format_csv(result))
+        print(f"wrote {args.csv}")
     return 0
 
 

@@ -1,5 +1,7 @@
 """The benchmark behind `stablemo evaluate` (stablemo.cli.evaluate states the protocol): reference and
-scored passes per replication, FID, R-precision, MM-Dist, Diversity, MModality, control and foot metrics."""
+scored passes per replication, FID, R-precision, MM-Dist, Diversity, MModality, control and foot metrics,
+and the kinematic measures (stablemo.eval.kinematics) of every row: the real motions, the network's raw
+output and what the user receives."""
 
 from __future__ import annotations
 
@@ -7,19 +9,22 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+import csv
+import io
+
 import numpy as np
 import torch
 from tqdm import tqdm
 
 from stablemo.errors import StableMoError
-from stablemo.eval import metrics
+from stablemo.eval import kinematics, metrics
 from stablemo.eval.text_motion import (  # noqa: F401 (re-exported: the evaluator adapters)
     GuoTextMotionEvaluator,
     OurEvaluator,
     load_text_motion_evaluator,
 )
 from stablemo.inference.bundle import EVALUATOR_SYNTH
-from stablemo.motion import features_to_joints
+from stablemo.motion import features_to_joints, get_skeleton
 from stablemo.skating.metrics import foot_skating_ratio
 
 REAL_ROW = "Real motion"
@@ -31,10 +36,35 @@ COLUMNS = [  # (json key, table header, lower/higher/closer-is-better hint only 
     ("diversity", "Diversity"), ("multimodality", "MModality"), ("skate_ratio", "Skate"),
     ("foot_acc", "Foot acc."), ("traj_err", "Traj. err"), ("loc_err", "Loc. err"), ("avg_err", "Avg. err"),
     ("spikes", "Spikes"),
+    # kinematics.MEASURES (foot_acc above): units in the headers, definitions in docs/evaluation.md
+    ("bone_change", "Bone Δ cm"), ("floor_p1", "Floor p1 cm"), ("below_floor", "Below floor"),
+    ("stance_height", "Stance h cm"), ("stance_speed", "Stance v cm/s"), ("airborne", "Airborne"),
 ]
+RAW_SUFFIX = " [raw]"  # the row of the network's output before the finishing step (rigid body, floor)
 
-# generate(texts, lengths, seeds) -> (features (B,T,D) raw, zero-padded; joints (B,T,J,3) or None)
-GenerateFn = Callable[[list[str], list[int], list[int]], tuple[torch.Tensor, "torch.Tensor | None"]]
+# generate(texts, lengths, seeds) -> (features (B,T,D) de-normalised, zero-padded; joints (B,T,J,3) or
+# None): what the user receives; or the 4-tuple (features, joints, raw_features, raw_joints) adding the
+# network's output before the finishing step, scored as its own row (row name + RAW_SUFFIX)
+GenerateFn = Callable[[list[str], list[int], list[int]], tuple]
+
+
+def generation_outputs(gen) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(features, joints, raw_features, raw_joints) of a Pipeline Generation; the raw pair is the
+    final one where the generation holds no separate raw output (finish=False, or a pipeline from
+    before the finishing step)."""
+    raw_features, raw_joints = getattr(gen, "raw_features", None), getattr(gen, "raw_joints", None)
+    return (gen.features, gen.joints, gen.features if raw_features is None else raw_features,
+            gen.joints if raw_joints is None else raw_joints)
+
+
+def _outputs(out) -> tuple:
+    """A generate function's answer -> (features, joints, raw_features, raw_joints), raw None if absent."""
+    if isinstance(out, tuple) and len(out) == 2:
+        return (*out, None, None)
+    if isinstance(out, tuple) and len(out) == 4:
+        return out
+    raise StableMoError("generate: expected (features, joints) or (features, joints, raw_features, raw_joints), "
+                        f"got {type(out).__name__}{f' of {len(out)}' if isinstance(out, tuple) else ''}")
 
 
 # ----------------------------------------------------------------------------- data passes
@@ -112,11 +142,18 @@ def _skate(joints: list[torch.Tensor]) -> float:
     return float(foot_skating_ratio(padded, lengths=lengths).mean())
 
 
-def _foot_acceleration(joints: list[torch.Tensor]) -> float:
-    from stablemo.skating.metrics import foot_acceleration
-
+def _kinematics(joints: list[torch.Tensor], skeleton) -> dict[str, float]:
+    """kinematics.MEASURES of motions (L_i, J, 3), each averaged over the motions where it is defined."""
     padded, lengths = _padded_joints(joints)
-    return float(foot_acceleration(padded, lengths=lengths).mean())
+    return kinematics.summarise(kinematics.measure(padded, lengths, skeleton))
+
+
+def _joints_of(features: list[torch.Tensor], skeleton) -> list[torch.Tensor]:
+    """Joints (L_i, J, 3) of de-normalised features (L_i, D), recovered in one padded batch (the
+    root's integration is causal: padding never reaches a valid frame)."""
+    padded, lengths = _pad([f.float() for f in features])
+    joints = features_to_joints(padded, skeleton)
+    return [joints[i, :n] for i, n in enumerate(lengths.tolist())]
 
 
 # ----------------------------------------------------------------------------- protocol
@@ -139,9 +176,13 @@ def evaluate(
     row_name: str = "model",
     progress: bool = True,
     control=None,
+    kinematic_measures: bool = True,
 ) -> dict:
     """Run the benchmark; returns {"rows": {row: {metric: Interval.to_dict()}}, "settings": {...}}.
 
+    Rows: the real motions, `row_name` (what generate returns to the user) and, when generate also
+    returns the network's raw output, `row_name + RAW_SUFFIX` (every metric of it, MultiModality aside).
+    kinematic_measures: the kinematic measures (stablemo.eval.kinematics) of every row.
     control: a `stablemo.eval.control.ControlProtocol`: hints from the scored motions are passed to
     `generate(texts, lengths, seeds, controls=[JointControl, ...])`, and the control errors, the
     feet's acceleration and the skating ratio are reported."""
@@ -151,20 +192,13 @@ def evaluate(
     if n_items < metrics.R_PRECISION_BATCH:
         raise StableMoError(f"data: {n_items} item(s); R-precision needs at least {metrics.R_PRECISION_BATCH}")
     div_pairs = min(metrics.DIVERSITY_PAIRS, n_items - 1)
-    joints_of = None
-    if footskate:
-        from stablemo.motion import get_skeleton
-
-        skel = get_skeleton(skeleton)
-        if skel.name != "humanml3d":
-            raise StableMoError("--footskate: the skating ratio is defined for the HumanML3D skeleton (metres, y up)")
-
-        def joints_of(feats: list[torch.Tensor]) -> list[torch.Tensor]:
-            return [features_to_joints(f[None].float(), skel)[0] for f in feats]
+    skel = get_skeleton(skeleton)
+    if footskate and skel.name != "humanml3d":
+        raise StableMoError("--footskate: the skating ratio is defined for the HumanML3D skeleton (metres, y up)")
+    kinematic_measures = kinematic_measures or control is not None  # control reports the feet's acceleration
+    raw_row = row_name + RAW_SUFFIX
 
     rows: dict[str, dict[str, list[float]]] = {REAL_ROW: {}}
-    if generate is not None:
-        rows[row_name] = {}
 
     def add(row: str, key: str, value: float) -> None:
         rows[row].setdefault(key, []).append(float(value))
@@ -180,24 +214,36 @@ def evaluate(
 
         candidates = [(REAL_ROW, cur.features, None)]
         if generate is not None:
-            gen_feats, gen_joints, hints = [], [], []
+            gen_feats, gen_joints, raw_feats, raw_joints, hints = [], [], [], [], []
+
+            def keep(out: list, batch, lengths: list[int]) -> None:
+                if batch is not None:
+                    out += [batch[i, :n].float().cpu() for i, n in enumerate(lengths)]
+
             for s in range(0, n_items, batch_size):
                 sl = slice(s, s + batch_size)
                 seeds = [int(x) for x in rng.integers(0, 2**31 - 1, size=len(cur.texts[sl]))]
                 if control is not None:
                     batch_hints = control.hints(cur.features[sl], rng)
                     hints += batch_hints
-                    feats, joints = generate(cur.texts[sl], cur.lengths[sl], seeds, controls=batch_hints)
+                    out = generate(cur.texts[sl], cur.lengths[sl], seeds, controls=batch_hints)
                 else:
-                    feats, joints = generate(cur.texts[sl], cur.lengths[sl], seeds)
-                gen_feats += [feats[i, :n].float().cpu() for i, n in enumerate(cur.lengths[sl])]
-                if joints is not None:
-                    gen_joints += [joints[i, :n].float().cpu() for i, n in enumerate(cur.lengths[sl])]
+                    out = generate(cur.texts[sl], cur.lengths[sl], seeds)
+                feats, joints, feats_raw, joints_raw = _outputs(out)
+                for store, batch in ((gen_feats, feats), (gen_joints, joints), (raw_feats, feats_raw),
+                                     (raw_joints, joints_raw)):
+                    keep(store, batch, cur.lengths[sl])
             candidates.append((row_name, gen_feats, gen_joints or None))
+            if raw_feats:  # after the final row, which readers look up by its name first
+                candidates.append((raw_row, raw_feats, raw_joints or None))
+            for row, _, _ in candidates:
+                rows.setdefault(row, {})
             if control is not None:
                 real_joints = [features_to_joints(f[None].float(), control.skeleton)[0] for f in cur.features]
-                for key, value in _control_metrics(gen_joints, hints, real_joints).items():
-                    add(row_name, key, value)
+                for row, feats, joints in candidates[1:]:  # does the finishing step move the hinted joints?
+                    row_joints = joints if joints is not None else _joints_of(feats, skel)
+                    for key, value in _control_metrics(row_joints, hints, real_joints).items():
+                        add(row, key, value)
 
         for row, feats, joints in candidates:
             emb = embed_motions(evaluator, feats, batch_size)
@@ -207,18 +253,20 @@ def evaluate(
             add(row, "mm_dist", match.mm_dist)
             add(row, "fid", metrics.frechet_distance(*metrics.embedding_statistics(emb), *ref_stats))
             add(row, "diversity", metrics.diversity(emb, rng, div_pairs))
-            if joints_of is not None:
-                row_joints = joints if joints is not None else joints_of(feats)
-                add(row, "skate_ratio", _skate(row_joints))
-                if control is not None:  # the data's own jitter beside the controlled model's
-                    add(row, "foot_acc", _foot_acceleration(row_joints))
+            if footskate or kinematic_measures:
+                row_joints = joints if joints is not None else _joints_of(feats, skel)
+                if footskate:
+                    add(row, "skate_ratio", _skate(row_joints))
+                if kinematic_measures:  # the real row gives the data's own values (and jitter) beside the model's
+                    for key, value in _kinematics(row_joints, skel).items():
+                        add(row, key, value)
 
         if generate is not None and multimodality:
             picks = rng.choice(n_items, min(mm_captions, n_items), replace=False)
             mm_emb = []
             for i in picks:
                 seeds = [int(x) for x in rng.integers(0, 2**31 - 1, size=mm_generations)]
-                feats, _ = generate([cur.texts[i]] * mm_generations, [cur.lengths[i]] * mm_generations, seeds)
+                feats = _outputs(generate([cur.texts[i]] * mm_generations, [cur.lengths[i]] * mm_generations, seeds))[0]
                 mm_emb.append(embed_motions(evaluator, [f[: cur.lengths[i]].float().cpu() for f in feats], batch_size))
             add(row_name, "multimodality", metrics.multimodality(np.stack(mm_emb), rng))
 
@@ -244,6 +292,17 @@ def format_table(result: dict, aits: float | None = None) -> str:
     widths = [max(len(str(c)) for c in col) for col in zip(header, *lines)]
     fmt = lambda cells: "  ".join(str(c).ljust(w) for c, w in zip(cells, widths))  # noqa: E731
     return "\n".join([fmt(header), fmt(["-" * w for w in widths])] + [fmt(c) for c in lines])
+
+
+def format_csv(result: dict) -> str:
+    """One line per (row, metric): method, metric, mean, conf95, replications (spreadsheet input)."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(["method", "metric", "mean", "conf95", "replications"])
+    for name, row in result["rows"].items():
+        for key, cell in row.items():
+            writer.writerow([name, key, repr(cell["mean"]), repr(cell["conf95"]), len(cell["values"])])
+    return out.getvalue()
 
 
 # ----------------------------------------------------------------------------- CLI
