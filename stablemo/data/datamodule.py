@@ -20,8 +20,11 @@ from stablemo.data.resumable import ResumableLoader
 from stablemo.data.sampler import EpochSampler
 from stablemo.data.stats import load_model_stats
 from stablemo.errors import StableMoError
+from stablemo.motion.features import features_to_joints
+from stablemo.motion.rigid import bone_lengths_of
 from stablemo.motion.skeleton import MAX_FRAMES
 
+BODY_CLIPS = 256  # clips measured for the body's bone lengths (the median is stable long before)
 
 def seed_worker(worker_id: int) -> None:
     """Seed numpy/random in a worker from torch's per-worker seed (itself derived from the loader's generator)."""
@@ -133,6 +136,18 @@ class MotionDataModule(L.LightningDataModule):
 
             self._skeleton = get_skeleton(self.spec.skeleton)
         return self._skeleton
+
+    @property
+    def body(self) -> np.ndarray:
+        """(J,) bone lengths of the training motions (parent -> joint, root 0): the median over the
+        frames of up to BODY_CLIPS clips spread over the train split. A bundle stores them, and
+        generation puts every motion on this body (stablemo.inference.finish). Clips made by our
+        extraction all keep the skeleton's standard body; this also holds for data that does not."""
+        data = self._checked_split(self.splits["train"])
+        picks = np.unique(np.linspace(0, len(data.ids) - 1, min(BODY_CLIPS, len(data.ids))).astype(int))
+        lengths = [bone_lengths_of(features_to_joints(torch.from_numpy(np.array(data.motion(int(i)), np.float64)),
+                                                      self.skeleton), self.skeleton) for i in picks]
+        return torch.cat(lengths).median(0).values.numpy()
 
     # -- Lightning hooks -------------------------------------------------------------------------
     def prepare_data(self) -> None:

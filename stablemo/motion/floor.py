@@ -5,10 +5,10 @@ A generated motion's floor drifts: the demo models sink their feet 2-6 cm into t
 some stretches than others, so neither one global shift (HumanML3D's own floor: the clip's lowest
 joint) nor clamping every frame to zero (which would glue jumps down) is right. Per frame, the
 lowest joint height h(t) is compared with the ground the motion stands on nearby, g(t) = the lowest
-h within ±`window_s`: frames less than `air` above it are supported, the rest airborne (jumps,
-hops, a run's flight phase). Supported frames are shifted so that their lowest joint is at 0;
-airborne frames take the shift interpolated between the supported frames around them, so the body
-rises and falls as generated. The shift is smoothed over a few frames (generated feet jitter by
+h within ±WINDOW_S: frames within GROUND_BAND_M of it are on the ground and shifted so that their
+lowest joint is at 0; every other frame (jumps, hops, a run's flight phase, a foot's take-off and
+landing) takes the shift interpolated between the grounded frames around it, so the body rises and
+falls as generated. The shift is smoothed over a few frames (generated feet jitter by
 millimetres, and moving the whole body with that jitter would show), and finally raised wherever
 the body would still be below the floor. Only heights change: the path, the pose and planted feet's
 horizontal positions stay exactly as they were.
@@ -24,7 +24,10 @@ import torch
 from stablemo.motion.extract_torch import fill_padding, valid_lengths
 from stablemo.motion.skeleton import Skeleton, get_skeleton
 
-AIR_M = 0.05  # lowest joint this far (metres) above the nearby ground: airborne
+# frames whose lowest joint is within this band (metres) of the nearby ground are glued to the floor;
+# the others (jumps, a run's flight, and a foot's take-off and landing frames, which must not pull the
+# body down through the flight) take the shift interpolated from the glued frames around them
+GROUND_BAND_M = 0.01
 WINDOW_S = 0.5  # the nearby ground is the lowest point within ± this many seconds
 SMOOTH_FRAMES = 1.5  # Gaussian sigma of the shift, frames
 
@@ -75,7 +78,7 @@ def floor_shift(joints: torch.Tensor, lengths, skeleton: Skeleton | str, fps: fl
     valid = torch.arange(t, device=joints.device)[None, :] < n[:, None]  # (B, T)
     # padding never counts as support: an airborne end holds its last supported shift, as it would
     # in a batch of its own length
-    supported = ((h - ground) < AIR_M * skel.per_metre) & valid
+    supported = ((h - ground) < GROUND_BAND_M * skel.per_metre) & valid
     values = -h
     if pinned is not None:
         pinned = pinned & valid
@@ -105,4 +108,4 @@ def place_on_floor(joints: torch.Tensor, lengths, skeleton: Skeleton | str, fps:
     return joints + shift[..., None, None] * up
 
 
-__all__ = ["AIR_M", "WINDOW_S", "floor_shift", "place_on_floor"]
+__all__ = ["GROUND_BAND_M", "WINDOW_S", "floor_shift", "place_on_floor"]

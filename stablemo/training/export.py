@@ -67,6 +67,7 @@ def bundle_from_checkpoint(checkpoint: dict, source: str = "", weights: str = "e
         "std": list(data["std"]),
         "min_length": data["min_length"],
         "max_length": data["max_length"],
+        **({"body": data["body"]} if "body" in data else {}),  # the bone lengths generation keeps
         "training": {
             "checkpoint": source,
             "global_step": int(checkpoint.get("global_step", 0)),

@@ -96,7 +96,8 @@ class DiffusionModule(LightningModule):
         if lr_step < 1:
             raise StableMoError(f"lr_step: must be >= 1, got {lr_step}")
         self.geometry_weights = geometry_weights(geometry)  # {} = off
-        self._geometric_loss: tuple[int, GeometricLoss] | None = None  # (id of the data_info it was built for, loss)
+        # (the data_info it was built for, held so that identity means the same dataset; the loss)
+        self._geometric_loss: tuple[dict, GeometricLoss] | None = None
         from stablemo.diffusion.schedule import NoiseSchedule
         from stablemo.nets.model import MotionDiffusionModel
 
@@ -128,6 +129,8 @@ class DiffusionModule(LightningModule):
                 f"model.denoiser.input_dim: {want} does not match the dataset's feature width "
                 f"{self.data_info['feature_dim']} ({self.data_info['dataset']})"
             )
+        if self.geometry_weights:
+            self.geometric_loss()  # checks the dataset's facts against the terms before the first step
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         checkpoint[CHECKPOINT_KEY] = {"ema": self.ema.state_dict(), "data": self.data_info}
@@ -175,7 +178,7 @@ class DiffusionModule(LightningModule):
             terms = self.loss_terms(x0, mask, texts, t, noise)
         # frame-weighted mean over the batch: every valid frame counts the same
         frames = mask.float().sum(dim=1)
-        loss = self._batch_mean(self._weighted_sum(terms), frames)
+        loss = self._batch_mean(self.objective(terms), frames)
         self.last_train_loss = loss.detach()
         bsz = x0.shape[0]
         self.log("train/loss", loss, prog_bar=True, batch_size=bsz)
@@ -191,7 +194,7 @@ class DiffusionModule(LightningModule):
         """Frame-weighted mean of per-sample values (B,) with valid frame counts (B,)."""
         return (per_sample * frames).sum() / frames.sum().clamp(min=1.0)
 
-    def _weighted_sum(self, terms: dict[str, torch.Tensor]) -> torch.Tensor:
+    def objective(self, terms: dict[str, torch.Tensor]) -> torch.Tensor:
         """The per-sample objective (B,): the simple loss plus the weighted geometric terms."""
         total = terms["simple"]
         for name, weight in self.geometry_weights.items():
@@ -217,11 +220,9 @@ class DiffusionModule(LightningModule):
         if self.data_info is None:
             raise StableMoError("model.geometry: the geometric losses need the dataset's Mean/Std and skeleton, "
                                 "which come from the data module (train through `stablemo fit` or a Trainer with one)")
-        key = id(self.data_info)
-        if self._geometric_loss is None or self._geometric_loss[0] != key:
-            info = self.data_info
-            loss = GeometricLoss(self.geometry_weights, info["skeleton"], info["mean"], info["std"])
-            self._geometric_loss = (key, loss)
+        info = self.data_info
+        if self._geometric_loss is None or self._geometric_loss[0] is not info:
+            self._geometric_loss = (info, GeometricLoss(self.geometry_weights, info["skeleton"], info["mean"], info["std"]))
         return self._geometric_loss[1]
 
     def optimizer_step(self, *args, **kwargs) -> None:
@@ -339,4 +340,5 @@ def data_info_from(datamodule) -> dict:
         "std": std,
         "min_length": int(getattr(datamodule, "min_length", MIN_LENGTH.get(dataset, 1))),
         "max_length": int(getattr(datamodule, "max_length", datamodule.hparams.get("max_length", MAX_FRAMES))),
+        **({"body": {"bone_lengths": [float(v) for v in datamodule.body]}} if hasattr(datamodule, "body") else {}),
     }

@@ -1,0 +1,228 @@
+"""The finishing step (stablemo.inference.finish): generated joints -> one rigid body on the floor."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from stablemo.errors import StableMoError
+from stablemo.eval import kinematics as K
+from stablemo.inference.finish import Finish, body_lengths
+from stablemo.motion.features import features_to_joints, joints_to_features
+from stablemo.motion.floor import place_on_floor
+from stablemo.motion.rigid import bone_lengths_of, rigid_joints
+from stablemo.motion.skeleton import HUMANML3D, KIT
+
+REAL_CLIP = Path(__file__).resolve().parents[2] / "shared" / "data" / "humanml3d-sample" / "new_joints" / "012314.npy"
+KINDS = ("walk", "jump", "run", "squat", "turn", "wave")
+FEET = list(HUMANML3D.contact_joints)
+
+
+def synth(action: str, seed: int = 0) -> np.ndarray:
+    from stablemo.data.synth import actions
+    from stablemo.data.synth.compose import build
+
+    rng = np.random.default_rng([seed, KINDS.index(action)])
+    return build([(action, actions.sample_params(action, rng))]).joints.astype(np.float64)
+
+
+def stretch(joints: np.ndarray, seed: int = 0, amount: float = 0.12) -> np.ndarray:
+    """Every joint moved by its own smooth wobble of up to `amount` metres: rubber limbs, as a
+    denoiser makes them (each joint predicted on its own)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(len(joints))[:, None, None]
+    phase, freq = rng.uniform(0, 6.3, (1, 22, 3)), rng.uniform(0.05, 0.2, (1, 22, 3))
+    wobble = amount * np.sin(freq * t + phase) * rng.uniform(0.2, 1.0, (1, 22, 3))
+    wobble[:, 0] = 0.0  # the root path is what it is
+    return joints + wobble
+
+
+def spread(j: np.ndarray) -> float:
+    """Largest change of any bone's length within the motion (metres)."""
+    lengths = bone_lengths_of(torch.from_numpy(j), HUMANML3D).numpy()[:, 1:]
+    return float(np.ptp(lengths, axis=0).max())
+
+
+def test_a_rigid_motion_is_left_as_it_is():
+    for action in KINDS:
+        clip = synth(action)
+        out = rigid_joints(torch.from_numpy(clip), HUMANML3D).numpy()
+        assert np.abs(out - clip).max() < 1e-3, action  # the synthetic body is the standard one to < 1 mm
+
+
+@pytest.mark.skipif(not REAL_CLIP.is_file(), reason="HumanML3D sample clip absent")
+def test_a_real_clip_keeps_its_pose_and_gets_the_body():
+    clip = np.load(REAL_CLIP).astype(np.float64)
+    out = rigid_joints(torch.from_numpy(clip), HUMANML3D).numpy()
+    assert spread(out) < 1e-6 and np.abs(out - clip).max() < 1e-4  # the real data already has this body
+
+
+def test_rubber_limbs_become_rigid_with_hands_and_feet_kept():
+    clip = synth("walk")
+    rubber = stretch(clip)
+    assert spread(rubber) > 0.1
+    out = rigid_joints(torch.from_numpy(rubber), HUMANML3D).numpy()
+    assert spread(out) < 1e-6
+    lengths = bone_lengths_of(torch.from_numpy(out[:1]), HUMANML3D).numpy()[0]
+    np.testing.assert_allclose(lengths[1:], HUMANML3D.bone_lengths[1:], atol=1e-9)
+    np.testing.assert_array_equal(out[:, 0], rubber[:, 0])  # the root path
+    # hands and feet stay where they were generated wherever the rigid limb reaches them
+    for upper, mid, end in HUMANML3D.ik_limbs:
+        reach = HUMANML3D.bone_lengths[mid] + HUMANML3D.bone_lengths[end]
+        ok = np.linalg.norm(rubber[:, end] - out[:, upper], axis=-1) < reach - 1e-3
+        assert ok.mean() > 0.3
+        assert np.abs(out[ok, end] - rubber[ok, end]).max() < 1e-6
+    # each knee bends to the side of the hip-ankle line that the generated knee is on: never flipped
+    forward = np.cross([0, 1, 0], rubber[:, 1] - rubber[:, 2])
+    for hip, knee, ankle in HUMANML3D.ik_limbs[:2]:
+        line = rubber[:, ankle] - out[:, hip]
+        line /= np.linalg.norm(line, axis=-1, keepdims=True)
+
+        def side(k, hip=hip, line=line):
+            rel = k - out[:, hip]
+            across = rel - np.einsum("ti,ti->t", rel, line)[:, None] * line
+            return np.einsum("ti,ti->t", across, forward)
+        reach = HUMANML3D.bone_lengths[knee] + HUMANML3D.bone_lengths[ankle]
+        straight = np.linalg.norm(rubber[:, ankle] - out[:, hip], axis=-1) > reach - 1e-3  # no bend to keep
+        bent = (np.abs(side(rubber[:, knee])) > 0.01) & ~straight
+        assert bent.mean() > 0.15 and np.all(np.sign(side(out[:, knee])[bent]) == np.sign(side(rubber[:, knee])[bent]))
+
+
+def test_an_unreachable_hand_is_reached_for_along_its_line():
+    clip = synth("wave")
+    far = clip.copy()
+    far[:, 21] += (far[:, 21] - far[:, 17]) * 1.0  # the wrist twice as far from the shoulder
+    out = rigid_joints(torch.from_numpy(far), HUMANML3D).numpy()
+    aim = far[:, 21] - out[:, 17]
+    got = out[:, 21] - out[:, 17]
+    cos = np.einsum("ti,ti->t", aim, got) / np.linalg.norm(aim, axis=-1) / np.linalg.norm(got, axis=-1)
+    assert cos.min() > 0.999  # straight arm pointing at it
+    np.testing.assert_allclose(np.linalg.norm(got, axis=-1), HUMANML3D.bone_lengths[19] + HUMANML3D.bone_lengths[21],
+                               rtol=1e-6)
+
+
+def test_kit_bodies_in_millimetres():
+    rng = np.random.default_rng(0)
+    base = KIT.target_offsets  # a T-ish rest pose from the skeleton's own offsets
+    pose = np.zeros((21, 3))
+    for chain in KIT.kinematic_chains:
+        for p, c in zip(chain[:-1], chain[1:]):
+            pose[c] = pose[p] + base[c]
+    pose[:, 1] += 1000.0
+    frames = pose[None] + rng.normal(0, 20.0, (30, 21, 3))
+    out = rigid_joints(torch.from_numpy(frames), KIT).numpy()
+    lengths = bone_lengths_of(torch.from_numpy(out), KIT).numpy()
+    np.testing.assert_allclose(lengths[:, 1:], np.broadcast_to(KIT.bone_lengths[1:], lengths[:, 1:].shape), rtol=1e-9)
+
+
+def lowest_foot(j: np.ndarray) -> np.ndarray:
+    return j[:, FEET, 1].min(-1)
+
+
+def test_sunk_and_drifting_feet_are_put_on_the_floor_and_jumps_still_leave_it():
+    for action in ("walk", "jump", "run", "squat"):
+        clip = synth(action)
+        drift = np.linspace(-0.06, -0.02, len(clip))[:, None]  # the ground sinks then rises under the body
+        sunk = clip.copy()
+        sunk[..., 1] += drift
+        out = place_on_floor(torch.from_numpy(sunk)[None], [len(clip)], HUMANML3D)[0].numpy()
+        np.testing.assert_array_equal(out[..., [0, 2]], sunk[..., [0, 2]])  # heights only
+        assert out[..., 1].min() > -1e-9
+        m = K.measure(out[None], [len(out)], "humanml3d")
+        gt = K.measure(clip[None], [len(clip)], "humanml3d")
+        assert m["floor_p1"][0] > -1.0 and abs(m["stance_height"][0] - gt["stance_height"][0]) < 1.0, action
+        assert abs(m["airborne"][0] - gt["airborne"][0]) < 0.05, action  # jumps and flight phases kept
+        assert np.abs(out - clip).max() < 0.02, action  # the drift is undone, the motion otherwise as it was
+
+
+def test_a_lifted_body_is_lowered_but_a_jump_keeps_its_height():
+    clip = synth("jump")
+    lifted = clip.copy()
+    lifted[..., 1] += 0.04
+    out = place_on_floor(torch.from_numpy(lifted)[None], [len(clip)], HUMANML3D)[0].numpy()
+    assert np.abs(lowest_foot(out).max() - lowest_foot(clip).max()) < 0.01  # the apex as generated
+    assert np.abs(out - clip).max() < 0.01
+
+
+def make_features(clips: list[np.ndarray]) -> tuple[torch.Tensor, list[int]]:
+    feats = [joints_to_features(c, "humanml3d", refit=False) for c in clips]  # rubber kept
+    lengths = [len(f) for f in feats]
+    out = torch.zeros(len(feats), max(lengths), feats[0].shape[1])
+    for i, f in enumerate(feats):
+        out[i, : len(f)] = torch.from_numpy(f)
+    return out, lengths
+
+
+def test_finish_gives_features_that_recover_its_rigid_joints_batch_or_alone():
+    finish = Finish.from_config({}, "humanml3d", 20.0)
+    clips = [stretch(synth(a), seed=i) for i, a in enumerate(("walk", "jump", "turn"))]
+    clips = [c[: 60 + 20 * i] for i, c in enumerate(clips)]
+    feats, lengths = make_features(clips)
+    raw = features_to_joints(feats)
+    out_f, out_j = finish(feats, lengths)
+    for i, n in enumerate(lengths):
+        j = out_j[i, :n].double().numpy()
+        assert spread(j) < 1e-3  # written joints: one body (float32 features)
+        assert lowest_foot(j).min() > -0.01
+        np.testing.assert_allclose(j[:, 0, [0, 2]], raw[i, :n, 0, [0, 2]].numpy(), atol=1e-4)  # the path
+        np.testing.assert_allclose(features_to_joints(out_f[i, :n]).numpy(), out_j[i, :n].numpy(), atol=1e-6)
+        assert (out_f[i, n:] == 0).all() and (out_j[i, n:] == 0).all()
+        alone_f, _ = finish(feats[i:i + 1, :n], [n])
+        torch.testing.assert_close(alone_f[0], out_f[i, :n], rtol=0, atol=1e-6)
+    # the raw joints were far from rigid
+    assert max(spread(raw[i, :n].double().numpy()) for i, n in enumerate(lengths)) > 0.05
+
+
+def test_joint_targets_keep_their_height():
+    from stablemo.control.spec import ControlTargets
+
+    finish = Finish.from_config({}, "humanml3d", 20.0)
+    feats, lengths = make_features([synth("walk")[:60]])
+    raw = features_to_joints(feats)
+    targets, mask = torch.zeros(1, 59, 22, 3), torch.zeros(1, 59, 22, dtype=torch.bool)
+    targets[0, 30, 0] = raw[0, 30, 0] + torch.tensor([0.0, 0.1, 0.0])  # the pelvis 10 cm higher at frame 30
+    mask[0, 30, 0] = True
+    _, joints = finish(feats, lengths, ControlTargets(targets, mask))
+    assert abs(float(joints[0, 30, 0, 1] - targets[0, 30, 0, 1])) < 1e-4
+    np.testing.assert_allclose(joints[0, 30, 0, [0, 2]].numpy(), targets[0, 30, 0, [0, 2]].numpy(), atol=1e-4)
+
+
+def test_the_bundle_body_is_read_and_checked(tmp_path):
+    np.testing.assert_array_equal(body_lengths({}, "humanml3d"), HUMANML3D.bone_lengths)
+    custom = (HUMANML3D.bone_lengths * 1.1).tolist()
+    np.testing.assert_allclose(body_lengths({"body": {"bone_lengths": custom}}, "humanml3d"), custom)
+    for bad in ([1.0] * 5, [0.0] * 22, ["x"] * 22, None, [float("nan")] * 22):
+        with pytest.raises(StableMoError, match=r"bundle/config.json: 'body.bone_lengths' must be 22"):
+            body_lengths({"body": {"bone_lengths": bad}}, "humanml3d", "bundle/config.json")
+    # a bundle with another body generates on that body
+    from stablemo.inference.bundle import DEMO_STUDENT
+    from stablemo.inference.pipeline import Pipeline
+
+    config = json.loads((DEMO_STUDENT / "config.json").read_text())
+    assert np.allclose(config["body"]["bone_lengths"], HUMANML3D.bone_lengths, atol=1e-6)  # measured on its data
+    pipe = Pipeline.from_bundle(DEMO_STUDENT)
+    object.__setattr__(pipe, "finish", Finish.from_config({"body": {"bone_lengths": custom}}, "humanml3d", 20.0))
+    out = pipe.generate(["a person walks forward"], 60, seed=0)
+    got = bone_lengths_of(out.joints[0].double(), HUMANML3D).numpy()
+    np.testing.assert_allclose(got[:, 1:], np.broadcast_to(custom[1:], got[:, 1:].shape), atol=1e-3)
+
+
+def test_generation_is_finished_unless_asked_not_to():
+    from stablemo.inference.bundle import DEMO_BUNDLE
+    from stablemo.inference.pipeline import Pipeline
+
+    pipe = Pipeline.from_bundle(DEMO_BUNDLE)
+    prompts = ["a person walks forward, then waves their right hand", "a person jumps forward twice"]
+    out = pipe.generate(prompts, 120, seed=0, steps=4)
+    raw = pipe.generate(prompts, 120, seed=0, steps=4, finish=False)
+    torch.testing.assert_close(out.raw_features, raw.features)
+    for i in range(2):
+        assert spread(raw.joints[i].double().numpy()) > 0.05  # the network's rubber limbs
+        assert spread(out.joints[i].double().numpy()) < 1e-3
+        assert lowest_foot(out.joints[i].numpy()).min() > -0.01
+    with pytest.raises(StableMoError, match="finish: expected True or False"):
+        pipe.generate(prompts, 120, finish="yes")
