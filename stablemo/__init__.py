@@ -34,7 +34,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "stablemo.timeline.spec": ("Segment", "parse_timeline", "read_timeline"),
     "stablemo.outputs.render": ("render_animation", "render_strip"),
     "stablemo.outputs.files": ("write_motion",),
-    "stablemo.bvh": ("bvh_text", "read_bvh"),
+    "stablemo.bvh": ("bvh_text", "export_motion", "read_bvh", "write_bvh"),
 }
 # Training classes (DiffusionModule, MotionDataModule, ...) are not re-exported here: LightningCLI
 # writes a class's shortest import path into configs and checkpoints, which must stay the module's.

@@ -21,7 +21,6 @@ from stablemo.bvh import (
 from stablemo.bvh.names import bvh_names
 from stablemo.errors import StableMoError
 from stablemo.motion import features_to_joints, joints_to_features
-from stablemo.motion.quaternion import qrot_np
 
 SAMPLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "humanml3d-sample"
 
@@ -212,37 +211,34 @@ def test_kit_features(tmp_path):
     assert errors(forward_kinematics(anim)[:, order], target).max() < 2e-4
 
 
-def test_bvh_command_writes_bvh_and_smpl_npz(tmp_path, capsys):
-    from stablemo.bvh.smpl import SMPL_PARENTS
+def test_bvh_command_writes_bvh(tmp_path, capsys):
     from stablemo.cli.bvh import main
 
     joints = heading(synth_joints("jump", 11), 200)
     src = tmp_path / "m.joints.npy"
     np.save(src, joints.astype(np.float32))
     assert main([str(src), "--out", str(tmp_path / "m.bvh"), "--units", "cm", "--fps", "60"]) == 0
-    assert "joints within 0.00 cm on average, 0.00 cm at most" in capsys.readouterr().out
+    out = capsys.readouterr()
+    assert "joints within 0.00 cm on average, 0.00 cm at most" in out.out and out.err == ""
     anim = read_bvh(tmp_path / "m.bvh")
     assert anim.fps == pytest.approx(60) and anim.num_frames == (len(joints) - 1) * 3 + 1
     order = [anim.rig.names.index(n) for n in bvh_names("humanml3d")]
     assert errors(forward_kinematics(anim)[::3, order] / 100.0, joints).max() < 1e-5
 
-    assert main([str(src), "--out", str(tmp_path / "m.npz")]) == 0
-    d = np.load(tmp_path / "m.npz", allow_pickle=False)
-    assert d["poses"].shape == (len(joints), 72) and list(d["joint_names"][:2]) == ["pelvis", "left_hip"]
-    # posing the npz's rest skeleton with its rotations (SMPL's forward kinematics) gives the joints
-    local = Rotation.from_rotvec(d["poses"].reshape(-1, 3).astype(np.float64)).as_quat()[:, [3, 0, 1, 2]]
-    local = local.reshape(len(joints), 24, 4)
-    from stablemo.motion.quaternion import qmul_np
 
-    world = np.zeros_like(local)
-    pos = np.zeros((len(joints), 24, 3))
-    for j, p in enumerate(SMPL_PARENTS):
-        if p < 0:
-            world[:, j], pos[:, j] = local[:, j], d["root_position"]
-        else:
-            world[:, j] = qmul_np(world[:, p], local[:, j])
-            pos[:, j] = pos[:, p] + qrot_np(world[:, p], np.broadcast_to(d["rest_offsets"][j], (len(joints), 3)))
-    assert errors(pos[:, :22], joints).max() < 1e-4  # float32 file
+def test_bvh_command_warns_once_on_stderr_when_the_file_misses_the_motion(tmp_path, capsys):
+    from stablemo.cli.bvh import main
+
+    joints = synth_joints("jump", 11)
+    grow = 1 + 0.2 * np.linspace(0, 1, len(joints))[:, None, None]  # every bone 20% longer by the end
+    np.save(tmp_path / "m.npy", (joints[:, :1] + (joints - joints[:, :1]) * grow).astype(np.float32))
+    assert main([str(tmp_path / "m.npy"), "--out", str(tmp_path / "m.bvh")]) == 0
+    out = capsys.readouterr()
+    (line,) = out.err.splitlines()
+    assert line.startswith(f"warning: {tmp_path / 'm.bvh'} is up to ") and line.endswith("(see docs/bvh.md)")
+    assert "--stretch follows them exactly" in line
+    assert main([str(tmp_path / "m.npy"), "--out", str(tmp_path / "m.bvh"), "--stretch"]) == 0
+    assert capsys.readouterr().err == ""  # stretched bones are exact
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -253,6 +249,10 @@ def test_bvh_command_writes_bvh_and_smpl_npz(tmp_path, capsys):
     (["{src}", "--out", "{tmp}/m.bvh", "--fps", "0"], "--fps: must be > 0"),
     (["{kit}", "--out", "{tmp}/m.npz"], "SMPL order needs the 22-joint HumanML3D skeleton"),
     (["{still}", "--out", "{tmp}/m.bvh"], "still.npy: joints: bone pelvis -> L_hip has zero length"),
+    (["{src}", "--out", "{tmp}/m.bvh", "--up", "z"], "--up: only for an .npz"),
+    (["{src}", "--out", "{tmp}/m.npz", "--up", "x"], "--up='x': choose z (AMASS, the default) or y"),
+    (["{src}", "--out", "{tmp}/m.npz", "--stretch"], "--stretch: only for a .bvh"),
+    (["{src}", "--out", "{tmp}/m.npz", "--units", "cm"], "--units cm: only for a .bvh"),
 ])
 def test_bvh_command_bad_input_is_one_line(tmp_path, capsys, argv, message):
     from stablemo.cli import main

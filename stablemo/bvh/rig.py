@@ -20,10 +20,13 @@ relative to the parent's own frame instead, so no rotation below the root depend
   measured in a trunk frame (up = the spine child, x = left minus right child) and averaged.
 - leaves (hands, toes, head): identity (they follow their parent).
 
-Bone lengths are each bone's median length over the motion. The root position is written as is.
-Generated motions do not keep their bone lengths (the demo model's knees and forearms vary by up
-to ~7 cm); rigid bones then miss those joints by that much, and `stretch` adds per-joint
-translations that follow the changing lengths exactly (a file some retargeting tools ignore).
+Bone lengths are the body's when the caller knows it (a bundle's `body.bone_lengths`), else each
+bone's median length over the motion; on a motion whose bones keep one length (mocap, HumanML3D,
+generated motions after the rigid-body step) both are that length and the file is exact. The root
+position is written as is. A motion whose bones change length (the network's raw output: knees and
+forearms by up to ~7 cm) is missed by rigid bones by about that much (stablemo.bvh.fit measures
+it), and `stretch` adds per-joint translations that follow the changing lengths exactly (a file
+some retargeting tools ignore, and whose limbs come apart at the joints when posed by hand).
 Quaternions are (w, x, y, z), shapes carried in comments.
 """
 
@@ -110,13 +113,21 @@ def _trunk_frame(x: np.ndarray, joint: int, up: int, plus: int, minus: int) -> n
     return np.stack([xa, y, z], axis=-1)
 
 
-def build_rig(joints: np.ndarray, skeleton: Skeleton | str, names: tuple[str, ...], rest_dirs: np.ndarray) -> Rig:
-    """Rest offsets from the motion's own bones. joints (T, J, 3)."""
+def median_lengths(joints: np.ndarray, skeleton: Skeleton | str) -> np.ndarray:
+    """(J,) each bone's median length parent -> joint over the motion (root 0). joints (T, J, 3)."""
+    parents = np.array(get_skeleton(skeleton).parents)
+    bones = joints[:, 1:] - joints[:, parents[1:]]  # (T, J-1, 3)
+    return np.concatenate([[0.0], np.median(np.linalg.norm(bones, axis=-1), axis=0)])
+
+
+def build_rig(joints: np.ndarray, skeleton: Skeleton | str, names: tuple[str, ...], rest_dirs: np.ndarray,
+              lengths: np.ndarray | None = None) -> Rig:
+    """Rest offsets of `lengths` (J,) (default: the motion's median bone lengths) along the rest
+    directions; the branching joints' children keep the motion's own directions. joints (T, J, 3)."""
     skel = get_skeleton(skeleton)
     parents = np.array(skel.parents)
     num = skel.num_joints
-    bones = joints[:, 1:] - joints[:, parents[1:]]  # (T, J-1, 3)
-    lengths = np.concatenate([[0.0], np.median(np.linalg.norm(bones, axis=-1), axis=0)])  # (J,)
+    lengths = median_lengths(joints, skel) if lengths is None else np.asarray(lengths, dtype=np.float64)
     scale = max(float(lengths.max()), 1e-300)
     for j in range(1, num):
         if lengths[j] <= 1e-6 * scale:
@@ -210,9 +221,12 @@ def forward_kinematics(anim: Animation) -> np.ndarray:
     return pos
 
 
-def joints_to_animation(joints: np.ndarray, skeleton: Skeleton | str, fps: float, stretch: bool = False) -> Animation:
+def joints_to_animation(joints: np.ndarray, skeleton: Skeleton | str, fps: float, stretch: bool = False,
+                        bone_lengths: np.ndarray | None = None) -> Animation:
     """The writer's core: joints (T, J, 3) of `skeleton` -> a T-pose rig and its animation.
-    stretch: also per-joint translations, so that bones may change length and every joint is exact."""
+    stretch: also per-joint translations, so that bones may change length and every joint is exact.
+    bone_lengths: (J,) the rig's bones (parent -> joint, root 0, the joints' units), checked by the
+    caller; default the motion's median lengths."""
     from stablemo.bvh.names import bvh_names, rest_directions
 
     skel = get_skeleton(skeleton)
@@ -221,6 +235,6 @@ def joints_to_animation(joints: np.ndarray, skeleton: Skeleton | str, fps: float
         raise StableMoError(f"joints: expected (T, {skel.num_joints}, 3) for {skel.name}, got {x.shape}")
     if not np.all(np.isfinite(x)):
         raise StableMoError("joints: contain NaN or Inf")
-    rig = build_rig(x, skel, bvh_names(skel), rest_directions(skel))
+    rig = build_rig(x, skel, bvh_names(skel), rest_directions(skel), bone_lengths)
     rotations, translations = solve_rotations(x, rig, stretch)
     return Animation(rig, x[:, 0].copy(), rotations, float(fps), translations)

@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     result = pipe.generate([args.text], length, seed=args.seed, sampler=args.sampler, steps=args.steps,
                            cfg=args.cfg, inpaint=[spec], progress=True)
     written = write_motion(out, slug, result.feature_list()[0], result.joint_list()[0], pipe, formats,
-                           f"{args.text} (kept: {', '.join(args.keep)})")
+                           f"{args.text} (kept: {', '.join(args.keep)})", warn=lambda line: print(line, file=sys.stderr))
     kept = int(mask[:length].any(1).sum())
     print(f"{args.text!r}: {length} frames ({kept} with kept entries) -> {out}/{{{', '.join(written)}}}")
     return 0

@@ -126,7 +126,8 @@ def main(argv: list[str] | None = None) -> int:
     # if any motion is not finite
     result = pipe.generate(request)
     for text, slug, feats, joints in zip(prompts, slugs, result.feature_list(), result.joint_list()):
-        written = write_motion(out, slug, feats, joints, pipe, formats, text, targets)
+        written = write_motion(out, slug, feats, joints, pipe, formats, text, targets,
+                               warn=lambda line: print(line, file=sys.stderr))
         print(f"{text!r}: {frames} frames -> {out}/{{{', '.join(written)}}}")
     return 0
 

@@ -10,6 +10,7 @@ and foot acceleration at each join beside the motion's inside 99th percentile).
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from stablemo.errors import StableMoError
@@ -39,7 +40,8 @@ def run_timeline(args, bundle: Path, out: Path) -> int:
     motion = generate_timeline(pipe, segments, seed=args.seed, steps=args.steps, sampler=args.sampler, cfg=args.cfg,
                                hooks=hooks, source=str(args.timeline), progress=True)
     title = " | ".join(s.text for s in segments)
-    written = write_motion(out, slug, motion.features, motion.joints, pipe, formats, title[:120])
+    written = write_motion(out, slug, motion.features, motion.joints, pipe, formats, title[:120],
+                           warn=lambda line: print(line, file=sys.stderr))
     info = {"fps": pipe.fps, "frames": len(motion.features),
             "segments": [{"start_s": s.start_s, "end_s": s.end_s, "text": s.text, "frames": list(f)}
                          for s, f in zip(segments, motion.frames)],

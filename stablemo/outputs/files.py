@@ -62,9 +62,11 @@ def check_output_name(name: str, flag: str = "--name") -> str:
 
 
 def write_motion(out: Path, slug: str, feats, joints, pipe, formats: list[str], title: str,
-                 targets=None) -> list[str]:
+                 targets=None, warn=None) -> list[str]:
     """Features, joints and each of `formats` (gif, mp4: an animation; bvh) of one motion; the names written.
-    targets: joint-control targets (positions, mask) drawn in the animation."""
+    targets: joint-control targets (positions, mask) drawn in the animation. warn: called with one
+    line for a written file that is more than 3 cm from the motion (stablemo.bvh.fit); the library
+    prints nothing itself."""
     from stablemo.io import save_npy
 
     save_npy(out / f"{slug}.features.npy", feats)
@@ -74,7 +76,12 @@ def write_motion(out: Path, slug: str, feats, joints, pipe, formats: list[str], 
         if fmt == "bvh":
             from stablemo.bvh import write_bvh
 
-            write_bvh(out / f"{slug}.bvh", joints, skeleton=pipe.skeleton, source_fps=pipe.fps)
+            # the bundle's body: the joints were built on it, so the file's bones are exactly theirs
+            fit = write_bvh(out / f"{slug}.bvh", joints, skeleton=pipe.skeleton, source_fps=pipe.fps,
+                            bone_lengths=pipe.finish.bone_lengths)
+            warning = fit.warning(str(out / f"{slug}.bvh"), "`stablemo bvh --stretch` follows them exactly")
+            if warning and warn is not None:
+                warn(warning)
         else:
             from stablemo.outputs.render import render_animation
 
