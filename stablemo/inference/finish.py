@@ -3,9 +3,10 @@
 Every output path (generate, edit, control, timelines and streams, the server, the Python API) goes
 through `Finish`: the raw joints are rebuilt on the bundle's body (stablemo.motion.rigid), put on
 the floor (stablemo.motion.floor), and the features are extracted again from those joints, so the
-features file, the joints file, BVH, SMPL, the GIF and the page all show the same body. The
-features are extracted without canonical placement: recovering them gives these joints back (to
-float32 rounding) in the generation's own frame, so joint targets met by the sampler stay met.
+features file, the joints file, BVH, SMPL, the GIF and the page all show the same body. The root
+keeps the network's rotation and path, and the other columns are computed from the new joints as
+seen from that root: recovering the features gives these joints back (to float32 rounding) in the
+generation's own frame, so joint targets met by the sampler stay met.
 
 The body is the bundle's `body.bone_lengths` (its training data's bone lengths, written by
 `stablemo export`), else the skeleton's standard body, which our feature extraction retargets every
@@ -21,8 +22,8 @@ import torch
 
 from stablemo.control.spec import ControlTargets
 from stablemo.errors import StableMoError
-from stablemo.motion.extract_torch import joints_to_features_batched
-from stablemo.motion.features import features_to_joints
+from stablemo.motion.extract_torch import body_features, joints_to_features_batched
+from stablemo.motion.features import features_to_joints, recover_root
 from stablemo.motion.floor import place_on_floor
 from stablemo.motion.rigid import rigid_joints
 from stablemo.motion.skeleton import Skeleton, get_skeleton
@@ -72,22 +73,28 @@ class Finish:
     def __call__(self, features: torch.Tensor, lengths, control: ControlTargets | None = None
                  ) -> tuple[torch.Tensor, torch.Tensor]:
         """features (B, T, D), zero past lengths[b] -> (features (B, T, D), joints (B, T, J, 3)), zero on
-        padding, the joints recovered from the returned features."""
+        padding, the joints recovered from the returned features.
+
+        The root keeps the network's rotation and path (its first three columns are kept as they
+        are): the step moves joints, not the root, so only the columns seen from the root are
+        computed again, from the new joints."""
         n = self._lengths(lengths, features)
-        raw = features_to_joints(features.double(), self.skeleton)  # (B, T, J, 3)
-        feats = self.features_of(self.joints(raw, n, control), n).to(features.dtype)
+        b, t = features.shape[:2]
+        q, _ = recover_root(features)  # (B, T, 4) the root rotation recovery will use
+        body = self.joints(features_to_joints(features, self.skeleton), n, control)  # (B, T, J, 3)
+        ext, last = self._extended(body, n)
+        r = torch.cat([q, q.gather(1, last[..., None].expand(b, 1, 4))], dim=1)  # (B, T+1, 4)
+        feats = torch.cat([features[..., :3], body_features(ext, r, self.skeleton)], dim=-1)
+        mask = torch.arange(t, device=features.device)[None, :] < n[:, None]  # (B, T)
+        feats = torch.where(mask[..., None], feats, torch.zeros((), dtype=feats.dtype, device=feats.device))
         joints = features_to_joints(feats, self.skeleton)
-        mask = torch.arange(features.shape[1], device=features.device)[None, :] < n[:, None]  # (B, T)
         return feats, torch.where(mask[..., None, None], joints, torch.zeros((), dtype=joints.dtype, device=joints.device))
 
-    def features_of(self, body: torch.Tensor, lengths) -> torch.Tensor:
-        """Features (B, T, D) float64 whose recovery gives these joints (B, T, J, 3) back, in their own
-        frame when frame 0's root is at the origin with identity rotation (as every recovered motion);
-        zero past lengths[b]."""
-        n = self._lengths(lengths, body)
+    @staticmethod
+    def _extended(body: torch.Tensor, n: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """body (B, T, J, 3) -> (B, T+1, J, 3) with frames n.. the last pose moved on by the last root
+        step (a rigid move: row n-1's velocities need frame n), and last = n - 1 as (B, 1)."""
         b, t = body.shape[:2]
-        # row t's velocities need frame t+1: one more frame, the last pose moved on by the last root
-        # step (a rigid move), so every sample keeps its n rows
         frames = torch.arange(t + 1, device=body.device)[None, :]
         last = (n - 1)[:, None]  # (B, 1)
 
@@ -97,9 +104,16 @@ class Finish:
         flat = torch.tensor([1.0, 0.0, 1.0], dtype=body.dtype, device=body.device)
         step = (at(last)[:, :, :1] - at(last - 1)[:, :, :1]) * flat  # (B, 1, 1, 3) horizontal root step
         ahead = (frames - last).clamp(min=0).to(body.dtype)[..., None, None]  # (B, T+1, 1, 1)
-        ext = at(torch.minimum(frames, last)) + ahead * step
+        return at(torch.minimum(frames, last)) + ahead * step, last
+
+    def features_of(self, body: torch.Tensor, lengths) -> torch.Tensor:
+        """Features (B, T, D) float64 of joints (B, T, J, 3) in any frame (a stream's global one), the
+        root rotation estimated from the hips and shoulders as in extraction; zero past lengths[b].
+        Recovering them gives these joints back when frame 0's root is at the origin facing +z."""
+        n = self._lengths(lengths, body)
+        ext, _ = self._extended(body, n)
         feats = joints_to_features_batched(ext, n + 1, self.skeleton, refit=False, place=False)  # (B, T, D)
-        mask = frames[:, :t] < n[:, None]
+        mask = torch.arange(body.shape[1], device=body.device)[None, :] < n[:, None]
         return torch.where(mask[..., None], feats, torch.zeros((), dtype=feats.dtype, device=feats.device))
 
     @staticmethod

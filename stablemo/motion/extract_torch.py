@@ -140,9 +140,12 @@ def _canonicalize(x: torch.Tensor, skel: Skeleton, refit: bool) -> torch.Tensor:
 
 def _smooth(v: torch.Tensor) -> torch.Tensor:
     """Gaussian (σ = FACING_SIGMA frames, 'nearest' edges) along T of v (B, T, C) -> (B, T, C)."""
-    kernel = torch.as_tensor(FACING_KERNEL, dtype=v.dtype, device=v.device)  # (K,)
+    kernel = torch.as_tensor(FACING_KERNEL, dtype=v.dtype, device=v.device)  # (K,), symmetric
+    b, t, c = v.shape
     padded = torch.nn.functional.pad(v.transpose(1, 2), (_RADIUS, _RADIUS), mode="replicate")  # (B, C, T+2R)
-    return (padded.unfold(-1, kernel.numel(), 1) @ kernel).transpose(1, 2)  # windows (B, C, T, K) · kernel
+    # one channel per row: a convolution, not unfold @ kernel, which copies the (B, C, T, K) windows
+    out = torch.nn.functional.conv1d(padded.reshape(b * c, 1, -1), kernel.view(1, 1, -1))  # (B*C, 1, T)
+    return out.view(b, c, t).transpose(1, 2)
 
 
 def _facing_rotations(x: torch.Tensor, skel: Skeleton) -> torch.Tensor:
@@ -177,28 +180,32 @@ def _swing_rotations(x: torch.Tensor, r: torch.Tensor, skel: Skeleton) -> torch.
 
 def _features(x: torch.Tensor, skel: Skeleton) -> torch.Tensor:
     """Canonical, padding-filled joints x (B, T, J, 3) -> features (B, T−1, D), every row."""
-    feet = x[:, :, list(skel.contact_joints)]  # (B, T, 4, 3)
-    disp2 = ((feet[:, 1:] - feet[:, :-1]) ** 2).sum(-1)  # (B, T-1, 4)
-    contacts = (disp2 < skel.contact_threshold).to(x.dtype)
-
     r = _facing_rotations(x, skel)  # (B, T, 4)
-    rot6d = quat_to_rot6d(_swing_rotations(x, r, skel)[:, :, 1:])  # (B, T, J-1, 6)
-
     root = x[:, :, 0]  # (B, T, 3)
     lin_vel = qrot(r[:, 1:], root[:, 1:] - root[:, :-1])[..., [0, 2]]  # (B, T-1, 2)
     dq = qmul(r[:, 1:], qinv(r[:, :-1]))
     # hemisphere fix of the numpy twin (module docstring of features.py): sign(w) * y, w == 0 positive
     rot_vel = torch.asin(torch.where(dq[..., :1] < 0, -dq[..., 2:3], dq[..., 2:3]).clamp(-1.0, 1.0))
+    feats = torch.cat([rot_vel, lin_vel, body_features(x, r, skel)], dim=-1)
+    assert feats.shape[-1] == skel.feature_dim
+    return feats
 
+
+def body_features(x: torch.Tensor, r: torch.Tensor, skel: Skeleton) -> torch.Tensor:
+    """The feature columns after the root's rotation and linear velocity (root height, ric, 6D
+    rotations, local velocities, foot contacts) of joints x (B, T, J, 3) seen from root rotations
+    r (B, T, 4) -> (B, T−1, D − 3). Split out so that a motion whose root rotation is already known
+    (the finishing step keeps the network's) skips the facing estimate."""
+    feet = x[:, :, list(skel.contact_joints)]  # (B, T, 4, 3)
+    disp2 = ((feet[:, 1:] - feet[:, :-1]) ** 2).sum(-1)  # (B, T-1, 4)
+    contacts = (disp2 < skel.contact_threshold).to(x.dtype)
+    rot6d = quat_to_rot6d(_swing_rotations(x, r, skel)[:, :, 1:])  # (B, T, J-1, 6)
     xz = torch.tensor([1.0, 0.0, 1.0], dtype=x.dtype, device=x.device)
     rel = x - x[:, :, :1] * xz  # root-relative in xz, absolute height
     ric = qrot(r[:, :, None], rel)[:, :, 1:]  # (B, T, J-1, 3)
     local_vel = qrot(r[:, :-1, None], x[:, 1:] - x[:, :-1])  # (B, T-1, J, 3)
-    parts = [rot_vel, lin_vel, root[:, :-1, 1:2], ric[:, :-1].flatten(2), rot6d[:, :-1].flatten(2),
-             local_vel.flatten(2), contacts]
-    feats = torch.cat(parts, dim=-1)
-    assert feats.shape[-1] == skel.feature_dim
-    return feats
+    return torch.cat([x[:, :-1, 0, 1:2], ric[:, :-1].flatten(2), rot6d[:, :-1].flatten(2),
+                      local_vel.flatten(2), contacts], dim=-1)
 
 
 def canonicalize_joints_batched(joints: torch.Tensor, lengths, skeleton: Skeleton | str = "humanml3d",
