@@ -143,6 +143,8 @@ def test_typed_prompt_is_drawn_and_moves_then_empty_prompt_shows_the_error(page,
 
     anim = read_bvh(bvh)
     assert anim.num_frames == 120 and anim.fps == 20.0
+    # the motion is one rigid body, so the file is within 3 cm of it and the page says nothing
+    assert page.find_element(By.ID, "download-note").text == ""
 
     # an empty prompt: the server's one-line error is shown on the page
     box.send_keys(Keys.CONTROL, "a")
@@ -223,3 +225,29 @@ def test_a_timeline_streams_into_one_motion(page):
     page.find_element(By.ID, "stream").click()
     wait_for(page, "return window.stablemo.error")
     assert page.find_element(By.ID, "status").text.startswith('timeline line 3: expected "<seconds> <prompt>"')
+
+
+def test_a_warning_about_the_bvh_is_shown_beside_the_download_buttons(page, monkeypatch, tmp_path):
+    from stablemo.serve.models import Motion
+
+    # the server's warning for a motion whose BVH would miss it (tests/test_serve.py makes a real one)
+    said = ["is up to 4.2 cm from the motion"]
+    monkeypatch.setattr(Motion, "warnings", lambda self: [f"warning: {self.file_name('bvh')} {line}" for line in said])
+    box = page.find_element(By.ID, "prompt")
+    box.send_keys(Keys.CONTROL, "a")
+    box.send_keys("a person bows")
+    wait_for(page, "const s = window.stablemo; return s.motion && s.motion.text === 'a person bows' && !s.error")
+    note = page.find_element(By.ID, "download-note")
+    assert note.is_displayed() and note.text.startswith("warning: a-person-bows-seed")
+    assert note.text.endswith(".bvh is up to 4.2 cm from the motion")
+    # beside the BVH button, not elsewhere on the page
+    button = page.find_element(By.CSS_SELECTOR, "#downloads button[data-format=bvh]")
+    assert note.find_element(By.XPATH, "..") == button.find_element(By.XPATH, "../..")
+    page.execute_script("arguments[0].scrollIntoView()", note)
+    page.save_screenshot(str(tmp_path / "warning.png"))
+    # the next motion without a warning clears it
+    said.clear()
+    box.send_keys(Keys.CONTROL, "a")
+    box.send_keys("a person bows twice")
+    wait_for(page, "const s = window.stablemo; return s.motion && s.motion.text === 'a person bows twice'")
+    assert note.text == ""

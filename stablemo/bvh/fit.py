@@ -41,8 +41,9 @@ class Fit:
         if self.close:
             return None
         return (f"warning: {name} is up to {self.max_m * 100:.1f} cm from the motion ({self.joint} at frame "
-                f"{self.frame}; {self.mean_m * 100:.1f} cm on average): the motion's bones change length "
-                f"and the file's do not{'; ' + hint if hint else ''}")
+                f"{self.frame}; {self.mean_m * 100:.1f} cm on average): the file's body is rigid and the motion's "
+                f"is not (bones that change length, or hips and shoulders that move against the spine)"
+                f"{'; ' + hint if hint else ''}")
 
 
 def measure_fit(file_joints_m: np.ndarray, joints_m: np.ndarray, names) -> Fit:

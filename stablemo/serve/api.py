@@ -3,7 +3,8 @@
     GET  /                 the page (static/index.html)
     GET  /api/info         served models: defaults, length range, samplers, skeleton
     POST /api/generate     {"text", "seconds"|"frames", "seed", "model", "sampler", "steps", "cfg",
-                            "footskate", "encoding", "features"} -> joints, features, fps, ...
+                            "footskate", "encoding", "features"} -> joints, features, fps, ..., warnings
+                           (one line per download that would be more than 3 cm from the motion)
     POST /api/download     the same body + "format": joints.npy | features.npy | bvh | gif -> the file
     POST /api/stream       {"timeline": [{"text", "seconds"}, ...], "chunk_seconds", "seed", ...} ->
                            NDJSON: a header line, one line per chunk as it is made, a last "done" line
@@ -37,7 +38,6 @@ from fastapi.responses import FileResponse, JSONResponse, Response, StreamingRes
 from fastapi.staticfiles import StaticFiles
 
 from stablemo.errors import StableMoError, one_line
-from stablemo.outputs.files import slugify
 from stablemo.serve.guard import LOOPBACK_HOSTS, Guard, read_json
 from stablemo.serve.models import (
     ModelSet,
@@ -207,8 +207,8 @@ def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_
             data = await render_worker.run(bvh_bytes, motion, budget_s=render_budget_s)
         else:
             data = npy_bytes(motion.joints if fmt == "joints.npy" else motion.features)
-        name = f"{slugify(spec.text)}-seed{spec.seed}.{fmt}"
-        return Response(data, media_type=DOWNLOADS[fmt], headers={"Content-Disposition": f'attachment; filename="{name}"'})
+        return Response(data, media_type=DOWNLOADS[fmt],
+                        headers={"Content-Disposition": f'attachment; filename="{motion.file_name(fmt)}"'})
 
     app.mount("/static", StaticFiles(directory=static_dir), name="static")
     return app
@@ -232,10 +232,9 @@ def npy_bytes(arr: np.ndarray) -> bytes:
 
 
 def bvh_bytes(motion: Motion) -> bytes:
-    """The motion as BVH (stablemo.bvh: a T-pose rig from its bones, rotations at its frame rate, metres)."""
-    from stablemo.bvh import bvh_text
-
-    return bvh_text(motion.joints, skeleton=motion.info["skeleton"], source_fps=motion.fps).encode("ascii")
+    """The motion as BVH (stablemo.bvh: a T-pose rig of the bundle's body, rotations at the motion's
+    frame rate, metres), the rig made with the motion; /api/generate's `warnings` say how close it is."""
+    return motion.bvh.bvh().encode("ascii")
 
 
 def gif_bytes(motion: Motion) -> bytes:

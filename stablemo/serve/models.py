@@ -48,7 +48,9 @@ class Spec:
 
 @dataclass
 class Motion:
-    """A generated motion: joints (T, J, 3) and features (T, D) float32, plus what made it."""
+    """A generated motion: joints (T, J, 3) and features (T, D) float32, plus what made it, and its
+    BVH rig (stablemo.bvh.Export: the download's animation and its fit to the joints), made with
+    it so that the page can say beside the BVH button whether the file would differ."""
 
     spec: Spec
     joints: np.ndarray
@@ -56,10 +58,22 @@ class Motion:
     fps: float
     info: dict
     seconds: float = 0.0  # compute time of the job (queue time excluded)
+    bvh: Any = None  # stablemo.bvh.Export
     root_path: np.ndarray = field(init=False)
 
     def __post_init__(self):
         self.root_path = self.joints[:, 0, :]  # (T, 3) pelvis
+
+    def file_name(self, fmt: str) -> str:
+        """The download's file name: `<prompt slug>-seed<seed>.<fmt>`."""
+        from stablemo.outputs.files import slugify
+
+        return f"{slugify(self.spec.text)}-seed{self.spec.seed}.{fmt}"
+
+    def warnings(self) -> list[str]:
+        """One line per download that would be more than 3 cm from the motion (stablemo.bvh.fit)."""
+        line = self.bvh.fit.warning(self.file_name("bvh"), "the joints .npy download is exact") if self.bvh else None
+        return [line] if line else []
 
 
 class ServedModel:
@@ -242,8 +256,14 @@ class ModelSet:
             t = np.array(spec.control, dtype=np.float64)  # (N, 5): frame, joint, x, y, z
             err = np.linalg.norm(joints[t[:, 0].astype(int), t[:, 1].astype(int)] - t[:, 2:], axis=-1)
             info["control"] = {"targets": len(t), "mean_error_m": float(err.mean()), "max_error_m": float(err.max())}
+        seconds = time.perf_counter() - start
+        from stablemo.bvh import export_motion
+
+        # ~8 ms for the longest motion on the 2-core machine: cheap beside the model, and the page
+        # learns with the motion whether its BVH would differ from it
+        rig = export_motion(joints, skeleton=pipe.skeleton, source_fps=pipe.fps, bone_lengths=pipe.finish.bone_lengths)
         motion = Motion(spec, joints, result.feature_list()[0].astype(np.float32), pipe.fps, info,
-                        seconds=time.perf_counter() - start)
+                        seconds=seconds, bvh=rig)
         with self._lock:
             self._cache[spec] = motion
             while len(self._cache) > self._cache_size:
@@ -283,6 +303,7 @@ def motion_json(motion: Motion, encoding: str, features: bool) -> dict:
     }
     if "control" in motion.info:
         out["control"] = motion.info["control"]
+    out["warnings"] = motion.warnings()
     if features:
         out["features"] = encode_array(motion.features, encoding)
     return out

@@ -21,6 +21,7 @@ const S = window.stablemo = {
   speed: 1,
   drawCount: 0,        // frames drawn with a motion
   error: null,         // the error shown, or null
+  warnings: [],        // the server's warnings about the motion's downloads, shown beside them
   timings: [],         // per motion: {id, text, model, input, send, response, rendered, drawn} (performance.now ms)
   screenPose: null,    // canvas pixel [x, y] of each joint of the frame drawn last
   worldPose: null,     // world [x, y, z] (metres) of each joint of the frame drawn last
@@ -328,6 +329,9 @@ function setMotion(data, spec, rec) {
   S.error = null;
   setStatus('');
   document.querySelectorAll('#downloads button').forEach((b) => { b.disabled = false; });
+  // the server says when a download would differ from the motion shown (a BVH more than 3 cm off)
+  S.warnings = data.warnings || [];
+  $('download-note').textContent = S.warnings.join(' ');
   showControlInfo();
 }
 
@@ -643,6 +647,8 @@ function startStream(head, model, rec) {
   if (!S.playing) togglePlay();  // a stream is there to be watched as it arrives
   $('scrub').max = head.frames - 1;
   document.querySelectorAll('#downloads button').forEach((b) => { b.disabled = true; });  // single prompts only
+  S.warnings = [];
+  $('download-note').textContent = '';
   $('stream-info').textContent = `0 / ${head.chunks} chunks`;
   return S.motion;
 }
