@@ -1,5 +1,7 @@
 """A real client: headless Blender imports our BVH, and its bones' heads are where the joints are,
-frame by frame, at every heading (skipped when `blender` is not installed: apt-get install blender)."""
+frame by frame, at every heading, and at the right time: a 20 fps file plays at 20 fps with the
+importer's "Update Scene FPS" or "Scale FPS" (skipped when `blender` is not installed: apt-get
+install blender)."""
 
 from __future__ import annotations
 
@@ -15,40 +17,53 @@ from stablemo.bvh.names import bvh_names
 
 pytestmark = pytest.mark.skipif(shutil.which("blender") is None, reason="blender is not installed")
 
-# Runs inside Blender: import with no axis conversion, then every pose bone's head in world space per frame.
+# Runs inside Blender: import with no axis conversion and the given importer options, then every
+# pose bone's head in world space at every whole scene frame of the action.
 READ_BONES = """
 import bpy, json, sys
-src, dst = sys.argv[sys.argv.index("--") + 1:]
+src, dst, options = sys.argv[sys.argv.index("--") + 1:]
 bpy.ops.wm.read_factory_settings(use_empty=True)
 # Debian's Blender 3.4 runs on Python 3.11, where its BVH importer's open(path, "rU") is an error
 # ("invalid mode: 'rU'"); Blender's own builds bundle Python 3.10. Drop the obsolete "U".
 import builtins, io_anim_bvh.import_bvh as importer
 importer.open = lambda file, mode="r", *a, **k: builtins.open(file, mode.replace("U", ""), *a, **k)
-bpy.ops.import_anim.bvh(filepath=src, axis_forward="-Z", axis_up="Y", global_scale=1.0,
-                        rotate_mode="NATIVE", update_scene_fps=True, update_scene_duration=True)
+bpy.ops.import_anim.bvh(filepath=src, axis_forward="-Z", axis_up="Y", global_scale=1.0, rotate_mode="NATIVE",
+                        **json.loads(options))
 scene = bpy.context.scene
 arm = next(o for o in scene.objects if o.type == "ARMATURE")
-out = {"fps": scene.render.fps / scene.render.fps_base, "frames": []}
-first, last = (int(round(v)) for v in arm.animation_data.action.frame_range)
-for frame in range(first, last + 1):
+first, last = arm.animation_data.action.frame_range
+out = {"fps": scene.render.fps / scene.render.fps_base, "first": first, "last": last, "frames": []}
+for frame in range(int(round(first)), int(last + 1e-6) + 1):
     scene.frame_set(frame)
     out["frames"].append({b.name: list(arm.matrix_world @ b.head) for b in arm.pose.bones})
 with open(dst, "w") as f:
     json.dump(out, f)
 """
+# the importer's "Update Scene FPS": the scene takes the file's rate, one BVH frame per scene frame
+SCENE_AT_FILE_RATE = {"update_scene_fps": True, "update_scene_duration": True}
 
 
-def blender_heads(bvh_path, tmp_path) -> tuple[np.ndarray, float]:
-    """(T, 22, 3) bone heads in BVH coordinates (y up) in our joint order, and the scene's fps."""
+def blender_import(bvh_path, tmp_path, options: dict) -> dict:
+    """Blender's reading of the file: {"fps": the scene's, "first"/"last": the action's frame range,
+    "heads": (N, 22, 3) bone heads at the whole scene frames first..last in BVH coordinates (y up),
+    our joint order}."""
     script, dst = tmp_path / "read_bones.py", tmp_path / "heads.json"
     script.write_text(READ_BONES)
     run = subprocess.run(["blender", "-b", "--factory-startup", "--python-exit-code", "1", "--python", str(script),
-                          "--", str(bvh_path), str(dst)], check=False, capture_output=True, text=True, timeout=300)
+                          "--", str(bvh_path), str(dst), json.dumps(options)],
+                         check=False, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
     data = json.loads(dst.read_text())
-    heads = np.array([[frame[name] for name in bvh_names("humanml3d")] for frame in data["frames"]])
+    heads = np.array([[frame[name] for name in bvh_names("humanml3d")] for frame in data.pop("frames")])
     # the importer maps BVH (x, y, z) to Blender (x, -z, y) for axis_up=Y, axis_forward=-Z
-    return np.stack([heads[..., 0], heads[..., 2], -heads[..., 1]], axis=-1), data["fps"]
+    data["heads"] = np.stack([heads[..., 0], heads[..., 2], -heads[..., 1]], axis=-1)
+    return data
+
+
+def blender_heads(bvh_path, tmp_path) -> tuple[np.ndarray, float]:
+    """(T, 22, 3) bone heads, one per BVH frame (the scene at the file's rate), and the scene's fps."""
+    data = blender_import(bvh_path, tmp_path, SCENE_AT_FILE_RATE)
+    return data["heads"], data["fps"]
 
 
 @pytest.mark.parametrize("degrees", [0, 90, 180, 270])
@@ -79,3 +94,54 @@ def test_blender_follows_stretching_bones(tmp_path):
     write_bvh(path, joints, stretch=True)
     heads, _ = blender_heads(path, tmp_path)
     assert np.linalg.norm(heads - joints, axis=-1).max() < 1e-4
+
+
+def walk_on_the_standard_body() -> np.ndarray:
+    """(T, 22, 3) a walk (~1.3 m/s) on the standard body, its pelvis made one rigid piece."""
+    from test_bvh import heading, synth_joints
+    from test_bvh_rigid import BODY, standard_body
+
+    from stablemo.bvh import forward_kinematics, motion_to_animation
+
+    walk = heading(standard_body(synth_joints("walk", 41, rigid=False)), 60)
+    return forward_kinematics(motion_to_animation(walk, bone_lengths=BODY))
+
+
+def test_a_20_fps_file_plays_at_20_fps_with_update_scene_fps(tmp_path):
+    joints = walk_on_the_standard_body()
+    write_bvh(tmp_path / "w.bvh", joints)
+    data = blender_import(tmp_path / "w.bvh", tmp_path, SCENE_AT_FILE_RATE)
+    assert data["fps"] == pytest.approx(20.0)
+    assert (data["first"], data["last"]) == (1.0, float(len(joints)))  # one scene frame per BVH frame
+    heads = data["heads"]
+    # 1 s into the animation (scene frame 21) the body is where our joints are at frame 20
+    assert np.linalg.norm(heads[20] - joints[20], axis=-1).max() < 0.01
+    assert np.linalg.norm(heads - joints, axis=-1).max() < 1e-4
+
+
+def test_scale_fps_keeps_a_24_fps_scene_and_the_motion_s_timing(tmp_path):
+    joints = walk_on_the_standard_body()
+    write_bvh(tmp_path / "w.bvh", joints)
+    data = blender_import(tmp_path / "w.bvh", tmp_path, {"use_fps_scale": True})
+    assert data["fps"] == pytest.approx(24.0)  # Blender's default scene rate, untouched
+    assert data["last"] - data["first"] == pytest.approx((len(joints) - 1) * 24 / 20)  # the same 5 s, more frames
+    heads = data["heads"]
+    # 1 s in is scene frame 25 (24 fps) and our frame 20; 0.5 s is scene frame 13 and our frame 10
+    assert np.linalg.norm(heads[24] - joints[20], axis=-1).max() < 0.01
+    assert np.linalg.norm(heads[12] - joints[10], axis=-1).max() < 0.01
+
+
+def test_the_importer_defaults_play_20_fps_too_fast_unless_the_file_is_written_at_24(tmp_path):
+    joints = walk_on_the_standard_body()
+    write_bvh(tmp_path / "w.bvh", joints)
+    data = blender_import(tmp_path / "w.bvh", tmp_path, {})
+    # the defaults put BVH frame i on scene frame 1 + i of a 24 fps scene: 1.2x too fast, so 1 s in
+    # (scene frame 25) shows our frame 24, a walk 1.2 s in, ~25 cm further on
+    assert data["fps"] == pytest.approx(24.0) and data["last"] == float(len(joints))
+    assert np.linalg.norm(data["heads"][24] - joints[24], axis=-1).max() < 1e-4
+    assert np.linalg.norm(data["heads"][24, 0] - joints[20, 0]) > 0.15
+    # the way out without touching the importer: write the file at Blender's 24 fps (--fps 24)
+    write_bvh(tmp_path / "w24.bvh", joints, fps=24)
+    data = blender_import(tmp_path / "w24.bvh", tmp_path, {})
+    assert data["fps"] == pytest.approx(24.0)
+    assert np.linalg.norm(data["heads"][24] - joints[20], axis=-1).max() < 0.01  # 1 s in: our frame 20
