@@ -117,6 +117,8 @@ def test_real_clip_values():
 def test_displacement_and_end_effectors():
     assert K.end_effectors("humanml3d") == [10, 11, 15, 20, 21]
     assert K.end_effectors("kit") == [4, 7, 10, 15, 20]
+    assert K.end_effector_groups("humanml3d") == {"feet": [10, 11], "hands": [20, 21], "head": [15]}
+    assert K.end_effector_groups("kit") == {"feet": [15, 20], "hands": [7, 10], "head": [4]}
     walk = synth_clip("walk")
     joints, lengths = pad([walk, walk[:50]])
     moved = joints + np.array([0.03, 0.0, 0.04])                 # 5 cm, padding included (ignored)

@@ -90,6 +90,17 @@ def end_effectors(skeleton: Skeleton | str) -> list[int]:
     return [i for i in range(skel.num_joints) if i not in skel.parents]
 
 
+def end_effector_groups(skeleton: Skeleton | str) -> dict[str, list[int]]:
+    """End effectors by body part, from the chains: feet end a chain at a contact joint, the head
+    ends the other chain that starts at the root, hands end the chains that start above it."""
+    skel = get_skeleton(skeleton)
+    groups: dict[str, list[int]] = {"feet": [], "hands": [], "head": []}
+    for chain in skel.kinematic_chains:
+        part = "feet" if chain[-1] in skel.contact_joints else "head" if chain[0] == 0 else "hands"
+        groups[part].append(chain[-1])
+    return {k: sorted(v) for k, v in groups.items()}
+
+
 # ----------------------------------------------------------------------------- the measures
 
 
