@@ -217,10 +217,14 @@ def with_data_info(module, walks):
 
 
 @pytest.mark.parametrize("geometry", [None, {}, dict.fromkeys(GEOMETRY_TERMS, 0.0)])
-def test_without_geometry_the_loss_is_bit_identical_to_the_plain_objective(walks, geometry):
+def test_without_geometry_the_loss_is_bit_identical_to_the_plain_objective(walks, geometry, monkeypatch):
     """The objective before this option existed: masked MSE of the output against its target, under
     the same dropout seed; nothing geometric is built or computed."""
-    module = make_module(geometry=geometry).train()
+    def not_built(*args, **kwargs):
+        raise AssertionError("a geometric loss was built")
+
+    monkeypatch.setattr(GeometricLoss, "__init__", not_built)
+    module = with_data_info(make_module(geometry=geometry).train(), walks)
     x0, mask, texts, t, noise = step_inputs(module, walks)
     torch.manual_seed(5)
     terms = module.loss_terms(x0, mask, texts, t, noise)
@@ -228,8 +232,8 @@ def test_without_geometry_the_loss_is_bit_identical_to_the_plain_objective(walks
     x_t = module.schedule.q_sample(x0, t, noise)
     text, text_mask = module.model.encode_text(texts)
     before = masked_mse(module.model(x_t, t, text, text_mask, mask), x0, mask)
-    assert set(terms) == {"simple"} and module._geometric_loss is None
-    assert torch.equal(module._weighted_sum(terms), before)
+    assert set(terms) == {"simple"}
+    assert torch.equal(module.objective(terms), before)
 
 
 @pytest.mark.parametrize("prediction_type", ["sample", "epsilon"])
@@ -255,7 +259,7 @@ def test_geometry_reads_the_clean_motion_estimate_of_either_parameterisation(wal
     direct = module.geometric_loss().terms(x0_hat, x0, mask)
     for name in GEOMETRY_TERMS:
         torch.testing.assert_close(terms[name].detach(), direct[name], msg=name)
-    total = module._weighted_sum(terms)
+    total = module.objective(terms)
     torch.testing.assert_close(total, terms["simple"] + sum(terms[name] for name in GEOMETRY_TERMS))
     total.sum().backward()
     assert torch.isfinite(wrong.grad).all() and wrong.grad.abs().sum() > 0
