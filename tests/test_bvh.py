@@ -1,6 +1,6 @@
 """BVH out: forward kinematics of the written file gives the joints back at any heading, for turning,
 jumping, crawling and flipping motions; rotations do not depend on the heading; resampling; the
-command and the SMPL-order pose."""
+command (the SMPL pose file: test_bvh_smpl.py)."""
 
 from __future__ import annotations
 

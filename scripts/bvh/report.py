@@ -1,7 +1,10 @@
 """BVH writer report: forward kinematics of the written file against the motion's joints (mean / max
 over joints and frames) at headings 0/90/180/270 for the real HumanML3D clip, synthetic turning,
-circling, jumping, crawling and flipping motions and the demo model's own samples; foot twist
-rotations' independence of the heading; Blender's bone heads; the writer's time per frame.
+circling, jumping, crawling and flipping motions, the same on the standard body, and the demo
+models' samples (as generated: one rigid body; and the network's raw output); rotations'
+independence of the heading; Blender's bone heads and its frame rate per import option; the
+writer's time per frame. A motion with a body is written on it (bone_lengths=), else on its
+median bone lengths.
 
     OMP_NUM_THREADS=1 .venv/bin/python scripts/bvh/report.py [--no-demo] [--no-blender]
 """
@@ -21,41 +24,52 @@ sys.path.insert(0, str(ROOT / "tests"))
 SAMPLE = ROOT.parent / "shared" / "data" / "humanml3d-sample"
 
 
-def fk_error(joints: np.ndarray, tmp: Path, stretch: bool = False) -> np.ndarray:
+def fk_error(joints: np.ndarray, tmp: Path, stretch: bool = False, body=None) -> np.ndarray:
     from test_bvh import bvh_fk
 
     from stablemo.bvh import bvh_text
 
-    fk, _ = bvh_fk(bvh_text(joints, stretch=stretch), tmp)
+    fk, _ = bvh_fk(bvh_text(joints, stretch=stretch, bone_lengths=None if stretch else body), tmp)
     return np.linalg.norm(fk - joints, axis=-1)
 
 
-def motions(demo: bool) -> dict[str, np.ndarray]:
+PROMPTS = ["a person walks forward", "a person turns around to the left", "a person jumps in place twice",
+           "a person walks in a clockwise circle", "a person bows"]
+
+
+def motions(demo: bool) -> dict[str, tuple[np.ndarray, np.ndarray | None]]:
+    """name -> (joints (T, 22, 3), the body's bone lengths or None)."""
     from test_bvh import crawl, flip, synth_joints
+    from test_bvh_rigid import BODY, standard_body
 
     from stablemo.motion import features_to_joints
 
     out = {}
     if SAMPLE.is_dir():
-        out["real clip 012314 (features)"] = features_to_joints(
-            np.load(SAMPLE / "new_joint_vecs" / "012314.npy").astype(np.float64), "humanml3d")
-    out["synth turn 360 (generator joints)"] = synth_joints("turn", 2, rigid=False, angle=360)
-    out["synth circle (generator joints)"] = synth_joints("circle", 3, rigid=False)
-    out["synth jump (generator joints)"] = synth_joints("jump", 4, rigid=False)
-    out["crawl (walk pitched 90 deg)"] = crawl()
-    out["flip (jump + somersault)"] = flip()
+        out["real clip 012314 (features), on the standard body"] = (features_to_joints(
+            np.load(SAMPLE / "new_joint_vecs" / "012314.npy").astype(np.float64), "humanml3d"), BODY)
+    out["synth turn 360 (generator joints)"] = (synth_joints("turn", 2, rigid=False, angle=360), None)
+    out["synth circle (generator joints)"] = (synth_joints("circle", 3, rigid=False), None)
+    out["synth jump (generator joints)"] = (synth_joints("jump", 4, rigid=False), None)
+    for action in ("walk", "turn", "jump", "circle"):
+        out[f"synth {action} (extracted onto the standard body)"] = (
+            standard_body(synth_joints(action, 21, rigid=False)), BODY)
+    out["crawl (walk pitched 90 deg)"] = (crawl(), None)
+    out["flip (jump + somersault)"] = (flip(), None)
     if demo:
         import torch
 
         from stablemo.inference.pipeline import Pipeline, Request
 
         torch.set_num_threads(1)
-        pipe = Pipeline.from_bundle(ROOT / "stablemo" / "assets" / "demo_bundle", device="cpu")
-        prompts = ["a person walks forward", "a person turns around to the left", "a person jumps in place twice",
-                   "a person walks in a clockwise circle"]
-        result = pipe.generate(Request(prompts, 120, seed=0, steps=10))
-        for text, joints in zip(prompts, result.joint_list()):
-            out[f"demo model: {text!r}"] = np.asarray(joints, np.float64)
+        for bundle in ("demo_bundle", "demo_student"):
+            pipe = Pipeline.from_bundle(ROOT / "stablemo" / "assets" / bundle, device="cpu")
+            result = pipe.generate(Request(PROMPTS, 120, seed=0))
+            body = pipe.finish.bone_lengths
+            for text, joints, raw in zip(PROMPTS, result.joint_list(), result.raw_joints):
+                out[f"{bundle}: {text!r}"] = (np.asarray(joints, np.float64), body)
+                if bundle == "demo_bundle":
+                    out[f"{bundle}, raw network output: {text!r}"] = (raw[:len(joints)].numpy().astype(np.float64), None)
     return out
 
 
@@ -117,6 +131,30 @@ def blender(tmp: Path) -> None:
         heads, _ = blender_heads(tmp / "b.bvh", tmp)
         err = np.linalg.norm(heads - joints, axis=-1)
         print(f"  heading {deg:3d}: mean {err.mean() * 1000:.4f} mm, max {err.max() * 1000:.4f} mm")
+    blender_rate(tmp)
+
+
+def blender_rate(tmp: Path) -> None:
+    """Where Blender puts 1 s of a 20 fps walk, per import option (and a file written at 24 fps)."""
+    from test_bvh_blender import (
+        SCENE_AT_FILE_RATE,
+        blender_import,
+        walk_on_the_standard_body,
+    )
+
+    from stablemo.bvh import write_bvh
+
+    joints = walk_on_the_standard_body()
+    print("\nBlender's clock: a 20 fps walk, the scene frame 1 s in against our frame 20 (1 s)")
+    cases = [("Update Scene FPS", SCENE_AT_FILE_RATE, 20), ("Scale FPS (24 fps scene)", {"use_fps_scale": True}, 20),
+             ("defaults (24 fps scene)", {}, 20), ("defaults, file written at --fps 24", {}, 24)]
+    for label, options, rate in cases:
+        write_bvh(tmp / "w.bvh", joints, fps=None if rate == 20 else rate)
+        data = blender_import(tmp / "w.bvh", tmp, options)
+        one_second = round(data["fps"])  # scene frames after the first
+        err = np.linalg.norm(data["heads"][one_second] - joints[20], axis=-1).max()
+        print(f"  {label:36s} scene {data['fps']:g} fps, {len(data['heads'])} frames; 1 s in: {err * 100:.2f} cm "
+              "from our 1 s pose")
 
 
 def speed() -> None:
@@ -156,16 +194,16 @@ def main() -> int:
         from stablemo.motion import HUMANML3D
 
         parents = list(HUMANML3D.parents[1:])
-        for name, joints in motions(not args.no_demo).items():
+        for name, (joints, body) in motions(not args.no_demo).items():
             lengths = np.linalg.norm(joints[:, 1:] - joints[:, parents], axis=-1)  # (T, 21)
             change = np.abs(lengths - np.median(lengths, axis=0)).max() * 1000
-            for stretch in (False, True) if change > 1.0 else (False,):
+            for stretch in (False, True):
                 cells = []
                 for deg in (0, 90, 180, 270):
-                    err = fk_error(heading(joints, deg), tmp, stretch) * 1000
+                    err = fk_error(heading(joints, deg), tmp, stretch, body) * 1000
                     cells.append(f"{err.mean():7.3f} / {err.max():7.3f}")
-                label = f"{name} [{'stretch' if stretch else f'rigid; bones vary {change:.0f} mm'}]"
-                print(f"  {label:80s} " + "   ".join(cells))
+                label = f"{name} [{'stretch' if stretch else f'rigid; bones vary {change:.1f} mm'}]"
+                print(f"  {label:100s} " + "   ".join(cells))
         heading_dependence()
         if not args.no_blender:
             blender(tmp)

@@ -1,4 +1,4 @@
-"""BVH out and in, and SMPL-order poses, for StableMo motions.
+"""BVH out and in, and AMASS-style SMPL poses, for StableMo motions.
 
 Writing (any heading, turning, lying or flipping motions; forward kinematics of the file gives the
 motion's joints back):

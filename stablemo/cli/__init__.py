@@ -33,7 +33,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "bench": ("bench", "main", "benchmarks: aits, stream, train, footskate"),
     "evaluate": ("evaluate", "main", "evaluate a bundle against a dataset"),
     "footskate": ("footskate", "main", "remove foot skating from a motion file"),
-    "bvh": ("bvh", "main", "write features or joints (.npy) as BVH or an SMPL-order pose (.npz)"),
+    "bvh": ("bvh", "main", "write features or joints (.npy) as BVH or an AMASS-style SMPL-X pose (.npz)"),
     "serve": ("serve", "main", "a local web page and JSON API for generating motions"),
 }
 
