@@ -23,6 +23,23 @@ from stablemo.errors import StableMoError
 from stablemo.eval import kinematics, metrics
 from stablemo.eval.evaluate import embed_motions, embed_texts, generation_outputs
 
+# docs/results.md's section on these measures (scripts/results/make_results.py renders it before the
+# joint-control sections); the table of this report joins it once the finishing step has landed
+RESULTS_SECTION = """
+## Kinematic measures (issue #39)
+
+FID and R-precision do not see whether a generated motion keeps one rigid body standing on the floor.
+`stablemo evaluate` reports beside them, for the real motions, for the network's raw output (rows
+marked `[raw]`) and for what the user receives (after the finishing step: the rigid body on the floor):
+bone-length change within a motion (cm), the lowest foot joint's 1st-percentile height and the share
+of frames more than 1 cm below the floor, the stance foot's median height (cm) and horizontal speed
+(cm/s, skating), foot acceleration (m/s²) and the share of airborne frames. Definitions, the contact
+rule and the values measured on ground-truth motions: docs/evaluation.md ("Kinematic measures").
+`python scripts/results/kinematic_report.py` measures issue #39's targets on the demo teacher and the
+1-step student (72 prompts x 4 seeds, 120 and 196 frames, raw against final); its table is not part
+of this report yet.
+"""
+
 # category -> the synthetic actions its prompts describe
 CATEGORIES = {
     "walk": ("walk", "walk_backward"), "run": ("run", "jog"), "jump": ("jump", "jump_forward", "hop"),
