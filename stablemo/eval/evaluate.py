@@ -142,10 +142,14 @@ def _skate(joints: list[torch.Tensor]) -> float:
     return float(foot_skating_ratio(padded, lengths=lengths).mean())
 
 
-def _kinematics(joints: list[torch.Tensor], skeleton) -> dict[str, float]:
-    """kinematics.MEASURES of motions (L_i, J, 3), each averaged over the motions where it is defined."""
-    padded, lengths = _padded_joints(joints)
-    return kinematics.summarise(kinematics.measure(padded, lengths, skeleton))
+def _kinematics(joints: list[torch.Tensor], skeleton, chunk: int = 256) -> dict[str, float]:
+    """kinematics.MEASURES of motions (L_i, J, 3), each averaged over the motions where it is defined;
+    measured `chunk` motions at a time (float64 copies of a whole HumanML3D test pass run to GBs)."""
+    parts = []
+    for s in range(0, len(joints), chunk):
+        padded, lengths = _padded_joints(joints[s : s + chunk])
+        parts.append(kinematics.measure(padded, lengths, skeleton))
+    return kinematics.summarise({k: np.concatenate([p[k] for p in parts]) for k in parts[0]})
 
 
 def _joints_of(features: list[torch.Tensor], skeleton) -> list[torch.Tensor]:
