@@ -301,3 +301,44 @@ def test_fit_logs_each_term_and_resumes_exactly(tmp_path):
         assert all(v > 0 for v in parts.values())
         expected = simple + sum(geometry[name] * value for name, value in parts.items())
         assert float(row["train/loss"]) == pytest.approx(expected, rel=1e-5)
+
+
+# ---------------------------------------------------------------------------------------------- the ablation tools
+
+
+@pytest.mark.parametrize("args, env, message", [
+    (["tpu", "10", "out"], {}, "ACCELERATOR: cpu or gpu, got 'tpu'"),
+    (["cpu", "ten", "out"], {}, "STEPS: a positive integer, got 'ten'"),
+    (["cpu", "10", "out"], {"VARIANTS": "baseline legs"}, "VARIANTS: unknown 'legs'"),
+    (["cpu", "10"], {}, "usage: scripts/train/geometry_ablation.sh ACCELERATOR STEPS OUT"),
+])
+def test_ablation_script_refuses_bad_arguments_before_any_work(tmp_path, args, env, message):
+    import os
+    import subprocess
+
+    done = subprocess.run(["bash", str(REPO / "scripts/train/geometry_ablation.sh"), *args],
+                          cwd=tmp_path, env={**os.environ, **env, "DATA": str(tmp_path / "missing")},
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and done.stderr.strip().splitlines() == [done.stderr.strip()], done.stderr
+    assert message in done.stderr
+    assert not (tmp_path / "missing").exists() and not (REPO / "out").exists()
+
+
+def test_step_cost_script_times_both_objectives(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    data = write_random_dataset(tmp_path / "data", num=8, splits=(6, 1))
+    base = tiny_config(tmp_path / "run", data)
+    overlay = tmp_path / "geometry.yaml"
+    overlay.write_text(yaml.safe_dump({"model": {"geometry": {"positions": 1.0, "foot_contact": 0.5}}}))
+    out = tmp_path / "cost.json"
+    done = subprocess.run([sys.executable, str(REPO / "scripts/train/geometry_step_cost.py"), "--configs", str(base),
+                           str(overlay), "--rounds", "2", "--warmup", "1", "--threads", "1", "--json", str(out)],
+                          cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    result = json.loads(out.read_text())
+    assert result["terms"] == {"positions": 1.0, "foot_contact": 0.5} and result["rounds"] == 2
+    for clock in ("wall", "cpu"):
+        assert result[clock]["plain_ms"] > 0 and result[clock]["geometry_ms"] > 0
