@@ -34,12 +34,17 @@ from stablemo.skating import metrics as skating_metrics
 
 # A foot joint this far under the floor is visibly inside it (a mocap floor is level to ~1 cm).
 BELOW_FLOOR_M = 0.01
-# Both feet this far above the motion's own ground: off the floor (a walk's stance toe stays within
+# Both feet this far above the motion's local ground: off the floor (a walk's stance toe stays within
 # ~1 cm of it; a synthetic jump's flight lifts the toes ~20 cm).
 AIRBORNE_M = 0.05
-# The motion's own ground: this quantile of the lowest foot joint's height over its frames (not the
-# minimum, which one glitched frame would set).
-GROUND_QUANTILE = 0.05
+# The local ground of a height: its LOCAL_GROUND_QUANTILE over the frames within LOCAL_GROUND_S either
+# side. Longer than any flight (a jump's is under 0.5 s), shorter than a motion: a body that floats
+# between two jumps, or drifts up over its length, is in contact there at its own height, so the
+# floating shows in stance_height instead of reading as flight. A low quantile, not the minimum: the
+# demo models' feet dip 5-7 cm for a frame or two before a take-off, and a minimum would stand the
+# whole second around such a dip on it.
+LOCAL_GROUND_S = 1.0
+LOCAL_GROUND_QUANTILE = 0.2
 FLOOR_QUANTILE = 0.01  # floor_p1
 MEASURES = ("bone_change", "floor_p1", "below_floor", "stance_height", "stance_speed", "foot_acc", "airborne")
 
@@ -79,9 +84,20 @@ def _foot_joints(skel: Skeleton) -> list[int]:
     return list(skel.contact_joints)
 
 
-def lowest_foot_height(j: torch.Tensor, skel: Skeleton) -> torch.Tensor:
+def local_ground(height: torch.Tensor, lengths: torch.Tensor, fps: float) -> torch.Tensor:
+    """height (B, T, ...) -> its LOCAL_GROUND_QUANTILE over the valid frames within LOCAL_GROUND_S of
+    each frame, same shape (NaN on padding)."""
+    radius = max(1, round(LOCAL_GROUND_S * fps))
+    valid = valid_mask(lengths, height.shape[1]).reshape(height.shape[:2] + (1,) * (height.ndim - 2))
+    x = torch.where(valid, height, torch.full_like(height, float("nan"))).movedim(1, -1)  # (B, ..., T)
+    x = torch.nn.functional.pad(x, (radius, radius), value=float("nan"))
+    windows = x.unfold(-1, 2 * radius + 1, 1)  # (B, ..., T, 2 radius + 1)
+    return torch.nanquantile(windows, LOCAL_GROUND_QUANTILE, dim=-1).movedim(-1, 1)
+
+
+def lowest_foot_height(j: torch.Tensor, skeleton: Skeleton | str) -> torch.Tensor:
     """(B, T, J, 3) -> (B, T): the height of the lowest foot joint (skeleton units)."""
-    return j[:, :, _foot_joints(skel), 1].amin(-1)
+    return j[:, :, _foot_joints(get_skeleton(skeleton)), 1].amin(-1)
 
 
 def end_effectors(skeleton: Skeleton | str) -> list[int]:
@@ -128,11 +144,14 @@ def floor_penetration(joints, lengths, skeleton) -> dict[str, np.ndarray]:
 
 def foot_contacts(joints, lengths, skeleton) -> torch.Tensor:
     """(B, T, 4) bool contacts of the contact joints (feet_left + feet_right), False on padding:
-    footskate's height/speed rule with its metre thresholds in the skeleton's unit."""
+    footskate's low-and-slow rule with its metre thresholds in the skeleton's unit, "low" measured
+    from each joint's local ground (local_ground) rather than its lowest point in the whole motion."""
     j, n, skel = prepare(joints, lengths, skeleton)
     per_metre = scale(skel)
-    contacts = contacts_from_heights(j[:, :, _foot_joints(skel)], skel.fps, 1, n, height=HEURISTIC_MARGIN * per_metre,
-                                     speed=HEURISTIC_SPEED * per_metre)
+    feet = j[:, :, _foot_joints(skel)].clone()  # (B, T, 4, 3)
+    feet[..., 1] = torch.nan_to_num(feet[..., 1] - local_ground(feet[..., 1], n, skel.fps))  # padding: 0
+    contacts = contacts_from_heights(feet, skel.fps, 1, n, height=HEURISTIC_MARGIN * per_metre,
+                                     speed=HEURISTIC_SPEED * per_metre, relative=False)
     return contacts & valid_mask(n, j.shape[1])[..., None]
 
 
@@ -170,13 +189,12 @@ def foot_acceleration(joints, lengths, skeleton) -> np.ndarray:
 
 
 def airborne_share(joints, lengths, skeleton) -> np.ndarray:
-    """(B,): share of valid frames whose lowest foot joint is more than AIRBORNE_M above the motion's
-    own ground (its GROUND_QUANTILE height), so a floor offset is not a flight but a jump is."""
+    """(B,): share of valid frames whose lowest foot joint is more than AIRBORNE_M above its local
+    ground (local_ground), so a floor offset or a body floating between jumps is not a flight, a jump is."""
     j, n, skel = prepare(joints, lengths, skeleton)
     valid = valid_mask(n, j.shape[1])
     low = lowest_foot_height(j, skel)
-    ground = _masked_quantile(low, valid, GROUND_QUANTILE)[:, None]
-    up = (low - ground > AIRBORNE_M * scale(skel)) & valid
+    up = (low - local_ground(low, n, skel.fps) > AIRBORNE_M * scale(skel)) & valid
     return (up.sum(1).double() / n.double()).numpy()
 
 
