@@ -11,14 +11,15 @@ share of frames, whatever the skeleton's unit:
 - stance_height  the median height of the lowest foot joint over stance frames (a foot joint in contact), cm
 - stance_speed   the mean horizontal speed of foot joints in contact, over frame pairs in contact (cm/s)
 - foot_acc       the feet's mean |second difference| (stablemo.skating.metrics.foot_acceleration), m/s²
-- airborne       the share of frames whose lowest foot joint is more than AIRBORNE_M above the motion's own ground
+- airborne       the share of frames whose lowest foot joint is more than AIRBORNE_M above its local ground
 
 "Foot joints" are the skeleton's contact joints (feet_left + feet_right: HumanML3D's ankles and toes,
 KIT's metatarsals and toes). Contacts come from footskate's low-and-slow rule (contacts_from_heights:
-within 5 cm of the joint's own lowest point and slower than 0.93 m/s), which is relative to the
-motion, so a whole motion lifted or sunk keeps its stance frames and shows the shift in
-stance_height. Measures undefined for a motion (no stance frame) are NaN for it. docs/evaluation.md
-lists the values measured on ground-truth motions.
+lower than 5 cm and slower than 0.93 m/s), the height taken above the joint's local ground (its
+20th percentile within 1 s; local_ground). Being relative to the motion, it keeps a lifted, sunk or
+drifting motion's stance frames, so the offset shows in stance_height rather than as flight.
+Measures undefined for a motion (no stance frame) are NaN for it. docs/evaluation.md lists the
+values measured on ground-truth motions.
 """
 
 from __future__ import annotations
