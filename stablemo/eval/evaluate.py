@@ -5,12 +5,11 @@ output and what the user receives."""
 
 from __future__ import annotations
 
+import csv
+import io
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
-
-import csv
-import io
 
 import numpy as np
 import torch
