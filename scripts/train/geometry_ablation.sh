@@ -39,7 +39,9 @@ data=${DATA:-data/synth}
 read -ra variants <<< "${VARIANTS:-baseline geometry}"
 cores=$(nproc)
 threads=${THREADS:-$(( cores / ${#variants[@]} > 0 ? cores / ${#variants[@]} : 1 ))}
-validate_every=$(( steps < 500 ? steps : 500 ))  # the recipe validates every 500 steps; a short run once, at its end
+# the recipe validates every 500 steps and logs every 50; a shorter run does each once, at its end
+validate_every=$(( steps < 500 ? steps : 500 ))
+log_every=$(( steps < 50 ? steps : 50 ))
 
 overlay() {  # VARIANT: its config files and flags on top of configs/demo.yaml, into `extra`
     case $1 in
@@ -66,7 +68,8 @@ train() {  # VARIANT [fit overrides...]: one run, its wall time into OUT/VARIANT
     local start=$SECONDS
     OMP_NUM_THREADS=$threads "${stablemo[@]}" fit --config configs/demo.yaml "${extra[@]}" \
         --trainer.accelerator="$accelerator" --trainer.max_steps="$steps" \
-        --trainer.val_check_interval="$validate_every" --trainer.enable_progress_bar=false \
+        --trainer.val_check_interval="$validate_every" --trainer.log_every_n_steps="$log_every" \
+        --trainer.enable_progress_bar=false \
         --trainer.default_root_dir="$dir" --data.data_dir="$data" "${resume[@]}" "$@" > "$dir/fit.log" 2>&1
     echo $(( SECONDS - start )) > "$dir/seconds"
 }
