@@ -8,8 +8,10 @@ without and once with the correction inside denoising (the same seed; `Footskate
 step, the default of `generate --footskate`). Each figure shows, per foot joint, its height and
 its horizontal speed over time (contact frames shaded, as detected on the corrected motion), and
 the legs from the side at every frame of 1.2 s in the middle with the toes marked, plain and
-corrected, so that planted feet read as stacked toe marks. Printed: the skating ratio (GMD definition) and the feet's mean
-acceleration of both, read from the joints recovered from the features (what a user's file holds).
+corrected, so that planted feet read as stacked toe marks. Printed: the skating ratio (GMD definition), the feet's mean
+acceleration and the height of the lowest foot joint on contact frames (mean) and in flight (highest) of both, read from
+the joints recovered from the features. Both are the network's own output (`finish=False`): the finishing step that
+puts every generation on the bundle's body and the floor (stablemo.inference.finish) is not part of the comparison.
 """
 
 from __future__ import annotations
@@ -93,15 +95,21 @@ def main(argv=None) -> int:
     frames = min(max(int(round(args.seconds * topo.fps)), pipe.min_length), pipe.max_length)
     vgrf = load_vgrf_model(None, pipe.skeleton)
     for key, text in PROMPTS.items():
-        plain = pipe.generate([text], [frames], seed=[args.seed]).features
-        clean = pipe.generate([text], [frames], seed=[args.seed], hooks=make_hooks(pipe, footskate=True)).features
+        plain = pipe.generate([text], [frames], seed=[args.seed], finish=False).features
+        clean = pipe.generate([text], [frames], seed=[args.seed], hooks=make_hooks(pipe, footskate=True),
+                              finish=False).features
         jp, jc = features_to_joints(plain)[0], features_to_joints(clean)[0]           # (T, 22, 3)
         contacts = detect_contacts(jc[None], None, list(topo.feet), topo.fps, 1, vgrf, gate=True)[0][0]
+        down = contacts[:, 0::2] | contacts[:, 1::2]                                  # (T, 2) a foot on the ground
         for name, j in (("plain", jp), ("--footskate", jc)):
             feet = j[:, list(topo.feet)]
             acc = float((feet[2:] - 2 * feet[1:-1] + feet[:-2]).abs().mean() * topo.fps ** 2)
             ratio = float(foot_skating_ratio(j[None], lengths=torch.tensor([frames])).mean())
-            print(f"{text!r} {name:12s} skating ratio {ratio:.3f}  foot acceleration {acc:.2f} m/s^2")
+            lowest = torch.minimum(feet[:, 0::2, 1], feet[:, 1::2, 1])               # (T, 2) per foot
+            flight = lowest.amin(-1)[~down.any(-1)]
+            print(f"{text!r} {name:12s} skating ratio {ratio:.3f}  foot acceleration {acc:.2f} m/s^2  lowest foot "
+                  f"on contact frames {100 * float(lowest[down].mean()):.1f} cm, in flight up to "
+                  f"{100 * float(flight.max()) if flight.numel() else float('nan'):.1f} cm")
         path = Path(args.out) / f"{key}_feet.png"
         _figure(jp.numpy(), jc.numpy(), contacts.numpy(), topo.fps, f"{text!r}, seed {args.seed}: plain (grey/dotted) "
                 f"and generate --footskate", path)

@@ -6,10 +6,13 @@
 One batch of prompts is generated once; the same motions are then cleaned by the stand-alone
 post-process (`stablemo footskate`, features in -> consistent features out) and generated again
 with the correction inside the last denoising steps (`stablemo generate --footskate`). Skating
-ratio (GMD definition), PhysDiff ground sliding and the feet's mean acceleration (jitter) are
-read from the joints recovered from each row's *features*, i.e. what a user of the output files
-sees. For the post-process the script also
-reports anchor drift inside contact ranges, movement of the non-foot joints,
+ratio (GMD definition), PhysDiff ground sliding and floating, the feet's mean acceleration
+(jitter) and the height of the lowest foot joint on contact frames (contacts as the cleanup finds
+them on its input) are read from the joints recovered from each row's *features*. Every row is the
+network's own output (`finish=False`): the finishing step that puts each generation on the
+bundle's body and the floor (stablemo.inference.finish) is not applied. For the post-process the
+script also reports anchor drift inside contact ranges, the vertical placement on the floor
+(`floor_offset`), movement of the non-foot joints (with and without that placement),
 bone-length change and the cleanup's wall time for the whole batch.
 """
 
@@ -24,6 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from footskate.cleanup import detect_contacts
 from stablemo.errors import run_script
 from stablemo.skating.metrics import foot_skating_ratio, ground_metrics
 from stablemo.inference.hooks import make_hooks
@@ -59,11 +63,18 @@ def foot_acceleration(joints: torch.Tensor, lengths: torch.Tensor, topo) -> floa
     return float(acc[valid].mean())
 
 
-def row(joints: torch.Tensor, lengths: torch.Tensor, topo) -> dict:
+def row(joints: torch.Tensor, lengths: torch.Tensor, topo, contacts: torch.Tensor) -> dict:
+    """joints (B, T, J, 3); contacts (B, T, 4) of the feet (padding False)."""
     ratio = foot_skating_ratio(joints, lengths=lengths)
     ground = ground_metrics(joints, lengths=lengths)
+    y = joints[:, :, list(topo.feet), 1].float()
+    lowest = torch.minimum(y[..., 0::2], y[..., 1::2])                      # (B, T, 2) per foot
+    planted = lowest[contacts[..., 0::2] | contacts[..., 1::2]]
     return {"skating_ratio": float(ratio.mean()), "sliding_m": float(np.mean(ground["sliding"])),
-            "foot_acceleration": foot_acceleration(joints.float(), lengths, topo)}
+            "floating_m": float(np.mean(ground["floating"])),
+            "foot_acceleration": foot_acceleration(joints.float(), lengths, topo),
+            "planted_height_mean_m": float(planted.mean()), "planted_height_median_m": float(planted.median()),
+            "planted_height_p95_m": float(planted.quantile(0.95))}
 
 
 def main(argv=None) -> dict:
@@ -86,7 +97,9 @@ def main(argv=None) -> dict:
     seeds = [args.seed + i for i in range(args.num)]
     gen = dict(steps=args.steps, cfg=args.cfg, seed=seeds)
 
-    plain = pipe.generate(texts, lengths.tolist(), **gen)
+    # the network's own output (finish=False): the finishing step that puts every generation on the
+    # bundle's body and the floor (stablemo.inference.finish) would be measured along with the cleanup
+    plain = pipe.generate(texts, lengths.tolist(), finish=False, **gen)
     joints_plain = features_to_joints(plain.features)                      # (B, T, J, 3)
 
     topo = topology(pipe.skeleton)
@@ -99,16 +112,21 @@ def main(argv=None) -> dict:
 
     started = time.perf_counter()
     hooks = make_hooks(pipe, footskate=True)  # [FootskateHook]; it records each call's info
-    inside = pipe.generate(texts, lengths.tolist(), hooks=hooks, **gen)
+    inside = pipe.generate(texts, lengths.tolist(), hooks=hooks, finish=False, **gen)
     inside_seconds = time.perf_counter() - started
     joints_inside = features_to_joints(inside.features)
 
     # the cleanup starts from the motion on the standard skeleton and floor (clean_features'
-    # standardize step); movement and bone lengths are measured against that input
+    # standardize step); movement, bone lengths and contacts are measured on that input
     standard = standard_joints(joints_plain, lengths, pipe.skeleton)
+    contacts = detect_contacts(standard, lengths, list(topo.feet), topo.fps, 1, vgrf, gate=True)[0]  # (B, T, 4)
     feet = set(topo.feet) | {j for j in range(topo.num_joints) if j in _leg_chain(topo)}
     others = [j for j in range(topo.num_joints) if j not in feet]
     moved = (joints_post - standard)[:, :, others].norm(dim=-1)         # (B, T, J')
+    lift = torch.tensor(info["floor_offset"])                            # (B,) metres moved down
+    posed = joints_post.clone()
+    posed[..., 1] += lift[:, None, None]
+    moved_posed = (posed - standard)[:, :, others].norm(dim=-1)         # beyond the vertical placement
     bones = (bone_lengths(joints_post, topo.parents) - bone_lengths(standard, topo.parents)).abs()
     placed = torch.from_numpy(canonicalize_joints(joints_post.numpy(), pipe.skeleton, refit=False)).float()
     feature_error = (recovered_post - placed).norm(dim=-1)                # the extraction's rigid placement
@@ -116,16 +134,20 @@ def main(argv=None) -> dict:
     report = {
         "bundle": args.bundle, "num": args.num, "frames": frames, "steps": args.steps, "cfg": args.cfg,
         "seed": args.seed, "threads": args.threads,
-        "plain": row(joints_plain, lengths, topo),
-        "plain_on_standard_skeleton": row(standard, lengths, topo),
-        "post_process": {**row(recovered_post, lengths, topo), "on_corrected_joints": row(joints_post, lengths, topo),
+        "plain": row(joints_plain, lengths, topo, contacts),
+        "plain_on_standard_skeleton": row(standard, lengths, topo, contacts),
+        "post_process": {**row(recovered_post, lengths, topo, contacts),
+                         "on_corrected_joints": row(joints_post, lengths, topo, contacts),
                          "anchored_ranges": info["anchored_ranges"], "ranges": info["ranges"],
                          "anchor_drift_mean_m": drift["mean"], "anchor_drift_p95_m": drift["p95"],
+                         "floor_offset_mean_m": float(lift.mean()), "floor_offset_max_m": float(lift.max()),
                          "non_foot_moved_mean_m": float(moved.mean()),
+                         "non_foot_moved_beyond_placement_mean_m": float(moved_posed.mean()),
+                         "non_foot_moved_beyond_placement_max_m": float(moved_posed.max()),
                          "bone_length_change_max_m": float(bones.max()),
                          "features_vs_corrected_joints_max_m": float(feature_error.max()),
                          "seconds_wall": post_seconds},
-        "inside_denoising": {**row(joints_inside, lengths, topo), "seconds_wall_generation": inside_seconds,
+        "inside_denoising": {**row(joints_inside, lengths, topo, contacts), "seconds_wall_generation": inside_seconds,
                              "hook_seconds": [c["seconds"] for c in hooks[0].calls]},
     }
     base = report["plain"]["skating_ratio"]
