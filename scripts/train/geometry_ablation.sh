@@ -10,7 +10,8 @@
 # ACCELERATOR: cpu or gpu. STEPS: optimiser steps of each run (the recipe:
 # 6000). OUT: OUT/<variant>/ holds each run (checkpoints, logs, fit.log), OUT/bundles/<variant> its
 # exported bundle, OUT/timings.csv each fit's wall time, OUT/val_loss.png both validation curves.
-# Re-running continues each run from its last checkpoint.
+# Re-running continues each run from its last checkpoint. Relative paths (OUT, DATA) are taken from
+# the repository root, where the script runs.
 # Environment:
 #   STABLEMO           the command (default .venv/bin/stablemo if present, else `python3 -m stablemo.cli`);
 #   PYTHON             for the helper scripts (default .venv/bin/python if present, else python3);
