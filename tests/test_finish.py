@@ -51,7 +51,11 @@ def test_a_rigid_motion_is_left_as_it_is():
     for action in KINDS:
         clip = synth(action)
         out = rigid_joints(torch.from_numpy(clip), HUMANML3D).numpy()
-        assert np.abs(out - clip).max() < 1e-3, action  # the synthetic body is the standard one to < 1 mm
+        # the synthetic body is the standard one to < 1 mm, but its generator bends spine1 against the
+        # hips (up to ~7° in squats and jumps), which a rigid pelvis (SMPL's, a BVH's) does not; the
+        # real clip's pelvis is rigid and comes back exactly (next test)
+        assert np.abs(out - clip).max() < 0.02, action
+        assert np.median(np.abs(out - clip)) < 1e-3, action
 
 
 @pytest.mark.skipif(not REAL_CLIP.is_file(), reason="HumanML3D sample clip absent")
@@ -59,6 +63,14 @@ def test_a_real_clip_keeps_its_pose_and_gets_the_body():
     clip = np.load(REAL_CLIP).astype(np.float64)
     out = rigid_joints(torch.from_numpy(clip), HUMANML3D).numpy()
     assert spread(out) < 1e-6 and np.abs(out - clip).max() < 1e-4  # the real data already has this body
+
+
+def test_the_pelvis_and_chest_keep_one_shape():
+    rubber = stretch(synth("turn"), seed=3)
+    out = rigid_joints(torch.from_numpy(rubber), HUMANML3D).numpy()
+    for a, b in ((1, 2), (1, 3), (13, 14), (12, 13)):  # hip to hip, hip to spine, collar to collar, neck to collar
+        assert np.ptp(np.linalg.norm(rubber[:, a] - rubber[:, b], axis=-1)) > 0.02
+        assert np.ptp(np.linalg.norm(out[:, a] - out[:, b], axis=-1)) < 1e-6, (a, b)
 
 
 def test_rubber_limbs_become_rigid_with_hands_and_feet_kept():

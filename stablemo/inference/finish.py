@@ -63,7 +63,7 @@ class Finish:
         """Raw joints (B, T, J, 3) -> the rigid body on the floor, same shape (padding as given).
         control: the joint targets the motion was generated for; frames with targets keep their
         heights (the root's horizontal path is kept anyway, hands and feet by the IK)."""
-        body = rigid_joints(joints, self.skeleton, self.bone_lengths)
+        body = rigid_joints(joints, self.skeleton, self.bone_lengths, lengths)
         if control is None:
             return place_on_floor(body, lengths, self.skeleton, self.fps)
         t = body.shape[1]

@@ -6,7 +6,10 @@ change length within a motion (the demo models: 10-30 cm). This step rebuilds th
 root outwards:
 
 - the trunk (spine, neck, head, hips, collars, shoulders) and every bone beyond a hand or a foot by
-  forward kinematics: each bone keeps its generated direction and takes the body's length;
+  forward kinematics: each bone keeps its generated direction and takes the body's length, except
+  the children of a branching joint (the hips and spine around the pelvis; the neck and collars
+  around the upper chest), which keep one shape per motion, turned with the joint's frame, so the
+  pelvis and chest are rigid too (a BVH or SMPL rig, whose pelvis is one bone, then fits exactly);
 - each two-bone limb of the skeleton (`Skeleton.ik_limbs`: hip-knee-ankle, shoulder-elbow-wrist)
   by analytic two-bone IK: the end (ankle, wrist) goes to its generated position, or as close as
   the straight limb reaches along the same line; the middle joint (knee, elbow) bends in the plane
@@ -66,18 +69,56 @@ def _two_bone(upper: torch.Tensor, target: torch.Tensor, pole: torch.Tensor, fal
     return middle, upper + d * aim
 
 
-def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=None) -> torch.Tensor:
+def _branch_frames(x: torch.Tensor, skel: Skeleton, valid: torch.Tensor) -> dict:
+    """Rigid frames of the joints with several children (the pelvis, the upper chest).
+
+    A bone-by-bone rebuild keeps every length but lets the hips, or the neck and collars, swing
+    against each other: the pelvis would change width. Here each such joint gets a frame per frame
+    (y: towards its up child, the spine; x: from its -x child to its +x child, the body's right and
+    left), the children's offsets are read in that frame, and their median over the motion's valid
+    frames becomes the joint's fixed shape. -> {parent: (frames (B, T, 3, 3) columns x, y, z,
+    {child: unit offset (B, 3) in the frame})}; joints without an up and two side children are left
+    to the bone-by-bone rule."""
+    raw = skel.raw_offsets
+    out = {}
+    for parent in range(skel.num_joints):
+        kids = [c for c in range(skel.num_joints) if skel.parents[c] == parent]
+        up = [c for c in kids if raw[c][1] > 0.5]
+        pos = [c for c in kids if raw[c][0] > 0.5]
+        neg = [c for c in kids if raw[c][0] < -0.5]
+        if len(kids) < 2 or len(up) != 1 or len(pos) != 1 or len(neg) != 1:
+            continue
+        y = _unit(x[..., up[0], :] - x[..., parent, :])[0]
+        side = x[..., pos[0], :] - x[..., neg[0], :]
+        xa = _unit(side - (side * y).sum(-1, keepdim=True) * y)[0]
+        frame = torch.stack([xa, y, torch.linalg.cross(xa, y, dim=-1)], dim=-1)  # (B, T, 3, 3)
+        shape = {}
+        for c in kids:
+            local = (frame.transpose(-1, -2) @ (x[..., c, :] - x[..., parent, :])[..., None])[..., 0]  # (B, T, 3)
+            local = torch.where(valid[..., None], _unit(local)[0], torch.full_like(local, float("nan")))
+            shape[c] = _unit(local.nanmedian(dim=1).values)[0]  # (B, 3)
+        out[parent] = (frame, shape)
+    return out
+
+
+def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=None, lengths=None) -> torch.Tensor:
     """joints (B, T, J, 3) or (T, J, 3) -> the same shape on the body with `bone_lengths` (J,)
-    parent -> joint, root 0, in the skeleton's units (None: the skeleton's standard body)."""
+    parent -> joint, root 0, in the skeleton's units (None: the skeleton's standard body); lengths
+    (B,): valid frames per motion (the shapes of the pelvis and chest are measured on those)."""
     skel = get_skeleton(skeleton)
     x = torch.as_tensor(joints)
     if x.dim() not in (3, 4) or tuple(x.shape[-2:]) != (skel.num_joints, 3) or not x.is_floating_point():
         raise StableMoError(f"joints: expected a float array (B, T, {skel.num_joints}, 3) for skeleton {skel.name}, "
                             f"got {tuple(x.shape)} {x.dtype}")
-    lengths = np.asarray(skel.bone_lengths if bone_lengths is None else bone_lengths, dtype=np.float64)
-    if lengths.shape != (skel.num_joints,) or not np.isfinite(lengths).all() or (lengths[1:] <= 0).any():
+    if x.dim() == 3:
+        return rigid_joints(x[None], skel, bone_lengths, None if lengths is None else [lengths])[0]
+    frames_n = torch.full((x.shape[0],), x.shape[1]) if lengths is None else torch.as_tensor(lengths).reshape(-1)
+    valid = torch.arange(x.shape[1])[None, :] < frames_n[:, None]  # (B, T)
+    branches = _branch_frames(x, skel, valid.to(x.device))
+    body = np.asarray(skel.bone_lengths if bone_lengths is None else bone_lengths, dtype=np.float64)
+    if body.shape != (skel.num_joints,) or not np.isfinite(body).all() or (body[1:] <= 0).any():
         raise StableMoError(f"bone_lengths: expected {skel.num_joints} finite lengths > 0 (root 0) for skeleton "
-                            f"{skel.name}, got shape {lengths.shape}")
+                            f"{skel.name}, got shape {body.shape}")
     raw_dir = torch.tensor(np.array(skel.raw_offsets), dtype=x.dtype, device=x.device)  # (J, 3) rest directions
     forward = _facing(x, skel)  # (..., T, 3)
     limb_of_end = {end: (upper, mid) for upper, mid, end in skel.ik_limbs}
@@ -94,12 +135,16 @@ def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
                 # knees bend forward, elbows backward, where the generated limb is straight
                 bend = forward if child in legs else -forward
                 out[mid], out[child] = _two_bone(out[upper], x[..., child, :], x[..., mid, :], bend,
-                                                 raw_dir[mid].expand_as(forward), float(lengths[mid]),
-                                                 float(lengths[child]))
+                                                 raw_dir[mid].expand_as(forward), float(body[mid]),
+                                                 float(body[child]))
                 continue
-            direction, norm = _unit(x[..., child, :] - x[..., parent, :])
-            direction = torch.where(norm > _EPS, direction, raw_dir[child].expand_as(direction))
-            out[child] = out[parent] + float(lengths[child]) * direction
+            if parent in branches:  # the joint's fixed shape, turned with its frame
+                frame, shape = branches[parent]
+                direction = (frame @ shape[child][:, None, :, None])[..., 0]  # (B, T, 3)
+            else:
+                direction, norm = _unit(x[..., child, :] - x[..., parent, :])
+                direction = torch.where(norm > _EPS, direction, raw_dir[child].expand_as(direction))
+            out[child] = out[parent] + float(body[child]) * direction
     return torch.stack(out, dim=-2)
 
 
