@@ -111,3 +111,22 @@ def test_a_generated_jump_lands_on_the_floor():
     for s, e in flights:
         if s > 0:  # the clip's first frames, before the motion starts, are not a jump
             assert low.amin(-1)[s:e].max() > 0.10, (s, e)
+
+
+def test_without_the_placement_the_legs_alone_bring_the_feet_down():
+    """place_on_floor=False: no vertical shift of the whole motion; the anchors still put every
+    stance on the floor, the legs bending for it while the upper body moves at most max_root_shift."""
+    joints, contacts = build_motion("walk", 1000)
+    x = torch.from_numpy(lifted(joints, contacts, seed=4))[None]
+    c = torch.from_numpy(contacts)[None]
+    upper = [j for j in range(len(PARENTS)) if j not in (1, 2, 4, 5, 7, 8, 10, 11)]   # all but the legs
+    for place in (True, False):
+        res = cleanup(x, PARENTS, FEET, contacts=c, config=CleanupConfig(place_on_floor=place))
+        w = res.weights[0]
+        flat = (w[:, 0::2] >= 1) & (w[:, 1::2] >= 1)
+        assert lowest_foot(res.joints[0])[flat].abs().max() < 0.01
+        moved = (res.joints[0] - x[0])[:, upper].norm(dim=-1)                   # (T, J')
+        if place:   # the whole body came down with its feet
+            assert res.info["floor_offset"][0] > 0.03 and moved.min() > res.info["floor_offset"][0] - 0.026
+        else:
+            assert res.info["floor_offset"] == [0.0] and moved.max() <= CleanupConfig().max_root_shift + 1e-6
