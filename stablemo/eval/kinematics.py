@@ -41,9 +41,9 @@ AIRBORNE_M = 0.05
 # The local ground of a height: its LOCAL_GROUND_QUANTILE over the frames within LOCAL_GROUND_S either
 # side. Longer than any flight (a jump's is under 0.5 s), shorter than a motion: a body that floats
 # between two jumps, or drifts up over its length, is in contact there at its own height, so the
-# floating shows in stance_height instead of reading as flight. A low quantile, not the minimum: the
-# demo models' feet dip 5-7 cm for a frame or two before a take-off, and a minimum would stand the
-# whole second around such a dip on it.
+# floating shows in stance_height instead of reading as flight. A low quantile, not the minimum: a
+# demo teacher's jump dipped its feet 4-7 cm for a frame or two before each take-off, and a minimum
+# would stand the whole second around such a dip on it.
 LOCAL_GROUND_S = 1.0
 LOCAL_GROUND_QUANTILE = 0.2
 FLOOR_QUANTILE = 0.01  # floor_p1
