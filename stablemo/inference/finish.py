@@ -46,6 +46,9 @@ def body_lengths(config: dict, skeleton: Skeleton | str, source: str = "config.j
     return lengths
 
 
+HOLD_S = 0.25  # a hand's hold on its joint target fades in and out over this many seconds
+
+
 @dataclass(frozen=True)
 class Finish:
     """Raw de-normalised features -> (features, joints) of the rigid body on the floor."""
@@ -63,12 +66,27 @@ class Finish:
         """Raw joints (B, T, J, 3) -> the rigid body on the floor, same shape (padding as given).
         control: the joint targets the motion was generated for; frames with targets keep their
         heights (the root's horizontal path is kept anyway, hands and feet by the IK)."""
-        body = rigid_joints(joints, self.skeleton, self.bone_lengths, lengths)
         if control is None:
+            body = rigid_joints(joints, self.skeleton, self.bone_lengths, lengths)
             return place_on_floor(body, lengths, self.skeleton, self.fps)
-        t = body.shape[1]
+        t = joints.shape[1]
+        body = rigid_joints(joints, self.skeleton, self.bone_lengths, lengths,
+                            self.hold(control.mask[:, :t].to(joints.device), joints.dtype))
         return place_on_floor(body, lengths, self.skeleton, self.fps, control.targets[:, :t].to(body),
                               control.mask[:, :t].to(body.device))
+
+    def hold(self, mask: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
+        """How firmly (B, T, J) each limb's end keeps its generated place (stablemo.motion.rigid):
+        feet always; a hand on the frames where it has a joint target and, fading out, HOLD_S before
+        and after them (so the arm turns from its own angles to the target smoothly)."""
+        skel = self.skeleton
+        r = max(1, round(HOLD_S * self.fps))
+        m = mask.to(dtype).transpose(1, 2)  # (B, J, T)
+        near = torch.nn.functional.max_pool1d(m, 2 * r + 1, 1, r)  # within r frames of a target
+        ramp = torch.nn.functional.avg_pool1d(near, 2 * r + 1, 1, r, count_include_pad=False)
+        hold = torch.maximum(m, ramp).transpose(1, 2).clone()  # (B, T, J)
+        hold[..., list(skel.feet_left + skel.feet_right)] = 1.0
+        return hold
 
     def __call__(self, features: torch.Tensor, lengths, control: ControlTargets | None = None
                  ) -> tuple[torch.Tensor, torch.Tensor]:

@@ -5,10 +5,10 @@ A generated motion's floor drifts: the demo models sink their feet 2-6 cm into t
 some stretches than others, so neither one global shift (HumanML3D's own floor: the clip's lowest
 joint) nor clamping every frame to zero (which would glue jumps down) is right. Per frame, the
 lowest joint height h(t) is compared with the ground the motion stands on nearby, g(t) = the lowest
-h within ±WINDOW_S: frames within GROUND_BAND_M of it are on the ground and shifted so that their
-lowest joint is at 0; every other frame (jumps, hops, a run's flight phase, a foot's take-off and
-landing) takes the shift interpolated between the grounded frames around it, so the body rises and
-falls as generated. The shift is smoothed over a few frames (generated feet jitter by
+h within ±WINDOW_S: frames on the ground (`_on_ground`: low and calm, or floating too long and too
+low for a flight) are shifted so that their lowest joint is at 0; every other frame (jumps, hops, a
+run's flight phase, a foot's take-off and landing) takes the shift interpolated between the
+grounded frames around it, so the body rises and falls as generated. The shift is smoothed over a few frames (generated feet jitter by
 millimetres, and moving the whole body with that jitter would show), and finally raised wherever
 the body would still be below the floor. Only heights change: the path, the pose and planted feet's
 horizontal positions stay exactly as they were.
@@ -24,10 +24,10 @@ import torch
 from stablemo.motion.extract_torch import fill_padding, valid_lengths
 from stablemo.motion.skeleton import Skeleton, get_skeleton
 
-# frames whose lowest joint is within this band (metres) of the nearby ground are glued to the floor;
-# the others (jumps, a run's flight, and a foot's take-off and landing frames, which must not pull the
-# body down through the flight) take the shift interpolated from the glued frames around them
-GROUND_BAND_M = 0.01
+# which frames stand on the ground (_on_ground): the lowest joint under LOW_M above the nearby ground
+# and slower than RISE_MPS up or down, or raised for at least FLOAT_S but never HIGH_M (floating)
+LOW_M, RISE_MPS = 0.03, 0.5
+HIGH_M, FLOAT_S = 0.10, 0.4
 WINDOW_S = 0.5  # the nearby ground is the lowest point within ± this many seconds
 SMOOTH_FRAMES = 1.5  # Gaussian sigma of the shift, frames
 
@@ -63,6 +63,31 @@ def _fill_between(values: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
     return torch.where(prev_ok & next_ok, inside, torch.where(prev_ok, v_prev, v_next))
 
 
+def _on_ground(rel: torch.Tensor, per_metre: float, fps: float) -> torch.Tensor:
+    """Frames (B, T) whose lowest joint is on the ground, from its height above the nearby ground
+    rel (B, T): low (under LOW_M) and not rising or falling fast (a take-off or a landing moves
+    faster than RISE_MPS), or raised for a stretch too long and too low to be a flight (longer
+    than FLOAT_S and never HIGH_M up: a denoiser's feet float like that while it walks; a hop's
+    flight lasts about 0.3 s, a jump's clears 10 cm)."""
+    b, t = rel.shape
+    dh = torch.diff(rel, dim=1).abs() * fps  # (B, T-1) units per second
+    pad = torch.zeros(b, 1, dtype=rel.dtype, device=rel.device)
+    speed = torch.maximum(torch.cat([pad, dh], 1), torch.cat([dh, pad], 1))
+    low = rel < LOW_M * per_metre
+    grounded = low & (speed < RISE_MPS * per_metre)
+    raised = ~low
+    starts = raised & ~torch.cat([torch.zeros_like(raised[:, :1]), raised[:, :-1]], 1)
+    span = torch.cumsum(starts.long(), 1) + torch.arange(b, device=rel.device)[:, None] * (t + 1)  # unique ids
+    span = torch.where(raised, span, torch.zeros_like(span))  # id 0: not raised
+    slots = b * (t + 1) + 1
+    top = torch.zeros(slots, dtype=rel.dtype, device=rel.device).scatter_reduce(
+        0, span.flatten(), rel.flatten(), reduce="amax", include_self=False)
+    size = torch.zeros(slots, dtype=rel.dtype, device=rel.device).scatter_add(
+        0, span.flatten(), torch.ones_like(rel).flatten())
+    floating = raised & (top[span] < HIGH_M * per_metre) & (size[span] >= FLOAT_S * fps)
+    return grounded | floating
+
+
 def floor_shift(joints: torch.Tensor, lengths, skeleton: Skeleton | str, fps: float | None = None,
                 pins: torch.Tensor | None = None, pinned: torch.Tensor | None = None) -> torch.Tensor:
     """The height to add to every joint of each frame: joints (B, T, J, 3) -> shift (B, T), zero on
@@ -76,9 +101,7 @@ def floor_shift(joints: torch.Tensor, lengths, skeleton: Skeleton | str, fps: fl
     h = x[..., 1].amin(-1)  # (B, T) lowest joint
     ground = _running_min(h, max(1, round(WINDOW_S * fps)))
     valid = torch.arange(t, device=joints.device)[None, :] < n[:, None]  # (B, T)
-    # padding never counts as support: an airborne end holds its last supported shift, as it would
-    # in a batch of its own length
-    supported = ((h - ground) < GROUND_BAND_M * skel.per_metre) & valid
+    supported = _on_ground(h - ground, skel.per_metre, fps) & valid
     values = -h
     if pinned is not None:
         pinned = pinned & valid
@@ -108,4 +131,4 @@ def place_on_floor(joints: torch.Tensor, lengths, skeleton: Skeleton | str, fps:
     return joints + shift[..., None, None] * up
 
 
-__all__ = ["GROUND_BAND_M", "WINDOW_S", "floor_shift", "place_on_floor"]
+__all__ = ["FLOAT_S", "HIGH_M", "LOW_M", "RISE_MPS", "WINDOW_S", "floor_shift", "place_on_floor"]
