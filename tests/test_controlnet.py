@@ -377,8 +377,10 @@ def test_controlled_bundle_serves_through_the_pipeline(student_bundle, teacher_b
     first = pipe.generate(texts[:1], [40], seed=3, control=control, control_guidance=False)
     second = pipe.generate(texts[1:], [32], seed=4)
     free = pipe.generate(texts[:1], [40], seed=3)
-    torch.testing.assert_close(both.features[0], first.features[0], rtol=1e-4, atol=1e-5)
-    torch.testing.assert_close(both.features[1, :32], second.features[0], rtol=1e-4, atol=1e-5)
+    torch.testing.assert_close(both.raw_features[0], first.raw_features[0], rtol=1e-4, atol=1e-5)
+    torch.testing.assert_close(both.raw_features[1, :32], second.raw_features[0], rtol=1e-4, atol=1e-5)
+    # finished: the same up to the float rounding the rigid step carries through its IK
+    torch.testing.assert_close(both.features[0], first.features[0], rtol=1e-3, atol=1e-3)
     assert (first.features - free.features).abs().max() > 1e-3  # the hint reaches the network
     base_free = Pipeline.from_bundle(student_bundle).generate(texts[:1], [40], seed=3)
     assert torch.equal(free.features, base_free.features)  # no targets: the gate leaves the student exactly
