@@ -195,7 +195,7 @@ def test_finish_gives_features_that_recover_its_rigid_joints_batch_or_alone():
         np.testing.assert_allclose(features_to_joints(out_f[i, :n]).numpy(), out_j[i, :n].numpy(), atol=1e-6)
         assert (out_f[i, n:] == 0).all() and (out_j[i, n:] == 0).all()
         alone_f, _ = finish(feats[i:i + 1, :n], [n])
-        torch.testing.assert_close(alone_f[0], out_f[i, :n], rtol=0, atol=1e-6)
+        torch.testing.assert_close(alone_f[0], out_f[i, :n], rtol=0, atol=1e-5)
     # the raw joints were far from rigid
     assert max(spread(raw[i, :n].double().numpy()) for i, n in enumerate(lengths)) > 0.05
 

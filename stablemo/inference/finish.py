@@ -88,10 +88,11 @@ class Finish:
         hold[..., list(skel.feet_left + skel.feet_right)] = 1.0
         return hold
 
-    def __call__(self, features: torch.Tensor, lengths, control: ControlTargets | None = None
-                 ) -> tuple[torch.Tensor, torch.Tensor]:
+    def __call__(self, features: torch.Tensor, lengths, control: ControlTargets | None = None,
+                 raw_joints: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """features (B, T, D), zero past lengths[b] -> (features (B, T, D), joints (B, T, J, 3)), zero on
-        padding, the joints recovered from the returned features.
+        padding, the joints recovered from the returned features. raw_joints: the features' joints
+        when the caller has them already (the pipeline does).
 
         The root keeps the network's rotation and path (its first three columns are kept as they
         are): the step moves joints, not the root, so only the columns seen from the root are
@@ -99,7 +100,8 @@ class Finish:
         n = self._lengths(lengths, features)
         b, t = features.shape[:2]
         q, _ = recover_root(features)  # (B, T, 4) the root rotation recovery will use
-        body = self.joints(features_to_joints(features, self.skeleton), n, control)  # (B, T, J, 3)
+        raw = features_to_joints(features, self.skeleton) if raw_joints is None else raw_joints.to(features)
+        body = self.joints(raw, n, control)  # (B, T, J, 3)
         ext, last = self._extended(body, n)
         r = torch.cat([q, q.gather(1, last[..., None].expand(b, 1, 4))], dim=1)  # (B, T+1, 4)
         feats = torch.cat([features[..., :3], body_features(ext, r, self.skeleton)], dim=-1)

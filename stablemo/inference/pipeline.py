@@ -372,7 +372,7 @@ class Pipeline:
             targets = None if req.control is None else self._control_targets(req.control, T)
             if targets is not None:
                 targets = ControlTargets(targets.targets.cpu(), targets.mask.cpu())
-            features, joints = self.finish(raw_features, req.lengths, targets)
+            features, joints = self.finish(raw_features, req.lengths, targets, raw_joints)
         info = {"steps": req.steps, "cfg": req.cfg, "sampler": req.sampler,
                 "dtype": str(req.dtype).replace("torch.", ""), "finished": req.finish}
         return Generation(req.texts, req.lengths, req.seed, features, joints, normalized, mask, info,

@@ -63,9 +63,9 @@ def _fill_between(values: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
     return torch.where(prev_ok & next_ok, inside, torch.where(prev_ok, v_prev, v_next))
 
 
-def _on_ground(rel: torch.Tensor, per_metre: float, fps: float) -> torch.Tensor:
+def _on_ground(rel: torch.Tensor, per_metre: float, fps: float, valid: torch.Tensor) -> torch.Tensor:
     """Frames (B, T) whose lowest joint is on the ground, from its height above the nearby ground
-    rel (B, T): low (under LOW_M) and not rising or falling fast (a take-off or a landing moves
+    rel (B, T) (valid (B, T): the motion's own frames): low (under LOW_M) and not rising or falling fast (a take-off or a landing moves
     faster than RISE_MPS), or raised for a stretch too long and too low to be a flight (longer
     than FLOAT_S and never HIGH_M up: a denoiser's feet float like that while it walks; a hop's
     flight lasts about 0.3 s, a jump's clears 10 cm)."""
@@ -75,7 +75,7 @@ def _on_ground(rel: torch.Tensor, per_metre: float, fps: float) -> torch.Tensor:
     speed = torch.maximum(torch.cat([pad, dh], 1), torch.cat([dh, pad], 1))
     low = rel < LOW_M * per_metre
     grounded = low & (speed < RISE_MPS * per_metre)
-    raised = ~low
+    raised = ~low & valid  # padding never lengthens a stretch: each motion is judged as if alone
     starts = raised & ~torch.cat([torch.zeros_like(raised[:, :1]), raised[:, :-1]], 1)
     span = torch.cumsum(starts.long(), 1) + torch.arange(b, device=rel.device)[:, None] * (t + 1)  # unique ids
     span = torch.where(raised, span, torch.zeros_like(span))  # id 0: not raised
@@ -101,7 +101,7 @@ def floor_shift(joints: torch.Tensor, lengths, skeleton: Skeleton | str, fps: fl
     h = x[..., 1].amin(-1)  # (B, T) lowest joint
     ground = _running_min(h, max(1, round(WINDOW_S * fps)))
     valid = torch.arange(t, device=joints.device)[None, :] < n[:, None]  # (B, T)
-    supported = _on_ground(h - ground, skel.per_metre, fps) & valid
+    supported = _on_ground(h - ground, skel.per_metre, fps, valid) & valid
     values = -h
     if pinned is not None:
         pinned = pinned & valid

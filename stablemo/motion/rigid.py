@@ -77,8 +77,8 @@ def _branch_frames(x: torch.Tensor, skel: Skeleton, valid: torch.Tensor) -> dict
     A bone-by-bone rebuild keeps every length but lets the hips, or the neck and collars, swing
     against each other: the pelvis would change width. Here each such joint gets a frame per frame
     (y: towards its up child, the spine; x: from its -x child to its +x child, the body's right and
-    left), the children's offsets are read in that frame, and their median over the motion's valid
-    frames becomes the joint's fixed shape. -> {parent: (frames (B, T, 3, 3) columns x, y, z,
+    left), the children's offsets are read in that frame, and their mean direction over the motion's
+    valid frames becomes the joint's fixed shape. -> {parent: (frames (B, T, 3, 3) columns x, y, z,
     {child: unit offset (B, 3) in the frame})}; joints without an up and two side children are left
     to the bone-by-bone rule."""
     raw = skel.raw_offsets
@@ -97,8 +97,8 @@ def _branch_frames(x: torch.Tensor, skel: Skeleton, valid: torch.Tensor) -> dict
         shape = {}
         for c in kids:
             local = (frame.transpose(-1, -2) @ (x[..., c, :] - x[..., parent, :])[..., None])[..., 0]  # (B, T, 3)
-            local = torch.where(valid[..., None], _unit(local)[0], torch.full_like(local, float("nan")))
-            shape[c] = _unit(local.nanmedian(dim=1).values)[0]  # (B, 3)
+            weight = valid[..., None].to(local.dtype)  # the mean unit offset over the valid frames
+            shape[c] = _unit((_unit(local)[0] * weight).sum(1) / weight.sum(1).clamp(min=1.0))[0]  # (B, 3)
         out[parent] = (frame, shape)
     return out
 
@@ -172,8 +172,16 @@ def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
                 out[child] = along(parent, child, out)
         return out
 
-    first = build(x[..., 0, :])
-    root = x[..., 0, :] + _leg_drop(first, x, skel, body, valid.to(x.device))[..., None] * _axis_y(x)
+    # the hips from the generated root first (the leg's reach sets the root's height), then everything
+    hips: list[torch.Tensor | None] = [None] * skel.num_joints
+    hips[0] = x[..., 0, :]
+    for upper in (u for u, _, e in skel.ik_limbs if e in legs):
+        path = [upper]
+        while skel.parents[path[-1]] != 0:
+            path.append(skel.parents[path[-1]])
+        for joint in reversed(path):
+            hips[joint] = along(skel.parents[joint], joint, hips)
+    root = x[..., 0, :] + _leg_drop(hips, x, skel, body, valid.to(x.device))[..., None] * _axis_y(x)
     return torch.stack(build(root), dim=-2)
 
 
