@@ -161,21 +161,25 @@ def _facing_rotations(x: torch.Tensor, skel: Skeleton) -> torch.Tensor:
 
 def _swing_rotations(x: torch.Tensor, r: torch.Tensor, skel: Skeleton) -> torch.Tensor:
     """Local joint rotations (B, T, J, 4): each chain's swing from the raw rest direction to the
-    measured bone, relative to the chain's accumulated rotation (from the root rotation r (B, T, 4))."""
+    measured bone, relative to the chain's accumulated rotation (from the root rotation r (B, T, 4)).
+
+    The reference accumulates acc <- acc * local along a chain with local = acc^-1 * swing, so after
+    each bone acc is that bone's swing: the local rotation is the previous bone's swing (r for a
+    chain's first bone) inverted, times this bone's swing. All bones at once, no loop."""
     children, parents_of = _bones(skel)
     bone = _normalize(x[:, :, children] - x[:, :, parents_of])  # (B, T, J-1, 3)
     swing = qbetween(_raw_offsets(skel, x)[children].expand_as(bone), bone)  # (B, T, J-1, 4)
-    quats: list[torch.Tensor | None] = [None] * skel.num_joints  # per joint (B, T, 4)
-    quats[0] = r
-    k = 0
-    for chain in skel.kinematic_chains:  # the accumulation restarts from r for every chain
-        acc = r
-        for child in chain[1:]:
-            local = qmul(qinv(acc), swing[:, :, k])
-            quats[child] = local
-            acc = qmul(acc, local)
-            k += 1
-    return torch.stack(quats, dim=2)
+    first = []  # per bone: True where it starts a chain
+    for chain in skel.kinematic_chains:
+        first += [True] + [False] * (len(chain) - 2)
+    before = torch.cat([r[:, :, None], swing[:, :, :-1]], dim=2)  # (B, T, J-1, 4): the previous bone's swing
+    starts = torch.tensor(first, device=x.device)[:, None]  # (J-1, 1)
+    acc = torch.where(starts, r[:, :, None].expand_as(swing), before)
+    local = qmul(qinv(acc), swing)  # (B, T, J-1, 4), in bone order
+    quats = torch.empty(*x.shape[:2], skel.num_joints, 4, dtype=x.dtype, device=x.device)
+    quats[:, :, 0] = r
+    quats[:, :, children] = local
+    return quats
 
 
 def _features(x: torch.Tensor, skel: Skeleton) -> torch.Tensor:
