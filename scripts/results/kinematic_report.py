@@ -1,7 +1,7 @@
 """Issue #39's targets on the demo teacher and 1-step student: raw network output against what the user receives.
 
     OMP_NUM_THREADS=2 .venv/bin/python scripts/results/kinematic_report.py [--models teacher,student]
-        [--frames 120,196] [--prompts-per-category 8] [--seeds 4] [--no-evaluator] [--json out.json]
+        [--frames 120,196] [--prompts-per-category 8] [--seeds 4] [--no-evaluator] [--json out.json] [--summary docs/data/results/kinematics.json]
 
 72 prompts (8 per category: walks, runs, jumps, turns, waves, kicks, squats, side steps, standing; the
 synthetic data's vocabulary) x 4 seeds at 120 frames (the default 6 s) and 196 frames, each model's
@@ -37,6 +37,8 @@ def parse(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--frames", default="120,196", help="comma-separated motion lengths in frames")
     p.add_argument("--prompts-per-category", type=int, default=8)
     p.add_argument("--seeds", type=int, default=4)
+    p.add_argument("--summary", help="also write the table's numbers (no per-motion values), e.g. "
+                   "docs/data/results/kinematics.json, which docs/results.md shows")
     p.add_argument("--no-evaluator", dest="evaluator", action="store_false", help="skip FID and R@3")
     p.add_argument("--seed", type=int, default=0, help="draws the prompts' parameters and captions")
     p.add_argument("--device", default=None)
@@ -56,10 +58,11 @@ def main(argv: list[str]) -> int:
         raise StableMoError(f"--frames: expected comma-separated whole numbers, got {args.frames!r}") from None
     report.check_prompts(check_positive_int("--prompts-per-category", args.prompts_per_category))
     check_positive_int("--seeds", args.seeds)
-    if args.json:
-        from stablemo.io import check_output_file
+    for flag, path in (("--json", args.json), ("--summary", args.summary)):
+        if path:
+            from stablemo.io import check_output_file
 
-        check_output_file(args.json, "--json")
+            check_output_file(path, flag)
     from stablemo.inference.pipeline import Pipeline
 
     pipes = [(MODELS[m][0], Pipeline.from_bundle(MODELS[m][1], device=args.device)) for m in models]
@@ -83,6 +86,12 @@ def main(argv: list[str]) -> int:
 
         write_text(args.json, json.dumps(result, indent=1) + "\n")
         print(f"\nwrote {args.json}")
+    if args.summary:
+        from stablemo.io import write_text
+
+        result["settings"]["measured"] = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+        write_text(args.summary, json.dumps(report.compact(result), indent=1) + "\n")
+        print(f"wrote {args.summary}")
     return 0
 
 

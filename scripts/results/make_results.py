@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from stablemo.bench.kinematic_report import RESULTS_SECTION as KINEMATICS_SECTION
+from stablemo.bench.kinematic_report import results_section
 from stablemo.bench.results import (
     FULL,
     QUICK,
@@ -305,7 +305,7 @@ model loaded, every sentence encoding its own text (cold caches), over {args.ait
 sentences timed round-robin across the rows. Items scored per replication: {args.max_items or 'the whole test split'}.
 Machine and versions: see Provenance at the end.
 
-{render_samplers(raw, runs)}{render_ratios(raw, runs)}{render_precision(raw, pairs, args)}{render_ddpm(raw, args)}{KINEMATICS_SECTION}{render_control(RESULTS_DATA)}{render_provenance(raw)}"""
+{render_samplers(raw, runs)}{render_ratios(raw, runs)}{render_precision(raw, pairs, args)}{render_ddpm(raw, args)}{results_section()}{render_control(RESULTS_DATA)}{render_provenance(raw)}"""
 
 
 # ----------------------------------------------------------------------------- main

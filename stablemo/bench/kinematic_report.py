@@ -13,8 +13,10 @@ The script is scripts/results/kinematic_report.py.
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -35,10 +37,28 @@ bone-length change within a motion (cm), the lowest foot joint's 1st-percentile 
 of frames more than 1 cm below the floor, the stance foot's median height (cm) and horizontal speed
 (cm/s, skating), foot acceleration (m/s²) and the share of airborne frames. Definitions, the contact
 rule and the values measured on ground-truth motions: docs/evaluation.md ("Kinematic measures").
-`python scripts/results/kinematic_report.py` measures issue #39's targets on the demo teacher and the
-1-step student (72 prompts x 4 seeds, 120 and 196 frames, raw against final); its table is not part
-of this report yet.
+`python scripts/results/kinematic_report.py --summary docs/data/results/kinematics.json` measures
+issue #39's targets on the demo teacher and the 1-step student (72 prompts x 4 seeds, 120 and 196
+frames, raw against final) and keeps the table below.
 """
+SUMMARY_FILE = Path(__file__).resolve().parents[2] / "docs" / "data" / "results" / "kinematics.json"
+
+
+def compact(result: dict) -> dict:
+    """The table's numbers and the settings of a `run` result, without the per-motion values."""
+    rows = [{k: r[k] for k in ("model", "frames", "output", "seconds", "summary")} for r in result["rows"]]
+    return {"rows": rows, "settings": result["settings"]}
+
+
+def results_section(path: Path = SUMMARY_FILE) -> str:
+    """The section of docs/results.md: the text, and the table of the last kept summary if there is one."""
+    if not path.is_file():
+        return RESULTS_SECTION
+    data = json.loads(path.read_text())
+    s = data.get("settings", {})
+    note = (f"\n{s.get('prompts', '?')} prompts x {s.get('seeds', '?')} seeds per row, each model's own sampler; "
+            f"measured {s.get('measured', '?')} ({s.get('threads', '?')} threads).\n\n")
+    return RESULTS_SECTION + note + render(data["rows"]) + "\n"
 
 # category -> the synthetic actions its prompts describe
 CATEGORIES = {
