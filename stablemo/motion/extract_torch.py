@@ -21,7 +21,7 @@ import torch
 
 from stablemo.errors import StableMoError
 from stablemo.motion.features import FACING_SIGMA
-from stablemo.motion.quaternion import qbetween, qinv, qmul, qrot, quat_to_rot6d
+from stablemo.motion.quaternion import cross, qbetween, qinv, qmul, qrot, quat_to_rot6d
 from stablemo.motion.skeleton import Skeleton, get_skeleton
 
 # scipy.ndimage.gaussian_filter1d's kernel (truncate 4.0): radius int(4σ + 0.5), normalised
@@ -75,7 +75,7 @@ def _axis(v: torch.Tensor, axis: int) -> torch.Tensor:
 def _forward(x: torch.Tensor, a: int, b: int, c: int, d: int) -> torch.Tensor:
     """Facing direction y × normalise((X_a − X_b) + (X_c − X_d)) of x (..., J, 3) -> (..., 3)."""
     across = _normalize((x[..., a, :] - x[..., b, :]) + (x[..., c, :] - x[..., d, :]))
-    return torch.linalg.cross(_axis(across, 1), across, dim=-1)
+    return cross(_axis(across, 1), across)
 
 
 def _check_facing(forward: torch.Tensor, what: str) -> None:

@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from stablemo.errors import StableMoError
+from stablemo.motion.quaternion import cross
 from stablemo.motion.skeleton import Skeleton, get_skeleton
 
 _EPS = 1e-9
@@ -44,7 +45,7 @@ def _facing(x: torch.Tensor, skel: Skeleton) -> torch.Tensor:
     across = (x[..., l_hip, :] - x[..., r_hip, :]) + (x[..., l_sdr, :] - x[..., r_sdr, :])
     up = torch.zeros_like(across)
     up[..., 1] = 1.0
-    return _unit(torch.linalg.cross(up, across, dim=-1))[0]
+    return _unit(cross(up, across))[0]
 
 
 def _two_bone(upper: torch.Tensor, target: torch.Tensor, pole: torch.Tensor, fallback_bend: torch.Tensor,
@@ -93,7 +94,7 @@ def _branch_frames(x: torch.Tensor, skel: Skeleton, valid: torch.Tensor) -> dict
         y = _unit(x[..., up[0], :] - x[..., parent, :])[0]
         side = x[..., pos[0], :] - x[..., neg[0], :]
         xa = _unit(side - (side * y).sum(-1, keepdim=True) * y)[0]
-        frame = torch.stack([xa, y, torch.linalg.cross(xa, y, dim=-1)], dim=-1)  # (B, T, 3, 3)
+        frame = torch.stack([xa, y, cross(xa, y)], dim=-1)  # (B, T, 3, 3)
         shape = {}
         for c in kids:
             local = (frame.transpose(-1, -2) @ (x[..., c, :] - x[..., parent, :])[..., None])[..., 0]  # (B, T, 3)
