@@ -1,5 +1,5 @@
-"""Generated joints -> one rigid body: every bone at the body's length, the root path, hands and
-feet kept where they were generated (when the rigid limb can reach them).
+"""Generated joints -> one rigid body: every bone at the body's length, the root's path kept, planted
+feet (and hands with targets) where they were generated when the rigid limb can reach them.
 
 A denoiser predicts joint positions (the features' ric part) independently per joint, so its bones
 change length within a motion (the demo models: 10-30 cm). This step rebuilds the pose from the
@@ -11,14 +11,18 @@ root outwards:
   around the upper chest), which keep one shape per motion, turned with the joint's frame, so the
   pelvis and chest are rigid too (a BVH or SMPL rig, whose pelvis is one bone, then fits exactly);
 - each two-bone limb of the skeleton (`Skeleton.ik_limbs`: hip-knee-ankle, shoulder-elbow-wrist)
-  by analytic two-bone IK: the end (ankle, wrist) goes to its generated position, or as close as
-  the straight limb reaches along the same line; the middle joint (knee, elbow) bends in the plane
-  the generated pose bends in (through the generated knee/elbow), so a knee never flips backwards.
+  with its generated angles (each bone along its generated direction), pulled by analytic
+  two-bone IK towards the end's generated position as firmly as `hold` says (default: feet fully,
+  hands not; stablemo.inference.finish holds a foot while it is planted and a hand with a joint
+  target). The IK reaches the end where the limb can, else as close as the straight limb reaches
+  along the same line; the middle joint (knee, elbow) bends in the plane the limb's own angles give,
+  so a knee never flips backwards.
 
-When the supporting leg cannot reach its generated foot (a denoiser's stretched legs carry the
-pelvis too high), the root comes down until it can (`_leg_drop`): its horizontal path is kept, its
-height is not. Everything is closed form and vectorised over batch and frames, on the joints' device. Applied to a
-motion that is already rigid with these lengths it returns the motion unchanged (up to rounding).
+The root's horizontal path is kept. Its height moves (`_leg_drop`) so that the supporting leg
+reaches its generated foot with its generated knee angle: a denoiser's stretched legs carry the
+pelvis too high, its short ones too low. Everything is closed form and vectorised over batch and
+frames, on the joints' device. Applied to a motion that is already rigid with these lengths it
+returns the motion unchanged (up to rounding).
 """
 
 from __future__ import annotations
