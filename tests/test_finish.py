@@ -221,6 +221,19 @@ def test_the_bundle_body_is_read_and_checked(tmp_path):
     for bad in ([1.0] * 5, [0.0] * 22, ["x"] * 22, None, [float("nan")] * 22):
         with pytest.raises(StableMoError, match=r"bundle/config.json: 'body.bone_lengths' must be 22"):
             body_lengths({"body": {"bone_lengths": bad}}, "humanml3d", "bundle/config.json")
+    # a bundle whose body is broken is refused at load, naming its config file
+    import shutil
+
+    from stablemo.inference.bundle import DEMO_STUDENT as _STUDENT
+    from stablemo.inference.pipeline import Pipeline as _Pipeline
+
+    broken = tmp_path / "broken"
+    shutil.copytree(_STUDENT, broken)
+    cfg = json.loads((broken / "config.json").read_text())
+    cfg["body"] = {"bone_lengths": [1.0, 2.0]}
+    (broken / "config.json").write_text(json.dumps(cfg))
+    with pytest.raises(StableMoError, match=r"broken/config.json: 'body.bone_lengths' must be 22"):
+        _Pipeline.from_bundle(broken)
     # a bundle with another body generates on that body
     from stablemo.inference.bundle import DEMO_STUDENT
     from stablemo.inference.pipeline import Pipeline

@@ -40,7 +40,7 @@ from stablemo.diffusion.schedule import NoiseSchedule, check_prediction_type
 from stablemo.errors import StableMoError
 from stablemo.fast import accelerate
 from stablemo.inference.config import InferenceConfig
-from stablemo.inference.finish import Finish
+from stablemo.inference.finish import Finish, body_lengths
 from stablemo.inference.kinds import Denoise, DenoiserInputs, ModelKind, model_kind
 from stablemo.motion.plausible import check_feature_stats
 
@@ -185,6 +185,7 @@ class Pipeline:
         except TypeError as err:
             raise StableMoError(f"{cfg_file}: 'model' does not describe a network ({err})") from None
         _check_stats(config, cfg_file)
+        body_lengths(config, config.get("skeleton") or config.get("dataset", "humanml3d"), cfg_file)  # named here
         if not random_weights:
             weights_file = Path(path) / "model.safetensors"
             bad = [k for k, v in bundle.state_dict.items() if v.is_floating_point() and not torch.isfinite(v).all()]
