@@ -21,7 +21,7 @@ import torch
 
 from stablemo.errors import StableMoError
 from stablemo.motion.features import FACING_SIGMA
-from stablemo.motion.quaternion import cross, qbetween, qinv, qmul, qrot, quat_to_rot6d
+from stablemo.motion.quaternion import cross, qbetween, qinv, qmul, qrot, quat_to_rot6d, yaw_rotate
 from stablemo.motion.skeleton import Skeleton, get_skeleton
 
 # scipy.ndimage.gaussian_filter1d's kernel (truncate 4.0): radius int(4σ + 0.5), normalised
@@ -206,9 +206,10 @@ def body_features(x: torch.Tensor, r: torch.Tensor, skel: Skeleton) -> torch.Ten
     rot6d = quat_to_rot6d(_swing_rotations(x, r, skel)[:, :, 1:])  # (B, T, J-1, 6)
     xz = torch.tensor([1.0, 0.0, 1.0], dtype=x.dtype, device=x.device)
     rel = x - x[:, :, :1] * xz  # root-relative in xz, absolute height
-    ric = qrot(r[:, :, None], rel)[:, :, 1:]  # (B, T, J-1, 3)
-    local_vel = qrot(r[:, :-1, None], x[:, 1:] - x[:, :-1])  # (B, T-1, J, 3)
-    return torch.cat([x[:, :-1, 0, 1:2], ric[:, :-1].flatten(2), rot6d[:, :-1].flatten(2),
+    # r turns about y alone (a facing, or recover_root's yaw): the cheaper exact rotation
+    ric = yaw_rotate(r[:, :-1, None], rel[:, :-1])[:, :, 1:]  # (B, T-1, J-1, 3)
+    local_vel = yaw_rotate(r[:, :-1, None], x[:, 1:] - x[:, :-1])  # (B, T-1, J, 3)
+    return torch.cat([x[:, :-1, 0, 1:2], ric.flatten(2), rot6d[:, :-1].flatten(2),
                       local_vel.flatten(2), contacts], dim=-1)
 
 

@@ -173,5 +173,18 @@ def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
 
 
 def quat_to_rot6d(q: torch.Tensor) -> torch.Tensor:
-    """Continuous 6D rotation (..., 6): the first matrix column, then the second (as quat_to_rot6d_np)."""
-    return matrix_to_rot6d(quat_to_matrix(q))
+    """Continuous 6D rotation (..., 6): the first matrix column, then the second (as quat_to_rot6d_np);
+    quat_to_matrix's expressions for those six entries only."""
+    w, x, y, z = q.unbind(-1)
+    return torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y),
+                        2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)], dim=-1)
+
+
+def yaw_rotate(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """qrot for a rotation about y alone, q = (w, 0, y, 0) (..., 4): a turn by 2·atan2(y, w) in the
+    xz plane, v (..., 3). The root rotations of the motion features are such; this is a third of
+    qrot's work on the (B, T, J, 3) batches they turn."""
+    c = (q[..., 0] * q[..., 0] - q[..., 2] * q[..., 2])[..., None]  # cos of the turn
+    s = (2.0 * q[..., 0] * q[..., 2])[..., None]  # its sine
+    vx, vy, vz = v.unbind(-1)
+    return torch.stack([c[..., 0] * vx + s[..., 0] * vz, vy, c[..., 0] * vz - s[..., 0] * vx], dim=-1)
