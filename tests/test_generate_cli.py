@@ -61,6 +61,7 @@ def test_seed_reproducible_and_seconds_flag(bundle, tmp_path):
         (["walk", "--steps", "0"], "--steps: must be >= 1"),
         (["walk", "--prompts", "/nonexistent/prompts.txt"], "prompts file not found"),
         (["walk", "--sampler", "euler", "--frames", "16"], "sampler: unknown 'euler'"),
+        (["walk", "--raw", "--timeline", "/nonexistent/t.txt"], "--raw: not with --timeline"),
     ],
 )
 def test_bad_input_errors(bundle, tmp_path, argv, message):
@@ -108,3 +109,26 @@ def test_run_script_turns_bad_input_into_one_line_and_exit_2(capsys):
     assert capsys.readouterr().err.strip() == "script.py: error: /nope: bundle folder not found"
     assert run_script(lambda argv: {"report": 1}, "script.py") == 0   # a report dict is success
     assert run_script(lambda argv: 3, "script.py") == 3
+
+
+def test_raw_writes_the_networks_own_output_and_the_default_the_rigid_body(bundle, tmp_path):
+    """Without --raw every written motion keeps its bones' lengths and stands on the floor; --raw
+    writes what the (here untrained) network made, whose bones change length."""
+    import torch
+
+    from stablemo.motion.rigid import bone_lengths_of
+    from stablemo.motion.skeleton import HUMANML3D
+
+    def spread(path):
+        lengths = bone_lengths_of(torch.from_numpy(np.load(path)), "humanml3d").numpy()[:, 1:]
+        return np.ptp(lengths, axis=0).max()
+
+    args = ["a person walks", "--frames", "24", "--steps", "2", "--bundle", str(bundle), "--no-render"]
+    assert generate.main(args + ["--out", str(tmp_path / "done")]) == 0
+    assert generate.main(args + ["--raw", "--out", str(tmp_path / "raw")]) == 0
+    done, raw = (tmp_path / d / "a-person-walks.joints.npy" for d in ("done", "raw"))
+    assert spread(done) < 1e-5 and spread(raw) > 1e-3
+    for path, far in ((done, False), (raw, True)):  # on the bundle's body, or not
+        lengths = bone_lengths_of(torch.from_numpy(np.load(path)), "humanml3d").numpy()[0]
+        assert (np.abs(lengths - HUMANML3D.bone_lengths).max() > 0.01) == far
+    assert np.load(done)[..., 1].min() > -1e-3  # nothing below the floor

@@ -66,6 +66,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--timeline", metavar="FILE", default=None,
                    help="lines 'start_s end_s text' (contiguous from 0): one motion of the whole length, its "
                         "windows joined by in-painting (docs/long_motion.md)")
+    p.add_argument("--raw", action="store_true",
+                   help="write the network's own output, without the finishing step that puts every motion on "
+                        "the bundle's rigid body and on the floor (docs/inference.md): for studying the model; "
+                        "its bones change length and its feet may sink")
     p.add_argument("--dtype", default=None, help="network precision: fp32, bf16 (CPU/GPU) or fp16 (GPU); default fp32 on CPU, fp16 on GPU")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda if available)")
     return p
@@ -74,6 +78,8 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     if args.timeline is not None:
+        if args.raw:
+            raise StableMoError("--raw: not with --timeline (a timeline's windows are joined and finished as one motion)")
         from stablemo.cli.timeline import run_timeline
 
         _check_numbers(args)
@@ -121,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     hooks = make_hooks(pipe, footskate=args.footskate, footskate_weights=args.footskate_weights)
     request = Request(prompts, frames, seed=args.seed, sampler=args.sampler, steps=args.steps, cfg=args.cfg,
                       hooks=hooks, progress=True, control=[control] * len(prompts) if control else None,
-                      control_guidance=args.control_guidance)
+                      control_guidance=args.control_guidance, finish=not args.raw)
     # generate() checks every setting before its first network call, and raises, writing nothing,
     # if any motion is not finite
     result = pipe.generate(request)
