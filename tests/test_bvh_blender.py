@@ -14,6 +14,7 @@ import pytest
 
 from stablemo.bvh import write_bvh
 from stablemo.bvh.names import bvh_names
+from stablemo.motion.skeleton import HUMANML3D
 
 pytestmark = pytest.mark.skipif(shutil.which("blender") is None, reason="blender is not installed")
 
@@ -145,3 +146,21 @@ def test_the_importer_defaults_play_20_fps_too_fast_unless_the_file_is_written_a
     data = blender_import(tmp_path / "w24.bvh", tmp_path, {})
     assert data["fps"] == pytest.approx(24.0)
     assert np.linalg.norm(data["heads"][24] - joints[20], axis=-1).max() < 0.01  # 1 s in: our frame 20
+
+
+def test_the_readmes_prompt_comes_into_blender_as_the_written_joints(tmp_path):
+    """The README's headline prompt, generated as a user does (`stablemo generate --format bvh`, the
+    demo teacher): Blender shows the .joints.npy body, one rigid body on the floor."""
+    from stablemo.cli import main
+
+    prompt = "a person walks forward, then waves their right hand"
+    assert main(["generate", prompt, "--format", "bvh", "--out", str(tmp_path / "out"), "--seed", "0"]) == 0
+    stem = tmp_path / "out" / "a-person-walks-forward-then-waves-their-right-hand"
+    joints = np.load(stem.with_suffix(".joints.npy"))
+    heads, fps = blender_heads(stem.with_suffix(".bvh"), tmp_path)
+    assert fps == pytest.approx(20.0) and heads.shape == joints.shape
+    err = np.linalg.norm(heads - joints, axis=-1)
+    assert err.max() < 0.01 and err.mean() < 0.003
+    bones = np.linalg.norm(heads[:, 1:] - heads[:, [max(p, 0) for p in HUMANML3D.parents[1:]]], axis=-1)
+    assert np.ptp(bones, axis=0).max() < 1e-3  # limbs of constant length in Blender too
+    assert heads[..., 1].min() > -0.01  # nothing below the floor
