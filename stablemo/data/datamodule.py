@@ -26,6 +26,7 @@ from stablemo.motion.skeleton import MAX_FRAMES
 
 BODY_CLIPS = 256  # clips measured for the body's bone lengths (the median is stable long before)
 
+
 def seed_worker(worker_id: int) -> None:
     """Seed numpy/random in a worker from torch's per-worker seed (itself derived from the loader's generator)."""
     seed = torch.initial_seed() % 2**32

@@ -22,7 +22,12 @@ import torch
 
 from stablemo.control.spec import ControlTargets
 from stablemo.errors import StableMoError
-from stablemo.motion.extract_torch import body_features, fill_padding, joints_to_features_batched, valid_lengths
+from stablemo.motion.extract_torch import (
+    body_features,
+    fill_padding,
+    joints_to_features_batched,
+    valid_lengths,
+)
 from stablemo.motion.features import feature_slices, features_to_joints, recover_root
 from stablemo.motion.floor import place_on_floor
 from stablemo.motion.rigid import rigid_joints
@@ -117,7 +122,7 @@ class Finish:
         The root keeps the network's rotation and path (its first three columns are kept as they
         are): the step moves joints, not the root, so only the columns seen from the root are
         computed again, from the new joints."""
-        n = self._lengths(lengths, features)
+        n = valid_lengths(lengths, *features.shape[:2], features.device)
         b, t = features.shape[:2]
         q, _ = recover_root(features)  # (B, T, 4) the root rotation recovery will use
         raw = features_to_joints(features, self.skeleton) if raw_joints is None else raw_joints.to(features)
@@ -151,19 +156,11 @@ class Finish:
         """Features (B, T, D) float64 of joints (B, T, J, 3) in any frame (a stream's global one), the
         root rotation estimated from the hips and shoulders as in extraction; zero past lengths[b].
         Recovering them gives these joints back when frame 0's root is at the origin facing +z."""
-        n = self._lengths(lengths, body)
+        n = valid_lengths(lengths, *body.shape[:2], body.device)
         ext, _ = self._extended(body, n)
         feats = joints_to_features_batched(ext, n + 1, self.skeleton, refit=False, place=False)  # (B, T, D)
         mask = torch.arange(body.shape[1], device=body.device)[None, :] < n[:, None]
         return torch.where(mask[..., None], feats, torch.zeros((), dtype=feats.dtype, device=feats.device))
-
-    @staticmethod
-    def _lengths(lengths, like: torch.Tensor) -> torch.Tensor:
-        b, t = like.shape[:2]
-        n = torch.as_tensor(lengths, dtype=torch.long).to(like.device).reshape(-1)
-        if n.numel() != b or bool(((n < 2) | (n > t)).any()):
-            raise StableMoError(f"lengths: expected {b} values in [2, {t}], got {n.tolist()}")
-        return n
 
 
 def _leg_ends(skel: Skeleton) -> dict[str, list[int]]:

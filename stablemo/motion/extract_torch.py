@@ -21,7 +21,15 @@ import torch
 
 from stablemo.errors import StableMoError
 from stablemo.motion.features import FACING_SIGMA
-from stablemo.motion.quaternion import cross, qbetween, qinv, qmul, qrot, quat_to_rot6d, yaw_rotate
+from stablemo.motion.quaternion import (
+    cross,
+    qbetween,
+    qinv,
+    qmul,
+    qrot,
+    quat_to_rot6d,
+    yaw_rotate,
+)
 from stablemo.motion.skeleton import Skeleton, get_skeleton
 
 # scipy.ndimage.gaussian_filter1d's kernel (truncate 4.0): radius int(4σ + 0.5), normalised
@@ -57,6 +65,17 @@ def fill_padding(x: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
     b, t = x.shape[:2]
     idx = torch.minimum(torch.arange(t, device=x.device)[None, :], lengths[:, None] - 1)  # (B, T)
     return torch.gather(x, 1, idx.view(b, t, *([1] * (x.dim() - 2))).expand_as(x))
+
+
+def smooth_frames(v: torch.Tensor, sigma: float, radius: int | None = None) -> torch.Tensor:
+    """Gaussian smoothing of v (B, T) along T (sigma in frames; radius: the kernel's half width,
+    default 3 sigma), edges replicated: run it on padding-filled rows to smooth each motion alone."""
+    radius = max(1, int(3.0 * sigma + 0.5)) if radius is None else radius
+    offs = torch.arange(-radius, radius + 1, dtype=v.dtype, device=v.device)
+    kernel = torch.exp(-0.5 * (offs / sigma) ** 2)
+    kernel = kernel / kernel.sum()
+    padded = torch.nn.functional.pad(v[:, None], (radius, radius), mode="replicate")[:, 0]
+    return padded.unfold(1, 2 * radius + 1, 1) @ kernel
 
 
 def _normalize(v: torch.Tensor) -> torch.Tensor:

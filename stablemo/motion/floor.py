@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import torch
 
-from stablemo.motion.extract_torch import fill_padding, valid_lengths
+from stablemo.motion.extract_torch import fill_padding, smooth_frames, valid_lengths
 from stablemo.motion.skeleton import Skeleton, get_skeleton
 
 # which frames stand on the ground (_on_ground): the lowest joint under LOW_M above the nearby ground
@@ -36,16 +36,6 @@ def _running_min(h: torch.Tensor, radius: int) -> torch.Tensor:
     """Minimum of h (B, T) over ±radius frames (edges: the frames that exist)."""
     padded = torch.nn.functional.pad(h[:, None], (radius, radius), mode="replicate")[:, 0]
     return padded.unfold(1, 2 * radius + 1, 1).amin(-1)
-
-
-def _smooth(v: torch.Tensor, sigma: float) -> torch.Tensor:
-    """Gaussian smoothing of v (B, T) along T, edges replicated."""
-    radius = max(1, int(3.0 * sigma + 0.5))
-    offs = torch.arange(-radius, radius + 1, dtype=v.dtype, device=v.device)
-    kernel = torch.exp(-0.5 * (offs / sigma) ** 2)
-    kernel = kernel / kernel.sum()
-    padded = torch.nn.functional.pad(v[:, None], (radius, radius), mode="replicate")[:, 0]
-    return padded.unfold(1, 2 * radius + 1, 1) @ kernel
 
 
 def _fill_between(values: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
@@ -108,7 +98,7 @@ def floor_shift(joints: torch.Tensor, lengths, skeleton: Skeleton | str, fps: fl
         supported = supported | pinned
         values = torch.where(pinned, pins.to(h.dtype), values)
     shift = _fill_between(values, supported)
-    shift = torch.maximum(_smooth(shift, SMOOTH_FRAMES), -h)  # smoothed, then never below the floor
+    shift = torch.maximum(smooth_frames(shift, SMOOTH_FRAMES), -h)  # smoothed, then never below the floor
     if pinned is not None:
         shift = torch.where(pinned, values, shift)
     return torch.where(valid, shift, torch.zeros((), dtype=shift.dtype, device=shift.device))

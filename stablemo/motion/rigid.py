@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from stablemo.errors import StableMoError
+from stablemo.motion.extract_torch import fill_padding, smooth_frames
 from stablemo.motion.quaternion import cross
 from stablemo.motion.skeleton import Skeleton, get_skeleton
 
@@ -229,12 +230,8 @@ def _leg_drop(placed: list, x: torch.Tensor, skel: Skeleton, body: np.ndarray, v
     support = heights[0] <= heights[1]
     drop = torch.where(support, drops[0], drops[1])
     # padding repeats the last valid frame's move, so smoothing sees each motion as if alone
-    last = valid.long().sum(1, keepdim=True).clamp(min=1) - 1  # (B, 1)
-    drop = drop.gather(1, torch.minimum(torch.arange(drop.shape[1], device=drop.device)[None, :], last))
-    radius = 2
-    kernel = torch.exp(-0.5 * (torch.arange(-radius, radius + 1, dtype=x.dtype, device=x.device) / 1.0) ** 2)
-    padded = torch.nn.functional.pad(drop[:, None], (radius, radius), mode="replicate")[:, 0]
-    return padded.unfold(1, 2 * radius + 1, 1) @ (kernel / kernel.sum())
+    drop = fill_padding(drop, valid.long().sum(1).clamp(min=1))
+    return smooth_frames(drop, 1.0, radius=2)
 
 
 def bone_lengths_of(joints: torch.Tensor, skeleton: Skeleton | str) -> torch.Tensor:

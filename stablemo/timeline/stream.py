@@ -24,6 +24,7 @@ import torch
 
 from stablemo.checks import check_seed
 from stablemo.errors import StableMoError
+from stablemo.motion.features import feature_slices
 from stablemo.timeline.compose import DEFAULT_OVERLAP_S, DEFAULT_SETTLE_S
 from stablemo.timeline.windows import RootFrame, Sampling, generate_window, settle
 
@@ -129,7 +130,7 @@ def _chunks(pipe, next_text, n: int, k: int, h: int, seed: int, max_chunks, samp
         joints = frame.joints(feats)  # (p + n, J, 3) global
         # finished with its context, so the floor and the velocities continue across the join
         body = pipe.finish.joints(torch.from_numpy(joints)[None], [p + n], _global_targets(pipe, spec, frame, length, p + n),
-                                  torch.from_numpy(feats[None, :, -4:]))  # the contact channels say when a foot is planted
+                                  torch.from_numpy(feats[None, :, feature_slices(pipe.skeleton)["contacts"]]))
         done = pipe.finish.features_of(body, [p + n])[0, p:].float().numpy()  # (n, D)
         chunk = Chunk(index, text, produced, done, body[0, p:].float().numpy(), length, feats[p:])
         if not (np.isfinite(chunk.features).all() and np.isfinite(chunk.joints).all()):
