@@ -262,3 +262,22 @@ def test_generation_is_finished_unless_asked_not_to():
         assert lowest_foot(out.joints[i].numpy()).min() > -0.01
     with pytest.raises(StableMoError, match="finish: expected True or False"):
         pipe.generate(prompts, 120, finish="yes")
+
+
+def test_kit_legs_are_legs():
+    """KIT's contact joints hang below the ankle: its legs are still found (hip, knee, ankle), so a
+    planted KIT foot stays where it was generated and stretched legs lower the pelvis, as on HumanML3D."""
+    assert HUMANML3D.legs == {"left": (1, 4, 7), "right": (2, 5, 8)}
+    assert KIT.legs == {"left": (16, 17, 18), "right": (11, 12, 13)}
+    pose = np.zeros((21, 3))
+    for chain in KIT.kinematic_chains:
+        for p, c in zip(chain[:-1], chain[1:]):
+            pose[c] = pose[p] + KIT.target_offsets[c]
+    pose[:, 1] -= pose[:, 1].min()
+    frames = np.repeat(pose[None], 20, axis=0)
+    # the trunk and hips 8 cm higher on the same knees and feet: legs stretched as a denoiser does
+    frames[:, list(range(11)) + [11, 16]] += np.array([0.0, 80.0, 0.0])
+    out = rigid_joints(torch.from_numpy(frames), KIT).numpy()
+    for _, _, ankle in KIT.legs.values():
+        np.testing.assert_allclose(out[:, ankle], frames[:, ankle], atol=1e-6)  # the planted ankle kept
+    assert out[:, 0, 1].max() < frames[:, 0, 1].min() - 40.0  # the pelvis came down to reach it

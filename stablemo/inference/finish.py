@@ -102,15 +102,14 @@ class Finish:
             near = torch.nn.functional.max_pool1d(m, 2 * r + 1, 1, r)  # within r frames of a target
             ramp = torch.nn.functional.avg_pool1d(near, 2 * r + 1, 1, r, count_include_pad=False)
             hold = torch.maximum(m, ramp).transpose(1, 2).clone()
-        for side, ends in _leg_ends(skel).items():
+        for side, (_, _, ankle) in skel.legs.items():
             if contacts is None:
                 planted = torch.ones(b, t, dtype=joints.dtype, device=joints.device)
             else:
                 c = contacts[..., :2] if side == "left" else contacts[..., 2:]  # [L_a, L_b, R_a, R_b]
                 planted = ((c.amax(-1).to(joints.dtype) - 0.3) / 0.4).clamp(0.0, 1.0)  # (B, T)
                 planted = torch.nn.functional.avg_pool1d(planted[:, None], 5, 1, 2, count_include_pad=False)[:, 0]
-            for end in ends:
-                hold[..., end] = torch.maximum(hold[..., end], planted)
+            hold[..., ankle] = torch.maximum(hold[..., ankle], planted)
         return hold
 
     def __call__(self, features: torch.Tensor, lengths, control: ControlTargets | None = None,
@@ -161,21 +160,6 @@ class Finish:
         feats = joints_to_features_batched(ext, n + 1, self.skeleton, refit=False, place=False)  # (B, T, D)
         mask = torch.arange(body.shape[1], device=body.device)[None, :] < n[:, None]
         return torch.where(mask[..., None], feats, torch.zeros((), dtype=feats.dtype, device=feats.device))
-
-
-def _leg_ends(skel: Skeleton) -> dict[str, list[int]]:
-    """The IK ends (ankles) of each side's leg: the limb ends whose descendants hold that side's
-    contact joints."""
-    out: dict[str, list[int]] = {"left": [], "right": []}
-    for _, _, end in skel.ik_limbs:
-        below = {end}
-        for j in range(skel.num_joints):  # parents come before children in the chains' order
-            if skel.parents[j] in below:
-                below.add(j)
-        for side, feet in (("left", skel.feet_left), ("right", skel.feet_right)):
-            if below & set(feet):
-                out[side].append(end)
-    return out
 
 
 __all__ = ["Finish", "body_lengths"]

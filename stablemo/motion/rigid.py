@@ -141,7 +141,7 @@ def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
     forward = _facing(x, skel)  # (..., T, 3)
     limb_of_end = {end: (upper, mid) for upper, mid, end in skel.ik_limbs}
     mids = {mid for _, mid, _ in skel.ik_limbs}
-    legs = set(skel.feet_left + skel.feet_right)
+    legs = {ankle for _, _, ankle in skel.legs.values()}
     if hold is None:
         hold = torch.zeros(x.shape[:3], dtype=x.dtype, device=x.device)
         hold[..., sorted(legs)] = 1.0
@@ -208,7 +208,7 @@ def _leg_drop(placed: list, x: torch.Tensor, skel: Skeleton, body: np.ndarray, v
     ankle is at the distance from the hip that the generated knee angle gives a leg of the body's
     length (the other leg reaches as it can). Smoothed over a few frames, so the body does not bob
     with each frame's stretch."""
-    legs = [(u, m, e) for u, m, e in skel.ik_limbs if e in set(skel.feet_left + skel.feet_right)]
+    legs = list(skel.legs.values())
     if len(legs) != 2:
         return torch.zeros(x.shape[:2], dtype=x.dtype, device=x.device)
     drops, heights = [], []

@@ -68,6 +68,22 @@ class Skeleton:
         return self.raw_offsets * self.bone_lengths[:, None]
 
     @property
+    def legs(self) -> dict[str, tuple[int, int, int]]:
+        """Each side's leg among ik_limbs: {"left"/"right": (hip, knee, ankle)}, the limb whose end
+        carries that side's contact joints (HumanML3D: the ankle is one of them; KIT: its
+        metatarsal and toe hang below the ankle)."""
+        out = {}
+        for limb in self.ik_limbs:
+            below = {limb[2]}
+            for j in range(self.num_joints):  # chains list parents before children
+                if self.parents[j] in below:
+                    below.add(j)
+            for side, feet in (("left", self.feet_left), ("right", self.feet_right)):
+                if below & set(feet):
+                    out[side] = limb
+        return out
+
+    @property
     def per_metre(self) -> float:
         """Skeleton units per metre (HumanML3D metres: 1; KIT-ML millimetres: 1000)."""
         return 1000.0 if self.units == "mm" else 1.0
