@@ -30,6 +30,7 @@ import torch
 from footskate.contacts import HEURISTIC_MARGIN, HEURISTIC_SPEED, contacts_from_heights
 from stablemo.errors import StableMoError
 from stablemo.motion.plausible import scale
+from stablemo.motion.rigid import bone_lengths_of
 from stablemo.motion.skeleton import Skeleton, get_skeleton
 from stablemo.skating import metrics as skating_metrics
 
@@ -125,8 +126,7 @@ def bone_change(joints, lengths, skeleton) -> np.ndarray:
     """(B,) cm: max over bones of (max − min) of the bone's length over valid frames."""
     j, n, skel = prepare(joints, lengths, skeleton)
     valid = valid_mask(n, j.shape[1])[..., None]  # (B, T, 1)
-    child = list(range(1, skel.num_joints))
-    bone = (j[:, :, child] - j[:, :, [skel.parents[c] for c in child]]).norm(dim=-1)  # (B, T, J-1)
+    bone = bone_lengths_of(j, skel)[..., 1:]  # (B, T, J-1)
     longest = torch.where(valid, bone, torch.full_like(bone, -float("inf"))).amax(1)
     shortest = torch.where(valid, bone, torch.full_like(bone, float("inf"))).amin(1)
     return ((longest - shortest).amax(-1) * _cm(skel)).numpy()
