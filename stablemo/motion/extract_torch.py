@@ -75,7 +75,13 @@ def smooth_frames(v: torch.Tensor, sigma: float, radius: int | None = None) -> t
     kernel = torch.exp(-0.5 * (offs / sigma) ** 2)
     kernel = kernel / kernel.sum()
     padded = torch.nn.functional.pad(v[:, None], (radius, radius), mode="replicate")[:, 0]
-    return padded.unfold(1, 2 * radius + 1, 1) @ kernel
+    # a weighted sum of shifted copies, element by element: unlike a matrix product, whose kernel
+    # and summation order depend on the batch's shape, each motion gets the same bits in any batch
+    t = v.shape[1]
+    out = kernel[0] * padded[:, :t]
+    for k in range(1, 2 * radius + 1):
+        out = out + kernel[k] * padded[:, k:k + t]
+    return out
 
 
 def _normalize(v: torch.Tensor) -> torch.Tensor:
