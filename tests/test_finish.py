@@ -281,3 +281,20 @@ def test_kit_legs_are_legs():
     for _, _, ankle in KIT.legs.values():
         np.testing.assert_allclose(out[:, ankle], frames[:, ankle], atol=1e-6)  # the planted ankle kept
     assert out[:, 0, 1].max() < frames[:, 0, 1].min() - 40.0  # the pelvis came down to reach it
+
+
+def test_a_giant_stride_does_not_drop_the_body_into_a_lunge():
+    """Legs generated 40 % too long in a wide stride: a leg of the body's length cannot keep both
+    the planted foot and the knee angle without lowering the pelvis by tens of centimetres (the
+    README's prompt did so by 37 cm); the root moves by at most MAX_ROOT_MOVE_M."""
+    from stablemo.motion.rigid import MAX_ROOT_MOVE_M
+
+    clip = synth("walk")
+    long = clip.copy()
+    for hip, knee, ankle in HUMANML3D.legs.values():
+        for j in (knee, ankle, 10 if ankle == 7 else 11):
+            long[:, j] = clip[:, hip] + 1.4 * (clip[:, j] - clip[:, hip])
+    out = rigid_joints(torch.from_numpy(long), HUMANML3D).numpy()
+    move = out[:, 0, 1] - long[:, 0, 1]
+    assert np.abs(move).max() <= MAX_ROOT_MOVE_M + 1e-9
+    assert np.abs(move).max() > 0.05  # it still moves where the legs ask for it

@@ -36,6 +36,10 @@ from stablemo.motion.quaternion import cross
 from stablemo.motion.skeleton import Skeleton, get_skeleton
 
 _EPS = 1e-9
+# the most the root moves up or down to let the supporting leg keep its foot and knee angle: legs
+# generated far too long in a wide stride would otherwise drop the body into a lunge (the README's
+# prompt: 37 cm); beyond it the foot lands as close as the leg reaches
+MAX_ROOT_MOVE_M = 0.10
 
 
 def _unit(v: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -206,8 +210,8 @@ def _leg_drop(placed: list, x: torch.Tensor, skel: Skeleton, body: np.ndarray, v
     less than generated, or not reach at all: a walk would crouch or hang its feet in the air. The
     lower of the two ankles is the one the body stands on; the root moves vertically until that
     ankle is at the distance from the hip that the generated knee angle gives a leg of the body's
-    length (the other leg reaches as it can). Smoothed over a few frames, so the body does not bob
-    with each frame's stretch."""
+    length (the other leg reaches as it can), by at most MAX_ROOT_MOVE_M. Smoothed over a few frames,
+    so the body does not bob with each frame's stretch."""
     legs = list(skel.legs.values())
     if len(legs) != 2:
         return torch.zeros(x.shape[:2], dtype=x.dtype, device=x.device)
@@ -229,6 +233,8 @@ def _leg_drop(placed: list, x: torch.Tensor, skel: Skeleton, body: np.ndarray, v
         heights.append(x[..., end, 1])
     support = heights[0] <= heights[1]
     drop = torch.where(support, drops[0], drops[1])
+    reach = MAX_ROOT_MOVE_M * skel.per_metre
+    drop = drop.clamp(-reach, reach)
     # padding repeats the last valid frame's move, so smoothing sees each motion as if alone
     drop = fill_padding(drop, valid.long().sum(1).clamp(min=1))
     return smooth_frames(drop, 1.0, radius=2)
