@@ -20,7 +20,7 @@ LAYERS = [
     ("errors",),
     ("checks", "io"),
     ("motion",),
-    ("text", "diffusion", "bvh"),
+    ("text", "diffusion", "bvh", "gltf"),  # gltf: motion and bvh only (stablemo/gltf)
     ("nets", "skating", "outputs"),
     ("fast", "distill", "control", "data"),
     ("timeline",),
