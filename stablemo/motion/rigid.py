@@ -57,7 +57,7 @@ def _facing(x: torch.Tensor, skel: Skeleton) -> torch.Tensor:
     return _unit(cross(up, across))[0]
 
 
-def _two_bone(upper: torch.Tensor, target: torch.Tensor, pole: torch.Tensor, fallback_bend: torch.Tensor,
+def two_bone(upper: torch.Tensor, target: torch.Tensor, pole: torch.Tensor, fallback_bend: torch.Tensor,
               rest_dir: torch.Tensor, l1: float, l2: float) -> tuple[torch.Tensor, torch.Tensor]:
     """Middle and end positions (B, T, 3) of a limb rooted at `upper` whose end aims at `target`.
 
@@ -175,7 +175,7 @@ def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
                     w = hold[..., child, None]
                     # knees bend forward, elbows backward, where the generated limb is straight
                     bend = forward if child in legs else -forward
-                    out[mid], out[child] = _two_bone(out[upper], kept + w * (x[..., child, :] - kept), out[mid], bend,
+                    out[mid], out[child] = two_bone(out[upper], kept + w * (x[..., child, :] - kept), out[mid], bend,
                                                      raw_dir[mid].expand_as(forward), float(body[mid]),
                                                      float(body[child]))
                     continue
@@ -248,4 +248,4 @@ def bone_lengths_of(joints: torch.Tensor, skeleton: Skeleton | str) -> torch.Ten
     return torch.linalg.vector_norm(x - x[..., parents, :], dim=-1)
 
 
-__all__ = ["bone_lengths_of", "rigid_joints"]
+__all__ = ["bone_lengths_of", "rigid_joints", "two_bone"]
