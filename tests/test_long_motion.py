@@ -13,7 +13,14 @@ from stablemo.errors import StableMoError
 from stablemo.inference.pipeline import Pipeline
 from stablemo.motion import features_to_joints
 from stablemo.motion.skeleton import HUMANML3D
-from stablemo.timeline import parse_timeline, plan_windows, segment_frames
+from stablemo.timeline import (
+           canonical_timeline,
+           format_timeline,
+           parse_timeline,
+           plan_windows,
+           segment_frames,
+           stream_timeline,
+)
 from stablemo.timeline.seams import seam_report
 from stablemo.timeline.windows import RootFrame, crossfade
 
@@ -279,3 +286,45 @@ def test_stream_applies_hooks_and_joint_control_per_chunk(demo):
     np.testing.assert_allclose(runs["control"][0], target, atol=1e-3)  # chunk 0: the window is the global frame
     free, ctl = (np.linalg.norm(runs[k][1] - target) for k in ("free", "control"))
     assert ctl < 0.5 * free  # chunk 1 is pulled to its target too (its prefix is fixed, so not exactly)
+
+
+# ---------------------------------------------------------------------------------- one format
+
+
+def test_the_pages_shorthand_converts_to_the_one_format_and_two_times_are_never_a_prompt():
+    text = "# warm up\n4 a person walks  # slowly\n\n4 10 a person jumps\n2.5 a person turns left\n"
+    assert canonical_timeline(text) == ("# warm up\n0 4 a person walks  # slowly\n\n4 10 a person jumps\n"
+                                        "10 12.5 a person turns left\n")
+    segs = parse_timeline(text, shorthand=True)
+    assert segs == parse_timeline(canonical_timeline(text)) == parse_timeline(format_timeline(segs))
+    assert [(s.start_s, s.end_s, s.text) for s in segs] == [(0, 4, "a person walks"), (4, 10, "a person jumps"),
+                                                            (10, 12.5, "a person turns left")]
+    # the CLI reads only the one format, and says what the shorthand is
+    with pytest.raises(StableMoError, match="t.txt:1: end time 'a' is not a number of seconds .*page's shorthand"):
+        parse_timeline("4 a person walks\n", "t.txt")
+    example = (Path(__file__).resolve().parents[1] / "docs" / "data" / "long_motion" / "example.txt").read_text()
+    assert canonical_timeline(example) == example
+    assert parse_timeline(example, shorthand=True) == parse_timeline(example)
+
+
+# ---------------------------------------------------------------------------------- streamed by whole prompts
+
+
+def test_a_streamed_timeline_is_the_composers_motion_cut_into_chunks_within_prompts(demo):
+    segs = [(0, 2.5, "a person walks forward"), (2.5, 3.1, "a person jumps"), (3.1, 14, "a person turns left, then walks")]
+    stream = stream_timeline(demo, segs, chunk_seconds=2.0, seed=3, **FAST)
+    chunks = list(stream.chunks)
+    composed = demo.generate_timeline(segs, seed=3, **FAST)
+    # every prompt's span is generated whole (its windows, as composed): the raw rows to the bit
+    raw = np.concatenate([c.raw_features for c in chunks])
+    assert np.array_equal(raw, composed.raw_features) and len(composed.windows) == 4
+    # chunks of at most 2 s, each inside one prompt, in order, covering the motion once
+    assert [(c.start, len(c.joints), c.text[:14]) for c in chunks] == [
+        (0, 40, "a person walks"), (40, 10, "a person walks"), (50, 12, "a person jumps"),
+        *[(62 + 40 * i, 40, "a person turns") for i in range(5)], (262, 18, "a person turns")]
+    joints = np.concatenate([c.joints for c in chunks])
+    _assert_finished_from(joints, raw)
+    # finished window by window instead of once: within a few centimetres of the composed motion
+    assert np.abs(joints - composed.joints).max() < 0.05
+    with pytest.raises(StableMoError, match="chunk_seconds: 0.1 s is 2 frames"):
+        stream_timeline(demo, segs, chunk_seconds=0.1)

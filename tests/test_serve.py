@@ -29,6 +29,7 @@ from stablemo.serve import vendor as vendor_mod
 from stablemo.serve.api import STATIC_DIR, Busy, Worker, create_app
 from stablemo.serve.local import serving
 from stablemo.serve.models import ModelSet
+from stablemo.timeline import stream_timeline
 
 DEMO = Path(__file__).resolve().parents[1] / "stablemo" / "assets" / "demo_bundle"
 TEST_HOSTS = ("testserver",)  # FastAPI's TestClient sends Host: testserver; the server itself never allows it
@@ -347,32 +348,70 @@ def test_bad_control_is_400_with_one_line(client, control, message):
     assert res.status_code == 400 and res.json()["error"].startswith(message), res.json()
 
 
-def test_timeline_streams_chunks_equal_to_the_pipelines_stream(client, models):
-    body = {"timeline": [{"text": "a person walks forward", "seconds": 3}, {"text": "a person jumps", "seconds": 2.5}],
+def test_timeline_streams_whole_prompts_in_chunks_and_downloads_what_it_streamed(client, models):
+    # the page's shorthand, converted: 3 s of walking, then 2.5 s of jumping
+    body = {"timeline": "# a walk, then a jump\n3 a person walks forward\n2.5 a person jumps  # high\n",
             "chunk_seconds": 2, "seed": 5, "steps": 2, "encoding": "base64"}
     with client.stream("POST", "/api/stream", json=body) as res:
         assert res.status_code == 200 and res.headers["content-type"].startswith("application/x-ndjson")
         lines = [json.loads(line) for line in res.iter_lines() if line]
     head, chunks, last = lines[0], lines[1:-1], lines[-1]
-    # 5.5 s in 2 s chunks: 3 chunks; each takes the prompt playing at its middle (1 s, 3 s, 5 s)
-    assert head["texts"] == ["a person walks forward", "a person jumps", "a person jumps"]
-    assert (head["chunks"], head["frames"], last["done"]) == (3, 120, True)
+    assert head["timeline"] == "# a walk, then a jump\n0 3 a person walks forward\n3 5.5 a person jumps  # high\n"
+    assert head["segments"] == [{"start_s": 0.0, "end_s": 3.0, "text": "a person walks forward"},
+                                {"start_s": 3.0, "end_s": 5.5, "text": "a person jumps"}]
+    # chunks never straddle two prompts: 3 s = 2 + 1, 2.5 s = 2 + 0.5
+    assert head["texts"] == ["a person walks forward"] * 2 + ["a person jumps"] * 2
+    assert [(c["start"], c["frames"]) for c in chunks] == [(0, 40), (40, 20), (60, 40), (100, 10)]
+    assert (head["chunks"], head["frames"], last["done"]) == (4, 110, True)
     pipe = models.models["teacher"].pipeline
-    offline_chunks = list(pipe.stream(head["texts"], chunk_seconds=2, seed=5, max_chunks=3, steps=2))
-    for line, ref in zip(chunks, offline_chunks, strict=True):
-        assert (line["index"], line["start"], line["frames"]) == (ref.index, ref.start, 40)
+    offline = stream_timeline(pipe, [(0, 3, "a person walks forward"), (3, 5.5, "a person jumps")], chunk_seconds=2,
+                              seed=5, steps=2)
+    for line, ref in zip(chunks, offline.chunks, strict=True):
+        assert (line["index"], line["start"], line["text"]) == (ref.index, ref.start, ref.text)
         assert np.array_equal(decode(line["joints"]), ref.joints)
+    streamed = np.concatenate([decode(c["joints"]) for c in chunks])  # (110, 22, 3)
+
+    # the streamed motion downloads as it was received (from the cache of recent motions) ...
+    res = client.post("/api/download", json={**body, "format": "joints.npy"})
+    assert res.status_code == 200, res.text
+    assert 'filename="timeline-a-person-walks-forward-a-person-jumps-seed5.joints.npy"' in res.headers["content-disposition"]
+    assert np.array_equal(np.load(io.BytesIO(res.content)), streamed)
+    bvh = client.post("/api/download", json={**body, "format": "bvh"})
+    assert bvh.status_code == 200 and bvh.content.startswith(b"HIERARCHY") and "\nFrames: 110\n" in bvh.text
+    # ... and gives the same arrays when it was never streamed (another server: an empty cache)
+    with TestClient(create_app(ModelSet({"teacher": DEMO}), hosts=TEST_HOSTS)) as other:
+        again = other.post("/api/download", json={**body, "format": "joints.npy"})
+    assert again.status_code == 200 and np.array_equal(np.load(io.BytesIO(again.content)), streamed)
+
+
+def test_a_timeline_line_with_two_times_is_never_a_prompt(models):
+    job = models.parse_stream({"timeline": "0 5 a person walks\n5 10 a person jumps\n"})
+    assert [(s["start_s"], s["end_s"], s["text"]) for s in job.header()["segments"]] == \
+        [(0.0, 5.0, "a person walks"), (5.0, 10.0, "a person jumps")]
+    # the docs' example file is a timeline the API reads as it is
+    example = (Path(__file__).resolve().parents[1] / "docs" / "data" / "long_motion" / "example.txt").read_text()
+    job = models.parse_stream({"timeline": example})
+    assert job.timeline == example and job.frames == 600 and len(job.header()["segments"]) == 6
 
 
 @pytest.mark.parametrize("body, message", [
-    ({"timeline": []}, "timeline: expected a non-empty list"),
-    ({"timeline": [{"text": "walk"}]}, 'timeline[0]: expected {"text", "seconds"}'),
-    ({"timeline": [{"text": " ", "seconds": 2}]}, "timeline[0].text: empty prompt"),
-    ({"timeline": [{"text": "walk", "seconds": -2}]}, "timeline[0].seconds: must be > 0"),
-    ({"timeline": [{"text": "walk", "seconds": 400}]}, "timeline: 400 s in all, at most 300 s"),
-    ({"timeline": [{"text": "walk", "seconds": 4}], "chunk_seconds": 9.5}, "chunk_seconds + context_seconds"),
-    ({"timeline": [{"text": "walk", "seconds": 4}], "steps": 0}, "steps: must be >= 1"),
+    ({"timeline": []}, "timeline: expected the timeline's text"),
+    ({"timeline": [{"text": "walk", "seconds": 2}]}, "timeline: expected the timeline's text"),
+    ({"timeline": "  \n"}, "timeline: expected the timeline's text"),
+    ({"timeline": "0 2 walk\n3 4 jump"}, "timeline:2: starts at 3 s, leaving a gap"),
+    ({"timeline": "2 walk\n0 3 jump"}, "timeline:2: starts at 0 s, overlapping"),
+    ({"timeline": "walk"}, "timeline:1: expected 'start_s end_s text'"),
+    ({"timeline": "-2 walk"}, "timeline:1: a line '<seconds> <prompt>' needs seconds > 0"),
+    ({"timeline": "0 400 walk"}, "timeline: 400 s in all, at most 300 s"),
+    ({"timeline": "4 walk", "chunk_seconds": 0.1}, "chunk_seconds: 0.1 s is 2 frames"),
+    ({"timeline": "4 walk", "steps": 0}, "steps: must be >= 1"),
+    ({"timeline": "4 walk", "format": "bvh"}, "format: unknown field"),
 ])
 def test_bad_timeline_is_400_before_any_chunk(client, body, message):
     res = client.post("/api/stream", json=body)
     assert res.status_code == 400 and res.json()["error"].startswith(message), res.json()
+
+
+def test_a_streamed_download_checks_its_format_first(client):
+    res = client.post("/api/download", json={"timeline": "0 300 walk", "format": "mp4"})
+    assert res.status_code == 400 and res.json()["error"].startswith("format: expected one of")

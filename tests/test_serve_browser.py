@@ -205,26 +205,37 @@ def test_a_drawn_path_is_followed_and_a_dragged_joint_is_reached(page):
     assert np.array(after)[1] - np.array(before)[1] > 0.1  # the wrist went up
 
 
-def test_a_timeline_streams_into_one_motion(page):
+def test_a_timeline_streams_into_one_motion_and_downloads(page, downloads):
     box = page.find_element(By.ID, "timeline")
     box.clear()
-    box.send_keys("2 a person walks forward\n2 a person jumps")
+    box.send_keys("2 a person walks forward\n2 a person jumps")  # the shorthand
     page.find_element(By.ID, "stream").click()
     wait_for(page, "const m = window.stablemo.motion; return m && m.chunks === 2 && !m.streaming")
     state = page.execute_script("const s = window.stablemo; return [s.motion.frames, s.motion.texts, s.error,"
                                 "document.getElementById('stream-info').textContent]")
     assert state[:3] == [80, ["a person walks forward", "a person jumps"], None]
     assert state[3].startswith("2 chunks, 4.0 s of motion")
+    # shown back as the one format, the CLI's
+    assert box.get_attribute("value") == "0 2 a person walks forward\n2 4 a person jumps\n"
     frames = {page.execute_script("return window.stablemo.frame")}
     for _ in range(6):
         time.sleep(0.25)
         frames.add(page.execute_script("return window.stablemo.frame"))
     assert len(frames) > 2  # it plays
-    # a malformed line is named before anything is sent
+    # the streamed motion downloads: joints as received
+    page.find_element(By.CSS_SELECTOR, "#downloads button[data-format='joints.npy']").click()
+    deadline = time.monotonic() + 60
+    while not list(downloads.glob("timeline-*.joints.npy")) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    (npy,) = downloads.glob("timeline-*.joints.npy")
+    shown = np.array(page.execute_script("return Array.from(window.stablemo.motion.joints)"), np.float32)
+    assert np.array_equal(np.load(npy).ravel(), shown)
+    # a bad line is named by the server's parser (the CLI's), nothing streamed
     box.send_keys("\nthree a person waves")
     page.find_element(By.ID, "stream").click()
     wait_for(page, "return window.stablemo.error")
-    assert page.find_element(By.ID, "status").text.startswith('timeline line 3: expected "<seconds> <prompt>"')
+    # (line 4: the text shown back ends its last line)
+    assert page.find_element(By.ID, "status").text == "timeline:4: start time 'three' is not a number of seconds"
 
 
 def test_a_warning_about_the_bvh_is_shown_beside_the_download_buttons(page, monkeypatch, tmp_path):

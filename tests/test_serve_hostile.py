@@ -244,7 +244,7 @@ def test_integers_up_to_the_seed_range_still_pass(client):
     (0.2, "chunk_seconds: 0.2 s is 4 frames at 20 fps; at least 5 needed"),
 ])
 def test_tiny_stream_chunks_are_refused_before_any_work(client, models, chunk, message):
-    body = {"timeline": [{"text": "a person walks", "seconds": 300}], "chunk_seconds": chunk}
+    body = {"timeline": "0 300 a person walks", "chunk_seconds": chunk}
     # the old server built 3e11 chunk texts on the event loop: stall bound, not a timing test
     one_line_error(within(5, lambda: client.post("/api/stream", json=body)), 400, message)
     pipe = models.models["teacher"].pipeline
@@ -362,7 +362,7 @@ def test_sigterm_stops_a_real_server_while_jobs_run():
 
         threads = [threading.Thread(target=long, args=a, daemon=True) for a in (
             ("generate", "/api/generate", {"text": "a person walks", "frames": 196, "steps": 1000}),
-            ("stream", "/api/stream", {"timeline": [{"text": "a person walks", "seconds": 300}], "steps": 100}))]
+            ("stream", "/api/stream", {"timeline": "0 300 a person walks", "steps": 100}))]
         for t in threads:
             t.start()
         time.sleep(1.5)  # both in flight: the worker is inside a 1000-step generation
@@ -451,9 +451,8 @@ CHOICES = {
     "encoding": ["lists", "base64", "msgpack", 1],
     "features": [True, False, "no"],
     "format": ["joints.npy", "features.npy", "bvh", "mp3", "GIF", None],
-    "timeline": [[{"text": "a person walks", "seconds": 2}], [{"text": "walk", "seconds": 1}, {"text": "jump", "seconds": 1.5}],
-                 [], [{"text": "walk"}], [{"text": "walk", "seconds": 400}], [{"text": "walk", "seconds": -2}],
-                 [{"text": " ", "seconds": 2}], "walk"],
+    "timeline": ["0 2 a person walks", "1 walk\n1.5 jump  # the page's shorthand", "", "walk", "0 400 walk",
+                 "-2 walk", "0 2 walk\n3 4 jump", [{"text": "walk", "seconds": 2}], "0 2 " + "x" * 1001],
     "chunk_seconds": [2, 1, 0.25, 0.2, 1e-9, 0.05, 9.5, -1, "2"],
 }
 VALID = {"text": 2, "seconds": 3, "frames": 3, "seed": 4, "model": 2, "sampler": 1, "steps": 2, "cfg": 2, "footskate": 2,
@@ -540,7 +539,8 @@ def test_fuzz_every_answer_is_200_or_one_line_4xx(tmp_path, monkeypatch, caplog)
                     error = res.json()["error"]
                     assert "\n" not in error and ": " in error, f"{where}: {error}"
                     head = error.split(": ", 1)[0]  # the field: a name, maybe with .key / [index] after it
-                    assert any(head in (f, field_name(f)) or (head.startswith(f) and head[len(f)] in ".[ ")
+                    # (a timeline's errors name its line: timeline:2)
+                    assert any(head in (f, field_name(f)) or (head.startswith(f) and head[len(f)] in ".[ :")
                                for f in {*fields, *ENDPOINTS[path], "request"}), f"{where}: {error}"
                     assert len(error) <= 500, where
                 elif path == "/api/stream":

@@ -94,7 +94,7 @@ def hostile_request(kind: str, host: str, port: int, slow_seconds: float = 20.0)
         "huge_int": b'{"text": "a person walks", "seed": 1' + b"0" * 5000 + b"}",
         "far_target": json.dumps({"text": "a person walks", "frames": 40, "format": "gif",
                                   "control": {"targets": [[20, 0, 1e7, 0.9, 0.0]]}}).encode(),
-        "tiny_chunks": json.dumps({"timeline": [{"text": "a person walks", "seconds": 300}],
+        "tiny_chunks": json.dumps({"timeline": "0 300 a person walks",
                                    "chunk_seconds": 1e-9}).encode(),
     }
     path = "/api/download" if kind == "far_target" else "/api/stream" if kind == "tiny_chunks" else "/api/generate"

@@ -1,13 +1,19 @@
 """The FastAPI app: the page, its static files, and the JSON API beside it.
 
     GET  /                 the page (static/index.html)
-    GET  /api/info         served models: defaults, length range, samplers, skeleton
+    GET  /api/info         served models: defaults, length range, samplers, skeleton, downloads
+    GET  /api/rest.glb     ?model=NAME: the model's body standing at ease (GLB), the page's figure
+                           before its first motion; the glb download is the same body in motion
     POST /api/generate     {"text", "seconds"|"frames", "seed", "model", "sampler", "steps", "cfg",
                             "footskate", "encoding", "features"} -> joints, features, fps, ..., warnings
                            (one line per download that would be more than 3 cm from the motion)
-    POST /api/download     the same body + "format": joints.npy | features.npy | bvh | gif -> the file
-    POST /api/stream       {"timeline": [{"text", "seconds"}, ...], "chunk_seconds", "seed", ...} ->
-                           NDJSON: a header line, one line per chunk as it is made, a last "done" line
+    POST /api/download     the same body + "format": joints.npy | features.npy | bvh | gif -> the file;
+                           with /api/stream's body + "format", the streamed motion's file
+    POST /api/stream       {"timeline": "0 4 a person walks forward\n4 6 a person jumps\n", "chunk_seconds",
+                           "seed", ...} (the CLI's timeline text, stablemo.timeline.spec) -> NDJSON: a header
+                           line (the canonical timeline, segments, chunks), one line per chunk as it is
+                           made (each prompt's span is generated whole and sent out in chunks), a last
+                           "done" line
 
 Bad input is HTTP 400 with {"error": "<field>: <one line>"}, checked before the job is queued;
 requests from another Host or Origin, non-JSON POSTs and oversized or slow bodies are refused
@@ -48,7 +54,10 @@ from stablemo.serve.models import (
 )
 
 STATIC_DIR = Path(__file__).resolve().parent / "static"
+# glb: our skinned mannequin (stablemo.gltf); fbx: the same through Blender, listed by /api/info
+# only when Blender is on PATH (without it the download is a one-line 400)
 DOWNLOADS = {"joints.npy": "application/octet-stream", "features.npy": "application/octet-stream",
+             "glb": "model/gltf-binary", "fbx": "application/octet-stream",
              "gif": "image/gif", "bvh": "application/octet-stream"}
 log = logging.getLogger("stablemo.serve")
 # An honest GIF of the longest demo motion (196 frames) took 3-6 s on the 2-core machine at load 3
@@ -159,7 +168,21 @@ def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_
 
     @app.get("/api/info")
     async def info():
-        return {**models.describe(), "downloads": sorted(DOWNLOADS), "max_queue": max_queue}
+        from stablemo.gltf.fbx import blender_path
+
+        offered = [f for f in sorted(DOWNLOADS) if f != "fbx" or blender_path()]
+        return {**models.describe(), "downloads": offered, "max_queue": max_queue}
+
+    rest_bodies: dict[str, bytes] = {}
+
+    @app.get("/api/rest.glb")
+    async def rest_glb(model: str | None = None):
+        name = models.default if model is None else model
+        if name not in models.models:
+            raise StableMoError(f"model: unknown model {json_short(name)}; served: {', '.join(models.models)}")
+        if name not in rest_bodies:
+            rest_bodies[name] = standing_bytes(models.models[name].pipeline)
+        return Response(rest_bodies[name], media_type=DOWNLOADS["glb"])
 
     @app.post("/api/generate")
     async def generate(request: Request):
@@ -177,8 +200,7 @@ def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_
 
         async def lines():
             start = time.perf_counter()
-            yield json.dumps({"model": job.model, "fps": job.fps, "frames": job.frames, "chunks": len(job.texts),
-                              "texts": job.texts}) + "\n"
+            yield json.dumps(job.header()) + "\n"
             while True:
                 try:  # one chunk per turn of the worker: other requests interleave with a long stream
                     chunk = await generate_worker.run(next, job.chunks, None)
@@ -196,13 +218,19 @@ def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_
 
     @app.post("/api/download")
     async def download(request: Request):
-        spec, options = await parse(request)
-        fmt = options["format"]
-        if fmt not in DOWNLOADS:
-            raise StableMoError(f"format: expected one of {', '.join(sorted(DOWNLOADS))}, got {json_short(fmt)}")
-        motion, _, _ = await run_job(spec)
+        body = await read_json(request)
+        if isinstance(body, dict) and "timeline" in body:  # a streamed motion: the /api/stream body + format
+            job = models.parse_stream(body, download=True)
+            fmt = check_format(job.format)
+            motion, _ = await generate_worker.run(models.stream_motion, job)
+        else:
+            spec, options = models.parse(body)
+            fmt = check_format(options["format"])
+            motion, _, _ = await run_job(spec)
         if fmt == "gif":
             data = await render_worker.run(gif_bytes, motion, budget_s=render_budget_s)
+        elif fmt in ("glb", "fbx"):
+            data = await render_worker.run(body_bytes, motion, fmt, budget_s=render_budget_s)
         elif fmt == "bvh":
             data = await render_worker.run(bvh_bytes, motion, budget_s=render_budget_s)
         else:
@@ -212,6 +240,12 @@ def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_
 
     app.mount("/static", StaticFiles(directory=static_dir), name="static")
     return app
+
+
+def check_format(fmt) -> str:
+    if fmt not in DOWNLOADS:
+        raise StableMoError(f"format: expected one of {', '.join(sorted(DOWNLOADS))}, got {json_short(fmt)}")
+    return fmt
 
 
 MAX_ERROR_CHARS = 500
@@ -235,6 +269,29 @@ def bvh_bytes(motion: Motion) -> bytes:
     """The motion as BVH (stablemo.bvh: a T-pose rig of the bundle's body, rotations at the motion's
     frame rate, metres), the rig made with the motion; /api/generate's `warnings` say how close it is."""
     return motion.bvh.bvh().encode("ascii")
+
+
+def body_bytes(motion: Motion, fmt: str) -> bytes:
+    """The motion on our skinned mannequin (stablemo.gltf), the rig of its BVH download: GLB, or FBX
+    through Blender (made in a private temporary folder, removed once read)."""
+    from stablemo.gltf import export_glb
+    from stablemo.outputs.render import COLOURS
+
+    glb = export_glb(motion.bvh, COLOURS, name=motion.file_name(fmt).rsplit(".", 1)[0])
+    if fmt == "glb":
+        return glb
+    from stablemo.gltf.fbx import glb_to_fbx
+
+    with tempfile.TemporaryDirectory(prefix="stablemo-serve-") as tmp:
+        return glb_to_fbx(glb, Path(tmp) / "motion.fbx", motion.fps).read_bytes()
+
+
+def standing_bytes(pipe) -> bytes:
+    """A model's body standing at ease, on the floor (stablemo.gltf.standing_glb), as a GLB."""
+    from stablemo.gltf import standing_glb
+    from stablemo.outputs.render import COLOURS
+
+    return standing_glb(pipe.skeleton, pipe.finish.bone_lengths, COLOURS)
 
 
 def gif_bytes(motion: Motion) -> bytes:

@@ -13,6 +13,7 @@ import math
 import re
 import time
 from collections import OrderedDict
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from threading import Lock
@@ -23,11 +24,15 @@ import numpy as np
 from stablemo.checks import check_finite, check_positive_int, check_seed
 from stablemo.errors import StableMoError
 from stablemo.inference.pipeline import Pipeline, Request
-from stablemo.timeline.stream import chunk_frames
+from stablemo.timeline.spec import canonical_timeline, format_timeline, parse_timeline
+from stablemo.timeline.stream import chunk_length
+from stablemo.timeline.timeline_stream import stream_timeline
 
 MAX_TEXT_CHARS = 1000  # the text encoders keep far fewer tokens; longer is a pasting accident
 ENCODINGS = ("lists", "base64")
 MAX_STREAM_SECONDS = 300.0  # a bound on one request's work; a longer show is several requests
+# a 300-s timeline of one-second prompts of 100 characters each is ~30 kB
+MAX_TIMELINE_CHARS = 100_000
 
 
 @dataclass(frozen=True)
@@ -192,31 +197,28 @@ class ModelSet:
         pipe = self.models[name].pipeline
         pipe.generate(Request(["a person walks forward"], pipe.inference.default_frames))
 
-    def parse_stream(self, body: Any) -> StreamJob:
+    def parse_stream(self, body: Any, download: bool = False) -> StreamJob:
         """A JSON timeline request -> a StreamJob whose chunks are computed when pulled. Every error
-        (fields, the timeline, the chunk settings against the model) is raised here, before any chunk."""
-        name, pipe = self._model_of(body, {"timeline", "chunk_seconds", "seed", "model", "sampler", "steps", "cfg",
-                                            "encoding"})
-        timeline = body.get("timeline")
-        if not isinstance(timeline, list) or not timeline:
-            raise StableMoError('timeline: expected a non-empty list of {"text", "seconds"}')
-        segments = []
-        for i, item in enumerate(timeline):
-            where = f"timeline[{i}]"
-            if not isinstance(item, dict) or set(item) != {"text", "seconds"}:
-                raise StableMoError(f'{where}: expected {{"text", "seconds"}}, got {json_short(item)}')
-            text = item["text"]
-            if not isinstance(text, str) or not text.strip():
-                raise StableMoError(f"{where}.text: empty prompt")
-            if len(text) > MAX_TEXT_CHARS:
-                raise StableMoError(f"{where}.text: {len(text)} characters, at most {MAX_TEXT_CHARS}")
-            seconds = check_finite(f"{where}.seconds", _number(f"{where}.seconds", item["seconds"]), low=0.0, strict=True)
-            segments.append((text.strip(), seconds))
-        total = sum(sec for _, sec in segments)
-        if total > MAX_STREAM_SECONDS:
-            raise StableMoError(f"timeline: {total:g} s in all, at most {MAX_STREAM_SECONDS:g} s")
+        (fields, the timeline, the chunk settings against the model) is raised here, before any chunk.
+        download: the body may name a `format` (/api/download of a streamed motion)."""
+        known = {"timeline", "chunk_seconds", "seed", "model", "sampler", "steps", "cfg", "encoding"}
+        name, pipe = self._model_of(body, known | ({"format"} if download else set()))
+        text = body.get("timeline")
+        if not isinstance(text, str) or not text.strip():
+            raise StableMoError("timeline: expected the timeline's text, lines 'start_s end_s prompt' "
+                                "(or the page's '<seconds> <prompt>')")
+        if len(text) > MAX_TIMELINE_CHARS:
+            raise StableMoError(f"timeline: {len(text)} characters, at most {MAX_TIMELINE_CHARS}")
+        # the one timeline parser (the CLI's); the page's shorthand lines are converted, and the
+        # canonical text goes back to the page in the stream's first line
+        segments = parse_timeline(text, "timeline", shorthand=True)
+        for i, seg in enumerate(segments):
+            if len(seg.text) > MAX_TEXT_CHARS:
+                raise StableMoError(f"timeline: prompt {i + 1}: {len(seg.text)} characters, at most {MAX_TEXT_CHARS}")
+        if segments[-1].end_s > MAX_STREAM_SECONDS:
+            raise StableMoError(f"timeline: {segments[-1].end_s:g} s in all, at most {MAX_STREAM_SECONDS:g} s")
         chunk = check_finite("chunk_seconds", _number("chunk_seconds", body.get("chunk_seconds", 2.0)), low=0.0, strict=True)
-        chunk_frames(pipe, chunk)  # before counting chunks: a tiny chunk would be billions of them
+        chunk_length(pipe, chunk)  # a tiny chunk would be billions of them
         seed = check_seed("seed", body.get("seed", 0))
         steps = body.get("steps")
         if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int)):
@@ -226,15 +228,36 @@ class ModelSet:
         encoding = body.get("encoding", "lists")
         if encoding not in ENCODINGS:
             raise StableMoError(f"encoding: expected one of {', '.join(ENCODINGS)}, got {json_short(encoding)}")
-        # chunk i plays from i * chunk: it gets the prompt of the timeline at its middle
-        count = max(1, math.ceil(total / chunk - 1e-9))
-        ends = np.cumsum([sec for _, sec in segments])
-        texts = [segments[min(int(np.searchsorted(ends, (i + 0.5) * chunk, side="right")), len(segments) - 1)][0]
-                 for i in range(count)]
-        pipe.resolve(Request([texts[0]], pipe.max_length, seed=seed, sampler=sampler, steps=steps, cfg=cfg))
-        chunks = pipe.stream(texts, chunk_seconds=chunk, seed=seed, max_chunks=count, steps=steps, sampler=sampler,
-                             cfg=cfg)  # checks the chunk and context lengths against the model now
-        return StreamJob(name, texts, chunks, pipe.fps, round(chunk * pipe.fps) * count, encoding)
+        pipe.resolve(Request([segments[0].text], pipe.max_length, seed=seed, sampler=sampler, steps=steps, cfg=cfg))
+        stream = stream_timeline(pipe, segments, chunk_seconds=chunk, seed=seed, steps=steps, sampler=sampler, cfg=cfg,
+                                 source="timeline")  # checks the seeds of every window too
+        spec = StreamSpec(name, format_timeline(segments), chunk, seed, sampler, steps, cfg)
+        return StreamJob(spec, canonical_timeline(text), stream, self._recorded(spec, stream, pipe), pipe.fps,
+                         encoding, body.get("format"))
+
+    def _recorded(self, spec: StreamSpec, stream, pipe) -> Iterator:
+        """The stream's chunks, passed on as they come; once the last one is out, the whole motion
+        goes into the cache of recent motions, so a download of it re-uses what the page received."""
+        start, features, joints = time.perf_counter(), [], []
+        for chunk in stream.chunks:
+            features.append(chunk.features)
+            joints.append(chunk.joints)
+            yield chunk
+        info = {"skeleton": pipe.skeleton, "segments": [vars(s) for s in stream.plan.segments]}
+        self._remember(self._motion(spec, np.concatenate(joints), np.concatenate(features), pipe, info,
+                                    time.perf_counter() - start))
+
+    def stream_motion(self, job: StreamJob) -> tuple[Motion, bool]:
+        """(the whole motion of a checked timeline, whether it came from the cache): a stream the page
+        received is there; otherwise every chunk is made now (the same arrays: same seeds, same code)."""
+        with self._lock:
+            if job.spec in self._cache:
+                self._cache.move_to_end(job.spec)
+                return self._cache[job.spec], True
+        for _ in job.chunks:
+            pass
+        with self._lock:
+            return self._cache[job.spec], False
 
     # ---- generation ----------------------------------------------------------------------------
 
@@ -256,32 +279,74 @@ class ModelSet:
             t = np.array(spec.control, dtype=np.float64)  # (N, 5): frame, joint, x, y, z
             err = np.linalg.norm(joints[t[:, 0].astype(int), t[:, 1].astype(int)] - t[:, 2:], axis=-1)
             info["control"] = {"targets": len(t), "mean_error_m": float(err.mean()), "max_error_m": float(err.max())}
-        seconds = time.perf_counter() - start
+        motion = self._motion(spec, joints, result.feature_list()[0].astype(np.float32), pipe, info,
+                              time.perf_counter() - start)
+        self._remember(motion)
+        return motion, False
+
+    @staticmethod
+    def _motion(spec, joints: np.ndarray, features: np.ndarray, pipe, info: dict, seconds: float) -> Motion:
         from stablemo.bvh import export_motion
 
         # ~8 ms for the longest motion on the 2-core machine: cheap beside the model, and the page
         # learns with the motion whether its BVH would differ from it
         rig = export_motion(joints, skeleton=pipe.skeleton, source_fps=pipe.fps, bone_lengths=pipe.finish.bone_lengths)
-        motion = Motion(spec, joints, result.feature_list()[0].astype(np.float32), pipe.fps, info,
-                        seconds=seconds, bvh=rig)
+        return Motion(spec, joints, features, pipe.fps, info, seconds=seconds, bvh=rig)
+
+    def _remember(self, motion: Motion) -> None:
         with self._lock:
-            self._cache[spec] = motion
+            self._cache[motion.spec] = motion
             while len(self._cache) > self._cache_size:
                 self._cache.popitem(last=False)
-        return motion, False
+
+
+@dataclass(frozen=True)
+class StreamSpec:
+    """What decides a streamed motion (the key of the cache of recent motions, beside Spec):
+    timeline: its canonical text (stablemo.timeline.format_timeline)."""
+
+    model: str
+    timeline: str
+    chunk_seconds: float
+    seed: int
+    sampler: str | None = None
+    steps: int | None = None
+    cfg: float | None = None
+
+    @property
+    def text(self) -> str:
+        """A title for the motion and its file name: the prompts in order."""
+        return "timeline " + " | ".join(line.split(None, 2)[2] for line in self.timeline.splitlines())
 
 
 @dataclass
 class StreamJob:
-    """A checked timeline: `chunks` is the pipeline's lazy iterator of stablemo.timeline.Chunk
-    (chunk i uses seed + i and texts[i]); frames: the total it will produce."""
+    """A checked timeline: `stream` (stablemo.timeline.TimelineStream: its plan and chunk spans) and
+    `chunks`, its lazy iterator of stablemo.timeline.Chunk that caches the whole motion at its end;
+    timeline: the request's text with the page's shorthand lines written out."""
 
-    model: str
-    texts: list[str]
-    chunks: Any
+    spec: StreamSpec
+    timeline: str
+    stream: Any
+    chunks: Iterator
     fps: float
-    frames: int
     encoding: str
+    format: Any = None
+
+    @property
+    def model(self) -> str:
+        return self.spec.model
+
+    @property
+    def frames(self) -> int:
+        return self.stream.frames
+
+    def header(self) -> dict:
+        """The first line of /api/stream: what is coming."""
+        plan = self.stream.plan
+        return {"model": self.model, "fps": self.fps, "frames": self.frames, "chunks": len(self.stream.spans),
+                "timeline": self.timeline, "segments": [vars(s) for s in plan.segments],
+                "texts": [plan.segments[s.segment].text for s in self.stream.spans]}
 
 
 def encode_array(arr: np.ndarray, encoding: str) -> Any:

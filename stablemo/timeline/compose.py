@@ -15,7 +15,7 @@ than the model's minimum length is generated at the minimum and cut.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -100,16 +100,22 @@ def plan_windows(frames: Sequence[tuple[int, int]], texts: Sequence[str], min_le
     return windows
 
 
-def generate_timeline(pipe, segments: Sequence[Segment | tuple], seed: int = 0, overlap: float = DEFAULT_OVERLAP_S,
-                      blend: float = DEFAULT_BLEND_S, settle_s: float = DEFAULT_SETTLE_S, steps: int | None = None, sampler: str | None = None,
-                      cfg: float | None = None, dtype=None, hooks: Sequence = (), source: str = "segments",
-                      progress: bool = False) -> TimelineMotion:
-    """One motion for a timeline. overlap, blend: seconds of each window copied from the motion so
-    far, and of those the last seconds cross-faded instead of in-painted (blend <= overlap); settle_s:
-    seconds over which the jump where a window's new rows begin is faded out (`settle`); window i
-    uses seed + i; the sampler settings default to the bundle's."""
+@dataclass(frozen=True)
+class Plan:
+    """A checked timeline and how it is made: its segments, their [start, end) frames, the windows,
+    and the frames over which each window's first new row is settled."""
+
+    segments: list[Segment]
+    frames: list[tuple[int, int]]
+    windows: list[Window]
+    settle: int
+
+
+def plan_timeline(pipe, segments: Sequence[Segment | tuple], seed: int = 0, overlap: float = DEFAULT_OVERLAP_S,
+                  blend: float = DEFAULT_BLEND_S, settle_s: float = DEFAULT_SETTLE_S,
+                  source: str = "segments") -> Plan:
+    """Every argument of a timeline checked against the model, before anything is generated."""
     segments = check_segments(segments, source)
-    check_seed("seed", seed)
     k, r = _frames(pipe, overlap, "overlap"), _frames(pipe, blend, "blend")
     h = _frames(pipe, settle_s, "settle_s")
     if r > k:
@@ -119,22 +125,45 @@ def generate_timeline(pipe, segments: Sequence[Segment | tuple], seed: int = 0, 
                             f"{pipe.max_length} frames")
     frames = segment_frames(segments, pipe.fps, source)
     windows = plan_windows(frames, [s.text for s in segments], pipe.min_length, pipe.max_length, k, r)
-    sampling = Sampling(steps, sampler, cfg, dtype, tuple(hooks))
-    motion = np.zeros((frames[-1][1], pipe.mean.shape[0]), np.float32)  # (N, D)
-    for i, w in enumerate(windows):
+    check_seed("seed", seed, count=len(windows))  # window i uses seed + i
+    return Plan(segments, frames, windows, h)
+
+
+def compose_windows(pipe, plan: Plan, seed: int, sampling: Sampling, progress: bool = False) -> Iterator[tuple[Window, np.ndarray]]:
+    """Generate the plan's windows in order; after each, yield (the window, the motion (N, D)
+    de-normalised, raw), whose rows [0, window.new_end) are then final. One array, filled in place."""
+    motion = np.zeros((plan.frames[-1][1], pipe.mean.shape[0]), np.float32)  # (N, D)
+    for i, w in enumerate(plan.windows):
         context = motion[w.start:w.new_start] if w.prefix else None
         feats = generate_window(pipe, w.text, w.length, seed + i, context, w.prefix - w.blend, sampling)
         if w.blend:
             motion[w.new_start - w.blend:w.new_start] = crossfade(context[-w.blend:], feats[w.prefix - w.blend:w.prefix])
         new = feats[w.prefix:w.prefix + w.new_end - w.new_start]
-        motion[w.new_start:w.new_end] = settle(motion[:w.new_start], new, h, pipe.skeleton) if w.prefix else new
+        motion[w.new_start:w.new_end] = settle(motion[:w.new_start], new, plan.settle, pipe.skeleton) if w.prefix else new
         if progress:
-            print(f"  window {i + 1}/{len(windows)}: frames {w.new_start}-{w.new_end} {w.text!r}", flush=True)
+            print(f"  window {i + 1}/{len(plan.windows)}: frames {w.new_start}-{w.new_end} {w.text!r}", flush=True)
+        yield w, motion
+
+
+def generate_timeline(pipe, segments: Sequence[Segment | tuple], seed: int = 0, overlap: float = DEFAULT_OVERLAP_S,
+                      blend: float = DEFAULT_BLEND_S, settle_s: float = DEFAULT_SETTLE_S, steps: int | None = None, sampler: str | None = None,
+                      cfg: float | None = None, dtype=None, hooks: Sequence = (), source: str = "segments",
+                      progress: bool = False) -> TimelineMotion:
+    """One motion for a timeline. overlap, blend: seconds of each window copied from the motion so
+    far, and of those the last seconds cross-faded instead of in-painted (blend <= overlap); settle_s:
+    seconds over which the jump where a window's new rows begin is faded out (`settle`); window i
+    uses seed + i; the sampler settings default to the bundle's."""
+    check_seed("seed", seed)
+    plan = plan_timeline(pipe, segments, seed, overlap, blend, settle_s, source)
+    sampling = Sampling(steps, sampler, cfg, dtype, tuple(hooks))
+    for _, motion in compose_windows(pipe, plan, seed, sampling, progress):
+        pass
     raw = torch.from_numpy(motion)[None]  # (1, N, D): windows are joined raw, finished once as a whole
     if not torch.isfinite(features_to_joints(raw.double(), pipe.skeleton)).all():
         raise StableMoError("timeline: the recovered joints are not finite; nothing was written")
     feats, joints = pipe.finish(raw, [raw.shape[1]])
-    return TimelineMotion(segments, frames, feats[0].numpy(), joints[0].float().numpy(), pipe.fps, windows, motion)
+    return TimelineMotion(plan.segments, plan.frames, feats[0].numpy(), joints[0].float().numpy(), pipe.fps,
+                          plan.windows, motion)
 
 
-__all__ = ["TimelineMotion", "Window", "generate_timeline", "plan_windows"]
+__all__ = ["Plan", "TimelineMotion", "Window", "compose_windows", "generate_timeline", "plan_timeline", "plan_windows"]

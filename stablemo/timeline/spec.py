@@ -5,7 +5,10 @@
     10  15  a person turns left        # '#' starts a comment; blank lines are skipped
 
 Seconds are decimal numbers; the first segment starts at 0, each next one where the previous ended
-(an overlap or a gap is an error naming the line). Segment boundaries are rounded to frames once,
+(an overlap or a gap is an error naming the line). This is the one timeline format of the CLI
+(`--timeline FILE`), the API (/api/stream's `timeline`) and the page; the page also takes the
+shorthand `<seconds> <prompt>` (each line starting where the previous one ended), which it shows
+back in this format (`canonical_timeline`). Segment boundaries are rounded to frames once,
 from the absolute times (not from the durations), so the total length is exactly
 round(last end x fps) frames whatever the number of segments.
 """
@@ -73,30 +76,77 @@ def check_segments(segments: Sequence[Segment | tuple], source: str = "segments"
     return out
 
 
-def parse_timeline(text: str, source: str = "timeline") -> list[Segment]:
-    """Timeline text (lines `start_s end_s text`) -> checked segments; errors name `source:line`."""
-    rows, lines = [], []
+def _number(word: str) -> float | None:
+    try:
+        value = float(word)
+    except ValueError:
+        return None
+    return value if math.isfinite(value) else None
+
+
+def _rows(text: str, source: str, shorthand: bool) -> list[tuple[int, float, float, str, bool]]:
+    """(line number, start, end, prompt, written as shorthand) of each timeline line. Two leading
+    numbers are always start and end, so `5 10 a person jumps` is never the prompt "10 a person
+    jumps"; with `shorthand`, a line with one leading number is `<seconds> <prompt>`, starting where
+    the line before it ended."""
+    rows: list[tuple[int, float, float, str, bool]] = []
     for number, raw in enumerate(text.splitlines(), start=1):
         line = raw.split("#", 1)[0].strip()
         if not line:
             continue
         parts = line.split(None, 2)
+        first = _number(parts[0])
+        second = _number(parts[1]) if len(parts) > 1 else None
+        if shorthand and first is not None and second is None and len(parts) >= 2:
+            start = rows[-1][2] if rows else 0.0
+            if first <= 0:
+                raise StableMoError(f"{source}:{number}: a line '<seconds> <prompt>' needs seconds > 0, got {parts[0]!r}")
+            rows.append((number, start, start + first, line.split(None, 1)[1], True))
+            continue
         if len(parts) < 3:
             raise StableMoError(f"{source}:{number}: expected 'start_s end_s text', got {raw.strip()!r}")
-        times = []
-        for name, word in zip(("start", "end"), parts[:2]):
-            try:
-                value = float(word)
-            except ValueError:
-                value = math.nan
-            if not math.isfinite(value):
-                raise StableMoError(f"{source}:{number}: {name} time {word!r} is not a number of seconds")
-            times.append(value)
-        rows.append((times[0], times[1], parts[2]))
-        lines.append(number)
+        if first is None:
+            raise StableMoError(f"{source}:{number}: start time {parts[0]!r} is not a number of seconds")
+        if second is None:
+            raise StableMoError(f"{source}:{number}: end time {parts[1]!r} is not a number of seconds (lines are "
+                                "'start_s end_s text'; '<seconds> <prompt>' is only the page's shorthand)")
+        rows.append((number, first, second, parts[2], False))
     if not rows:
         raise StableMoError(f"{source}: no segments (lines 'start_s end_s text')")
-    return check_segments(rows, source, lines)
+    return rows
+
+
+def parse_timeline(text: str, source: str = "timeline", shorthand: bool = False) -> list[Segment]:
+    """Timeline text (lines `start_s end_s text`) -> checked segments; errors name `source:line`.
+    shorthand: also read `<seconds> <prompt>` lines (the page's), each starting where the previous
+    line ended; `canonical_timeline` writes such a text back in the one format."""
+    rows = _rows(text, source, shorthand)
+    return check_segments([r[1:4] for r in rows], source, [r[0] for r in rows])
+
+
+def _seconds(value: float) -> str:
+    return f"{round(value, 3):g}"
+
+
+def canonical_timeline(text: str, source: str = "timeline") -> str:
+    """The text with every `<seconds> <prompt>` line rewritten as `start_s end_s prompt`, its comment
+    kept; every other line (comments, blank lines, lines already in the format) as it was. Checked
+    as parse_timeline(text, shorthand=True) checks it."""
+    parse_timeline(text, source, shorthand=True)
+    rows = {r[0]: r for r in _rows(text, source, shorthand=True) if r[4]}
+    out = []
+    for number, raw in enumerate(text.splitlines(), start=1):
+        if number in rows:
+            _, start, end, prompt, _ = rows[number]
+            comment = raw.partition("#")[1] + raw.partition("#")[2]
+            raw = f"{_seconds(start)} {_seconds(end)} {prompt}" + (f"  {comment}" if comment else "")
+        out.append(raw)
+    return "\n".join(out) + "\n"
+
+
+def format_timeline(segments: Sequence[Segment]) -> str:
+    """Segments as timeline text, one `start_s end_s text` line each (parse_timeline reads it back)."""
+    return "".join(f"{_seconds(s.start_s)} {_seconds(s.end_s)} {s.text}\n" for s in segments)
 
 
 def read_timeline(path: str | Path) -> list[Segment]:
@@ -119,4 +169,5 @@ def segment_frames(segments: Sequence[Segment], fps: float, source: str = "segme
     return out
 
 
-__all__ = ["Segment", "check_segments", "parse_timeline", "read_timeline", "segment_frames"]
+__all__ = ["Segment", "canonical_timeline", "check_segments", "format_timeline", "parse_timeline", "read_timeline",
+           "segment_frames"]

@@ -79,11 +79,16 @@ def _seconds_to_frames(pipe, seconds, name: str, low: int) -> int:
     return frames
 
 
+def chunk_length(pipe, chunk_seconds) -> int:
+    """A chunk's frames, checked: at least MIN_CHUNK_FRAMES."""
+    return _seconds_to_frames(pipe, chunk_seconds, "chunk_seconds", MIN_CHUNK_FRAMES)
+
+
 def chunk_frames(pipe, chunk_seconds, context_seconds=DEFAULT_CONTEXT_S) -> tuple[int, int]:
     """(chunk frames n, context frames k) of a stream, checked against the model: n >=
     MIN_CHUNK_FRAMES and a window of k + n frames within the model's maximum. The one check of
     these lengths, for Pipeline.stream and the server (which calls it before counting chunks)."""
-    n = _seconds_to_frames(pipe, chunk_seconds, "chunk_seconds", MIN_CHUNK_FRAMES)
+    n = chunk_length(pipe, chunk_seconds)
     k = _seconds_to_frames(pipe, context_seconds, "context_seconds", 0)
     if k + n > pipe.max_length:
         raise StableMoError(f"chunk_seconds + context_seconds: {n + k} frames exceed this model's maximum "
@@ -157,4 +162,4 @@ def _global_targets(pipe, spec, frame: RootFrame, length: int, frames: int):
     return ControlTargets(torch.from_numpy(pos)[None], torch.from_numpy(keep)[None])
 
 
-__all__ = ["MIN_CHUNK_FRAMES", "Chunk", "chunk_frames", "stream"]
+__all__ = ["MIN_CHUNK_FRAMES", "Chunk", "chunk_frames", "chunk_length", "stream"]

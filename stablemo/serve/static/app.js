@@ -552,26 +552,10 @@ canvas.addEventListener('pointerup', () => {
 
 let streamAbort = null;
 
-function parseTimeline(text) {
-  const items = [];
-  text.split('\n').forEach((line, i) => {
-    if (!line.trim()) return;
-    const m = /^\s*(\d+(?:\.\d+)?)\s*s?\s+(\S.*?)\s*$/.exec(line);
-    if (!m) throw new Error(`timeline line ${i + 1}: expected "<seconds> <prompt>", e.g. "3 a person walks forward"`);
-    items.push({ text: m[2], seconds: Number(m[1]) });
-  });
-  if (!items.length) throw new Error('timeline: write one "<seconds> <prompt>" per line');
-  return items;
-}
-
 async function streamTimeline() {
-  let timeline;
-  try {
-    timeline = parseTimeline($('timeline').value);
-  } catch (err) {
-    showError(err.message);
-    return;
-  }
+  // the server reads the timeline (stablemo.timeline.spec, the CLI's parser) and names a bad line;
+  // the page's shorthand lines come back written out in the one format
+  const timeline = $('timeline').value;
   if (streamAbort) streamAbort.abort();
   const abort = new AbortController();
   streamAbort = abort;
@@ -581,8 +565,7 @@ async function streamTimeline() {
   if ($('steps').value !== '') body.steps = Number($('steps').value);
   if ($('cfg').value !== '') body.cfg = Number($('cfg').value);
   const now = performance.now();
-  const rec = { id: ++seq, text: timeline.map((t) => t.text).join(' → '), model: model.name, seed: body.seed,
-                input: now, send: now, stream: true };
+  const rec = { id: ++seq, text: 'timeline', model: model.name, seed: body.seed, input: now, send: now, stream: true };
   $('stop-stream').disabled = false;
   S.error = null;
   setStatus('streaming…');
@@ -612,12 +595,16 @@ async function streamTimeline() {
         if (msg.done) {
           m.streaming = false;
           m.frames = m.available;
+          m.spec = m.streamSpec;  // the whole stream downloads: the server kept it (/api/download)
+          document.querySelectorAll('#downloads button').forEach((b) => { b.disabled = false; });
           rec.done = performance.now();
           $('stream-info').textContent = `${m.chunks} chunks, ${(m.frames / m.fps).toFixed(1)} s of motion `
             + `in ${(msg.elapsed_ms / 1000).toFixed(2)} s; first chunk after ${(rec.response - rec.send).toFixed(0)} ms`;
           setStatus('');
         } else if (msg.chunks !== undefined) {
-          m = startStream(msg, model, rec);
+          $('timeline').value = msg.timeline;  // the shorthand shown back as the format the CLI reads
+          rec.text = msg.segments.map((s) => s.text).join(' → ');
+          m = startStream(msg, model, rec, body);
         } else {
           appendChunk(m, msg, rec);
         }
@@ -637,16 +624,16 @@ async function streamTimeline() {
   }
 }
 
-function startStream(head, model, rec) {
+function startStream(head, model, rec, body) {
   buildFigure(model.skeleton);
   const J = model.skeleton.parents.length;
-  S.motion = { spec: null, text: rec.text, seed: rec.seed, model: head.model, frames: head.frames, J, fps: head.fps,
+  S.motion = { spec: null, streamSpec: body, text: rec.text, seed: rec.seed, model: head.model, frames: head.frames, J, fps: head.fps,
                joints: new Float32Array(head.frames * J * 3), scale: model.skeleton.units === 'mm' ? 0.001 : 1,
                available: 0, streaming: true, chunks: 0, texts: head.texts, control: null };
   framePos = 0;
   if (!S.playing) togglePlay();  // a stream is there to be watched as it arrives
   $('scrub').max = head.frames - 1;
-  document.querySelectorAll('#downloads button').forEach((b) => { b.disabled = true; });  // single prompts only
+  document.querySelectorAll('#downloads button').forEach((b) => { b.disabled = true; });  // until the last chunk
   S.warnings = [];
   $('download-note').textContent = '';
   $('stream-info').textContent = `0 / ${head.chunks} chunks`;
