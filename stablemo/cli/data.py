@@ -1,5 +1,5 @@
 """`stablemo data check DIR [--dataset humanml3d|kit]`, `stablemo data synth --out DIR [--num N] [--seed S]`,
-`stablemo data preview OUT.png` and `stablemo data import-bvh DIR --out DATASET [--texts CSV] [--map YAML]` (stablemo/data/bvh_import.py)."""
+`stablemo data preview OUT.png`, `stablemo data shard SRC [SRC ...] --out DIR` (stablemo/data/shards.py) and `stablemo data import-bvh DIR --out DATASET [--texts CSV] [--map YAML]` (stablemo/data/bvh_import.py)."""
 
 from __future__ import annotations
 
@@ -32,6 +32,16 @@ def _parser() -> argparse.ArgumentParser:
     imp.add_argument("--map", default=None, help="YAML {our joint name: file joint name} (default: ours/Mixamo or CMU names)")
     imp.add_argument("--up", default="y", choices=["y", "z"], help="the files' up axis (default y)")
     imp.add_argument("--seed", type=int, default=0, help="seed of the train/val/test split")
+    shard = sub.add_parser("shard", help="turn dataset folders (HumanML3D layout) into compressed shards + manifest")
+    shard.add_argument("sources", nargs="+", metavar="SRC", help="dataset folders; several are merged in this order")
+    shard.add_argument("--out", required=True, help="shard folder: new or empty, or the same command's unfinished run "
+                                                    "(it continues)")
+    shard.add_argument("--dataset", default="humanml3d", choices=sorted(DATASETS), help="feature width and limits")
+    shard.add_argument("--licence", nargs="+", default=None,
+                       help="licence of the sources: one for all or one per source (default: the first line "
+                            "of a LICENCE/LICENSE file in the source, else 'unknown')")
+    shard.add_argument("--clips-per-shard", type=int, default=None, help="clips per shard file (default 512)")
+    shard.add_argument("--skip-bad", action="store_true", help="skip unreadable clips (listed in the manifest)")
     preview = sub.add_parser("preview", help="a PNG contact sheet of one synthetic motion per action")
     preview.add_argument("out", help="PNG path")
     preview.add_argument("--seed", type=int, default=0)
@@ -57,6 +67,17 @@ def main(argv: list[str]) -> int:
         report = check_dataset(args.dir, args.dataset, cache=not args.no_cache)
         print(format_report(report, max_problems=len(report.problems) if args.all_problems else 30))
         return 0 if report.ok else 1
+    if args.command == "shard":
+        from stablemo.data.shards import CLIPS_PER_SHARD, write_shards
+
+        manifest, kept = write_shards(args.sources, args.out, dataset=args.dataset, licences=args.licence,
+                                      clips_per_shard=args.clips_per_shard or CLIPS_PER_SHARD,
+                                      skip_bad=args.skip_bad)
+        splits = manifest["splits"]
+        shards = sum(len(s["shards"]) for s in splits.values())
+        counts = ", ".join(f"{name} {entry['clips']} clips" for name, entry in splits.items())
+        print(f"wrote {shards} shards ({counts}) to {args.out}" + (f"; {kept} kept from the unfinished run" if kept else ""))
+        return 0
     if args.command == "import-bvh":
         from stablemo.data.bvh_import import import_bvh_dir  # owned by the BVH module
 

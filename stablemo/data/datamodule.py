@@ -1,4 +1,5 @@
-"""LightningDataModule over a HumanML3D-layout folder (HumanML3D or KIT-ML)."""
+"""LightningDataModule over a HumanML3D-layout folder (HumanML3D or KIT-ML), or over its shards
+(`stablemo data shard`, read by stablemo.data.streaming)."""
 
 from __future__ import annotations
 
@@ -12,19 +13,27 @@ import torch
 from torch.utils.data import DataLoader
 
 from stablemo.data.cache import SplitData, load_split
-from stablemo.data.check import range_problems, stats_problems, without_clips
+from stablemo.data.check import (
+    MAX_ABS_VALUE,
+    MIN_STD,
+    range_problems,
+    stats_problems,
+    without_clips,
+)
 from stablemo.data.collate import Collate
 from stablemo.data.dataset import CROPS, MotionDataset
 from stablemo.data.layout import check_root, get_spec, split_path
 from stablemo.data.resumable import ResumableLoader
 from stablemo.data.sampler import EpochSampler
-from stablemo.data.stats import load_model_stats
+from stablemo.data.stats import (
+    apply_feat_bias,
+    body_lengths,
+    body_picks,
+    load_model_stats,
+)
+from stablemo.data.streaming import ShardDataset, ShardSampler
 from stablemo.errors import StableMoError
-from stablemo.motion.features import features_to_joints
-from stablemo.motion.rigid import bone_lengths_of
 from stablemo.motion.skeleton import MAX_FRAMES
-
-BODY_CLIPS = 256  # clips measured for the body's bone lengths (the median is stable long before)
 
 
 def seed_worker(worker_id: int) -> None:
@@ -39,7 +48,10 @@ class MotionDataModule(L.LightningDataModule):
     length (B,) int64, text list[str] (one caption per item), tokens list[list[str]], id list[str].
 
     Args:
-        data_dir: dataset folder in the HumanML3D layout.
+        data_dir: dataset folder in the HumanML3D layout (or give `shards`).
+        shards: a shard folder written by `stablemo data shard` (local path or URL, see
+            stablemo.data.shard_format) to stream from instead: bounded memory, each rank its own share
+            of every epoch (stablemo.data.streaming). Splits are the manifest's train/val/test.
         dataset: "humanml3d" or "kit" (feature width, minimum length, fps, skeleton).
         batch_size, num_workers: DataLoader settings.
         pad_multiple: padded length is a multiple of this (the denoiser's length_multiple).
@@ -56,7 +68,7 @@ class MotionDataModule(L.LightningDataModule):
 
     def __init__(
         self,
-        data_dir: str,
+        data_dir: str | None = None,
         dataset: str = "humanml3d",
         batch_size: int = 64,
         num_workers: int = 0,
@@ -72,9 +84,13 @@ class MotionDataModule(L.LightningDataModule):
         cache: bool = True,
         cache_dir: str | None = None,
         drop_last: bool = False,
+        shards: str | None = None,
     ):
         super().__init__()
         self.spec = get_spec(dataset)
+        if (data_dir is None) == (shards is None):
+            raise StableMoError("data: give data_dir (a dataset folder) or shards (a shard folder or URL), "
+                                f"not {'both' if data_dir else 'neither'}")
         for name, value in (("batch_size", batch_size), ("pad_multiple", pad_multiple), ("max_length", max_length)):
             if value < 1:
                 raise StableMoError(f"{name}={value}: must be >= 1")
@@ -91,7 +107,9 @@ class MotionDataModule(L.LightningDataModule):
         self.seed, self.skip_bad = seed, skip_bad
         self.splits = {"train": train_split, "val": val_split, "test": test_split}
         self.eval_crop, self.cache, self.cache_dir, self.drop_last = eval_crop, cache, cache_dir, drop_last
-        self.datasets: dict[str, MotionDataset] = {}
+        self.shards = shards
+        self._manifest = None
+        self.datasets: dict[str, MotionDataset | ShardDataset] = {}
         self._splits: dict[str, SplitData] = {}  # by split name: read (and warned about) once
         self._range_checked: set[str] = set()
         self._stats: tuple[np.ndarray, np.ndarray] | None = None
@@ -110,7 +128,26 @@ class MotionDataModule(L.LightningDataModule):
     def fps(self) -> float:
         return self.spec.fps
 
+    @property
+    def manifest(self):
+        """The shard folder's manifest (shards mode), read once."""
+        if self._manifest is None:
+            from stablemo.data.shard_format import MANIFEST, join, read_manifest
+
+            manifest = read_manifest(self.shards)
+            if manifest.spec.name != self.spec.name:
+                raise StableMoError(f"{join(self.shards, MANIFEST)}: holds {manifest.spec.name} clips, "
+                                    f"but dataset={self.spec.name!r} (set --data.dataset={manifest.spec.name})")
+            big = np.abs(manifest.mean) > MAX_ABS_VALUE
+            if big.any() or (manifest.std < MIN_STD).any():
+                raise StableMoError(f"{join(self.shards, MANIFEST)}: stats outside the range of motion features "
+                                    f"(|mean| > {MAX_ABS_VALUE:g} or std < {MIN_STD:g})")
+            self._manifest = manifest
+        return self._manifest
+
     def _load_stats(self) -> tuple[np.ndarray, np.ndarray]:
+        if self._stats is None and self.shards is not None:
+            self._stats = self.manifest.mean, apply_feat_bias(self.manifest.std, self.feat_bias)
         if self._stats is None:
             root = check_root(self.data_dir)
             stats = load_model_stats(root, self.spec, self.feat_bias)
@@ -144,15 +181,20 @@ class MotionDataModule(L.LightningDataModule):
         frames of up to BODY_CLIPS clips spread over the train split. A bundle stores them, and
         generation puts every motion on this body (stablemo.inference.finish). Clips made by our
         extraction all keep the skeleton's standard body; this also holds for data that does not."""
+        if self.shards is not None:
+            if self.manifest.body is not None:
+                return self.manifest.body  # measured on the same clips by `stablemo data shard`
+            data = self._dataset("train").shard(0).data
+            return body_lengths((data.motion(int(i)) for i in body_picks(len(data.ids))), self.skeleton)
         data = self._checked_split(self.splits["train"])
-        picks = np.unique(np.linspace(0, len(data.ids) - 1, min(BODY_CLIPS, len(data.ids))).astype(int))
-        lengths = [bone_lengths_of(features_to_joints(torch.from_numpy(np.array(data.motion(int(i)), np.float64)),
-                                                      self.skeleton), self.skeleton) for i in picks]
-        return torch.cat(lengths).median(0).values.numpy()
+        return body_lengths((data.motion(int(i)) for i in body_picks(len(data.ids))), self.skeleton)
 
     # -- Lightning hooks -------------------------------------------------------------------------
     def prepare_data(self) -> None:
         """Build the split caches once (rank 0) so the other ranks only map them."""
+        if self.shards is not None:
+            self.manifest  # noqa: B018  (a missing or broken manifest is named before training starts)
+            return
         check_root(self.data_dir)
         if self.cache:
             for split in dict.fromkeys(self.splits.values()):
@@ -186,7 +228,20 @@ class MotionDataModule(L.LightningDataModule):
         self._splits[split] = data
         return data
 
-    def _dataset(self, role: str) -> MotionDataset:
+    def _shard_dataset(self, role: str) -> ShardDataset:
+        from stablemo.data.shard_format import MANIFEST, join
+
+        mean, std = self._load_stats()
+        split = self.splits[role]
+        ds = ShardDataset(self.manifest, split, mean, std, max_length=self.max_length,
+                          crop="train" if role == "train" else self.eval_crop, seed=self.seed)
+        if len(ds) == 0:
+            raise StableMoError(f"{join(self.shards, MANIFEST)}: no usable items in the {split} split")
+        return ds
+
+    def _dataset(self, role: str) -> MotionDataset | ShardDataset:
+        if role not in self.datasets and self.shards is not None:
+            self.datasets[role] = self._shard_dataset(role)
         if role not in self.datasets:
             mean, std = self._load_stats()
             data = self._checked_split(self.splits[role])
@@ -203,16 +258,27 @@ class MotionDataModule(L.LightningDataModule):
 
     def setup(self, stage: str | None = None) -> None:
         roles = {"fit": ("train", "val"), "validate": ("val",), "test": ("test",), "predict": ("test",)}
-        root = check_root(self.data_dir)
         for role in roles.get(stage or "", ("train", "val", "test")):
             # Training without a val split is allowed; val_dataloader() then names the missing file.
-            if stage == "fit" and role == "val" and not (root / f"{self.splits[role]}.txt").is_file():
+            if stage == "fit" and role == "val" and not self._has_split(self.splits[role]):
                 continue
             self._dataset(role)
 
+    def _has_split(self, split: str) -> bool:
+        if self.shards is not None:
+            return split in self.manifest.splits
+        return (check_root(self.data_dir) / f"{split}.txt").is_file()
+
     def _loader(self, role: str, shuffle: bool) -> DataLoader:
         ds = self._dataset(role)
-        sampler = EpochSampler(len(ds), seed=self.seed, shuffle=shuffle, per_epoch=shuffle)
+        if isinstance(ds, ShardDataset):
+            # each rank its own share of the epoch (Lightning leaves a DistributedSampler in place)
+            trainer = self.trainer
+            rank, world = (trainer.global_rank, trainer.world_size) if trainer is not None else (0, 1)
+            sampler = ShardSampler(ds.items_per_shard, seed=self.seed, shuffle=shuffle, per_epoch=shuffle,
+                                   rank=rank, world_size=world)
+        else:
+            sampler = EpochSampler(len(ds), seed=self.seed, shuffle=shuffle, per_epoch=shuffle)
         # ResumableLoader: a DataLoader whose in-epoch position is saved in Lightning checkpoints
         return ResumableLoader(
             ds,

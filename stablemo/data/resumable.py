@@ -45,6 +45,11 @@ class ResumableLoader(DataLoader):
         if resume is not None and resume.get("epoch") == self._epoch:
             skip = int(resume.get("batches", 0))
         self._served = 0
+        sampler = self.batch_sampler.sampler if self.batch_sampler is not None else self.sampler
+        if skip and hasattr(sampler, "start_at") and self.batch_size:
+            # a sampler that can start mid-epoch (ShardSampler): nothing before the position is read
+            sampler.start_at(skip * self.batch_size)
+            self._served, skip = skip, 0
         for batch in super().__iter__():
             self._served += 1
             if self._served > skip:

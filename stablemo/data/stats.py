@@ -69,11 +69,17 @@ def compute_stats(motions: Iterable[np.ndarray], feature_dim: int) -> tuple[np.n
         count += len(m)
         total += m.sum(0)
         total_sq += (m * m).sum(0)
+    return stats_from_sums(count, total, total_sq)
+
+
+def stats_from_sums(count: int, total: np.ndarray, total_sq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """compute_stats from the frame count and float64 (D,) sums of values and squares (so that parts
+    of a corpus, e.g. shards written in several runs, can be summed separately)."""
     if count == 0:
         raise StableMoError("compute_stats: no frames")
     mean = total / count
     std = np.sqrt(np.maximum(total_sq / count - mean * mean, 0.0))
-    for group in feature_groups(feature_dim):
+    for group in feature_groups(len(mean)):
         std[group] = std[group].mean()
     return mean.astype(np.float32), std.astype(np.float32)
 
@@ -90,3 +96,26 @@ def denormalize(features, mean, std):
         std = torch.as_tensor(std, dtype=features.dtype, device=features.device)
         mean = torch.as_tensor(mean, dtype=features.dtype, device=features.device)
     return features * std + mean
+
+
+BODY_CLIPS = 256  # clips measured for the body's bone lengths (the median is stable long before)
+
+
+def body_picks(num_clips: int) -> np.ndarray:
+    """Rows of the (up to BODY_CLIPS) train clips, spread over the split, whose bones make the body."""
+    if num_clips < 1:
+        raise StableMoError("body: the train split has no clips")
+    return np.unique(np.linspace(0, num_clips - 1, min(BODY_CLIPS, num_clips)).astype(int))
+
+
+def body_lengths(motions: Iterable[np.ndarray], skeleton) -> np.ndarray:
+    """(J,) bone lengths (parent -> joint, root 0): the median over every frame of the given raw
+    (T, D) feature clips. A bundle stores them and generation puts every motion on this body."""
+    import torch
+
+    from stablemo.motion.features import features_to_joints
+    from stablemo.motion.rigid import bone_lengths_of
+
+    lengths = [bone_lengths_of(features_to_joints(torch.from_numpy(np.array(m, np.float64)), skeleton), skeleton)
+               for m in motions]
+    return torch.cat(lengths).median(0).values.numpy()
