@@ -3,6 +3,7 @@
     stablemo generate "a person walks forward, then waves their right hand" --seconds 6 --out outputs
     stablemo generate --prompts prompts.txt --frames 120 --steps 10 --cfg 2.5 --format mp4
     stablemo generate "a person walks forward" --control path.npz     # joint targets (docs/control.md)
+    stablemo generate "a person waves" --format glb --format fbx         # a skinned mannequin (docs/gltf.md)
     stablemo generate --timeline timeline.txt                            # prompts over time, one motion
 
 Every file is written atomically: an interrupted run leaves no half-written output.
@@ -50,8 +51,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed; prompt i uses seed + i (default 0)")
     p.add_argument("--bundle", default=None, help=f"bundle folder (default: the packaged demo model, {DEMO_BUNDLE})")
     p.add_argument("--out", default="outputs", help="output folder (default ./outputs)")
-    p.add_argument("--format", action="append", choices=["gif", "mp4", "bvh"], default=None,
-                   help="output format, may repeat: gif (default), mp4 (needs ffmpeg), bvh (for Blender and game engines, docs/bvh.md)")
+    p.add_argument("--format", action="append", choices=["gif", "mp4", "bvh", "glb", "fbx"], default=None,
+                   help="output format, may repeat: gif (default), mp4 (needs ffmpeg), bvh (for Blender and game engines, "
+                        "docs/bvh.md), glb (the motion on a skinned mannequin, docs/gltf.md), fbx (the same, needs Blender)")
     p.add_argument("--no-render", action="store_true", help="write the .npy files only")
     p.add_argument("--footskate", action="store_true",
                    help="remove foot skating at the last denoising step (StableMoFusion*, vGRF-guided)")
@@ -77,6 +79,10 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if "fbx" in (args.format or []) and not args.no_render:  # before anything is loaded or computed
+        from stablemo.gltf.fbx import check_blender
+
+        check_blender()
     if args.timeline is not None:
         if args.raw:
             raise StableMoError("--raw: not with --timeline (a timeline's windows are joined and finished as one motion)")

@@ -20,8 +20,21 @@ FBX (through Blender on PATH): stablemo.gltf.fbx.glb_to_fbx. See docs/gltf.md.
 """
 
 from stablemo.gltf.mannequin import mannequin
-from stablemo.gltf.motion import animation_glb, export_glb, motion_glb, standing_glb, write_glb
-from stablemo.gltf.writer import Primitive, glb_bytes, gltf_document, pack_glb, read_glb, rest_world
+from stablemo.gltf.motion import (
+    animation_glb,
+    export_glb,
+    motion_glb,
+    standing_glb,
+    write_glb,
+)
+from stablemo.gltf.writer import (
+    Primitive,
+    glb_bytes,
+    gltf_document,
+    pack_glb,
+    read_glb,
+    rest_world,
+)
 
 __all__ = [
     "Primitive", "animation_glb", "export_glb", "glb_bytes", "gltf_document", "mannequin", "motion_glb",

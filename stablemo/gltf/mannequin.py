@@ -39,6 +39,12 @@ BONE_SHAPES: dict[str, tuple[float, float]] = {
 }
 DEFAULT_SHAPE = (0.04, 1.0)
 PELVIS_BONES = ("UpLeg",)  # drawn in the centre colour: they are the pelvis, not the legs
+# the foot (ankle -> toe joint): its capsule's toe end is raised by its radius (at rest, across the
+# bone towards +y) and reaches past the toe joint, so a foot whose toe joint is on the floor has its
+# sole there instead of sinking a radius into it; SOLE is how far the sole is below a flat foot's joints
+SOLE_BONES = ("ToeBase",)
+TOE_REACH = 0.015
+SOLE = max(BONE_SHAPES["Foot"][0], BONE_SHAPES["ToeBase"][0])  # the shin's and the foot's caps round the ankle
 HEAD_RADII = (0.085, 0.11, 0.10)  # x, y, z half-axes of the head
 HEAD_LIFT = 0.075  # the head's centre above the head joint
 HAND = (0.09, 0.045, 0.018)  # length along the forearm, half-width, half-thickness
@@ -137,9 +143,14 @@ def mannequin(rig: Rig, colours: dict[str, str], rest_rotations: np.ndarray | No
         side, kind = part_of(rig.names[j])
         if p >= 0:
             radius, aspect = BONE_SHAPES.get(kind, DEFAULT_SHAPE)
-            shape = capsule(pos[p], pos[j], radius, aspect)
+            end = pos[j]
+            if kind in SOLE_BONES:  # the sole passes through the toe joint, which the floor step puts on y = 0
+                along = (pos[j] - pos[p]) / np.linalg.norm(pos[j] - pos[p])
+                up = np.array([0.0, 1.0, 0.0]) - along[1] * along
+                end = pos[j] + TOE_REACH * along + radius * up / max(np.linalg.norm(up), 1e-9)
+            shape = capsule(pos[p], end, radius, aspect)
             parts["center" if kind in PELVIS_BONES else side].append((*shape, p))
-        if rig.children(j) or p < 0:
+        if rig.children(j) or p < 0 or kind in SOLE_BONES:
             continue
         bone = pos[j] - pos[p]
         along = bone / np.linalg.norm(bone)

@@ -18,7 +18,7 @@ import numpy as np
 from stablemo.bvh.fit import Fit
 from stablemo.bvh.rig import Animation, forward_kinematics, joints_to_animation
 from stablemo.bvh.writer import Export, export_motion
-from stablemo.gltf.mannequin import mannequin
+from stablemo.gltf.mannequin import SOLE, mannequin
 from stablemo.gltf.writer import glb_bytes
 from stablemo.motion.skeleton import Skeleton, get_skeleton
 
@@ -31,9 +31,9 @@ def _palette(colours: dict[str, str] | None) -> dict[str, str]:
 
 
 def rest_root(anim: Animation) -> np.ndarray:
-    """(3,) where the root stands at rest: lifted so that the T-pose's lowest joint is on the floor."""
+    """(3,) where the root stands at rest: lifted so that the T-pose's flat feet stand on the floor."""
     still = Animation(anim.rig, np.zeros((1, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (1, anim.rig.num_joints, 1)), anim.fps)
-    return np.array([0.0, -forward_kinematics(still)[0, :, 1].min(), 0.0])
+    return np.array([0.0, SOLE - forward_kinematics(still)[0, :, 1].min(), 0.0])
 
 
 def animation_glb(anim: Animation, colours: dict[str, str] | None = None, name: str = "motion") -> bytes:
@@ -78,6 +78,6 @@ def standing_glb(skeleton: Skeleton | str, bone_lengths=None, colours: dict[str,
     for j, p in enumerate(skel.parents):
         if p >= 0:
             joints[j] = joints[p] + skel.raw_offsets[j] * lengths[j] / per_metre
-    joints[:, 1] -= joints[:, 1].min()
+    joints[:, 1] += SOLE - joints[:, 1].min()  # its feet are flat: the soles on the floor
     anim = joints_to_animation(joints[None], skel, skel.fps)
     return animation_glb(anim, colours, name="rest")

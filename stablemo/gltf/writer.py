@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import json
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
@@ -238,7 +238,7 @@ def read_glb(data: bytes) -> tuple[dict, bytes]:
     magic, version, length = struct.unpack_from("<III", data, 0)
     if magic != 0x46546C67 or version != 2 or length != len(data):
         raise StableMoError("not a glTF 2.0 binary (GLB) file")
-    size, kind = struct.unpack_from("<II", data, 12)
+    size, _ = struct.unpack_from("<II", data, 12)
     doc = json.loads(data[20:20 + size].decode("utf-8"))
     binary = b""
     if 20 + size < len(data):

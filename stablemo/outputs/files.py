@@ -1,8 +1,8 @@
 """What a generated motion becomes on disk: file names from prompt text, and the files themselves.
 
 `slugify`/`unique_slugs` turn prompts into distinct file stems that can never leave the output
-folder; `write_motion` writes a motion's features, joints and chosen formats (GIF/MP4, BVH), each
-atomically. `stablemo generate`, `edit`, the timeline path and the server's downloads share them.
+folder; `write_motion` writes a motion's features, joints and chosen formats (GIF/MP4, BVH, GLB,
+FBX), each atomically. `stablemo generate`, `edit`, the timeline path and the server's downloads share them.
 """
 
 from __future__ import annotations
@@ -63,7 +63,8 @@ def check_output_name(name: str, flag: str = "--name") -> str:
 
 def write_motion(out: Path, slug: str, feats, joints, pipe, formats: list[str], title: str,
                  targets=None, warn=None) -> list[str]:
-    """Features, joints and each of `formats` (gif, mp4: an animation; bvh) of one motion; the names written.
+    """Features, joints and each of `formats` (gif, mp4: an animation; bvh; glb, fbx: the skinned
+    mannequin) of one motion; the names written.
     targets: joint-control targets (positions, mask) drawn in the animation. warn: called with one
     line for a written file that is more than 3 cm from the motion (stablemo.bvh.fit); the library
     prints nothing itself."""
@@ -73,7 +74,9 @@ def write_motion(out: Path, slug: str, feats, joints, pipe, formats: list[str], 
     save_npy(out / f"{slug}.joints.npy", joints)
     written = [f"{slug}.features.npy", f"{slug}.joints.npy"]
     for fmt in formats:
-        if fmt == "bvh":
+        if fmt in ("glb", "fbx"):
+            _write_body(out / f"{slug}.{fmt}", joints, pipe, warn)
+        elif fmt == "bvh":
             from stablemo.bvh import write_bvh
 
             # the bundle's body: the joints were built on it, so the file's bones are exactly theirs
@@ -89,3 +92,24 @@ def write_motion(out: Path, slug: str, feats, joints, pipe, formats: list[str], 
                              targets=targets)
         written.append(f"{slug}.{fmt}")
     return written
+
+
+def _write_body(path: Path, joints, pipe, warn=None) -> None:
+    """The motion on our skinned mannequin as GLB, or as FBX through Blender (stablemo.gltf.fbx),
+    in the stick figures' colours; the same fit warning as the BVH (they share the rig)."""
+    from stablemo.gltf import motion_glb
+    from stablemo.outputs.render import COLOURS
+
+    data, fit = motion_glb(joints, skeleton=pipe.skeleton, source_fps=pipe.fps, bone_lengths=pipe.finish.bone_lengths,
+                           colours=COLOURS)
+    if path.suffix == ".fbx":
+        from stablemo.gltf.fbx import glb_to_fbx
+
+        glb_to_fbx(data, path, pipe.fps)
+    else:
+        from stablemo.io import write_bytes
+
+        write_bytes(path, data)
+    warning = fit.warning(str(path), "the joints .npy is exact")
+    if warning and warn is not None:
+        warn(warning)
