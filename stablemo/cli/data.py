@@ -12,8 +12,9 @@ from stablemo.errors import StableMoError
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="stablemo data", description="dataset tools")
     sub = parser.add_subparsers(dest="command", required=True)
-    check = sub.add_parser("check", help="validate a dataset folder (HumanML3D layout) and print a summary")
-    check.add_argument("dir", help="dataset folder")
+    check = sub.add_parser("check", help="validate a dataset folder (HumanML3D layout) or a shard folder "
+                                         "(`data shard`) and print a summary")
+    check.add_argument("dir", help="dataset folder, or shard folder (path or URL)")
     check.add_argument("--dataset", default="humanml3d", choices=sorted(DATASETS),
                        help="feature width, length limits and fps to check against (default: humanml3d)")
     check.add_argument("--all-problems", action="store_true", help="list every problem (default: the first 30)")
@@ -62,6 +63,12 @@ def main(argv: list[str]) -> int:
         print(f"wrote {write_contact_sheet(args.out, args.seed, args.frames, args.only)}")
         return 0
     if args.command == "check":
+        from stablemo.data.shard_check import check_shards, format_shard_report, is_shard_folder
+
+        if is_shard_folder(args.dir):  # written by `data shard`: the manifest names the dataset
+            report = check_shards(args.dir)
+            print(format_shard_report(report, max_problems=len(report.problems) if args.all_problems else 30))
+            return 0 if report.ok else 1
         from stablemo.data.check import check_dataset, format_report
 
         report = check_dataset(args.dir, args.dataset, cache=not args.no_cache)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,6 +37,7 @@ from stablemo.errors import StableMoError
 FORMAT = "stablemo-shards"
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
+SHARD_NAME = re.compile(r"(train|val|test)-\d{5}\.tar$")
 ZSTD_LEVEL = 1  # ~4x faster to write than level 3 for 2 % more bytes (scripts/bench/shard_libraries.py)
 DTYPE = np.dtype("<f4")
 

@@ -23,7 +23,6 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import re
 import shutil
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -46,6 +45,7 @@ from stablemo.data.shard_format import (
     FORMAT,
     FORMAT_VERSION,
     MANIFEST,
+    SHARD_NAME,
     ZSTD_LEVEL,
     clip_sample,
     sha256,
@@ -63,7 +63,6 @@ SHARD_SPLITS = ("train", "val", "test")
 CLIPS_PER_SHARD = 512  # ~60 MB of HumanML3D features before compression, ~35 MB after
 PARTIAL = ".partial"  # records of finished shards while a run is unfinished
 LICENCE_FILES = ("LICENCE", "LICENSE", "LICENCE.txt", "LICENSE.txt", "LICENCE.md", "LICENSE.md")
-_OURS = re.compile(r"(train|val|test)-\d{5}\.tar$")
 
 
 @dataclass(frozen=True)
@@ -220,7 +219,7 @@ def _start_over(out: Path, partial: Path) -> None:
     """Remove an unfinished run's records and its shard files (only names this command writes)."""
     shutil.rmtree(partial, ignore_errors=True)
     for path in out.iterdir():
-        if _OURS.match(path.name):
+        if SHARD_NAME.match(path.name):
             path.unlink()
 
 
@@ -242,7 +241,7 @@ def write_shards(paths: list[str], out: str, *, dataset: str = "humanml3d", clip
     key = plan_key(sources, spec, clips_per_shard, skip_bad)
     partial = out_dir / PARTIAL
     if out_dir.is_dir() and any(out_dir.iterdir()):
-        foreign = [p.name for p in out_dir.iterdir() if not (_OURS.match(p.name) or p.name in (PARTIAL, MANIFEST))]
+        foreign = [p.name for p in out_dir.iterdir() if not (SHARD_NAME.match(p.name) or p.name in (PARTIAL, MANIFEST))]
         if foreign:
             raise StableMoError(f"--out: {out}: holds files this command did not write (e.g. {min(foreign)}); "
                                 "give a new or empty folder")
