@@ -228,3 +228,20 @@ def test_bvh_frame_time_out_of_range(tmp_path, capsys, frame_time, fps):
     err = capsys.readouterr().err.strip()
     assert rc == 2 and f"a.bvh:27: Frame Time {frame_time} s: {fps} fps is outside 1-1000 fps" in err
     assert not (tmp_path / "data").exists()
+
+
+def test_target_pace_is_the_travel_the_targets_ask_of_the_body():
+    from stablemo.motion.plausible import target_pace
+    from stablemo.motion.skeleton import get_skeleton
+
+    # a pelvis path at 2 m/s along +x (frames 0..20 at 20 fps), and a pause of 1 s then 1 m more
+    frames = np.array([0, 20, 40])
+    pts = np.array([[0, 0.9, 0], [2, 0.9, 0], [3, 0.9, 0]], float)
+    assert target_pace(frames, np.zeros(3), pts, "humanml3d") == pytest.approx(2.0)
+    # a wrist target within reach of the pelvis asks for no travel; 3 m farther in 1 s asks 3 m/s
+    assert target_pace(np.array([20]), np.array([21]), np.array([[0.5, 1.2, 0.2]]), "humanml3d") == 0.0
+    reach = target_pace(np.array([20]), np.array([21]), np.array([[4.0, 1.2, 0.0]]), "humanml3d")
+    far = target_pace(np.array([20]), np.array([21]), np.array([[7.0, 1.2, 0.0]]), "humanml3d")
+    assert far - reach == pytest.approx(3.0) and 0.0 < reach < 4.0
+    # KIT millimetres are read as such
+    assert target_pace(frames, np.zeros(3), pts * 1000, "kit") == pytest.approx(2.0 * get_skeleton("kit").fps / 20)  # 20 frames at 12.5 fps

@@ -334,6 +334,24 @@ def test_joint_control_reaches_the_targets_and_equals_offline(client, models):
     assert np.array_equal(joints, ref)
 
 
+def test_a_path_faster_than_a_body_follows_gets_a_note_instead_of_reached(client):
+    def path(speed):  # a straight pelvis path along +x at `speed` m/s over 40 frames
+        return [[f, 0, speed * f / 20, 0.95, 0.0] for f in range(40)]
+
+    slow = client.post("/api/generate", json={"text": "a person walks forward", "frames": 40, "steps": 2,
+                                              "control": {"targets": path(1.0)}}).json()["control"]
+    assert slow["pace_m_s"] == pytest.approx(1.0) and slow["limit_m_s"] == 3.0
+    assert slow["note"] is None and slow["max_error_m"] < 0.03
+    fast = client.post("/api/generate", json={"text": "a person walks forward", "frames": 40, "steps": 2,
+                                              "control": {"targets": path(5.0)}}).json()["control"]
+    assert fast["pace_m_s"] == pytest.approx(5.0)
+    assert fast["note"].startswith("too fast to follow: the targets ask for 5.0 m/s, more than a body keeps up (3 m/s")
+    # a keyframe far from where the body can get in time: the right wrist 4 m away half a second in
+    key = client.post("/api/generate", json={"text": "a person waves", "frames": 40, "steps": 2,
+                                             "control": {"targets": [[10, 21, 4.0, 1.2, 0.0]]}}).json()["control"]
+    assert key["pace_m_s"] > 3.0 and key["note"].startswith("too fast to follow")
+
+
 @pytest.mark.parametrize("control, message", [
     ({"points": []}, 'control: expected {"targets"'),
     ({"targets": [[0, 0, 1.0, 2.0]]}, "control.targets[0]: expected [frame, joint, x, y, z]"),

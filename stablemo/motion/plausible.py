@@ -22,6 +22,10 @@ BODY_SPAN_M = (0.2, 5.0)
 # Faster than any human moves: the fastest measured sprint peaks near 12.4 m/s (Berlin 2009, 100 m
 # split times). A root or target that must travel faster than this between frames is not a motion.
 MAX_SPEED_M_S = 15.0
+# The fastest pace a generated body keeps along a path for seconds: a jog. The demo models' data
+# (data/synth, 2000 clips) moves its root at most 3.7 m/s in any frame and at most 2.0 m/s averaged
+# over a clip; a path asking more is met by sliding the pelvis along it, not by walking or running.
+FOLLOW_SPEED_M_S = 3.0
 # Height of a joint above the floor: a little below it (sloppy floors in mocap), up to a hand at
 # the top of a high jump.
 HEIGHT_RANGE_M = (-1.0, 4.0)
@@ -97,6 +101,34 @@ def check_targets(positions: np.ndarray, mask: np.ndarray, skeleton: Skeleton | 
         f"frame, moving at most {MAX_SPEED_M_S:g} m/s){hint}")
 
 
+def target_pace(frames: np.ndarray, joints: np.ndarray, points: np.ndarray, skeleton: Skeleton | str,
+                bone_lengths: np.ndarray | None = None) -> float:
+    """The pace (m/s, on the floor) a body must keep to meet joint targets: frames (N,), joints (N,)
+    and points (N, 3) in the skeleton's unit, in the motion's own frame (the root starts at the
+    origin at frame 0). The largest of: between consecutive targets of one joint, their distance
+    over their time apart; from the start, a target's distance from the origin less the joint's
+    reach from the pelvis (the bones between them; bone_lengths (J,) default the skeleton's), over
+    its time. 0 when nothing is asked of the body's travel."""
+    skel = get_skeleton(skeleton)
+    lengths = np.asarray(skel.bone_lengths if bone_lengths is None else bone_lengths, np.float64) / scale(skel)
+    reach = np.zeros(skel.num_joints)
+    for j in range(1, skel.num_joints):  # parents come before their children
+        reach[j] = reach[skel.parents[j]] + lengths[j]
+    frames, joints = np.asarray(frames, np.int64), np.asarray(joints, np.int64)
+    xz = np.asarray(points, np.float64)[:, [0, 2]] / scale(skel)  # (N, 2) metres
+    pace = 0.0
+    late = frames > 0
+    if late.any():
+        away = np.maximum(np.linalg.norm(xz[late], axis=-1) - reach[joints[late]], 0.0)
+        pace = float((away / (frames[late] / skel.fps)).max())
+    for j in np.unique(joints):
+        order = np.argsort(frames[joints == j])
+        f, p = frames[joints == j][order], xz[joints == j][order]
+        if len(f) > 1:
+            pace = max(pace, float((np.linalg.norm(np.diff(p, axis=0), axis=-1) / (np.diff(f) / skel.fps)).max()))
+    return pace
+
+
 def check_joints_extent(joints: np.ndarray, skeleton: Skeleton | str, fps: float, what: str) -> None:
     """Joints (T, J, 3) in the skeleton's unit: no frame's body is larger than a person (a unit
     1000x too large), and the horizontal extent over the motion is no more than a body covers at
@@ -136,6 +168,6 @@ def check_fps(fps: float, what: str) -> float:
     return float(fps)
 
 
-__all__ = ["BODY_SPAN_M", "FPS_RANGE", "HEIGHT_RANGE_M", "MAX_ABS_FEATURE", "MAX_BVH_JOINTS", "MAX_SPEED_M_S",
+__all__ = ["BODY_SPAN_M", "FOLLOW_SPEED_M_S", "FPS_RANGE", "HEIGHT_RANGE_M", "MAX_ABS_FEATURE", "MAX_BVH_JOINTS", "MAX_SPEED_M_S",
            "MAX_TIMELINE_SECONDS", "MIN_ROOT_HEIGHT_M", "REACH_M", "check_feature_stats", "check_fps", "check_joints_extent",
-           "check_targets", "scale"]
+           "check_targets", "scale", "target_pace"]

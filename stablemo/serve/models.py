@@ -275,10 +275,8 @@ class ModelSet:
         result = pipe.generate(self._request(spec, hooks=make_hooks(pipe, footskate=spec.footskate)))
         joints = result.joint_list()[0].astype(np.float32)  # (T, J, 3)
         info = dict(result.info, skeleton=pipe.skeleton)
-        if spec.control:  # how close the motion came to its targets, metres
-            t = np.array(spec.control, dtype=np.float64)  # (N, 5): frame, joint, x, y, z
-            err = np.linalg.norm(joints[t[:, 0].astype(int), t[:, 1].astype(int)] - t[:, 2:], axis=-1)
-            info["control"] = {"targets": len(t), "mean_error_m": float(err.mean()), "max_error_m": float(err.max())}
+        if spec.control:
+            info["control"] = control_report(spec.control, joints, pipe)
         motion = self._motion(spec, joints, result.feature_list()[0].astype(np.float32), pipe, info,
                               time.perf_counter() - start)
         self._remember(motion)
@@ -401,6 +399,32 @@ def _control(value: Any, frames: int, skeleton: str) -> tuple:
             raise StableMoError(f"{where}: frame {frame}, joint {joint} is given twice")
         out[frame, joint] = xyz
     return tuple((f, j, *xyz) for (f, j), xyz in sorted(out.items()))
+
+
+# a target the motion misses by more than this is said to be missed, not reached (the BVH's
+# tolerance, stablemo.bvh.fit: what a viewer would notice)
+REACHED_M = 0.03
+
+
+def control_report(control: tuple, joints: np.ndarray, pipe) -> dict:
+    """How close the motion came to its targets (metres), the pace they ask of the body and, when
+    the page should not say "reached", one line saying why (`note`): targets faster than a body
+    follows (it slides along them: stablemo.motion.plausible.FOLLOW_SPEED_M_S), or missed."""
+    from stablemo.motion.plausible import FOLLOW_SPEED_M_S, target_pace
+
+    t = np.array(control, dtype=np.float64)  # (N, 5): frame, joint, x, y, z
+    frames, which = t[:, 0].astype(int), t[:, 1].astype(int)
+    err = np.linalg.norm(joints[frames, which] - t[:, 2:], axis=-1)
+    pace = target_pace(frames, which, t[:, 2:], pipe.skeleton, pipe.finish.bone_lengths)
+    note = None
+    if pace > FOLLOW_SPEED_M_S:
+        note = (f"too fast to follow: the targets ask for {pace:.1f} m/s, more than a body keeps up "
+                f"({FOLLOW_SPEED_M_S:g} m/s, a jog), so it slides along them; draw a shorter path or make the "
+                "motion longer")
+    elif err.max() > REACHED_M:
+        note = f"targets missed by up to {100 * err.max():.1f} cm (on average {100 * err.mean():.1f} cm)"
+    return {"targets": len(t), "mean_error_m": float(err.mean()), "max_error_m": float(err.max()),
+            "pace_m_s": round(pace, 3), "limit_m_s": FOLLOW_SPEED_M_S, "note": note}
 
 
 def control_from_targets(targets: tuple, frames: int, skeleton: str):

@@ -62,13 +62,18 @@ def settle(before: np.ndarray, new: np.ndarray, frames: int, skeleton: str) -> n
     extrapolated, and the first new row is added to the new rows with a weight falling from 1 to 0
     along a half cosine (flat at both ends, so no velocity kink is added). Replacement in-painting
     leaves such a jump where the kept prefix ends (measured in docs/long_motion.md); foot contacts
-    are labels, not positions, and are left as they are."""
+    are labels, not positions, and are left as they are, and so is the root's yaw velocity: an
+    offset faded out there is a turn taken away from the new text (a 170-degree "turns right"
+    after a walk turned 116 degrees; 135 without it, scripts/long_motion/stream_prompts.py), while
+    a body may start turning at once."""
     if frames <= 0 or len(before) < 2 or len(new) == 0:
         return new
     from stablemo.motion.features import feature_slices
 
     offset = (2.0 * before[-1] - before[-2]) - new[0]  # (D,)
-    offset[feature_slices(skeleton)["contacts"]] = 0.0
+    columns = feature_slices(skeleton)
+    offset[columns["contacts"]] = 0.0
+    offset[columns["root_rot_vel"]] = 0.0
     h = min(frames, len(new))
     weight = 0.5 * (1.0 + np.cos(np.pi * np.arange(h) / frames))  # (h,) 1 at the join, -> 0
     out = new.copy()
