@@ -1,7 +1,7 @@
 """A real client: headless Blender imports our BVH, and its bones' heads are where the joints are,
 frame by frame, at every heading, and at the right time: a 20 fps file plays at 20 fps with the
-importer's "Update Scene FPS" or "Scale FPS" (skipped when `blender` is not installed: apt-get
-install blender)."""
+importer's "Update Scene FPS" or "Scale FPS"; our GLB and FBX (the skinned mannequin) come in the
+same way (skipped when `blender` is not installed: apt-get install blender)."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ import pytest
 
 from stablemo.bvh import write_bvh
 from stablemo.bvh.names import bvh_names
+from stablemo.gltf.fbx import NUMPY_FALLBACK
 from stablemo.motion.skeleton import HUMANML3D
 
 pytestmark = pytest.mark.skipif(shutil.which("blender") is None, reason="blender is not installed")
@@ -164,3 +165,62 @@ def test_the_readmes_prompt_comes_into_blender_as_the_written_joints(tmp_path):
     bones = np.linalg.norm(heads[:, 1:] - heads[:, [max(p, 0) for p in HUMANML3D.parents[1:]]], axis=-1)
     assert np.ptp(bones, axis=0).max() < 1e-3  # limbs of constant length in Blender too
     assert heads[..., 1].min() > -0.01  # nothing below the floor
+
+
+# Runs inside Blender: each file (GLB, then FBX) imported into an empty scene at the motion's rate,
+# then every pose bone's head in world space at every frame of its action
+READ_BODIES = NUMPY_FALLBACK + """
+import bpy, json
+fps = float(fps)
+out = {}
+for path in files.split(","):
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.render.fps = round(fps)
+    if path.endswith(".fbx"):
+        bpy.ops.import_scene.fbx(filepath=path)
+    else:
+        bpy.ops.import_scene.gltf(filepath=path)
+    arm = next(o for o in scene.objects if o.type == "ARMATURE")
+    meshes = [o for o in scene.objects if o.type == "MESH"]
+    first, last = arm.animation_data.action.frame_range
+    frames = []
+    for frame in range(int(round(first)), int(round(last)) + 1):
+        scene.frame_set(frame)
+        frames.append({b.name: list(arm.matrix_world @ b.head) for b in arm.pose.bones})
+    out[path] = {"first": first, "frames": frames, "meshes": len(meshes),
+                 "skinned": [any(m.type == "ARMATURE" for m in o.modifiers) for o in meshes]}
+with open(dst, "w") as f:
+    json.dump(out, f)
+"""
+
+
+def test_the_readmes_prompt_as_glb_and_fbx_comes_into_blender_as_the_written_joints(tmp_path):
+    """`generate --format glb --format fbx`, as a user runs it: Blender's glTF and FBX importers put
+    the mannequin's bones on the .joints.npy body at every frame (one Blender launch writes the FBX,
+    one reads both files)."""
+    from stablemo.cli import main
+    from stablemo.gltf.fbx import site_packages
+
+    prompt = "a person walks forward, then waves their right hand"
+    assert main(["generate", prompt, "--format", "glb", "--format", "fbx", "--out", str(tmp_path / "out")]) == 0
+    stem = tmp_path / "out" / "a-person-walks-forward-then-waves-their-right-hand"
+    joints = np.load(stem.with_suffix(".joints.npy"))
+    glb, fbx = stem.with_suffix(".glb"), stem.with_suffix(".fbx")
+    script, dst = tmp_path / "read_bodies.py", tmp_path / "bodies.json"
+    script.write_text("import sys\nfiles, dst, fps, site_packages = sys.argv[sys.argv.index('--') + 1:]\n" + READ_BODIES)
+    run = subprocess.run(["blender", "-b", "--factory-startup", "--python-exit-code", "1", "--python", str(script),
+                          "--", f"{glb},{fbx}", str(dst), "20", site_packages()],
+                         check=False, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
+    data = json.loads(dst.read_text())
+    # the glTF importer keys time 0 on scene frame 0, the FBX importer on frame 1; both one key per frame
+    assert (data[str(glb)]["first"], data[str(fbx)]["first"]) == (0.0, 1.0)
+    for path in (glb, fbx):
+        read = data[str(path)]
+        assert (read["meshes"], read["skinned"]) == (1, [True]), path.name  # the body, skinned
+        heads = np.array([[frame[name] for name in bvh_names("humanml3d")] for frame in read["frames"]])
+        heads = np.stack([heads[..., 0], heads[..., 2], -heads[..., 1]], axis=-1)  # Blender z up -> our y up
+        assert heads.shape == joints.shape, path.name  # one key per motion frame, 20 fps
+        err = np.linalg.norm(heads - joints, axis=-1)
+        assert err.max() < 0.01, (path.name, err.mean(), err.max())
