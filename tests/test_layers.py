@@ -22,7 +22,7 @@ LAYERS = [
     ("motion",),
     ("text", "diffusion", "bvh", "gltf"),  # gltf: motion and bvh only (stablemo/gltf)
     ("nets", "skating", "outputs"),
-    ("fast", "distill", "control", "data"),
+    ("fast", "distill", "control", "data", "retarget"),  # retarget: motion, bvh, gltf (stablemo/retarget)
     ("timeline",),
     ("inference",),
     ("official", "training"),

@@ -1,0 +1,99 @@
+"""The entry points behind the command, the Python API and the server: inputs checked, the solve, the file."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from stablemo.errors import StableMoError
+from stablemo.retarget.names import conventions, find_roles, load_role_map
+from stablemo.retarget.rest import RestRig
+from stablemo.retarget.solve import Solved, solve
+from stablemo.retarget.source import Source, motion_source, read_source
+from stablemo.retarget.target import read_rig
+
+OUTPUTS = {"bvh": (".bvh",), "fbx": (".bvh",), "gltf": (".glb", ".bvh")}
+
+
+@dataclass(frozen=True)
+class Report:
+    """What was written: the file, its format, frames, fps, the scale applied (target units per
+    source unit) and the roles found (joint name -> role)."""
+
+    path: Path
+    fmt: str
+    frames: int
+    fps: float
+    scale: float
+    roles: dict[str, str]
+
+    def summary(self) -> str:
+        return (f"{self.frames} frames at {self.fps:g} fps -> {self.path} ({self.fmt}); scale {self.scale:.4g}; "
+                f"{len(self.roles)} joints driven, the others at rest")
+
+
+def _source(motion, role_map: dict | None) -> Source:
+    if isinstance(motion, Source):
+        return motion
+    if isinstance(motion, (str, os.PathLike)):
+        return read_source(motion)
+    return motion_source(motion)
+
+
+def _map(role_map) -> dict | None:
+    if role_map is None or isinstance(role_map, dict):
+        return role_map
+    return load_role_map(role_map)
+
+
+def retarget(motion, rig, role_map=None, fps: float | None = None) -> Solved:
+    """motion: path (.npy/.bvh), array (features or joints) or Source; rig: path or RestRig;
+    role_map: {Role: joint name} or a YAML path (the target's roles); fps: resample the result."""
+    target = rig if isinstance(rig, RestRig) else read_rig(rig)
+    roles = find_roles(target.names, target.parents, target.rest, target.path, _map(role_map))
+    solved = solve(_source(motion, None), target, roles, conventions()["contacts"])
+    if fps is not None:
+        from dataclasses import replace
+
+        from stablemo.bvh.resample import resample
+
+        solved = replace(solved, anim=resample(solved.anim, float(fps)))
+    return solved
+
+
+def check_out(out: str | os.PathLike, rig: str | os.PathLike) -> Path:
+    """The output's suffix must be one the target's format is written as: one line before any work."""
+    from stablemo.retarget.target import FORMATS
+
+    out, rig = Path(out), Path(rig)
+    fmt = FORMATS.get(rig.suffix.lower())
+    if fmt is None:
+        raise StableMoError(f"--rig: {rig}: expected a .bvh, .gltf, .glb or .fbx rig")
+    allowed = OUTPUTS[fmt]
+    if out.suffix.lower() not in allowed:
+        raise StableMoError(f"--out: {out}: a {rig.suffix.lower()} rig is written as {' or '.join(allowed)}")
+    return out
+
+
+def retarget_file(motion, rig, out, role_map=None, fps: float | None = None) -> Report:
+    """Retarget and write OUT atomically (BVH, or for a glTF rig a GLB: its own file plus the animation)."""
+    from stablemo.io import check_output_file
+
+    out = check_out(out, rig)
+    check_output_file(out, "--out")
+    solved = retarget(motion, rig, role_map, fps)
+    if out.suffix.lower() == ".glb":
+        from stablemo.retarget.gltf_out import write_onto_gltf
+
+        write_onto_gltf(out, solved)
+        fmt = "glb"
+    else:
+        from stablemo.bvh.text import format_bvh
+        from stablemo.io import write_text
+
+        write_text(out, format_bvh(solved.anim))
+        fmt = "bvh"
+    names = solved.target.names
+    roles = {names[j]: role for j, role in solved.roles.mapped().items()}
+    return Report(out, fmt, solved.anim.num_frames, solved.anim.fps, solved.scale, roles)
