@@ -139,6 +139,35 @@ def test_downloads_are_the_shown_motion(client, models, tmp_path):
     assert Image.open(io.BytesIO(res.content)).n_frames == 40
 
 
+def test_the_glb_download_and_the_standing_body(client, models, monkeypatch):
+    """The page's body: the GLB download is the shown motion on our mannequin (stablemo.gltf), the
+    rest body stands on the floor; FBX is offered only with Blender and refused in one line without."""
+    import shutil
+
+    from test_gltf import pose_file
+
+    body = {"text": "a person waves", "frames": 40, "seed": 2, "steps": 1}
+    joints, _ = offline(models, body["text"], 40, 2, steps=1)
+    res = client.post("/api/download", json={**body, "format": "glb"})
+    assert res.status_code == 200 and res.headers["content-type"] == "model/gltf-binary"
+    assert res.headers["content-disposition"] == 'attachment; filename="a-person-waves-seed2.glb"'
+    doc, world, times = pose_file(res.content)
+    assert len(times) == 40 and len(doc["meshes"][0]["primitives"]) == 3
+    assert np.linalg.norm(world[..., :3, 3] - joints, axis=-1).max() < 1e-4
+    rest = client.get("/api/rest.glb")
+    assert rest.status_code == 200 and rest.content[:4] == b"glTF"
+    assert client.get("/api/rest.glb", params={"model": "teacher"}).content == rest.content
+    bad = client.get("/api/rest.glb", params={"model": "nope"})
+    assert bad.status_code == 400 and bad.json() == {"error": "model: unknown model 'nope'; served: teacher"}
+    offered = client.get("/api/info").json()["downloads"]
+    assert "glb" in offered and ("fbx" in offered) == (shutil.which("blender") is not None)
+    monkeypatch.setattr("stablemo.gltf.fbx.blender_path", lambda: None)
+    assert "fbx" not in client.get("/api/info").json()["downloads"]
+    res = client.post("/api/download", json={**body, "format": "fbx"})
+    assert res.status_code == 400 and res.json()["error"].startswith(
+        "format: FBX is written through Blender, which is not on PATH")
+
+
 def test_generate_says_when_the_bvh_download_would_miss_the_motion(client, monkeypatch, tmp_path):
     import torch
 

@@ -245,6 +245,10 @@ def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_
 def check_format(fmt) -> str:
     if fmt not in DOWNLOADS:
         raise StableMoError(f"format: expected one of {', '.join(sorted(DOWNLOADS))}, got {json_short(fmt)}")
+    if fmt == "fbx":  # before the motion is made: FBX needs Blender on this machine
+        from stablemo.gltf.fbx import check_blender
+
+        check_blender("format")
     return fmt
 
 
