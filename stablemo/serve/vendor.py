@@ -31,6 +31,10 @@ FILES = {
     "package/build/three.module.js": "three/three.module.js",
     "package/build/three.core.js": "three/three.core.js",
     "package/examples/jsm/controls/OrbitControls.js": "three/addons/controls/OrbitControls.js",
+    # the page's body is our GLB, read by three.js's own glTF loader (and the two modules it imports)
+    "package/examples/jsm/loaders/GLTFLoader.js": "three/addons/loaders/GLTFLoader.js",
+    "package/examples/jsm/utils/BufferGeometryUtils.js": "three/addons/utils/BufferGeometryUtils.js",
+    "package/examples/jsm/utils/SkeletonUtils.js": "three/addons/utils/SkeletonUtils.js",
     "package/LICENSE": "three/LICENSE",
 }
 STAMP = "three/VERSION"
