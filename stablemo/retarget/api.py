@@ -13,7 +13,7 @@ from stablemo.retarget.solve import Solved, solve
 from stablemo.retarget.source import Source, motion_source, read_source
 from stablemo.retarget.target import read_rig
 
-OUTPUTS = {"bvh": (".bvh",), "fbx": (".bvh",), "gltf": (".glb", ".bvh")}
+OUTPUTS = {"bvh": (".bvh",), "fbx": (".bvh",), "gltf": (".glb", ".bvh")}  # rig format -> what OUT may be
 
 
 @dataclass(frozen=True)
