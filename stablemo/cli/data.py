@@ -78,7 +78,7 @@ def main(argv: list[str]) -> int:
         from stablemo.data.shards import CLIPS_PER_SHARD, write_shards
 
         manifest, kept = write_shards(args.sources, args.out, dataset=args.dataset, licences=args.licence,
-                                      clips_per_shard=args.clips_per_shard or CLIPS_PER_SHARD,
+                                      clips_per_shard=CLIPS_PER_SHARD if args.clips_per_shard is None else args.clips_per_shard,
                                       skip_bad=args.skip_bad)
         splits = manifest["splits"]
         shards = sum(len(s["shards"]) for s in splits.values())
