@@ -75,6 +75,20 @@ def rest_directions(skeleton: Skeleton | str) -> np.ndarray:
     return out
 
 
+def rest_joints(skeleton: Skeleton | str, bone_lengths: np.ndarray | None = None) -> np.ndarray:
+    """(J, 3) joint positions of the rest pose (the BVH rig's: `rest_directions` times the bone
+    lengths, default the skeleton's), standing on the floor (its lowest joint at height 0) with the
+    pelvis above the origin, in the skeleton's unit."""
+    skel = get_skeleton(skeleton)
+    lengths = np.asarray(skel.bone_lengths if bone_lengths is None else bone_lengths, np.float64)
+    directions = rest_directions(skel)
+    out = np.zeros((skel.num_joints, 3))
+    for j in range(1, skel.num_joints):  # parents come before their children
+        out[j] = out[skel.parents[j]] + lengths[j] * directions[j]
+    out[:, 1] -= out[:, 1].min()
+    return out
+
+
 def strip_namespace(name: str) -> str:
     """'mixamorig:LeftArm' -> 'LeftArm' (Mixamo and other tools prefix a namespace)."""
     return name.rsplit(":", 1)[-1]

@@ -88,6 +88,7 @@ class ServedModel:
         self.name, self.path, self.pipeline = name, path, pipeline
 
     def describe(self) -> dict:
+        from stablemo.bvh.names import rest_joints
         from stablemo.motion.skeleton import get_skeleton
 
         pipe = self.pipeline
@@ -106,7 +107,9 @@ class ServedModel:
             "defaults": {"sampler": inf.sampler, "steps": inf.steps, "cfg": inf.cfg},
             "skeleton": {"name": skel.name, "units": skel.units, "joints": list(skel.joint_names),
                          "parents": list(skel.parents), "chains": [list(c) for c in skel.kinematic_chains],
-                         "sides": [skel.side_of_chain(i) for i in range(len(skel.kinematic_chains))]},
+                         "sides": [skel.side_of_chain(i) for i in range(len(skel.kinematic_chains))],
+                         # where the figure stands before the first motion: the bundle's body at rest
+                         "rest": rest_joints(skel, pipe.finish.bone_lengths).round(4).tolist()},
         }
 
 

@@ -1,14 +1,15 @@
 // StableMo's page: a prompt box, a 3D skeleton (three.js, vendored), playback and downloads.
-// Generation follows typing: each edit waits DEBOUNCE_MS for the next keystroke, and at most one
-// request is in flight; edits made meanwhile are sent as one request when it returns, so a slow
-// model is never sent a backlog of half-typed prompts.
+// Generation follows typing: a request is sent once typing pauses for DEBOUNCE_MS, and a newer
+// request cancels the one in flight (AbortController), so a 39-character prompt typed at speed is
+// one request, not 37, and an answer never replaces a newer prompt's.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+import { Body } from './body.js';
 
 const $ = (id) => document.getElementById(id);
 const COLOURS = { left: 0x1f6fd1, right: 0xd62f2f, center: 0x444444 };  // as stablemo.outputs.render
 const PATH_COLOUR = 0x2a9d5c;
-const DEBOUNCE_MS = 40;
+const DEBOUNCE_MS = 300;  // a pause in typing, not a keystroke gap
 const CAMERA_OFFSET = new THREE.Vector3(2.4, 1.1, 3.4);  // from the pelvis: front-left, above
 
 // Everything the browser test and the latency measurement read (window.stablemo).
@@ -136,11 +137,23 @@ function jointAt(m, f, j, out) {
 
 function pose(f) {
   const m = S.motion;
-  figure.joints.forEach((mesh, j) => jointAt(m, f, j, mesh.position));
+  placeFigure((j, out) => jointAt(m, f, j, out));
+}
+
+// The figure before any motion: the model's body at rest on the floor (not a post at the origin).
+function restPose(skeleton) {
+  const scale = skeleton.units === 'mm' ? 0.001 : 1;
+  placeFigure((j, out) => out.fromArray(skeleton.rest[j]).multiplyScalar(scale));
+  dirtyView = true;
+}
+
+// Joints and bones where at(j, out) puts each joint (world metres).
+function placeFigure(at) {
+  figure.joints.forEach((mesh, j) => at(j, mesh.position));
   const shadow = figure.shadow.geometry.attributes.position;
   figure.bones.forEach(({ mesh, a, b }, i) => {
-    jointAt(m, f, a, tmpA);
-    jointAt(m, f, b, tmpB);
+    at(a, tmpA);
+    at(b, tmpB);
     shadow.setXYZ(2 * i, tmpA.x, 0.002, tmpA.z);
     shadow.setXYZ(2 * i + 1, tmpB.x, 0.002, tmpB.z);
     tmpD.subVectors(tmpB, tmpA);
@@ -187,6 +200,29 @@ function resize() {
 
 S.three = { scene, camera, renderer, controls, floor };  // for debugging in the console
 
+// The body (static/body.js: our mannequin from the server's GLB) is shown instead of the stick figure
+// when it holds the motion on screen (or, before any motion, the model's body at rest), unless the
+// stick figure is asked for, a joint is being dragged (the sticks' joints are the handles) or a
+// timeline streams (its chunks come as joints only). Until a motion's GLB arrives, the sticks show it.
+const body = new Body(scene);
+S.body = body;
+body.onload = () => { dirtyView = true; };
+
+function bodyWanted() {
+  if ($('sticks').checked || mode === 'pose') return false;
+  const m = S.motion;
+  return m ? Boolean(m.spec) && !m.streaming && body.holds(m.spec) : body.holds(`rest:${$('model').value}`);
+}
+
+// Show the body or the sticks, the body posed at frame f of the motion (f < 0: no motion).
+function syncBody(f) {
+  const on = bodyWanted();
+  body.setVisible(on);
+  if (figure) figure.group.visible = !on;
+  if (on && S.motion && f >= 0) body.pose(f / S.motion.fps);
+  S.bodyShown = on;
+}
+
 // ---- playback loop ------------------------------------------------------------------------
 
 let framePos = 0, lastTick = performance.now(), dirtyView = true;
@@ -206,6 +242,7 @@ function tick() {
   lastTick = now;
   const m = S.motion;
   if (m && m.available > 0 && S.playing) framePos += dt * m.fps * S.speed;
+  if (bodyWanted() !== body.visible) dirtyView = true;  // a GLB arrived, or a toggle changed
   draw();
 }
 
@@ -224,7 +261,8 @@ function draw() {
     f = Math.min(Math.floor(framePos), m.available - 1);
     if (f !== S.frame || firstDraw) {
       pose(f);
-      if ($('follow').checked) followCamera();
+      // drawing a path or dragging a joint holds the camera: the floor stays under the cursor
+      if ($('follow').checked && mode === null) followCamera();
       dirtyView = true;
     }
   }
@@ -232,6 +270,7 @@ function draw() {
   // only when something moved: a 20 fps motion needs 20 renders a second, not the display's 60
   if (!dirtyView) return;
   dirtyView = false;
+  syncBody(f);
   renderer.render(scene, camera);
   if (f >= 0) {
     S.frame = f;
@@ -240,6 +279,8 @@ function draw() {
     if ($('scrub').value !== String(f)) $('scrub').value = f;
     $('clock').textContent = `frame ${f + 1} / ${m.frames} · ${(f / m.fps).toFixed(2)} s / ${(m.frames / m.fps).toFixed(2)} s`;
     if (firstDraw) { firstDraw.rendered = performance.now(); presented = firstDraw; firstDraw = null; }
+  } else if (figure) {
+    recordPose();  // the rest pose
   }
 }
 
@@ -254,7 +295,9 @@ function recordPose() {
 
 // ---- requests -----------------------------------------------------------------------------
 
-let inflight = false, dirty = false, debounce = null, lastInput = performance.now(), seq = 0, pendingSend = false;
+let inflight = null, debounce = null, lastInput = performance.now(), seq = 0, pendingSend = false;
+S.requests = 0;        // /api/generate requests sent
+S.cancelled = 0;       // of those, cancelled by a newer one
 
 function modelInfo(name) { return S.info.models.find((m) => m.name === name); }
 
@@ -284,26 +327,27 @@ function schedule(delay = DEBOUNCE_MS) {
 
 async function submit() {
   pendingSend = false;
-  if (inflight) { dirty = true; return; }
+  if (inflight) { inflight.abort(); S.cancelled++; }  // stale: a newer prompt is on its way
   if (streamAbort) streamAbort.abort();  // a new prompt replaces a timeline being streamed
-  inflight = true;
-  dirty = false;
+  const abort = new AbortController();
+  inflight = abort;
   const spec = currentSpec();
   const rec = { id: ++seq, text: spec.text, model: spec.model, seed: spec.seed, input: lastInput, send: performance.now() };
+  S.requests++;
   setStatus('generating…');
   try {
     const res = await fetch('/api/generate', {
-      method: 'POST', headers: { 'Content-Type': 'application/json' },
+      method: 'POST', headers: { 'Content-Type': 'application/json' }, signal: abort.signal,
       body: JSON.stringify({ ...spec, encoding: 'base64', features: false }),
     });
     const data = await res.json().catch(() => ({ error: `HTTP ${res.status}: the answer is not JSON` }));
+    if (abort.signal.aborted) return;
     if (!res.ok) showError(data.error || `HTTP ${res.status}`);
     else { rec.response = performance.now(); rec.server = data.timing; setMotion(data, spec, rec); }
   } catch (err) {
-    showError(`no answer from the server (${err.message})`);
+    if (err.name !== 'AbortError') showError(`no answer from the server (${err.message})`);
   } finally {
-    inflight = false;
-    if (dirty) submit();
+    if (inflight === abort) inflight = null;
   }
 }
 
@@ -313,6 +357,7 @@ function decode(arr) {
 }
 
 function setMotion(data, spec, rec) {
+  if (spec) body.motion(spec);  // the GLB download of this motion, read as the body
   const model = modelInfo(data.model);
   const [T, J] = data.joints.shape;
   buildFigure(model.skeleton);
@@ -321,8 +366,11 @@ function setMotion(data, spec, rec) {
                available: T, streaming: false,
                scale: model.skeleton.units === 'mm' ? 0.001 : 1 };
   buildPath(S.motion);
-  // a new prompt plays from the start; an edit made while paused stays at the frame being edited
-  framePos = S.playing ? 0 : Math.min(framePos, T - 1);
+  // a new prompt plays from the start; an edit made while paused stays at the frame being edited;
+  // the motion of a path just drawn plays from the start if the page was playing before the stroke
+  framePos = S.playing || resumeAfterPath ? 0 : Math.min(framePos, T - 1);
+  if (resumeAfterPath && !S.playing) togglePlay();
+  resumeAfterPath = false;
   $('scrub').max = T - 1;
   firstDraw = rec;
   draw();
@@ -389,6 +437,7 @@ const pointer = new THREE.Vector2();
 const floorPlane = new THREE.Plane(new THREE.Vector3(0, 1, 0), 0);
 const targetMaterial = new THREE.MeshBasicMaterial({ color: TARGET_COLOUR });
 let mode = null;            // 'path' | 'pose' | null
+let resumeAfterPath = false;  // play the path's motion when it arrives (the page was playing)
 let draft = null;           // the path being drawn: [[x, z], ...] world
 let dragging = null;        // {joint, plane} while a joint is dragged
 let pathObject = null;      // the drawn path on the floor
@@ -405,6 +454,7 @@ function setPointer(e) {
 
 function setMode(next) {
   mode = mode === next ? null : next;
+  if (mode === 'path') holdForStroke();
   $('draw-path').setAttribute('aria-pressed', String(mode === 'path'));
   $('edit-pose').setAttribute('aria-pressed', String(mode === 'pose'));
   controls.enabled = mode === null;  // the left button draws or drags instead of orbiting
@@ -412,6 +462,31 @@ function setMode(next) {
   if (mode === 'pose' && S.playing) togglePlay();
   showControlInfo();
 }
+
+// Before a stroke: pause at frame 0, where the motion (and so the path) starts, with the camera on
+// the figure; the camera then holds until the mode ends, so the floor stays under the cursor.
+function holdForStroke() {
+  if (S.playing) { togglePlay(); resumeAfterPath = true; }
+  framePos = 0;
+  if (S.motion && S.motion.available > 0) {
+    pose(0);
+    followCamera();
+    dirtyView = true;
+  }
+}
+
+// Canvas pixel -> the floor point [x, z] under it (null above the horizon), with the camera as it is.
+S.floorAt = (px, py) => {
+  pointer.set((px / canvas.clientWidth) * 2 - 1, -(py / canvas.clientHeight) * 2 + 1);
+  raycaster.setFromCamera(pointer, camera);
+  const p = raycaster.ray.intersectPlane(floorPlane, new THREE.Vector3());
+  return p ? [p.x, p.z] : null;
+};
+// World [x, y, z] -> canvas pixel [x, y].
+S.toScreen = (xyz) => {
+  const v = new THREE.Vector3(...xyz).project(camera);
+  return [(v.x + 1) / 2 * canvas.clientWidth, (1 - v.y) / 2 * canvas.clientHeight];
+};
 
 function showPath(points, y = 0.004) {
   if (pathObject) { scene.remove(pathObject); pathObject.geometry.dispose(); pathObject = null; }
@@ -473,11 +548,14 @@ function showControlInfo() {
     parts.push(`path ${length.toFixed(2)} m`);
   }
   if (S.keyframes.length) parts.push(`${S.keyframes.length} keyframe${S.keyframes.length > 1 ? 's' : ''}`);
-  if (S.motion && S.motion.control) {
-    parts.push(`targets reached within ${(100 * S.motion.control.mean_error_m).toFixed(1)} cm on average `
-               + `(worst ${(100 * S.motion.control.max_error_m).toFixed(1)} cm)`);
+  const control = S.motion && S.motion.control;
+  // the server says when the targets ask for more than a body follows, or were missed
+  if (control && !control.note) {
+    parts.push(`targets reached within ${(100 * control.mean_error_m).toFixed(1)} cm on average `
+               + `(worst ${(100 * control.max_error_m).toFixed(1)} cm)`);
   }
   $('control-info').textContent = parts.join(' · ');
+  $('control-note').textContent = control && control.note ? control.note : '';
 }
 
 canvas.addEventListener('pointerdown', (e) => {
@@ -486,7 +564,10 @@ canvas.addEventListener('pointerdown', (e) => {
   if (mode === 'path') {
     const p = raycaster.ray.intersectPlane(floorPlane, new THREE.Vector3());
     if (!p) return;
-    draft = [[p.x, p.z]];
+    holdForStroke();  // a motion that arrived since plays on: stop it, back to where the path starts
+    // the path starts at the figure (the motion's start, the origin), wherever the stroke begins
+    draft = [[0, 0]];
+    if (Math.hypot(p.x, p.z) > 0.03) draft.push([p.x, p.z]);
   } else if (mode === 'pose' && figure && S.motion) {
     const hit = raycaster.intersectObjects(figure.joints, false)[0];
     if (!hit) return;
@@ -522,8 +603,7 @@ canvas.addEventListener('pointermove', (e) => {
 
 canvas.addEventListener('pointerup', () => {
   if (draft) {
-    const [x0, z0] = draft[0];
-    const path = draft.map(([x, z]) => [x - x0, z - z0]);
+    const path = draft;
     draft = null;
     if (path.length >= 2) {
       S.path = path;
@@ -683,12 +763,19 @@ async function start() {
   const select = $('model');
   select.replaceChildren(...S.info.models.map((m) => new Option(m.label, m.name)));
   select.value = S.info.default;
+  $('downloads').querySelector('[data-format=fbx]').hidden = !S.info.downloads.includes('fbx');
   applyModel(select.value);
   buildFigure(modelInfo(select.value).skeleton);
+  body.rest(select.value);
+  restPose(modelInfo(select.value).skeleton);
   $('prompt').addEventListener('input', () => { if ($('live').checked) schedule(); });
   $('prompt').addEventListener('keydown', (e) => { if (e.key === 'Enter') schedule(0); });
   $('generate').addEventListener('click', () => schedule(0));
-  select.addEventListener('change', () => { applyModel(select.value); schedule(0); });
+  select.addEventListener('change', () => {
+    applyModel(select.value);
+    if (!S.motion) { buildFigure(modelInfo(select.value).skeleton); restPose(modelInfo(select.value).skeleton); }
+    schedule(0);
+  });
   for (const id of ['seconds', 'seed', 'sampler', 'steps', 'cfg', 'footskate']) {
     $(id).addEventListener('change', () => schedule(0));
   }
