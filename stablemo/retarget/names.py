@@ -140,7 +140,8 @@ def find_roles(names, parents, rest: np.ndarray, where: str, override: dict | No
         for side in SIDES:
             for key in keys:
                 hits = [i for i in sorted(candidates, key=lambda i: (depth[i], i))
-                        if i not in taken and read[i][1] == key and _side_of(read[i][0], rest[i, 0], hips_x) == side]
+                        if i not in taken and (read[i][1] == key or read[i][0] is None and read[i][2] == key)
+                        and _side_of(read[i][0], rest[i, 0], hips_x) == side]
                 if hits:
                     sides[side][role] = hits[0]
                     taken.add(hits[0])
