@@ -74,7 +74,10 @@ def page(downloads):
         driver = chrome_driver(downloads)
         try:
             driver.get(url + "/")
-            wait_for(driver, "return window.stablemo && window.stablemo.ready")
+            # a 1280x720 page (the window's size is the page's plus the browser's own rows)
+            extra = driver.execute_script("return window.outerHeight - window.innerHeight")
+            driver.set_window_size(1280, 720 + extra)
+            wait_for(driver, "return window.stablemo && window.stablemo.ready && window.innerHeight === 720")
             yield driver
         finally:
             driver.quit()
@@ -87,12 +90,49 @@ def limb_coloured(rgb: np.ndarray) -> np.ndarray:
     return (dist < 70).any(-1)
 
 
+def screenshot(page) -> np.ndarray:
+    from PIL import Image
+
+    return np.asarray(Image.open(io.BytesIO(page.get_screenshot_as_png())).convert("RGB"))
+
+
+def test_before_any_motion_the_figure_stands_at_rest_and_the_menus_are_readable(page, tmp_path):
+    from PIL import Image
+
+    assert page.execute_script("return [window.innerWidth, window.innerHeight, window.stablemo.motion]") == [1280, 720, None]
+    time.sleep(0.3)
+    pose = np.array(page.execute_script("return window.stablemo.worldPose"))  # (22, 3) metres
+    # a body standing on the floor (the rig's rest pose), not every joint at the origin
+    assert pose.shape == (22, 3) and pose[:, 1].min() == pytest.approx(0, abs=1e-6)
+    assert 1.4 < np.ptp(pose[:, 1]) < 1.8 and np.ptp(pose[:, 0]) > 1.0  # head to feet, arm span
+    shot = screenshot(page)
+    Image.fromarray(shot).save(tmp_path / "rest.png")
+    left, top, ratio, joints = page.execute_script(
+        "const r = document.getElementById('canvas').getBoundingClientRect();"
+        "return [r.left, r.top, window.devicePixelRatio, window.stablemo.screenPose]")
+    hits = sum(bool(limb_coloured(shot[round((top + y) * ratio) - 3:round((top + y) * ratio) + 4,
+                                       round((left + x) * ratio) - 3:round((left + x) * ratio) + 4]).any())
+               for x, y in joints)
+    assert hits >= 20, f"only {hits} of 22 joints drawn where the page says ({tmp_path / 'rest.png'})"
+    # every menu shows its whole text, and the panel needs no sideways scrolling
+    menus = page.execute_script("return Array.from(document.querySelectorAll('select')).map(s => "
+                                "[s.id, s.scrollWidth <= s.clientWidth, s.getBoundingClientRect().right])")
+    panel = page.execute_script("const p = document.getElementById('panel'); "
+                                "return [p.scrollWidth, p.clientWidth, p.getBoundingClientRect().right]")
+    assert all(fits and right <= panel[2] for _, fits, right in menus), menus
+    assert panel[0] <= panel[1], panel
+
+
 def test_typed_prompt_is_drawn_and_moves_then_empty_prompt_shows_the_error(page, tmp_path, downloads):
     box = page.find_element(By.ID, "prompt")
-    box.send_keys(PROMPT)
-    # typing sends partial prompts too (generation follows typing): wait for the whole one
+    sent = page.execute_script("return window.stablemo.requests")
+    for ch in PROMPT:  # typed at ~15 keys a second: one request, sent after the pause
+        box.send_keys(ch)
+        time.sleep(0.06)
     wait_for(page, f"const s = window.stablemo; return s.motion && s.motion.text === {PROMPT!r} "
                    "&& s.timings.some(t => t.text === s.motion.text && t.drawn)")
+    time.sleep(0.5)
+    assert page.execute_script("return window.stablemo.requests") - sent == 1
     state = page.execute_script("const s = window.stablemo; return {frames: s.motion.frames, error: s.error, "
                                 "fps: s.motion.fps, model: s.motion.model}")
     assert state == {"frames": 120, "error": None, "fps": 20, "model": "student"}
@@ -154,36 +194,92 @@ def test_typed_prompt_is_drawn_and_moves_then_empty_prompt_shows_the_error(page,
     assert status.text == "text: empty prompt" and "error" in status.get_attribute("class")
 
 
-def test_a_drawn_path_is_followed_and_a_dragged_joint_is_reached(page):
+def drag(page, points):
+    """Press at the first canvas pixel, move through the others, release (pixels from the canvas's top left)."""
     from selenium.webdriver.common.action_chains import ActionChains
 
+    canvas = page.find_element(By.ID, "canvas")
+    width, height = page.execute_script("const r = document.getElementById('canvas').getBoundingClientRect();"
+                                        "return [r.width, r.height]")
+    x0, y0 = points[0]
+    chain = ActionChains(page, duration=10).move_to_element_with_offset(
+        canvas, round(x0 - width / 2), round(y0 - height / 2)).click_and_hold()
+    for (xa, ya), (xb, yb) in zip(points[:-1], points[1:]):
+        chain.move_by_offset(round(xb) - round(xa), round(yb) - round(ya))
+    chain.release().perform()
+
+
+def polyline_length(p: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(p, axis=0), axis=-1).sum())
+
+
+def test_a_path_drawn_with_the_pages_defaults_is_what_was_drawn_and_is_followed(page):
     box = page.find_element(By.ID, "prompt")
     box.send_keys(Keys.CONTROL, "a")
     box.send_keys("a person walks forward")
     wait_for(page, "const s = window.stablemo; return s.motion && s.motion.text === 'a person walks forward' && !s.error")
     free_end = np.array(page.execute_script("const m = window.stablemo.motion; const o = ((m.frames - 1) * m.J) * 3;"
                                             "return [m.joints[o], m.joints[o + 2]]"))
-    page.find_element(By.ID, "follow").click()  # a still camera to draw on
-    if not page.execute_script("return window.stablemo.playing"):
-        page.find_element(By.ID, "play").click()
+    # the page's defaults: the camera follows the figure and the motion plays (nothing turned off here)
+    assert page.execute_script("return [document.getElementById('follow').checked, window.stablemo.playing]") == [True, True]
     page.find_element(By.ID, "draw-path").click()
-    canvas = page.find_element(By.ID, "canvas")
-    drag = ActionChains(page, duration=10).move_to_element_with_offset(canvas, -60, 120).click_and_hold()
-    for i in range(24):  # to the right, then bending away from the camera
-        drag.move_by_offset(10, 0 if i < 12 else -6)
-    drag.release().perform()
+    # drawing pauses at the motion's start (where the path starts) and holds the camera
+    assert page.execute_script("return [window.stablemo.playing, window.stablemo.frame]") == [False, 0]
+    time.sleep(0.3)
+    camera = page.execute_script("return window.stablemo.three.camera.position.toArray()")
+    # a stroke from the figure's feet, to the right, then bending away from the camera
+    start = page.execute_script("return window.stablemo.toScreen([0, 0, 0])")
+    pixels = [start]
+    for i in range(24):
+        pixels.append([pixels[-1][0] + 10, pixels[-1][1] - (0 if i < 12 else 6)])
+    expected = np.array([page.execute_script("return window.stablemo.floorAt(arguments[0], arguments[1])", round(x), round(y))
+                         for x, y in pixels])  # (25, 2) floor points under the stroke, this camera
+    drag(page, pixels)
     wait_for(page, "const s = window.stablemo; return s.motion && s.motion.control && s.motion.control.targets === s.motion.frames")
-    path = np.array(page.execute_script("return window.stablemo.path"))  # (N, 2) x, z from the origin
-    assert np.allclose(path[0], 0) and np.linalg.norm(path[-1]) > 1.0
+    assert page.execute_script("return window.stablemo.three.camera.position.toArray()") == camera  # held
+    path = np.array(page.execute_script("return window.stablemo.path"))  # (N, 2) x, z
+    # the recorded path is the stroke: from the figure, as long as drawn, never doubling back
+    assert np.allclose(path[0], 0) and np.linalg.norm(expected[0]) < 0.05
+    assert polyline_length(path) == pytest.approx(polyline_length(expected), rel=0.05)
+    assert 1.0 < polyline_length(path) < 6.0
+    steps = np.diff(path, axis=0)
+    heading = np.arctan2(steps[:, 1], steps[:, 0])
+    turns = np.abs((np.diff(heading) + np.pi) % (2 * np.pi) - np.pi)
+    assert np.degrees(turns).max() < 45  # no zig-zag
+    to_stroke = np.array([np.linalg.norm(expected - q, axis=-1).min() for q in path])
+    assert to_stroke.max() < 0.1
+    # the motion plays (it was playing before the stroke), and the pelvis walks the path
+    assert page.execute_script("return window.stablemo.playing")
     pelvis = np.array(page.execute_script("const m = window.stablemo.motion; const out = [];"
                                           "for (let f = 0; f < m.frames; f++) { const o = f * m.J * 3;"
                                           "out.push([m.joints[o], m.joints[o + 2]]); } return out"))  # (T, 2)
-    # the pelvis ends where the path ends, and passes near every drawn point; the free walk did not
     assert np.linalg.norm(pelvis[-1] - path[-1]) < 0.05
     assert np.linalg.norm(free_end - path[-1]) > 0.3
     nearest = np.linalg.norm(path[:, None] - pelvis[None], axis=-1).min(1)  # (N,)
     assert nearest.max() < 0.1
     assert "targets reached within" in page.find_element(By.ID, "control-info").text
+    assert page.find_element(By.ID, "control-note").text == ""
+
+    # a stroke far faster than a body walks (about 10 m in 2 s): a visible note, not "reached"
+    seconds = page.find_element(By.ID, "seconds")
+    seconds.clear()
+    seconds.send_keys("2", Keys.TAB)
+    wait_for(page, "const s = window.stablemo; return s.motion.frames === 40 && s.motion.control")
+    far = page.execute_script("""
+        const s = window.stablemo, [x0, y0] = s.toScreen([0, 0, 0]);
+        for (let y = y0; y > 0; y -= 2) { const p = s.floorAt(x0, y); if (p && Math.hypot(p[0], p[1]) > 10) return [x0, y]; }
+        return null""")
+    assert far is not None
+    start = page.execute_script("return window.stablemo.toScreen([0, 0, 0])")
+    drag(page, [[start[0], start[1] + (far[1] - start[1]) * k / 12] for k in range(13)])
+    wait_for(page, "const s = window.stablemo; return s.motion.control && s.motion.control.pace_m_s > 4")
+    note = page.find_element(By.ID, "control-note")
+    assert note.is_displayed() and note.text.startswith("too fast to follow: the targets ask for")
+    assert "reached" not in page.find_element(By.ID, "control-info").text
+    seconds.clear()
+    seconds.send_keys("6", Keys.TAB)  # the same path over 6 s
+    wait_for(page, "const s = window.stablemo; return s.motion.frames === 120 && s.motion.control "
+                   "&& s.motion.control.targets === 120")
 
     # keyframe: pause, drag the right wrist up by 60 px; the new motion puts it there at that frame
     page.find_element(By.ID, "draw-path").click()
@@ -191,12 +287,12 @@ def test_a_drawn_path_is_followed_and_a_dragged_joint_is_reached(page):
     time.sleep(0.3)
     frame, wrist_px, before = page.execute_script(
         "const s = window.stablemo; return [s.frame, s.screenPose[21], s.worldPose[21]]")
-    width, height = page.execute_script("const r = document.getElementById('canvas').getBoundingClientRect();"
-                                        "return [r.width, r.height]")
-    ActionChains(page, duration=10).move_to_element_with_offset(
-        canvas, round(wrist_px[0] - width / 2), round(wrist_px[1] - height / 2)).click_and_hold() \
-        .move_by_offset(0, -30).move_by_offset(0, -30).release().perform()
+    camera = page.execute_script("return window.stablemo.three.camera.position.toArray()")
+    x, y = wrist_px
+    drag(page, [[x, y], [x, y - 30], [x, y - 60]])
     wait_for(page, "const s = window.stablemo; return s.motion.control && s.motion.control.targets === s.motion.frames + 1")
+    assert page.execute_script("return window.stablemo.three.camera.position.toArray()") == camera  # held
+    assert page.find_element(By.ID, "control-note").text == ""
     (key,) = page.execute_script("return window.stablemo.keyframes")
     assert key["frame"] == frame and key["joint"] == 21
     after = page.execute_script("const m = window.stablemo.motion; const o = (arguments[0] * m.J + 21) * 3;"
@@ -262,3 +358,54 @@ def test_a_warning_about_the_bvh_is_shown_beside_the_download_buttons(page, monk
     box.send_keys("a person bows twice")
     wait_for(page, "const s = window.stablemo; return s.motion && s.motion.text === 'a person bows twice'")
     assert note.text == ""
+
+
+def test_the_body_is_our_glb_read_by_three_and_stands_before_the_first_motion(page, downloads, tmp_path):
+    """The page's body (static/body.js): three.js's GLTFLoader reads the GLB the server makes for the
+    download, before any motion the model's body standing on the floor, then each motion's; its
+    bones at a frame are the motion's joints (<= 1 cm); the stick figure is a toggle."""
+    from PIL import Image
+    from test_gltf import pose_file
+
+    from stablemo.bvh.names import bvh_names
+
+    names = list(bvh_names("humanml3d"))
+    page.refresh()  # a fresh page: no motion yet
+    wait_for(page, "const s = window.stablemo; return s.ready && s.body.holds('rest:student') && s.bodyShown")
+    rest = page.execute_script("return window.stablemo.body.bonePositions()")
+    rest = np.array([rest[n] for n in names])  # (22, 3)
+    assert 0.8 < rest[0, 1] < 1.1 and rest[[10, 11], 1].max() < 0.1  # pelvis up, feet on the floor
+    shot = np.asarray(Image.open(io.BytesIO(page.get_screenshot_as_png())).convert("RGB"))
+    Image.fromarray(shot).save(tmp_path / "rest.png")
+    assert limb_coloured(shot).mean() > 0.005, f"no body drawn ({tmp_path / 'rest.png'})"  # not an empty floor
+    fbx = page.find_element(By.CSS_SELECTOR, "#downloads button[data-format=fbx]")
+    assert (fbx.get_attribute("hidden") is None) == (shutil.which("blender") is not None)
+
+    box = page.find_element(By.ID, "prompt")
+    box.send_keys("a person walks forward and waves")
+    wait_for(page, "const s = window.stablemo; return s.motion && s.motion.text === 'a person walks forward and waves' "
+                   "&& s.body.holds(s.motion.spec) && s.bodyShown")
+    page.find_element(By.ID, "play").click()  # pause
+    wait_for(page, "return !window.stablemo.playing")
+    time.sleep(0.3)
+    frame, bones, joints = page.execute_script(
+        "const s = window.stablemo, m = s.motion; return [s.frame, s.body.bonePositions(),"
+        "Array.from(m.joints.slice(s.frame * m.J * 3, (s.frame + 1) * m.J * 3))]")
+    bones, joints = np.array([bones[n] for n in names]), np.array(joints).reshape(22, 3)
+    err = np.linalg.norm(bones - joints, axis=-1)
+    assert err.max() < 0.01, (frame, err.max())
+    # the same file as the GLB button's: its bones at that frame are where three.js put them
+    page.find_element(By.CSS_SELECTOR, "#downloads button[data-format=glb]").click()
+    deadline = time.monotonic() + 60
+    while not list(downloads.glob("a-person-walks-forward-and-waves-seed0.glb")) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    glb = downloads / "a-person-walks-forward-and-waves-seed0.glb"
+    _, world, _ = pose_file(glb.read_bytes())
+    assert np.linalg.norm(world[frame, :, :3, 3] - bones, axis=-1).max() < 1e-4
+    assert page.execute_script("return window.stablemo.body.bytes") == glb.stat().st_size
+
+    # the stick figure on request, and back
+    page.find_element(By.ID, "sticks").click()
+    wait_for(page, "return window.stablemo.bodyShown === false")
+    page.find_element(By.ID, "sticks").click()
+    wait_for(page, "return window.stablemo.bodyShown === true")
