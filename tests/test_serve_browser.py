@@ -107,13 +107,17 @@ def test_before_any_motion_the_figure_stands_at_rest_and_the_menus_are_readable(
     assert 1.4 < np.ptp(pose[:, 1]) < 1.8 and np.ptp(pose[:, 0]) > 1.0  # head to feet, arm span
     shot = screenshot(page)
     Image.fromarray(shot).save(tmp_path / "rest.png")
-    left, top, ratio, joints = page.execute_script(
+    left, top, ratio, joints, width = page.execute_script(
         "const r = document.getElementById('canvas').getBoundingClientRect();"
-        "return [r.left, r.top, window.devicePixelRatio, window.stablemo.screenPose]")
-    hits = sum(bool(limb_coloured(shot[round((top + y) * ratio) - 3:round((top + y) * ratio) + 4,
-                                       round((left + x) * ratio) - 3:round((left + x) * ratio) + 4]).any())
-               for x, y in joints)
-    assert hits >= 20, f"only {hits} of 22 joints drawn where the page says ({tmp_path / 'rest.png'})"
+        "return [r.left, r.top, window.devicePixelRatio, window.stablemo.screenPose, r.width]")
+    # what is drawn (the body, or the sticks until its file arrives) stands where the page says,
+    # as tall on screen as the rest pose's head to feet
+    xy = np.array(joints)  # (22, 2) canvas pixels
+    status_top = page.execute_script("return document.getElementById('status').getBoundingClientRect().top")
+    x0, x1 = (left + xy[:, 0].min() - 80) * ratio, (left + xy[:, 0].max() + 80) * ratio
+    around = limb_coloured(shot[round(top * ratio):round(status_top * ratio), round(x0):round(x1)])
+    rows = np.nonzero(around.any(1))[0] / ratio
+    assert around.mean() > 0.01 and np.ptp(rows) == pytest.approx(np.ptp(xy[:, 1]), rel=0.2), tmp_path / "rest.png"
     # every menu shows its whole text, and the panel needs no sideways scrolling
     menus = page.execute_script("return Array.from(document.querySelectorAll('select')).map(s => "
                                 "[s.id, s.scrollWidth <= s.clientWidth, s.getBoundingClientRect().right])")
@@ -213,6 +217,13 @@ def polyline_length(p: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(p, axis=0), axis=-1).sum())
 
 
+def max_turn_degrees(p: np.ndarray) -> float:
+    """The sharpest change of direction between consecutive steps of a polyline (N, 2)."""
+    steps = np.diff(p, axis=0)
+    heading = np.arctan2(steps[:, 1], steps[:, 0])
+    return float(np.degrees(np.abs((np.diff(heading) + np.pi) % (2 * np.pi) - np.pi)).max())
+
+
 def test_a_path_drawn_with_the_pages_defaults_is_what_was_drawn_and_is_followed(page):
     box = page.find_element(By.ID, "prompt")
     box.send_keys(Keys.CONTROL, "a")
@@ -220,6 +231,8 @@ def test_a_path_drawn_with_the_pages_defaults_is_what_was_drawn_and_is_followed(
     wait_for(page, "const s = window.stablemo; return s.motion && s.motion.text === 'a person walks forward' && !s.error")
     free_end = np.array(page.execute_script("const m = window.stablemo.motion; const o = ((m.frames - 1) * m.J) * 3;"
                                             "return [m.joints[o], m.joints[o + 2]]"))
+    if not page.execute_script("return window.stablemo.playing"):  # the test before paused it
+        page.find_element(By.ID, "play").click()
     # the page's defaults: the camera follows the figure and the motion plays (nothing turned off here)
     assert page.execute_script("return [document.getElementById('follow').checked, window.stablemo.playing]") == [True, True]
     page.find_element(By.ID, "draw-path").click()
@@ -242,10 +255,8 @@ def test_a_path_drawn_with_the_pages_defaults_is_what_was_drawn_and_is_followed(
     assert np.allclose(path[0], 0) and np.linalg.norm(expected[0]) < 0.05
     assert polyline_length(path) == pytest.approx(polyline_length(expected), rel=0.05)
     assert 1.0 < polyline_length(path) < 6.0
-    steps = np.diff(path, axis=0)
-    heading = np.arctan2(steps[:, 1], steps[:, 0])
-    turns = np.abs((np.diff(heading) + np.pi) % (2 * np.pi) - np.pi)
-    assert np.degrees(turns).max() < 45  # no zig-zag
+    # no zig-zag: it bends no more than the stroke does (once, where it turns away from the camera)
+    assert max_turn_degrees(path) < max_turn_degrees(expected) + 5 < 60
     to_stroke = np.array([np.linalg.norm(expected - q, axis=-1).min() for q in path])
     assert to_stroke.max() < 0.1
     # the motion plays (it was playing before the stroke), and the pelvis walks the path
