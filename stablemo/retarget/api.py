@@ -82,7 +82,12 @@ def retarget_file(motion, rig, out, role_map=None, fps: float | None = None) -> 
 
     out = check_out(out, rig)
     check_output_file(out, "--out")
-    solved = retarget(motion, rig, role_map, fps)
+    return write_result(out, retarget(motion, rig, role_map, fps))
+
+
+def write_result(out: str | os.PathLike, solved: Solved) -> Report:
+    """Write a solve as OUT (atomically): a GLB onto a glTF rig's own file, else BVH."""
+    out = Path(out)
     if out.suffix.lower() == ".glb":
         from stablemo.retarget.gltf_out import write_onto_gltf
 

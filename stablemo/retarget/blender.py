@@ -19,8 +19,8 @@ from stablemo.retarget.rest import bvh_rest
 
 TIMEOUT_S = 180.0
 
-# runs inside Blender: the FBX's first armature, posed at rest, out as a one-frame BVH (y up, -z
-# forward: Blender's front (-y) becomes BVH +z and its left (+x) stays +x, as HumanML3D)
+# runs inside Blender: the FBX's first armature, posed at rest, out as a one-frame BVH (Blender's
+# exporter keeps Blender's axes: z up, the character's front -y; stablemo.retarget.solve.up_axes)
 FBX_TO_BVH = """
 import bpy, sys
 src, dst = sys.argv[sys.argv.index("--") + 1:]
@@ -35,8 +35,7 @@ arm.data.pose_position = "REST"
 for o in bpy.context.scene.objects:
     o.select_set(o is arm)
 bpy.context.view_layer.objects.active = arm
-bpy.ops.export_anim.bvh(filepath=dst, frame_start=1, frame_end=1, global_scale=1.0, root_transform_only=False,
-                        axis_forward="-Z", axis_up="Y")
+bpy.ops.export_anim.bvh(filepath=dst, frame_start=1, frame_end=1, global_scale=1.0, root_transform_only=False)
 """
 
 

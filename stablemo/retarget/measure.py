@@ -14,6 +14,11 @@ from stablemo.retarget.source import guess_per_metre, leg_length
 BENT_DEG = 15.0  # a knee or elbow counts as bent past this angle (straight limbs have no bend side)
 
 
+def upright(solved: Solved, x: np.ndarray) -> np.ndarray:
+    """Target-world positions (..., 3) in our y-up world (the rig may be z up)."""
+    return x @ solved.axes
+
+
 def _pair(solved: Solved, side: str, role: str) -> tuple[np.ndarray, np.ndarray]:
     """(T, 3) the target's joint and the scaled source's, target units."""
     return (solved.positions[:, solved.roles.sides[side][role]],
@@ -33,7 +38,7 @@ def stance_speed(solved: Solved) -> dict[str, float]:
                 continue
             c = solved.contacts[:, 2 * s_i + k]
             both = c[1:] & c[:-1]
-            for pos, scale, out in ((solved.positions[:, jt], per_metre_t, tgt_speeds),
+            for pos, scale, out in ((upright(solved, solved.positions[:, jt]), per_metre_t, tgt_speeds),
                                     (src.positions[:, js], src.per_metre, src_speeds)):
                 v = np.linalg.norm(np.diff(pos[:, [0, 2]], axis=0), axis=-1) * fps / scale
                 out.append(v[both])
@@ -91,7 +96,8 @@ def _heading(x: np.ndarray, roles) -> np.ndarray:
 
 def heading_error(solved: Solved) -> float:
     """Largest difference (degrees) between the target's and the source's pelvis heading."""
-    d = _heading(solved.positions, solved.roles) - _heading(solved.scaled, solved.source.roles)
+    d = (_heading(upright(solved, solved.positions), solved.roles)
+         - _heading(upright(solved, solved.scaled), solved.source.roles))
     return float(np.abs((d + 180.0) % 360.0 - 180.0).max())
 
 

@@ -86,7 +86,7 @@ class Solved:
     positions (T, J, 3) the target's joints; scaled (T, Js, 3) the source's joints scaled by `scale`
     (target units); contacts (T, 4) the source's [L ankle, L toe, R ankle, R toe] contacts; held
     (T, 2) how firmly each foot [L, R] is held by a contact (1 inside one, fading to 0 outside);
-    roles: the target's."""
+    axes (3, 3): the source's world (y up) in the target's (up_axes); roles: the target's."""
 
     anim: Animation
     positions: np.ndarray
@@ -94,6 +94,7 @@ class Solved:
     contacts: np.ndarray
     held: np.ndarray
     scale: float
+    axes: np.ndarray
     roles: Roles
     source: Source
     target: RestRig
@@ -127,7 +128,8 @@ def solve(source: Source, target: RestRig, roles: Roles, contacts_cfg: dict) -> 
         raise StableMoError(f"{target.path if leg_t <= _EPS else 'motion'}: legs of zero length")
     k = leg_t / leg_s
     unit_scale = guess_per_metre(leg_t) / source.per_metre  # target units per source unit
-    x = k * source.positions  # (T, Js, 3) the source in the target's units
+    axes = up_axes(rest, roles, target.path)
+    x = k * source.positions @ axes.T  # (T, Js, 3) the source in the target's units and axes
     frames = len(x)
 
     def src(side: str, role: str) -> np.ndarray:
@@ -184,6 +186,7 @@ def solve(source: Source, target: RestRig, roles: Roles, contacts_cfg: dict) -> 
             ju, jm, je = (roles.sides[side][r] for r in (upper, mid, end))
             if limb == "leg":
                 goal, held[:, s_i] = _planted(source, k, unit_scale, side, contacts[:, 2 * s_i:2 * s_i + 2], ramp)
+                goal = goal @ axes.T
                 fallback_s, fallback_r = forward_s, forward_r  # knees bend forward
             else:
                 goal = src(side, end)
@@ -236,7 +239,22 @@ def solve(source: Source, target: RestRig, roles: Roles, contacts_cfg: dict) -> 
         raise StableMoError("retarget: the solve gave a non-finite pose (coinciding joints in the motion or the rig?)")
     rotations = continuous_hemisphere(matrix_to_quat(local))
     anim = Animation(target.bvh_rig(), pos[:, 0].copy(), rotations, source.fps)
-    return Solved(anim, pos, x, contacts, held, k, roles, source, target)
+    return Solved(anim, pos, x, contacts, held, k, axes, roles, source, target)
+
+
+def up_axes(rest: np.ndarray, roles: Roles, where: str) -> np.ndarray:
+    """(3, 3) the rotation taking our y-up world to the rig's: identity for y-up rigs (glTF, most
+    BVH), a quarter turn about x for z-up ones (Blender's own BVH export: y -> z, our forward +z ->
+    -y, Blender's front). The rig's up: the world axis nearest its hips -> head at rest."""
+    up = rest[roles.head] - rest[roles.hips]
+    axis = int(np.argmax(np.abs(up)))
+    if np.linalg.norm(up) <= _EPS:
+        raise StableMoError(f"{where}: the head sits on the hips at rest; cannot tell which way is up")
+    target = np.zeros(3)
+    target[axis] = np.sign(up[axis])
+    if target[1] < -0.5:  # upside down: half a turn about z (x -> -x), not a reflection
+        return np.diag([-1.0, -1.0, 1.0])
+    return swing(np.array([[0.0, 1.0, 0.0]]), target[None])[0]
 
 
 def _contacts(source: Source, cfg: dict) -> np.ndarray:

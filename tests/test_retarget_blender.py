@@ -1,0 +1,160 @@
+"""A real client makes the rigs and plays the result: headless Blender builds the Rigify human
+metarig (its own rig: other names, proportions, a 7-joint trunk, z up) and an armature of other
+names, 1.25x legs and A-pose arms, exports both to BVH and FBX; we retarget motions onto each, and
+Blender imports what we wrote: its bones' heads are where the solve put the joints, frame by frame
+(skipped when `blender` is not installed: apt-get install blender)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stablemo.retarget import retarget
+from stablemo.retarget.api import write_result
+from stablemo.retarget.measure import flipped_joints, heading_error, stance_speed
+
+pytestmark = pytest.mark.skipif(shutil.which("blender") is None, reason="blender is not installed")
+
+# Runs inside Blender: the Rigify metarig (when the add-on is there) and an armature from a joint
+# list, each exported to BVH and FBX at rest.
+MAKE_RIGS = """
+import bpy, sys, json, addon_utils
+out, spec = sys.argv[sys.argv.index("--") + 1:]
+spec = json.load(open(spec))
+
+def export(name):
+    bpy.ops.object.mode_set(mode="OBJECT")
+    bpy.ops.export_anim.bvh(filepath=f"{out}/{name}.bvh", frame_start=1, frame_end=1, root_transform_only=False)
+    bpy.ops.export_scene.fbx(filepath=f"{out}/{name}.fbx", use_selection=True, add_leaf_bones=False, bake_anim=False)
+
+bpy.ops.wm.read_factory_settings(use_empty=True)
+addon_utils.enable("rigify", default_set=True)
+bpy.ops.object.armature_human_metarig_add()
+export("metarig")
+
+bpy.ops.wm.read_factory_settings(use_empty=True)
+arm = bpy.data.objects.new("Armature", bpy.data.armatures.new("Armature"))
+bpy.context.scene.collection.objects.link(arm)
+bpy.context.view_layer.objects.active = arm
+arm.select_set(True)
+bpy.ops.object.mode_set(mode="EDIT")
+bones = []
+for name, parent, head, tail in spec:
+    b = arm.data.edit_bones.new(name)
+    b.head, b.tail = head, tail
+    if parent >= 0:
+        b.parent = bones[parent]
+        b.use_connect = False
+    bones.append(b)
+export("custom")
+"""
+
+# Runs inside Blender: import each file, then every pose bone's head at every frame of its action.
+READ_HEADS = """
+import bpy, sys, json
+jobs = json.load(open(sys.argv[sys.argv.index("--") + 1]))
+import builtins, io_anim_bvh.import_bvh as importer  # Debian's Python 3.11 refuses the importer's "rU"
+importer.open = lambda file, mode="r", *a, **k: builtins.open(file, mode.replace("U", ""), *a, **k)
+for src, dst in jobs:
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    # no axis conversion: the heads come out in the file's own axes
+    bpy.ops.import_anim.bvh(filepath=src, axis_forward="Y", axis_up="Z", update_scene_fps=True,
+                            update_scene_duration=True)
+    scene = bpy.context.scene
+    arm = next(o for o in scene.objects if o.type == "ARMATURE")
+    first, last = arm.animation_data.action.frame_range
+    frames = []
+    for frame in range(int(round(first)), int(last + 1e-6) + 1):
+        scene.frame_set(frame)
+        frames.append({b.name: list(arm.matrix_world @ b.head) for b in arm.pose.bones})
+    json.dump({"fps": scene.render.fps / scene.render.fps_base, "frames": frames}, open(dst, "w"))
+"""
+
+
+def blender(script: str, tmp_path: Path, *args: str) -> None:
+    path = tmp_path / "script.py"
+    path.write_text(script)
+    run = subprocess.run(["blender", "-b", "--factory-startup", "--python-exit-code", "1", "--python", str(path),
+                          "--", *args], capture_output=True, text=True, timeout=300, check=False)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+
+
+def custom_spec(walk: np.ndarray) -> list:
+    """An armature in Blender's axes (z up, facing -y): SMPL-X names, 1.25x legs, arms 40 degrees down,
+    finger and twist bones; each bone from its joint to its first child (leaves: along the parent)."""
+    from stablemo.bvh import motion_to_animation
+    from stablemo.retarget.variants import variant_rig
+
+    rig, _ = variant_rig("smplx", legs=1.25, a_pose_deg=40, body=motion_to_animation(walk).rig.offsets)
+    rest = rig.rest
+    rest = rest - [0.0, rest[:, 1].min() - 0.02, 0.0]  # feet on the floor
+    blender_xyz = np.stack([rest[:, 0], -rest[:, 2], rest[:, 1]], axis=-1)  # y up, +z front -> z up, -y front
+    spec = []
+    for j, p in enumerate(rig.parents):
+        kids = [c for c, q in enumerate(rig.parents) if q == j]
+        tail = blender_xyz[kids[0]] if kids else blender_xyz[j] + 0.5 * (blender_xyz[j] - blender_xyz[p])
+        if np.linalg.norm(tail - blender_xyz[j]) < 1e-3:
+            tail = blender_xyz[j] + [0.0, 0.0, 0.05]
+        spec.append([rig.names[j], p, blender_xyz[j].tolist(), tail.tolist()])
+    return spec
+
+
+@pytest.fixture(scope="module")
+def rigs(tmp_path_factory) -> Path:
+    from test_bvh import synth_joints
+
+    out = tmp_path_factory.mktemp("rigs")
+    (out / "spec.json").write_text(json.dumps(custom_spec(synth_joints("walk", 3))))
+    blender(MAKE_RIGS, out, str(out), str(out / "spec.json"))
+    return out
+
+
+def motions() -> dict[str, np.ndarray]:
+    from test_bvh import synth_joints
+
+    from stablemo.inference.bundle import DEMO_BUNDLE
+    from stablemo.inference.pipeline import Pipeline
+
+    out = Pipeline.from_bundle(DEMO_BUNDLE).generate(["a person walks forward and turns around"], 120, seed=1, steps=4)
+    found = {"synth walk": synth_joints("walk", 3), "demo model": out.joints[0].double().numpy()}
+    sample = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "humanml3d-sample" / "new_joints" / "012314.npy"
+    if sample.is_file():
+        found["HumanML3D 012314"] = np.load(sample).astype(np.float64)
+    return found
+
+
+def test_blender_plays_the_retargeted_motion_on_rigs_it_made(rigs, tmp_path):
+    jobs, solved = [], {}
+    for label, joints in motions().items():
+        for rig in ("metarig.bvh", "custom.bvh", "metarig.fbx", "custom.fbx"):
+            if rig.endswith(".fbx") and label != "demo model":
+                continue  # each FBX costs a Blender start: one motion is enough to show the path
+            out = tmp_path / f"{label.replace(' ', '_')}-{rig.replace('.', '_')}.bvh"
+            s = retarget(joints, rigs / rig)
+            write_result(out, s)
+            speed = stance_speed(s)
+            assert speed["target_m_s"] <= speed["source_m_s"] + 0.02, (label, rig, speed)
+            flips = flipped_joints(s)
+            assert flips.pop("bent") > 0 and not any(flips.values()), (label, rig, flips)
+            assert heading_error(s) <= 5.0
+            solved[str(out)] = s
+            jobs.append([str(out), str(out) + ".json"])
+    (tmp_path / "jobs.json").write_text(json.dumps(jobs))
+    blender(READ_HEADS, tmp_path, str(tmp_path / "jobs.json"))
+    for path, s in solved.items():
+        data = json.loads(Path(path + ".json").read_text())
+        assert data["fps"] == pytest.approx(s.anim.fps)
+        names = [n for n in s.target.names if n in data["frames"][0]]
+        assert len(names) >= 40 if "metarig" in path else len(names) == s.target.num_joints
+        heads = np.array([[frame[n] for n in names] for frame in data["frames"]])
+        want = s.positions[:, [s.target.names.index(n) for n in names]]
+        assert heads.shape == want.shape
+        err = np.linalg.norm(heads - want, axis=-1)
+        assert err.max() < 1e-3, (path, err.max())  # Blender works in float32
+        ankles = [s.target.names.index(n) for n in ("foot.L", "foot.R", "left_ankle", "right_ankle") if n in names]
+        assert len(ankles) == 2 and s.positions[:, ankles, 2].min() > 0.0, path  # z up: the ankles above the floor
