@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from stablemo.bvh.fit import Fit
+from stablemo.bvh.names import rest_joints
 from stablemo.bvh.rig import Animation, forward_kinematics, joints_to_animation
 from stablemo.bvh.writer import Export, export_motion
 from stablemo.gltf.mannequin import SOLE, mannequin
@@ -68,16 +69,13 @@ def write_glb(path: str | os.PathLike, motion, **kwargs) -> Fit:
 
 
 def standing_glb(skeleton: Skeleton | str, bone_lengths=None, colours: dict[str, str] | None = None) -> bytes:
-    """A one-frame GLB of the body standing at ease (the skeleton's raw rest directions: arms down),
-    feet on the floor: the page's figure before its first motion. bone_lengths: (J,) in the
-    skeleton's units (default the skeleton's standard body)."""
+    """A one-frame GLB of the body in the rig's rest pose (stablemo.bvh.names.rest_joints, the
+    T-pose the page's stick figure shows before its first motion), its flat feet's soles on the
+    floor: the page's body before its first motion. bone_lengths: (J,) in the skeleton's units
+    (default the skeleton's standard body)."""
     skel = get_skeleton(skeleton)
-    lengths = np.asarray(skel.bone_lengths if bone_lengths is None else bone_lengths, dtype=np.float64)
     per_metre = 1000.0 if skel.units == "mm" else 1.0
-    joints = np.zeros((skel.num_joints, 3))
-    for j, p in enumerate(skel.parents):
-        if p >= 0:
-            joints[j] = joints[p] + skel.raw_offsets[j] * lengths[j] / per_metre
-    joints[:, 1] += SOLE - joints[:, 1].min()  # its feet are flat: the soles on the floor
+    joints = rest_joints(skel, bone_lengths) / per_metre
+    joints[:, 1] += SOLE  # the lowest joints are the flat feet's: the soles go on the floor, not into it
     anim = joints_to_animation(joints[None], skel, skel.fps)
     return animation_glb(anim, colours, name="rest")
