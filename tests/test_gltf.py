@@ -24,8 +24,8 @@ from stablemo.gltf import (
     standing_glb,
     write_glb,
 )
-from stablemo.gltf.validator import available, validate
 from stablemo.gltf.mannequin import SOLE
+from stablemo.gltf.validator import available, validate
 from stablemo.gltf.writer import accessor_array
 from stablemo.outputs.render import COLOURS
 
