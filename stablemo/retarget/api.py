@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from stablemo.errors import StableMoError
-from stablemo.retarget.names import conventions, find_roles, load_role_map
+from stablemo.retarget.names import ROLE_KEYS, conventions, find_roles, load_role_map
 from stablemo.retarget.rest import RestRig
 from stablemo.retarget.solve import Solved, solve
 from stablemo.retarget.source import Source, motion_source, read_source
@@ -102,3 +102,39 @@ def write_result(out: str | os.PathLike, solved: Solved) -> Report:
     names = solved.target.names
     roles = {names[j]: role for j, role in solved.roles.mapped().items()}
     return Report(out, fmt, solved.anim.num_frames, solved.anim.fps, solved.scale, roles)
+
+
+def rig_from_text(text, role_map=None, where: str = "rig") -> tuple[RestRig, dict | None]:
+    """A BVH rig sent as text (the server's /api/retarget), checked to be a humanoid one, with its
+    role map checked too: (the rig, the map). One line naming `where` when it is not."""
+    import tempfile
+
+    from stablemo.retarget.rest import bvh_rest
+
+    if not isinstance(text, str) or not text.strip():
+        raise StableMoError(f"{where}: expected the text of a BVH file")
+    if role_map is not None and not (isinstance(role_map, dict) and all(
+            isinstance(v, str) or (isinstance(v, list) and all(isinstance(x, str) for x in v)) for v in role_map.values())):
+        raise StableMoError("rig_map: expected an object of roles to joint names ({\"LeftUpperLeg\": \"thigh_l\"})")
+    unknown = sorted(k for k in (role_map or {}) if k not in ROLE_KEYS)
+    if unknown:
+        raise StableMoError(f"rig_map: unknown role(s) {unknown}; roles are {', '.join(ROLE_KEYS)}")
+    with tempfile.TemporaryDirectory(prefix="stablemo-rig-") as tmp:
+        path = Path(tmp) / "rig.bvh"
+        path.write_text(text, encoding="utf-8")
+        try:
+            rig = bvh_rest(path)
+        except StableMoError as err:
+            raise StableMoError(str(err).replace(str(path), where)) from None
+    from dataclasses import replace
+
+    rig = replace(rig, path=where)
+    find_roles(rig.names, rig.parents, rig.rest, where, role_map)  # refused here, before any motion is made
+    return rig, role_map
+
+
+def retarget_bvh_text(joints, rig: RestRig, role_map=None, fps: float | None = None) -> str:
+    """A motion's joints (T, J, 3) on `rig`, as BVH text."""
+    from stablemo.bvh.text import format_bvh
+
+    return format_bvh(retarget(motion_source(joints, fps=fps), rig, role_map).anim)

@@ -9,6 +9,9 @@
                            (one line per download that would be more than 3 cm from the motion)
     POST /api/download     the same body + "format": joints.npy | features.npy | bvh | gif -> the file;
                            with /api/stream's body + "format", the streamed motion's file
+    POST /api/retarget     the /api/generate body + "rig": a humanoid rig's BVH text (+ "rig_map": {Role: joint
+                           name} for joints its names do not tell) -> the motion on that rig, as BVH
+                           (stablemo.retarget); a rig that is not humanoid is a 400 before the motion is made
     POST /api/stream       {"timeline": "0 4 a person walks forward\n4 6 a person jumps\n", "chunk_seconds",
                            "seed", ...} (the CLI's timeline text, stablemo.timeline.spec) -> NDJSON: a header
                            line (the canonical timeline, segments, chunks), one line per chunk as it is
@@ -237,6 +240,24 @@ def create_app(models: ModelSet, max_queue: int = 32, static_dir: Path = STATIC_
             data = npy_bytes(motion.joints if fmt == "joints.npy" else motion.features)
         return Response(data, media_type=DOWNLOADS[fmt],
                         headers={"Content-Disposition": f'attachment; filename="{motion.file_name(fmt)}"'})
+
+    @app.post("/api/retarget")
+    async def retarget(request: Request):
+        from stablemo.retarget.api import retarget_bvh_text, rig_from_text
+
+        body = await read_json(request)
+        if not isinstance(body, dict) or "rig" not in body:
+            raise StableMoError("rig: missing (the text of a humanoid rig's BVH file)")
+        body = dict(body)
+        rig_text, role_map = body.pop("rig"), body.pop("rig_map", None)
+        spec, _ = models.parse(body)
+        rig, role_map = await render_worker.run(rig_from_text, rig_text, role_map, budget_s=render_budget_s)
+        motion, _, _ = await run_job(spec)
+        text = await render_worker.run(retarget_bvh_text, motion.joints, rig, role_map, motion.fps,
+                                       budget_s=render_budget_s)
+        name = motion.file_name("bvh").removesuffix(".bvh") + "-retarget.bvh"
+        return Response(text.encode("utf-8"), media_type=DOWNLOADS["bvh"],
+                        headers={"Content-Disposition": f'attachment; filename="{name}"'})
 
     app.mount("/static", StaticFiles(directory=static_dir), name="static")
     return app
