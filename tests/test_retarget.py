@@ -252,15 +252,55 @@ def test_a_glb_character_gets_its_own_file_back_with_the_animation(tmp_path, wal
         assert np.abs(heads - solved.positions[frame]).max() < 1e-5
 
 
+def gltf_skeleton(tmp_path, walk):
+    """tmp_path/rig.gltf: the GLB character's nodes and skin joints alone, as JSON (no buffers)."""
+    import json
+
+    from stablemo.gltf import read_glb
+
+    path, rig = glb_character(tmp_path, walk)
+    doc, _ = read_glb(path.read_bytes())
+    nodes = [{k: v for k, v in n.items() if k not in ("mesh", "skin")} for n in doc["nodes"]]
+    (tmp_path / "rig.gltf").write_text(json.dumps({"asset": doc["asset"], "nodes": nodes,
+                                                   "skins": [{"joints": doc["skins"][0]["joints"]}]}))
+    return rig
+
+
+def test_a_gltf_rig_gets_its_skeleton_back_as_a_glb(tmp_path, walk):
+    from stablemo.bvh import Animation
+    from stablemo.gltf import read_glb
+    from stablemo.gltf.writer import accessor_array
+
+    rig = gltf_skeleton(tmp_path, walk)
+    retarget_file(walk, tmp_path / "rig.gltf", tmp_path / "skeleton.glb")
+    solved = retarget(walk, tmp_path / "rig.gltf")
+    out, binary = read_glb((tmp_path / "skeleton.glb").read_bytes())
+    assert [n["name"] for n in out["nodes"]] == list(solved.target.names) and "meshes" not in out
+    # its channels are the solve's rotations and root: forward kinematics gives the joints
+    anim = out["animations"][0]
+    rotations = np.zeros((len(walk), rig.num_joints, 4))
+    root = None
+    for ch in anim["channels"]:
+        values = accessor_array(out, binary, anim["samplers"][ch["sampler"]]["output"])
+        if ch["target"]["path"] == "rotation":
+            rotations[:, ch["target"]["node"]] = values[:, [3, 0, 1, 2]]
+        else:
+            root = values
+    fk = forward_kinematics(Animation(solved.anim.rig, root.astype(float), rotations, solved.anim.fps))
+    assert np.abs(fk - solved.positions).max() < 1e-4
+
+
 def test_every_glb_we_write_passes_the_khronos_validator(tmp_path, walk):
     from stablemo.gltf import validator
 
     if validator.available() is not None:
         pytest.skip(validator.available())
     path, _ = glb_character(tmp_path, walk)
-    retarget_file(walk, path, tmp_path / "out.glb")
-    reports = validator.validate([tmp_path / "out.glb"])
-    assert [(r["errors"], r["warnings"]) for r in reports] == [(0, 0)], reports
+    retarget_file(walk, path, tmp_path / "out.glb")  # the character with the animation added
+    gltf_skeleton(tmp_path, walk)
+    retarget_file(walk, tmp_path / "rig.gltf", tmp_path / "skeleton.glb")  # a skeleton alone
+    reports = validator.validate([tmp_path / "out.glb", tmp_path / "skeleton.glb"])
+    assert [(r["errors"], r["warnings"]) for r in reports] == [(0, 0), (0, 0)], reports
 
 
 def test_command_line_errors_are_one_line_before_any_work(tmp_path, walk, capsys, monkeypatch):
