@@ -88,9 +88,11 @@ class MotionDataModule(L.LightningDataModule):
     ):
         super().__init__()
         self.spec = get_spec(dataset)
-        if (data_dir is None) == (shards is None):
-            raise StableMoError("data: give data_dir (a dataset folder) or shards (a shard folder or URL), "
-                                f"not {'both' if data_dir else 'neither'}")
+        if data_dir is not None and shards is not None:
+            raise StableMoError(f"data: both data_dir ({data_dir}) and shards ({shards}) given; to train from the "
+                                "shards with a config that names a folder, add --data.data_dir=null")
+        if data_dir is None and shards is None:
+            raise StableMoError("data: give data_dir (a dataset folder) or shards (a shard folder or URL)")
         for name, value in (("batch_size", batch_size), ("pad_multiple", pad_multiple), ("max_length", max_length)):
             if value < 1:
                 raise StableMoError(f"{name}={value}: must be >= 1")
