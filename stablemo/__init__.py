@@ -14,6 +14,7 @@ Where things live (docs/architecture.md has the whole map):
                 checkpoint I/O, the Lightning CLI, export to bundles
     control/    in-painting and joint-control specs, control files, body parts, guidance, the ControlNet
     motion/     skeletons, features <-> joints, plausibility limits
+    retarget/   a motion onto any humanoid rig (BVH, glTF/GLB, FBX through Blender)
     data/ text/ nets/ diffusion/ distill/ fast/ timeline/ skating/ eval/ outputs/ bvh/ serve/ official/
     bench/      every benchmark;  cli/  every subcommand's argument parsing (one dispatch table)
 """
@@ -35,6 +36,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "stablemo.outputs.render": ("render_animation", "render_strip"),
     "stablemo.outputs.files": ("write_motion",),
     "stablemo.bvh": ("bvh_text", "export_motion", "read_bvh", "write_bvh"),
+    "stablemo.retarget": ("retarget_file",),  # not `retarget`: the name is the package's
 }
 # Training classes (DiffusionModule, MotionDataModule, ...) are not re-exported here: LightningCLI
 # writes a class's shortest import path into configs and checkpoints, which must stay the module's.
