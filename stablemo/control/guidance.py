@@ -23,6 +23,7 @@ import math
 
 import torch
 
+from stablemo.control.heading import gait_angle, steer_heading
 from stablemo.diffusion.hooks import StepState
 from stablemo.motion.features import feature_slices, features_to_joints, recover_root
 from stablemo.motion.quaternion import qinv, qrot
@@ -101,6 +102,15 @@ def project_root(features: torch.Tensor, targets: torch.Tensor, mask: torch.Tens
     return out
 
 
+def steers_heading(mask: torch.Tensor, skeleton) -> torch.Tensor:
+    """(B,) bool: the samples whose body should face along their pelvis path: the pelvis is a
+    target on at least two frames and no hip or shoulder is (those fix the facing themselves, as
+    whole-pose keyframes do). mask: (B, T, J) bool."""
+    skel = get_skeleton(skeleton)
+    facing_set = mask[:, :, list(skel.face_joints)].flatten(1).any(1)
+    return (mask[:, :, 0].sum(1) >= 2) & ~facing_set
+
+
 def _gaussian(smooth: float, device, dtype) -> torch.Tensor | None:
     if smooth <= 0:
         return None
@@ -119,8 +129,11 @@ class JointGuidance:
     """
 
     def __init__(self, targets: torch.Tensor, mask: torch.Tensor, mean: torch.Tensor, std: torch.Tensor,
-                 skeleton, iters: int = 10, final_iters: int = 40, smooth: float = 2.0, follow: float = 0.5):
+                 skeleton, iters: int = 10, final_iters: int = 40, smooth: float = 2.0, follow: float = 0.5,
+                 face_travel: bool = True, named_gaits: torch.Tensor | None = None):
         self.targets, self.mask = targets.float(), mask.bool()
+        self.face_travel = bool(face_travel)
+        self.named_gaits = named_gaits
         self.mean, self.std = mean.float(), std.float()
         self.skeleton = get_skeleton(skeleton)
         self.iters, self.final_iters = int(iters), int(final_iters)
@@ -156,7 +169,14 @@ class JointGuidance:
         feats = x0 * std + mean
         with torch.no_grad():
             root, root_mask = self._root_targets(feats, targets, mask)
+            named = None if self.named_gaits is None else self.named_gaits.to(dev)
+            # the network's own walk, before its path is moved
+            gait = gait_angle(feats, lengths, self.skeleton.fps, self.skeleton.per_metre, named)
             feats = project_root(feats, root, root_mask, lengths)
+            if self.face_travel:
+                steer = steers_heading(mask, self.skeleton)
+                if steer.any():
+                    feats = steer_heading(feats, lengths, self.skeleton.fps, self.skeleton.per_metre, steer, gait)
         iters = self.final_iters if state.step == state.steps - 1 else self.iters
         if not mask[:, :, 1:].any():
             iters = 0  # root targets only (a pelvis path): the projection above met them; every pose step would be zero
@@ -188,4 +208,4 @@ class JointGuidance:
         return torch.where(controlled, (feats - mean) / std, x0).detach()
 
 
-__all__ = ["JointGuidance", "project_root"]
+__all__ = ["JointGuidance", "project_root", "steers_heading"]

@@ -59,7 +59,10 @@ class Request:
     Inpaint`, or None for a free prompt), imposed inside the sampler; control: joint targets per
     prompt (`stablemo.control.JointControl` or None): a ControlNet bundle reads them as its hint,
     and with control_guidance (default) the joint-guidance hook refines x0 towards them after the
-    other hooks at every step (a 1-step student: one refinement after its step); finish: put the
+    other hooks at every step (a 1-step student: one refinement after its step); face_travel: a body
+    following a pelvis path faces its direction of travel (stablemo.control.heading: in the
+    guidance hook, or its own hook for a ControlNet without guidance), the gait the text asks for
+    (backwards, side steps) kept; finish: put the
     result on the bundle's rigid body and the floor (stablemo.inference.finish; False: features and
     joints are the network's raw output, for code that post-processes it itself)."""
 
@@ -76,6 +79,7 @@ class Request:
     inpaint: Inpaint | Sequence[Inpaint | None] | None = None
     control: JointControl | Sequence[JointControl | None] | None = None
     control_guidance: bool = True
+    face_travel: bool = True
     finish: bool = True
 
 
@@ -302,7 +306,7 @@ class Pipeline:
             if not (callable(hook) and callable(getattr(hook, "active", None))):
                 raise StableMoError(f"hooks[{i}]: {type(hook).__name__} is not a sample hook "
                                     "(it needs active(step, steps) and __call__(state); see stablemo.diffusion.hooks)")
-        for name in ("control_guidance", "finish"):
+        for name in ("control_guidance", "face_travel", "finish"):
             if not isinstance(getattr(request, name), bool):
                 raise StableMoError(f"{name}: expected True or False, got {getattr(request, name)!r}")
         dtype = self.dtype if request.dtype is None else resolve_dtype(request.dtype, self.device)
@@ -422,8 +426,17 @@ class Pipeline:
         hooks = list(req.hooks)
         if targets is not None and req.control_guidance:  # last: after the other hooks (e.g. foot skating) moved the body
             from stablemo.control.guidance import JointGuidance
+            from stablemo.control.heading import named_gaits
 
-            hooks.append(JointGuidance(targets.targets, targets.mask, self.mean, self.std, self.skeleton))
+            hooks.append(JointGuidance(targets.targets, targets.mask, self.mean, self.std, self.skeleton,
+                                       face_travel=req.face_travel, named_gaits=named_gaits(texts)))
+        elif targets is not None and req.face_travel:
+            from stablemo.control.guidance import steers_heading
+            from stablemo.control.heading import FaceTravel, named_gaits
+
+            steer = steers_heading(targets.mask, self.skeleton)
+            if steer.any():
+                hooks.append(FaceTravel(self.mean, self.std, self.skeleton, steer, named_gaits(texts)))
         extra = {}
         if inpaint is not None:
             extra["inpaint"] = self._inpainting(inpaint, x_T)
