@@ -412,6 +412,16 @@ def test_the_body_is_our_glb_read_by_three_and_stands_before_the_first_motion(pa
     bones, joints = np.array([bones[n] for n in names]), np.array(joints).reshape(22, 3)
     err = np.linalg.norm(bones - joints, axis=-1)
     assert err.max() < 0.01, (frame, err.max())
+    # the last frame too (its time is the clip's end, where a repeating animation would wrap to the first)
+    last = page.execute_script("const s = document.getElementById('scrub'); s.value = s.max;"
+                               "s.dispatchEvent(new Event('input')); return Number(s.max)")
+    wait_for(page, f"return window.stablemo.frame === {last}")
+    end = page.execute_script("const s = window.stablemo, m = s.motion; return [s.body.bonePositions(),"
+                              "Array.from(m.joints.slice(s.frame * m.J * 3, (s.frame + 1) * m.J * 3))]")
+    assert np.linalg.norm(np.array([end[0][n] for n in names]) - np.array(end[1]).reshape(22, 3), axis=-1).max() < 0.01
+    page.execute_script("const s = document.getElementById('scrub'); s.value = arguments[0];"
+                        "s.dispatchEvent(new Event('input'))", frame)
+    wait_for(page, f"return window.stablemo.frame === {frame}")
     # the same file as the GLB button's: its bones at that frame are where three.js put them
     page.find_element(By.CSS_SELECTOR, "#downloads button[data-format=glb]").click()
     deadline = time.monotonic() + 60

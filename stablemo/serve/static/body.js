@@ -62,7 +62,14 @@ export class Body {
     });
     const mixer = new THREE.AnimationMixer(root);
     const clip = gltf.animations[0];
-    if (clip) mixer.clipAction(clip).play();
+    if (clip) {
+      // the page loops the motion itself: here time runs once and holds the last key at the end
+      // (a repeating action wraps t = duration, the last frame, back to the first)
+      const action = mixer.clipAction(clip);
+      action.setLoop(THREE.LoopOnce, 1);
+      action.clampWhenFinished = true;
+      action.play();
+    }
     mixer.setTime(0);
     root.visible = false;
     this.scene.add(root);
