@@ -199,6 +199,25 @@ def test_a_bvh_motion_retargets_like_its_joints(tmp_path, walk):
     assert np.abs(a.positions - b.positions).max() < 1e-4
 
 
+def test_a_z_up_rig_and_a_z_up_bvh_motion(tmp_path, walk):
+    """Blender's own BVH export is z up, the character facing -y: the motion comes out so, and such
+    a file read back as a motion is the same motion."""
+    from dataclasses import replace
+
+    from stablemo.bvh.text import format_bvh
+
+    y_up, _ = variant_rig("unity", scale=1.1, a_pose_deg=30, body=body_of(walk))
+    z_up = replace(y_up, offsets=np.stack([y_up.offsets[:, 0], -y_up.offsets[:, 2], y_up.offsets[:, 1]], -1))
+    direct = retarget(walk, y_up)
+    turned = retarget(walk, z_up)
+    assert np.abs(turned.positions - np.stack([direct.positions[..., 0], -direct.positions[..., 2],
+                                               direct.positions[..., 1]], -1)).max() < 1e-9
+    assert heading_error(turned) < 1e-6 and turned.positions[..., 2].min() > -0.01  # above a z-up floor
+    (tmp_path / "z.bvh").write_text(format_bvh(turned.anim))
+    again = retarget(tmp_path / "z.bvh", y_up)
+    assert np.abs(again.positions - direct.positions).max() < 1e-4
+
+
 def glb_character(tmp_path, joints) -> tuple[Path, object]:
     """A GLB character (our mannequin) whose nodes have rest rotations of their own, as an FBX's do."""
     from scipy.spatial.transform import Rotation

@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from stablemo.retarget.names import LIMBS, SIDES
-from stablemo.retarget.solve import Solved, unit
+from stablemo.retarget.frames import unit
+from stablemo.retarget.solve import Solved
 from stablemo.retarget.source import guess_per_metre, leg_length
 
 BENT_DEG = 15.0  # a knee or elbow counts as bent past this angle (straight limbs have no bend side)

@@ -35,50 +35,10 @@ from stablemo.bvh.rig import Animation, continuous_hemisphere, matrix_to_quat
 from stablemo.errors import StableMoError
 from stablemo.motion.rigid import two_bone
 from stablemo.retarget.contacts import hold, source_contacts
+from stablemo.retarget.frames import EPS, across, align, swing, unit, up_axes
 from stablemo.retarget.names import LIMBS, SIDES, Roles
 from stablemo.retarget.rest import RestRig
 from stablemo.retarget.source import Source, guess_per_metre, leg_length
-
-_EPS = 1e-9
-
-
-def unit(v: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return v / np.where(n > _EPS, n, 1.0)
-
-
-def across(v: np.ndarray, axis: np.ndarray) -> np.ndarray:
-    """The part of v (..., 3) perpendicular to axis (..., 3)."""
-    a = unit(axis)
-    return v - (v * a).sum(-1, keepdims=True) * a
-
-
-def basis(aim: np.ndarray, side: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) orthonormal frame, columns: aim, side made perpendicular to it, aim x side."""
-    a = unit(np.broadcast_to(aim, np.broadcast_shapes(np.shape(aim), np.shape(side))))
-    s = across(np.broadcast_to(side, a.shape), a)
-    # a side along the aim (never in a body, but a file may hold anything): any perpendicular
-    spare = np.where(np.abs(a[..., :1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
-    s = np.where(np.linalg.norm(s, axis=-1, keepdims=True) > 1e-6, s, across(spare, a))
-    s = unit(s)
-    return np.stack([a, s, np.cross(a, s)], axis=-1)
-
-
-def align(aim_now, side_now, aim_rest, side_rest) -> np.ndarray:
-    """(T, 3, 3) world rotation taking the rest frame (aim, side) onto the frame now."""
-    return basis(aim_now, side_now) @ np.swapaxes(basis(aim_rest, side_rest), -1, -2)
-
-
-def swing(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(T, 3, 3) the shortest rotation taking direction a (T, 3) onto b (T, 3)."""
-    a, b = unit(a), unit(b)
-    v = np.cross(a, b)
-    c = (a * b).sum(-1)[..., None, None]
-    vx = np.zeros(v.shape + (3,))
-    vx[..., 0, 1], vx[..., 0, 2], vx[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    vx = vx - np.swapaxes(vx, -1, -2)
-    return np.eye(3) + vx + vx @ vx / np.maximum(1.0 + c, 1e-9)
-
 
 @dataclass(frozen=True)
 class Solved:
@@ -108,12 +68,12 @@ class _Polyline:
         self.points = points
         lengths = np.median(np.linalg.norm(np.diff(points, axis=1), axis=-1), axis=0) if points.ndim == 3 else \
             np.linalg.norm(np.diff(points, axis=0), axis=-1)
-        total = max(float(lengths.sum()), _EPS)
+        total = max(float(lengths.sum()), EPS)
         self.fractions = np.concatenate([[0.0], np.cumsum(lengths) / total])
 
     def at(self, f: float) -> np.ndarray:
         i = int(np.clip(np.searchsorted(self.fractions, f, side="right") - 1, 0, len(self.fractions) - 2))
-        span = max(self.fractions[i + 1] - self.fractions[i], _EPS)
+        span = max(self.fractions[i + 1] - self.fractions[i], EPS)
         w = float(np.clip((f - self.fractions[i]) / span, 0.0, 1.0))
         return self.points[..., i, :] * (1 - w) + self.points[..., i + 1, :] * w
 
@@ -124,8 +84,8 @@ def solve(source: Source, target: RestRig, roles: Roles, contacts_cfg: dict) -> 
     rest = target.rest  # (J, 3)
     sr = source.roles
     leg_t, leg_s = leg_length(rest, roles), source.leg_length()
-    if leg_t <= _EPS or leg_s <= _EPS:
-        raise StableMoError(f"{target.path if leg_t <= _EPS else 'motion'}: legs of zero length")
+    if leg_t <= EPS or leg_s <= EPS:
+        raise StableMoError(f"{target.path if leg_t <= EPS else 'motion'}: legs of zero length")
     k = leg_t / leg_s
     unit_scale = guess_per_metre(leg_t) / source.per_metre  # target units per source unit
     axes = up_axes(rest, roles, target.path)
@@ -164,7 +124,7 @@ def solve(source: Source, target: RestRig, roles: Roles, contacts_cfg: dict) -> 
     chest_at = trunk_r.fractions[len(roles.spine)]  # the last spine joint's fraction: its twist is the chest's
     for i, joint in enumerate(roles.spine):
         f0, f1 = trunk_r.fractions[i + 1], trunk_r.fractions[i + 2]
-        w = f0 / max(chest_at, _EPS)
+        w = f0 / max(chest_at, EPS)
         frames_of[joint] = align(trunk_s.at(f1) - trunk_s.at(f0), (1 - w) * hip_lat_s + w * chest_lat_s,
                                  rest[trunk_t[i + 2]] - rest[trunk_t[i + 1]], (1 - w) * hip_lat_r + w * chest_lat_r)
     if roles.neck:
@@ -240,21 +200,6 @@ def solve(source: Source, target: RestRig, roles: Roles, contacts_cfg: dict) -> 
     rotations = continuous_hemisphere(matrix_to_quat(local))
     anim = Animation(target.bvh_rig(), pos[:, 0].copy(), rotations, source.fps)
     return Solved(anim, pos, x, contacts, held, k, axes, roles, source, target)
-
-
-def up_axes(rest: np.ndarray, roles: Roles, where: str) -> np.ndarray:
-    """(3, 3) the rotation taking our y-up world to the rig's: identity for y-up rigs (glTF, most
-    BVH), a quarter turn about x for z-up ones (Blender's own BVH export: y -> z, our forward +z ->
-    -y, Blender's front). The rig's up: the world axis nearest its hips -> head at rest."""
-    up = rest[roles.head] - rest[roles.hips]
-    axis = int(np.argmax(np.abs(up)))
-    if np.linalg.norm(up) <= _EPS:
-        raise StableMoError(f"{where}: the head sits on the hips at rest; cannot tell which way is up")
-    target = np.zeros(3)
-    target[axis] = np.sign(up[axis])
-    if target[1] < -0.5:  # upside down: half a turn about z (x -> -x), not a reflection
-        return np.diag([-1.0, -1.0, 1.0])
-    return swing(np.array([[0.0, 1.0, 0.0]]), target[None])[0]
 
 
 def _contacts(source: Source, cfg: dict) -> np.ndarray:

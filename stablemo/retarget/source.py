@@ -1,6 +1,6 @@
 """The motion to retarget, as world joint positions with humanoid roles: a StableMo motion
 (features or joints, HumanML3D or KIT) or a BVH file (any rig whose names stablemo.retarget.names
-reads). y up; the floor where the motion has it.
+reads; a z-up file is turned y up). The floor where the motion has it.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from stablemo.errors import StableMoError
+from stablemo.retarget.frames import up_axes
 from stablemo.retarget.names import Roles, find_roles
 
 # joint indices of our skeletons' roles (stablemo/motion/skeleton.py)
@@ -83,6 +84,7 @@ def bvh_source(path: str | Path, role_map: dict | None = None) -> Source:
     for j, p in enumerate(anim.rig.parents):
         rest[j] = anim.rig.offsets[j] + (rest[p] if p >= 0 else 0.0)
     roles = find_roles(anim.rig.names, anim.rig.parents, rest, str(path), role_map)
+    joints = joints @ up_axes(rest, roles, str(path))  # a z-up file (Blender's export) read y up
     return Source(joints, roles, anim.fps, guess_per_metre(leg_length(rest, roles)), anim.rig.names)
 
 
