@@ -90,7 +90,7 @@ def test_single_source_keeps_its_statistics(sources, tmp_path):
 def test_same_input_gives_byte_identical_shards_and_manifest(sources, tmp_path):
     a, b = sources
     write_shards([str(a), str(b)], str(tmp_path / "x"), clips_per_shard=6, progress=False)
-    write_shards([str(a), str(b)], str(tmp_path / "y"), clips_per_shard=6, progress=False)
+    write_shards([str(a), str(b)], str(tmp_path / "y"), clips_per_shard=6, workers=2, progress=False)  # in parallel
     x, y = files(tmp_path / "x"), files(tmp_path / "y")
     assert list(x) == list(y) and len(x) > 4 and all(x[k] == y[k] for k in x)
 
@@ -103,11 +103,11 @@ def test_killed_run_continues_keeping_verified_shards(sources, tmp_path, monkeyp
     real = ShardWriter.write_shard
     calls = []
 
-    def dies_at_the_fourth(self, pool, split, index, clips):
+    def dies_at_the_fourth(self, split, index, clips):
         calls.append((split, index))
         if len(calls) == 4:
             raise KeyboardInterrupt  # killed while writing shard 4
-        return real(self, pool, split, index, clips)
+        return real(self, split, index, clips)
 
     monkeypatch.setattr(ShardWriter, "write_shard", dies_at_the_fourth)
     with pytest.raises(KeyboardInterrupt):
@@ -174,6 +174,7 @@ def test_cli_shards_checks_and_refuses_bad_input_in_one_line(sources, tmp_path, 
         ((str(a), "--out", str(tmp_path / "junk")), "did not write (e.g. notes.txt)"),
         ((str(a), "--out", str(tmp_path / "s")), "already holds finished shards"),
         ((str(a), "--out", str(tmp_path / "o3"), "--clips-per-shard", "0"), "--clips-per-shard=0: must be >= 1"),
+        ((str(a), "--out", str(tmp_path / "o3"), "--workers", "0"), "--workers=0: must be >= 1"),
     ]:
         with pytest.raises(StableMoError) as err:
             main(["shard", *args])

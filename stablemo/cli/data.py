@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 
 from stablemo.data.layout import DATASETS
 from stablemo.errors import StableMoError
@@ -43,6 +44,8 @@ def _parser() -> argparse.ArgumentParser:
                             "of a LICENCE/LICENSE file in the source, else 'unknown')")
     shard.add_argument("--clips-per-shard", type=int, default=None, help="clips per shard file (default 512)")
     shard.add_argument("--skip-bad", action="store_true", help="skip unreadable clips (listed in the manifest)")
+    shard.add_argument("--workers", type=int, default=None,
+                       help="processes writing shards in parallel (default: the CPU count, at most 8)")
     preview = sub.add_parser("preview", help="a PNG contact sheet of one synthetic motion per action")
     preview.add_argument("out", help="PNG path")
     preview.add_argument("--seed", type=int, default=0)
@@ -79,7 +82,8 @@ def main(argv: list[str]) -> int:
 
         manifest, kept = write_shards(args.sources, args.out, dataset=args.dataset, licences=args.licence,
                                       clips_per_shard=CLIPS_PER_SHARD if args.clips_per_shard is None else args.clips_per_shard,
-                                      skip_bad=args.skip_bad)
+                                      skip_bad=args.skip_bad,
+                                      workers=min(os.cpu_count() or 1, 8) if args.workers is None else args.workers)
         splits = manifest["splits"]
         shards = sum(len(s["shards"]) for s in splits.values())
         counts = ", ".join(f"{name} {entry['clips']} clips" for name, entry in splits.items())
