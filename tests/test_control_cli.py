@@ -164,7 +164,10 @@ def test_evaluate_with_control_reports_control_errors(tmp_path, capsys):
     assert main(["evaluate", *common, "--control", "pelvis", "--density", "25%", "--out", str(out)]) == 0
     row = next(v for k, v in json.loads(out.read_text())["rows"].items() if "control pelvis 25%" in k)
     assert row["avg_err"]["mean"] < 0.01 and row["traj_err"]["mean"] == 0.0
-    assert {"spikes", "foot_acc", "skate_ratio", "fid", "r3"} <= set(row)
+    assert {"spikes", "foot_acc", "skate_ratio", "fid", "r3", "stance_speed"} <= set(row)
+    # hinted paths walked facing forward, not backwards or sideways where the hinted motion walks forward
+    assert row["facing_deg"]["mean"] < 45 and row["unasked_backward"]["mean"] < 0.2
+    assert 0 <= row["unasked_sideways"]["mean"] < 0.5
     assert main(["evaluate", "--data", str(data), "--control", "pelvis"]) == 2
     assert "give --bundle" in capsys.readouterr().err
     with pytest.raises(StableMoError, match="density"):

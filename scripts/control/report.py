@@ -30,7 +30,9 @@ import torch
 ROWS = [("none", "100%"), ("pelvis", "100%"), ("pelvis", "25%"), ("pelvis", "5"), ("pelvis", "2"), ("pelvis", "1"),
         ("left_wrist", "25%"), ("keyframes", "4")]
 COLS = [("fid", "FID"), ("r3", "R@3"), ("diversity", "Div."), ("skate_ratio", "Skate"), ("foot_acc", "Foot acc."),
-        ("traj_err", "Traj. err"), ("loc_err", "Loc. err"), ("avg_err", "Avg. err (m)"), ("spikes", "Spikes")]
+        ("traj_err", "Traj. err"), ("loc_err", "Loc. err"), ("avg_err", "Avg. err (m)"), ("spikes", "Spikes"),
+        ("facing_deg", "Facing° vs travel"), ("unasked_backward", "Backward"), ("unasked_sideways", "Sideways"),
+        ("stance_speed", "Stance v cm/s")]
 
 
 def _rows(pipe, name: str, steps: int, data, evaluator, args, guidance: bool = True) -> dict:
@@ -50,7 +52,7 @@ def _rows(pipe, name: str, steps: int, data, evaluator, args, guidance: bool = T
         def generate(texts, lengths, seeds, controls=None):
             gen = [min(max(n, lo), hi) for n in lengths]
             res = pipe.generate(Request(texts, gen, seed=seeds, steps=steps, control=controls if use else None,
-                                        control_guidance=guidance))
+                                        control_guidance=guidance, face_travel=args.face_travel))
             return res.features, res.joints
 
         t0 = time.time()
@@ -105,6 +107,8 @@ def main(argv=None) -> int:
     p.add_argument("--no-teacher", action="store_true", help="score only the students")
     p.add_argument("--controlnet", action="append", default=[],
                    help="NAME=DIR: a ControlNet bundle, scored at its own steps without and with the guidance refinement")
+    p.add_argument("--no-face-travel", dest="face_travel", action="store_false",
+                   help="leave the body's facing to the network along a hinted path (Request.face_travel=False): the A/B of the steering")
     p.add_argument("--rows", default=None, help="comma-separated joint:density rows to score (default: all)")
     p.add_argument("--out", default=None)
     p.add_argument("--render", default=None, metavar="JSON",

@@ -34,7 +34,8 @@ COLUMNS = [  # (json key, table header, lower/higher/closer-is-better hint only 
     ("r1", "R@1"), ("r2", "R@2"), ("r3", "R@3"), ("fid", "FID"), ("mm_dist", "MM-Dist"),
     ("diversity", "Diversity"), ("multimodality", "MModality"), ("skate_ratio", "Skate"),
     ("foot_acc", "Foot acc."), ("traj_err", "Traj. err"), ("loc_err", "Loc. err"), ("avg_err", "Avg. err"),
-    ("spikes", "Spikes"),
+    ("spikes", "Spikes"), ("facing_deg", "Facing° vs travel"), ("unasked_backward", "Backward"),
+    ("unasked_sideways", "Sideways"),
     # kinematics.MEASURES (foot_acc above): units in the headers, definitions in docs/evaluation.md
     ("bone_change", "Bone Δ cm"), ("floor_p1", "Floor p1 cm"), ("below_floor", "Below floor"),
     ("stance_height", "Stance h cm"), ("stance_speed", "Stance v cm/s"), ("airborne", "Airborne"),
@@ -115,10 +116,16 @@ def embed_texts(evaluator, texts: list[str], tokens: list[list[str]], batch_size
                            for s in range(0, len(texts), batch_size)])
 
 
-def _control_metrics(joints: list[torch.Tensor], hints: list, reference: list[torch.Tensor]) -> dict[str, float]:
-    """Control errors (metres) of generated joints (L_i, J, 3) against their hints, and the share
-    of hinted frames with a root/foot acceleration spike above the reference motions' 99th percentile."""
+def _control_metrics(joints: list[torch.Tensor], hints: list, reference: list[torch.Tensor],
+                     skeleton="humanml3d") -> dict[str, float]:
+    """Control errors (metres) of generated joints (L_i, J, 3) against their hints, the share
+    of hinted frames with a root/foot acceleration spike above the reference motions' 99th
+    percentile, and where the body faces against where it travels (stablemo.eval.heading): the
+    mean over motions of the median facing-vs-travel angle (degrees, motions that move), and the
+    shares of moving frames walked backwards / sideways where the hinted motion (`reference`, the
+    same items) walks forward there: not asked for."""
     from stablemo.eval.control import acceleration_spikes, control_errors
+    from stablemo.eval.heading import heading_measures
 
     padded, _ = _padded_joints(joints)
     targets, masks = torch.zeros_like(padded), torch.zeros(padded.shape[:3], dtype=torch.bool)
@@ -128,6 +135,14 @@ def _control_metrics(joints: list[torch.Tensor], hints: list, reference: list[to
         masks[i, :n] = torch.as_tensor(np.asarray(hint.mask))
     errors = control_errors(padded, targets, masks)
     errors["spikes"] = acceleration_spikes(padded, masks, reference)
+    lengths = torch.tensor([min(len(j), len(r)) for j, r in zip(joints, reference)])
+    ref, _ = _padded_joints([r[:n] for r, n in zip(reference, lengths)])
+    gen, _ = _padded_joints([j[:n] for j, n in zip(joints, lengths)])
+    unasked = heading_measures(gen, lengths, skeleton, reference=ref)
+    with np.errstate(all="ignore"):  # a batch where nothing moves: NaN, not a warning
+        errors["facing_deg"] = float(np.nanmean(heading_measures(gen, lengths, skeleton)["facing_deg"]))
+        errors["unasked_backward"] = float(np.nanmean(unasked["backward"]))
+        errors["unasked_sideways"] = float(np.nanmean(unasked["sideways"]))
     return errors
 
 
@@ -245,7 +260,7 @@ def evaluate(
                 real_joints = [features_to_joints(f[None].float(), control.skeleton)[0] for f in cur.features]
                 for row, feats, joints in candidates[1:]:  # does the finishing step move the hinted joints?
                     row_joints = joints if joints is not None else _joints_of(feats, skel)
-                    for key, value in _control_metrics(row_joints, hints, real_joints).items():
+                    for key, value in _control_metrics(row_joints, hints, real_joints, skel).items():
                         add(row, key, value)
 
         for row, feats, joints in candidates:
