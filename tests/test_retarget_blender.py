@@ -1,8 +1,9 @@
 """A real client makes the rigs and plays the result: headless Blender builds the Rigify human
 metarig (its own rig: other names, proportions, a 7-joint trunk, z up) and an armature of other
 names, 1.25x legs and A-pose arms, exports both to BVH and FBX; we retarget motions onto each, and
-Blender imports what we wrote: its bones' heads are where the solve put the joints, frame by frame
-(skipped when `blender` is not installed: apt-get install blender)."""
+Blender imports what we wrote: its bones' heads are where the solve put the joints, frame by frame.
+The same for a GLB character (our mannequin, rest rotations on every node) with the animation we
+add to its file (skipped when `blender` is not installed: apt-get install blender)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ import numpy as np
 import pytest
 
 from stablemo.retarget import retarget
+from stablemo.gltf.fbx import NUMPY_FALLBACK
 from stablemo.retarget.api import write_result
 from stablemo.retarget.measure import flipped_joints, heading_error, stance_speed
 
@@ -158,3 +160,42 @@ def test_blender_plays_the_retargeted_motion_on_rigs_it_made(rigs, tmp_path):
         assert err.max() < 1e-3, (path, err.max())  # Blender works in float32
         ankles = [s.target.names.index(n) for n in ("foot.L", "foot.R", "left_ankle", "right_ankle") if n in names]
         assert len(ankles) == 2 and s.positions[:, ankles, 2].min() > 0.0, path  # z up: the ankles above the floor
+
+
+# Runs inside Blender: import a GLB at the scene rate of its animation, then every pose bone's head
+# at every frame of the active action (glTF's y up comes in as Blender's z up).
+READ_GLB = """
+import bpy, sys, json
+src, dst, fps, site_packages = sys.argv[sys.argv.index("--") + 1:]
+""" + NUMPY_FALLBACK + """
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.context.scene.render.fps = int(float(fps))
+bpy.ops.import_scene.gltf(filepath=src)
+scene = bpy.context.scene
+arm = next(o for o in scene.objects if o.type == "ARMATURE")
+action = arm.animation_data.action
+frames = []
+for frame in range(int(action.frame_range[0]), int(action.frame_range[1]) + 1):
+    scene.frame_set(frame)
+    frames.append({b.name: list(arm.matrix_world @ b.head) for b in arm.pose.bones})
+json.dump({"action": action.name, "frames": frames}, open(dst, "w"))
+"""
+
+
+def test_blender_plays_the_animation_we_add_to_a_glb_character(tmp_path):
+    from test_bvh import synth_joints
+    from test_retarget import glb_character
+
+    from stablemo.gltf.fbx import site_packages
+
+    walk = synth_joints("walk", 3)
+    path, _ = glb_character(tmp_path, walk)
+    s = retarget(walk, path)
+    write_result(tmp_path / "out.glb", s)
+    blender(READ_GLB, tmp_path, str(tmp_path / "out.glb"), str(tmp_path / "heads.json"), "20", site_packages())
+    data = json.loads((tmp_path / "heads.json").read_text())
+    assert data["action"].startswith("stablemo retarget")
+    heads = np.array([[frame[n] for n in s.target.names] for frame in data["frames"]])  # every joint, by name
+    heads = np.stack([heads[..., 0], heads[..., 2], -heads[..., 1]], axis=-1)  # Blender z up -> glTF y up
+    assert heads.shape == s.positions.shape
+    assert np.linalg.norm(heads - s.positions, axis=-1).max() < 1e-4
