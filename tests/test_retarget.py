@@ -241,17 +241,36 @@ def glb_character(tmp_path, joints) -> tuple[Path, object]:
     return path, rig
 
 
-def test_a_glb_character_gets_its_own_file_back_with_the_animation(tmp_path, walk):
+def as_matrices(path: Path) -> None:
+    """Rewrite a GLB's nodes with `matrix` instead of translation/rotation/scale (both are glTF)."""
+    from stablemo.gltf import read_glb
+    from stablemo.gltf.writer import pack_glb
+    from stablemo.retarget.gltf_rig import node_matrix
+
+    doc, binary = read_glb(path.read_bytes())
+    for node in doc["nodes"]:
+        m = node_matrix(node)
+        for key in ("translation", "rotation", "scale"):
+            node.pop(key, None)
+        node["matrix"] = m.T.reshape(-1).tolist()  # column-major
+    path.write_bytes(pack_glb(doc, binary))
+
+
+@pytest.mark.parametrize("matrices", [False, True])
+def test_a_glb_character_gets_its_own_file_back_with_the_animation(tmp_path, walk, matrices):
     from stablemo.gltf import read_glb
     from stablemo.gltf.writer import accessor_array
     from stablemo.retarget.gltf_rig import node_matrix
 
     path, rig = glb_character(tmp_path, walk)
+    if matrices:
+        as_matrices(path)
     report = retarget_file(walk, path, tmp_path / "out.glb")
     solved = retarget(walk, path)
     doc, binary = read_glb((tmp_path / "out.glb").read_bytes())
     before, _ = read_glb(path.read_bytes())
     assert doc["meshes"] == before["meshes"] and doc["skins"][0]["joints"] == before["skins"][0]["joints"]
+    assert not any("matrix" in doc["nodes"][n] for n in solved.target.extra["nodes"])  # animated nodes hold TRS
     anim = doc["animations"][-1]
     assert report.fmt == "glb" and len(anim["channels"]) == rig.num_joints + 1
     for frame in (0, len(walk) // 2, len(walk) - 1):  # the file's node transforms at a frame put the joints on the solve
@@ -315,7 +334,8 @@ def test_every_glb_we_write_passes_the_khronos_validator(tmp_path, walk):
     if validator.available() is not None:
         pytest.skip(validator.available())
     path, _ = glb_character(tmp_path, walk)
-    retarget_file(walk, path, tmp_path / "out.glb")  # the character with the animation added
+    as_matrices(path)
+    retarget_file(walk, path, tmp_path / "out.glb")  # the character (nodes as matrices) with the animation added
     gltf_skeleton(tmp_path, walk)
     retarget_file(walk, tmp_path / "rig.gltf", tmp_path / "skeleton.glb")  # a skeleton alone
     reports = validator.validate([tmp_path / "out.glb", tmp_path / "skeleton.glb"])

@@ -33,7 +33,7 @@ class Report:
                 f"{len(self.roles)} joints driven, the others at rest")
 
 
-def _source(motion, role_map: dict | None) -> Source:
+def _source(motion) -> Source:
     if isinstance(motion, Source):
         return motion
     if isinstance(motion, (str, os.PathLike)):
@@ -52,7 +52,7 @@ def retarget(motion, rig, role_map=None, fps: float | None = None) -> Solved:
     role_map: {Role: joint name} or a YAML path (the target's roles); fps: resample the result."""
     target = rig if isinstance(rig, RestRig) else read_rig(rig)
     roles = find_roles(target.names, target.parents, target.rest, target.path, _map(role_map))
-    solved = solve(_source(motion, None), target, roles, conventions()["contacts"])
+    solved = solve(_source(motion), target, roles, conventions()["contacts"])
     if fps is not None:
         from dataclasses import replace
 

@@ -64,6 +64,17 @@ def node_tracks(solved: Solved, doc: dict) -> tuple[np.ndarray, np.ndarray]:
     return quats, translation
 
 
+def _to_trs(node: dict) -> None:
+    """Replace a node's `matrix` by the translation, rotation and scale it holds (no shear in a rig)."""
+    if "matrix" not in node:
+        return
+    m = node_matrix(node)
+    node.pop("matrix")
+    scale = np.linalg.norm(m[:3, :3], axis=0)
+    rotation = Rotation.from_matrix(m[:3, :3] / scale).as_quat()
+    node["translation"], node["rotation"], node["scale"] = m[:3, 3].tolist(), rotation.tolist(), scale.tolist()
+
+
 def _append(doc: dict, binary: bytearray, values: np.ndarray, width: int, bounds: bool = False) -> int:
     """Append float32 values (count, width) to the binary chunk as a new view and accessor."""
     data = np.ascontiguousarray(values, dtype="<f4")
@@ -82,12 +93,17 @@ def _append(doc: dict, binary: bytearray, values: np.ndarray, width: int, bounds
 
 def onto_glb(data: bytes, solved: Solved, where: str) -> bytes:
     """The GLB `data` (the target's own file) with the retargeted animation added."""
-    doc, chunk = read_glb(data)
+    try:
+        doc, chunk = read_glb(data)
+    except StableMoError as err:
+        raise StableMoError(f"{where}: {err}") from None
     buffers = doc.get("buffers") or []
     if buffers and "uri" in buffers[0]:
         raise StableMoError(f"{where}: its first buffer is an external file; write the rig as a self-contained GLB")
     binary = bytearray(chunk[:buffers[0]["byteLength"]] if buffers else b"")
     quats, translation = node_tracks(solved, doc)
+    for node in solved.target.extra["nodes"]:  # an animated node must hold TRS, not a matrix (glTF 2.0, 5.25)
+        _to_trs(doc["nodes"][node])
     anim = solved.anim
     times = _append(doc, binary, np.arange(anim.num_frames) / anim.fps, 1, bounds=True)
     samplers, channels = [], []
