@@ -215,3 +215,8 @@ def test_generate_writes_a_glb_and_fbx_needs_blender(tmp_path, monkeypatch, caps
     assert err == ("stablemo generate: error: --format fbx: FBX is written through Blender, which is not on PATH "
                    "(Debian/Ubuntu: apt-get install blender); GLB needs nothing\n")
     assert not (tmp_path / "none").exists()  # refused before anything was loaded or written
+    feats = str(out / "a-person-waves.features.npy")
+    assert main(["edit", feats, "--keep", "lower_body", "--text", "a person waves", "--format", "fbx",
+                 "--out", str(tmp_path / "none")]) != 0
+    assert capsys.readouterr().err.startswith("stablemo edit: error: --format fbx: FBX is written through Blender")
+    assert not (tmp_path / "none").exists()

@@ -40,8 +40,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="outputs", help="output folder (default ./outputs)")
     p.add_argument("--name", default=None,
                    help="file name stem inside --out, a plain name without folders (default: from the text)")
-    p.add_argument("--format", action="append", choices=["gif", "mp4", "bvh"], default=None,
-                   help="output format beside the .npy files (repeatable; default gif)")
+    p.add_argument("--format", action="append", choices=["gif", "mp4", "bvh", "glb", "fbx"], default=None,
+                   help="output format beside the .npy files (repeatable; default gif; glb/fbx: the skinned "
+                        "mannequin, fbx needs Blender, docs/gltf.md)")
     p.add_argument("--no-render", action="store_true", help="write the .npy files only")
     p.add_argument("--device", default=None, help="cpu or cuda")
     return p
@@ -68,6 +69,10 @@ def _length_problem(length: int, frames: int | None, path: str, low: int, high: 
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if "fbx" in (args.format or []) and not args.no_render:  # before anything is read, loaded or written
+        from stablemo.gltf.fbx import check_blender
+
+        check_blender()
     if not args.text.strip():
         raise StableMoError("--text: empty prompt")
     if args.steps is not None:
