@@ -218,6 +218,24 @@ def test_a_z_up_rig_and_a_z_up_bvh_motion(tmp_path, walk):
     assert np.abs(again.positions - direct.positions).max() < 1e-4
 
 
+def test_a_bvh_motion_with_odd_names_takes_a_source_map(tmp_path, walk, capsys):
+    from stablemo.cli import main
+
+    write_bvh(tmp_path / "walk.bvh", walk)
+    text = (tmp_path / "walk.bvh").read_text()
+    (tmp_path / "odd.bvh").write_text(text.replace("LeftHand", "paw_a").replace("RightHand", "paw_b"))
+    rig, _ = variant_rig("unreal", scale=1.1, body=body_of(walk))
+    (tmp_path / "rig.bvh").write_text(rig_bvh(rig))
+    args = ["retarget", str(tmp_path / "odd.bvh"), "--rig", str(tmp_path / "rig.bvh"), "--out", str(tmp_path / "o.bvh")]
+    assert main(args) == 2
+    assert "no joint found for LeftHand, RightHand; pass --source-map MAP.yaml" in capsys.readouterr().err
+    (tmp_path / "map.yaml").write_text("LeftHand: paw_a\nRightHand: paw_b\n")
+    assert main(args + ["--source-map", str(tmp_path / "map.yaml")]) == 0
+    direct = retarget(walk, tmp_path / "rig.bvh")
+    assert np.abs(retarget(tmp_path / "odd.bvh", tmp_path / "rig.bvh", source_map=tmp_path / "map.yaml").positions
+                  - direct.positions).max() < 1e-4
+
+
 def glb_character(tmp_path, joints) -> tuple[Path, object]:
     """A GLB character (our mannequin) whose nodes have rest rotations of their own, as an FBX's do."""
     from scipy.spatial.transform import Rotation

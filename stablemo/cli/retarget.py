@@ -24,6 +24,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--rig", required=True, help="the target rig: .bvh, .glb/.gltf, or .fbx (needs Blender on PATH)")
     p.add_argument("--out", required=True, help="output: .bvh for a BVH or FBX rig; .glb (or .bvh) for a glTF rig")
     p.add_argument("--map", default=None, help="YAML {Role: the rig's joint name} for joints not found by name")
+    p.add_argument("--source-map", default=None, help="the same for a BVH MOTION whose joint names do not tell their roles")
     p.add_argument("--fps", type=float, default=None, help="output frame rate (default: the motion's, 20 for HumanML3D)")
     return p
 
@@ -36,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.fps is not None:
         check_finite("--fps", args.fps, low=0.0, high=1000.0, strict=True)
     check_out(args.out, args.rig)
-    report = retarget_file(args.motion, args.rig, args.out, role_map=args.map, fps=args.fps)
+    report = retarget_file(args.motion, args.rig, args.out, role_map=args.map, fps=args.fps, source_map=args.source_map)
     print(f"{args.motion}: {report.summary()}")
     return 0
 

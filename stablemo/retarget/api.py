@@ -33,26 +33,27 @@ class Report:
                 f"{len(self.roles)} joints driven, the others at rest")
 
 
-def _source(motion) -> Source:
+def _source(motion, source_map) -> Source:
     if isinstance(motion, Source):
         return motion
     if isinstance(motion, (str, os.PathLike)):
-        return read_source(motion)
+        return read_source(motion, _map(source_map, "--source-map"))
     return motion_source(motion)
 
 
-def _map(role_map) -> dict | None:
+def _map(role_map, flag: str = "--map") -> dict | None:
     if role_map is None or isinstance(role_map, dict):
         return role_map
-    return load_role_map(role_map)
+    return load_role_map(role_map, flag)
 
 
-def retarget(motion, rig, role_map=None, fps: float | None = None) -> Solved:
+def retarget(motion, rig, role_map=None, fps: float | None = None, source_map=None) -> Solved:
     """motion: path (.npy/.bvh), array (features or joints) or Source; rig: path or RestRig;
-    role_map: {Role: joint name} or a YAML path (the target's roles); fps: resample the result."""
+    role_map: {Role: joint name} or a YAML path (the target's roles); fps: resample the result;
+    source_map: the same for a BVH motion whose names do not tell its roles."""
     target = rig if isinstance(rig, RestRig) else read_rig(rig)
     roles = find_roles(target.names, target.parents, target.rest, target.path, _map(role_map))
-    solved = solve(_source(motion), target, roles, conventions()["contacts"])
+    solved = solve(_source(motion, source_map), target, roles, conventions()["contacts"])
     if fps is not None:
         from dataclasses import replace
 
@@ -76,13 +77,13 @@ def check_out(out: str | os.PathLike, rig: str | os.PathLike) -> Path:
     return out
 
 
-def retarget_file(motion, rig, out, role_map=None, fps: float | None = None) -> Report:
+def retarget_file(motion, rig, out, role_map=None, fps: float | None = None, source_map=None) -> Report:
     """Retarget and write OUT atomically (BVH, or for a glTF rig a GLB: its own file plus the animation)."""
     from stablemo.io import check_output_file
 
     out = check_out(out, rig)
     check_output_file(out, "--out")
-    return write_result(out, retarget(motion, rig, role_map, fps))
+    return write_result(out, retarget(motion, rig, role_map, fps, source_map))
 
 
 def write_result(out: str | os.PathLike, solved: Solved) -> Report:

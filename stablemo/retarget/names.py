@@ -100,10 +100,12 @@ def is_ancestor(parents, a: int, b: int) -> bool:
     return False
 
 
-def find_roles(names, parents, rest: np.ndarray, where: str, override: dict | None = None) -> Roles:
+def find_roles(names, parents, rest: np.ndarray, where: str, override: dict | None = None,
+               flag: str = "--map") -> Roles:
     """Roles of a rig: names (J,), parents (J,) (-1 root, parents first), rest (J, 3) world rest
     positions (for sides of unsided names). override: {Role: name or [names]} from a YAML map.
-    A rig lacking a required role, or whose roles do not form a body, is one line naming what."""
+    A rig lacking a required role, or whose roles do not form a body, is one line naming what and
+    the option (`flag`) that names the joints."""
     names = list(names)
     conv = conventions()
     by_name = {n: i for i, n in enumerate(names)}
@@ -147,8 +149,8 @@ def find_roles(names, parents, rest: np.ndarray, where: str, override: dict | No
                     taken.add(hits[0])
                     break
     if override:
-        _apply_override(override, by_name, found, sides, where)
-    return _check(names, parents, found, sides, where)
+        _apply_override(override, by_name, found, sides, where, flag)
+    return _check(names, parents, found, sides, where, flag)
 
 
 def _side_of(named: str | None, x: float, hips_x: float | None) -> str | None:
@@ -164,12 +166,12 @@ ROLE_KEYS = ("Hips", "Spine", "Chest", "UpperChest", "Neck", "Head") + tuple(
                                                "LowerArm", "Hand"))
 
 
-def _apply_override(override: dict, by_name: dict, found: dict, sides: dict, where: str) -> None:
+def _apply_override(override: dict, by_name: dict, found: dict, sides: dict, where: str, flag: str) -> None:
     for key, value in override.items():
         values = [value] if isinstance(value, str) else list(value)
         missing = [v for v in values if v not in by_name]
         if missing:
-            raise StableMoError(f"--map: {key}: no joint named {missing[0]!r} in {where}")
+            raise StableMoError(f"{flag}: {key}: no joint named {missing[0]!r} in {where}")
         joints = [by_name[v] for v in values]
         if key in ("Chest", "UpperChest"):
             found.setdefault("Spine", [])
@@ -181,44 +183,44 @@ def _apply_override(override: dict, by_name: dict, found: dict, sides: dict, whe
             sides[side][key[len(side):]] = joints[0]
 
 
-def load_role_map(path: str | Path) -> dict:
-    """A YAML map {Role: joint name (or a list for Spine/Neck)}; roles as in ROLE_KEYS."""
+def load_role_map(path: str | Path, flag: str = "--map") -> dict:
+    """A YAML map {Role: joint name (or a list for Spine/Neck)}; roles as in ROLE_KEYS; errors name `flag`."""
     import yaml
 
     from stablemo.errors import yaml_error_line
 
     path = Path(path)
     if not path.is_file():
-        raise StableMoError(f"--map: {path}: file not found")
+        raise StableMoError(f"{flag}: {path}: file not found")
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except yaml.YAMLError as err:
-        raise StableMoError(f"--map: {yaml_error_line(path, err)}") from None
+        raise StableMoError(f"{flag}: {yaml_error_line(path, err)}") from None
     except UnicodeDecodeError:
-        raise StableMoError(f"--map: {path}: not UTF-8 text") from None
+        raise StableMoError(f"{flag}: {path}: not UTF-8 text") from None
     if not isinstance(data, dict) or not all(
             isinstance(v, str) or (isinstance(v, list) and v and all(isinstance(x, str) for x in v))
             for v in data.values()):
-        raise StableMoError(f"--map: {path}: expected a mapping of roles to joint names (LeftUpperLeg: thigh_l, ...)")
+        raise StableMoError(f"{flag}: {path}: expected a mapping of roles to joint names (LeftUpperLeg: thigh_l, ...)")
     unknown = sorted(str(k) for k in data if k not in ROLE_KEYS)
     if unknown:
-        raise StableMoError(f"--map: {path}: unknown role(s) {unknown}; roles are {', '.join(ROLE_KEYS)}")
+        raise StableMoError(f"{flag}: {path}: unknown role(s) {unknown}; roles are {', '.join(ROLE_KEYS)}")
     return data
 
 
-def _check(names, parents, found: dict, sides: dict, where: str) -> Roles:
+def _check(names, parents, found: dict, sides: dict, where: str, flag: str) -> Roles:
     required = conventions()["required"]
     missing = [r for r in required if r in conventions()["center"] and not found.get(r)]
     missing += [side + r for side in SIDES for r in required if r in conventions()["sided"] and r not in sides[side]]
     if missing:
         raise StableMoError(f"{where}: not a humanoid rig that can be retargeted: no joint found for "
-                            f"{', '.join(missing)}; pass --map MAP.yaml naming them (docs/retarget.md)")
+                            f"{', '.join(missing)}; pass {flag} MAP.yaml naming them (docs/retarget.md)")
     hips, head = found["Hips"][0], found["Head"][0]
     # the trunk: spine joints between the hips and the head, neck joints between the spine and the head
     spine = [j for j in found["Spine"] if is_ancestor(parents, hips, j) and j != hips and is_ancestor(parents, j, head)]
     if not spine:
         raise StableMoError(f"{where}: not a humanoid rig that can be retargeted: no spine joint between "
-                            f"{names[hips]} and {names[head]}; pass --map MAP.yaml naming them")
+                            f"{names[hips]} and {names[head]}; pass {flag} MAP.yaml naming them")
     neck = [j for j in found.get("Neck", []) if is_ancestor(parents, spine[-1], j) and j != spine[-1]
             and is_ancestor(parents, j, head) and j != head]
     for side in SIDES:  # optional roles that do not fit the body are left at rest, not refused
@@ -238,5 +240,5 @@ def _check(names, parents, found: dict, sides: dict, where: str) -> Roles:
     for a, b in chains:
         if a == b or not is_ancestor(parents, a, b):
             raise StableMoError(f"{where}: not a humanoid rig that can be retargeted: {names[b]} does not hang "
-                                f"below {names[a]}; pass --map MAP.yaml to say which joint is which")
+                                f"below {names[a]}; pass {flag} MAP.yaml to say which joint is which")
     return Roles(hips, tuple(spine), tuple(neck), head, {side: dict(sides[side]) for side in SIDES})

@@ -83,7 +83,7 @@ def bvh_source(path: str | Path, role_map: dict | None = None) -> Source:
     rest = np.zeros((anim.rig.num_joints, 3))
     for j, p in enumerate(anim.rig.parents):
         rest[j] = anim.rig.offsets[j] + (rest[p] if p >= 0 else 0.0)
-    roles = find_roles(anim.rig.names, anim.rig.parents, rest, str(path), role_map)
+    roles = find_roles(anim.rig.names, anim.rig.parents, rest, str(path), role_map, flag="--source-map")
     joints = joints @ up_axes(rest, roles, str(path))  # a z-up file (Blender's export) read y up
     return Source(joints, roles, anim.fps, guess_per_metre(leg_length(rest, roles)), anim.rig.names)
 
