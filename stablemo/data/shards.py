@@ -192,14 +192,18 @@ class ShardWriter:
         items = build_items(SplitData(self.out, split, [g[1] for g in good], lengths, np.zeros_like(lengths),
                                       np.zeros((0, self.spec.feature_dim), np.float32), [g[3] for g in good]),
                             self.spec)
-        digests = {}  # per source: what its clips in this shard hold (provenance)
-        for source, clip_id, features, captions in good:
-            h = digests.setdefault(source, hashlib.sha256())
-            h.update(clip_id.encode() + b"\0" + np.asarray(features, "<f4").tobytes() + repr(list(captions)).encode())
+        digest = sha256(data)
+        # per source, what its clips in this shard hold (provenance): the shard's own sha256 when the
+        # shard holds one source's clips (all but the shards at a boundary between sources), else the
+        # sha256 of the source's samples (ids, captions and compressed features fix the features)
+        in_shard = sorted({g[0] for g in good})
+        digests = {source: digest for source in in_shard} if len(in_shard) == 1 else {
+            source: hashlib.sha256(b"".join(s["json"] + s["f32.zst"] for g, s in zip(good, samples)
+                                            if g[0] == source)).hexdigest() for source in in_shard}
         record = {"file": name, "clips": len(good), "items": len(items), "frames": int(lengths.sum()),
-                  "bytes": len(data), "sha256": sha256(data), "problems": problems,
-                  "sources": {str(s): {"clips": sum(g[0] == s for g in good), "sha256": h.hexdigest()}
-                              for s, h in digests.items()}}
+                  "bytes": len(data), "sha256": digest, "problems": problems,
+                  "sources": {str(s): {"clips": sum(g[0] == s for g in good), "sha256": d}
+                              for s, d in digests.items()}}
         if split == "train" and good and self.prefix:  # merged sources: their Mean/Std is computed
             block = np.concatenate([g[2] for g in good])  # (frames, D) float32; float64 sums (10x faster than a copy)
             record["sum"] = block.sum(0, dtype=np.float64).tolist()
