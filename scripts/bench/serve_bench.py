@@ -11,7 +11,7 @@ and each prompt the prompt is put in the box as one edit (an `input` event, as t
 keystroke), and the page's own clock (performance.now) gives: send -> first frame drawn (the
 request, the model, the transfer, decoding and the first render; "drawn" is the next animation
 frame after the render call, when the frame has gone to the screen), and keystroke -> drawn (plus
-the page's 40 ms debounce). Every prompt is new to the server (no cached answers).
+the page's 300 ms pause before sending). Every prompt is new to the server (no cached answers).
 
 load: `--requests` POST /api/generate, `--concurrency` at a time, each with its own seed; reports
 throughput and p50/p95 latency, counts errors, and checks that every answer equals its seed's

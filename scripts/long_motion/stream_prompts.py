@@ -4,7 +4,7 @@ against the same prompt generated alone at the same length, and against the old 
 (stablemo.timeline.stream with the text playing at each chunk's middle, which starts the prompt
 again in every chunk).
 
-    OMP_NUM_THREADS=1 python scripts/long_motion/stream_prompts.py --out /tmp/stream_prompts [--bundle DIR] [--seeds 8]
+    OMP_NUM_THREADS=1 python scripts/long_motion/stream_prompts.py --out /tmp/stream_prompts [--bundle DIR] [--seeds 8] [--steps N]
 
 Per segment, mean over the seeds: turn (degrees, the sum of the root's yaw velocity) and travel
 (metres of the root's path on the floor). A single prompt of seed s, segment i uses seed 100 s + i
@@ -47,7 +47,7 @@ def measures(features: np.ndarray, joints: np.ndarray) -> dict:
     return {"turn": turn, "travel": travel}
 
 
-def old_stream(pipe, segments, seed: int):
+def old_stream(pipe, segments, seed: int, steps=None):
     """The stream the server made before: one 2-s chunk per text, the text playing at its middle."""
     frames = segment_frames(check_segments(segments), pipe.fps)
     total = frames[-1][1] / pipe.fps
@@ -55,23 +55,23 @@ def old_stream(pipe, segments, seed: int):
     count = math.ceil(total / CHUNK_S - 1e-9)
     texts = [segments[min(int(np.searchsorted(ends, (i + 0.5) * CHUNK_S, side="right")), len(segments) - 1)][2]
              for i in range(count)]
-    chunks = list(pipe.stream(texts, chunk_seconds=CHUNK_S, seed=seed, max_chunks=count))
+    chunks = list(pipe.stream(texts, chunk_seconds=CHUNK_S, seed=seed, max_chunks=count, steps=steps))
     return np.concatenate([c.features for c in chunks]), np.concatenate([c.joints for c in chunks])
 
 
-def run(pipe, seeds) -> dict:
+def run(pipe, seeds, steps=None) -> dict:
     rows, seams = [], []
     for t, segments in enumerate(TIMELINES):
         frames = segment_frames(check_segments(segments), pipe.fps)
         per = [{"timeline": t + 1, "text": s[2], "seconds": s[1] - s[0], "streamed": [], "alone": [], "old": []}
                for s in segments]
         for seed in seeds:
-            stream = stream_timeline(pipe, segments, chunk_seconds=CHUNK_S, seed=seed)
+            stream = stream_timeline(pipe, segments, chunk_seconds=CHUNK_S, seed=seed, steps=steps)
             chunks = list(stream.chunks)
             feats, joints = np.concatenate([c.features for c in chunks]), np.concatenate([c.joints for c in chunks])
-            old_f, old_j = old_stream(pipe, segments, seed)
+            old_f, old_j = old_stream(pipe, segments, seed, steps)
             for i, (a, b) in enumerate(frames):
-                alone = pipe.generate([segments[i][2]], b - a, seed=seed * 100 + i)
+                alone = pipe.generate([segments[i][2]], b - a, seed=seed * 100 + i, steps=steps)
                 per[i]["streamed"].append(measures(feats[a:b], joints[a:b]))
                 per[i]["old"].append(measures(old_f[a:b], old_j[a:b]))
                 per[i]["alone"].append(measures(alone.feature_list()[0], alone.joint_list()[0]))
@@ -91,7 +91,9 @@ def run(pipe, seeds) -> dict:
 
 
 def to_markdown(result: dict) -> str:
-    lines = [f"Model: {result['bundle']}, seeds {result['seeds']}, {CHUNK_S:g}-s chunks, the server's defaults.", "",
+    steps = result["steps"] or "the bundle's"
+    lines = [f"Model: {result['bundle']}, {steps} steps, seeds {result['seeds']}, {CHUNK_S:g}-s chunks, overlap and "
+             "settle as the server streams", "",
              "| timeline | prompt | s | turn deg: streamed / alone / old stream | travel m: streamed / alone / old stream |",
              "|---|---|---|---|---|"]
     for r in result["segments"]:
@@ -111,10 +113,12 @@ def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--bundle", default=str(DEMO_STUDENT))
     p.add_argument("--seeds", type=int, default=8)
+    p.add_argument("--steps", type=int, default=None, help="sampler steps (default: the bundle's)")
     p.add_argument("--out", required=True)
     args = p.parse_args(argv)
     pipe = Pipeline.from_bundle(args.bundle)
-    result = {"bundle": Path(args.bundle).name, "seeds": list(range(args.seeds)), **run(pipe, range(args.seeds))}
+    result = {"bundle": Path(args.bundle).name, "steps": args.steps, "seeds": list(range(args.seeds)),
+              **run(pipe, range(args.seeds), args.steps)}
     out = Path(args.out)
     write_text(out / "report.json", json.dumps(result, indent=1) + "\n")
     write_text(out / "report.md", to_markdown(result))
