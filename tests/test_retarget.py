@@ -218,6 +218,18 @@ def test_a_z_up_rig_and_a_z_up_bvh_motion(tmp_path, walk):
     assert np.abs(again.positions - direct.positions).max() < 1e-4
 
 
+def test_a_rig_facing_backwards_at_rest_walks_the_motion_s_way(walk):
+    """A y-up rig that faces -z at rest (its left at -x): every bone turns from its own rest, so the
+    joints land where they do on the same rig facing +z."""
+    from dataclasses import replace
+
+    ahead, _ = variant_rig("mixamo", scale=1.1, a_pose_deg=45, body=body_of(walk))
+    behind = replace(ahead, offsets=ahead.offsets * [-1.0, 1.0, -1.0])
+    a, b = retarget(walk, ahead), retarget(walk, behind)
+    assert np.abs(a.positions - b.positions).max() < 1e-6
+    assert not np.allclose(np.abs(a.anim.rotations[:, 0, 0]), np.abs(b.anim.rotations[:, 0, 0]))  # turned about
+
+
 def test_a_bvh_motion_with_odd_names_takes_a_source_map(tmp_path, walk, capsys):
     from stablemo.cli import main
 
