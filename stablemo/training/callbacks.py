@@ -35,7 +35,8 @@ class NonFiniteGuard(Callback):
         # fp16 loss scaling produces Inf gradients by design and skips those steps itself
         scaled = getattr(trainer.precision_plugin, "scaler", None) is not None
         if self.check_gradients and not scaled:
-            grads = [(name, p.grad) for name, p in pl_module.named_parameters() if p.grad is not None]
+            # a sharded run checks each process's own shard (to_local); the decision below is shared
+            grads = [(name, _local(p.grad)) for name, p in pl_module.named_parameters() if p.grad is not None]
             # one device sync for all tensors; names are looked up only when something is wrong
             if grads and not bool(torch.stack([g.isfinite().all() for _, g in grads]).all()):
                 bad = [name for name, g in grads if not bool(g.isfinite().all())]
@@ -50,6 +51,11 @@ class NonFiniteGuard(Callback):
             f"the weights were not updated and no checkpoint was written. Last good checkpoint: {ckpt}. "
             "Resume from it with `--ckpt_path last`, e.g. with a lower --model.lr or a finite dataset."
         )
+
+
+def _local(tensor: torch.Tensor) -> torch.Tensor:
+    """This process's part of a sharded DTensor; a plain tensor as it is."""
+    return tensor.to_local() if hasattr(tensor, "to_local") else tensor
 
 
 def last_good_checkpoint(trainer: Trainer) -> str:

@@ -8,6 +8,12 @@ the warm-up off (β_n = decay throughout).
 The shadow holds exactly the tensors of `model.state_dict()` (trainable weights only for
 MotionDiffusionModel, so a frozen text encoder is never duplicated). It is a plain object rather
 than module buffers on purpose: DDP would otherwise broadcast the whole shadow on every forward.
+
+Under sharded training (stablemo.training.sharding) the weights are DTensors holding 1/N of each
+tensor per process, and so is the shadow built from them: each process averages its own shard.
+`state_dict` gathers the full tensors (a collective: every process calls it, as Lightning does when
+it saves) and `load_state_dict` keeps each process's shard of full tensors, so checkpoints hold the
+same full EMA whether the run was sharded or not.
 """
 
 from __future__ import annotations
@@ -77,7 +83,7 @@ class EMA:
             "decay": self.decay,
             "warmup": self.warmup,
             "num_updates": self.num_updates,
-            "shadow": {k: v.detach().cpu() for k, v in self.shadow.items()},
+            "shadow": {k: _full(v).detach().cpu() for k, v in self.shadow.items()},
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -89,4 +95,19 @@ class EMA:
             )
         self.num_updates = int(state["num_updates"])
         for k, v in state["shadow"].items():
-            self.shadow[k] = v.to(device=self.shadow[k].device, dtype=self.shadow[k].dtype).clone()
+            like = self.shadow[k]
+            v = v.to(device=like.device, dtype=like.dtype)
+            self.shadow[k] = _shard_like(v, like) if hasattr(like, "placements") else v.clone()
+
+
+def _full(value: torch.Tensor) -> torch.Tensor:
+    """The whole tensor of a sharded DTensor (gathered from every process); a plain tensor as it is."""
+    return value.full_tensor() if hasattr(value, "full_tensor") else value
+
+
+def _shard_like(full: torch.Tensor, like) -> torch.Tensor:
+    """This process's shard of `full`, laid out as the DTensor `like` (every process holds `full`:
+    no communication)."""
+    from torch.distributed.tensor import distribute_tensor
+
+    return distribute_tensor(full, like.device_mesh, like.placements, src_data_rank=None)

@@ -125,6 +125,11 @@ class StableMoCLI(LightningCLI):
         if not any(isinstance(p, CheckpointIO) for p in plugins):
             plugins.append(AtomicCheckpointIO())
         kwargs.setdefault("plugins", plugins)
+        if self._get(self.config_init, "trainer", default={}).get("strategy") == "fsdp":
+            # Lightning's own "fsdp" (FSDP1) refuses CPUs; ours is FSDP2 with the networks' block policy
+            from stablemo.training.sharding import FullShardStrategy
+
+            kwargs.setdefault("strategy", FullShardStrategy())
         return super().instantiate_trainer(**kwargs)
 
 

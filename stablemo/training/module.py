@@ -132,6 +132,13 @@ class DiffusionModule(LightningModule):
         if self.geometry_weights:
             self.geometric_loss()  # checks the dataset's facts against the terms before the first step
 
+    def configure_model(self) -> None:
+        """Under `--trainer.strategy=fsdp` the network is sharded here, once the processes are up
+        (stablemo.training.sharding); under any other strategy nothing happens."""
+        from stablemo.training.sharding import configure_sharding
+
+        configure_sharding(self)
+
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         checkpoint[CHECKPOINT_KEY] = {"ema": self.ema.state_dict(), "data": self.data_info}
 
