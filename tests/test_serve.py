@@ -272,17 +272,23 @@ def test_worker_runs_one_job_at_a_time_and_refuses_past_its_queue():
 
 def test_page_loads_nothing_from_the_network():
     html = (STATIC_DIR / "index.html").read_text()
-    app_js = (STATIC_DIR / "app.js").read_text()
-    for text in (html, app_js, (STATIC_DIR / "style.css").read_text()):
+    # our own modules: app.js and what it imports by a relative path (body.js)
+    modules = {"app.js": (STATIC_DIR / "app.js").read_text()}
+    for spec in re.findall(r"from '\./([^']+)'", modules["app.js"]):
+        assert (STATIC_DIR / spec).is_file(), spec
+        modules[spec] = (STATIC_DIR / spec).read_text()
+    assert "body.js" in modules
+    for text in (html, *modules.values(), (STATIC_DIR / "style.css").read_text()):
         assert not re.search(r"(https?:)?//[a-z0-9.-]+\.[a-z]{2,}/", text), "an absolute URL in the page"
     imports = json.loads(re.search(r'<script type="importmap">(.*?)</script>', html, re.DOTALL).group(1))["imports"]
     assert all(v.startswith("/static/vendor/") for v in imports.values())
-    for spec in re.findall(r"from '([^']+)'", app_js):
-        target = imports.get(spec) or next(v + spec[len(k):] for k, v in imports.items()
-                                          if k.endswith("/") and spec.startswith(k))
-        rel = target[len("/static/"):]
-        assert rel.split("/")[1] == "three"
-        assert rel[len("vendor/"):] in vendor_mod.FILES.values()  # vendored by stablemo.serve.vendor
+    for js in modules.values():
+        for spec in re.findall(r"from '([^'.][^']*)'", js):  # bare names: through the import map
+            target = imports.get(spec) or next(v + spec[len(k):] for k, v in imports.items()
+                                              if k.endswith("/") and spec.startswith(k))
+            rel = target[len("/static/"):]
+            assert rel.split("/")[1] == "three"
+            assert rel[len("vendor/"):] in vendor_mod.FILES.values()  # vendored by stablemo.serve.vendor
 
 
 def test_serve_command_says_how_to_get_three_js(monkeypatch, tmp_path, capsys):
