@@ -774,6 +774,7 @@ async function start() {
   select.addEventListener('change', () => {
     applyModel(select.value);
     if (!S.motion) { buildFigure(modelInfo(select.value).skeleton); restPose(modelInfo(select.value).skeleton); }
+    body.rest(select.value);  // the new model's body, shown until its first motion
     schedule(0);
   });
   for (const id of ['seconds', 'seed', 'sampler', 'steps', 'cfg', 'footskate']) {
