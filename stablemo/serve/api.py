@@ -7,7 +7,7 @@
     POST /api/generate     {"text", "seconds"|"frames", "seed", "model", "sampler", "steps", "cfg",
                             "footskate", "encoding", "features"} -> joints, features, fps, ..., warnings
                            (one line per download that would be more than 3 cm from the motion)
-    POST /api/download     the same body + "format": joints.npy | features.npy | bvh | gif -> the file;
+    POST /api/download     the same body + "format": joints.npy | features.npy | bvh | gif | glb | fbx -> the file;
                            with /api/stream's body + "format", the streamed motion's file
     POST /api/retarget     the /api/generate body + "rig": a humanoid rig's BVH text (+ "rig_map": {Role: joint
                            name} for joints its names do not tell) -> the motion on that rig, as BVH
