@@ -139,6 +139,29 @@ def test_colours_and_a_skeleton_without_mesh():
         glb_bytes(rig, Animation(rig, np.full((3, 3), np.nan), np.tile([1.0, 0, 0, 0], (3, 2, 1)), 30.0))
 
 
+def test_any_rig_with_rest_rotations_is_bound_where_it_stands(tmp_path):
+    """A rig whose bones are turned at rest (a character from another tool): posed at its rest, the
+    skinned mesh is exactly where it was bound; posed otherwise, the joints follow the rotations."""
+    rig = Rig(("Hips", "LeftUpLeg", "LeftLeg"), (-1, 0, 1), np.array([[0.0, 0, 0], [0.1, -0.05, 0], [0, 0.4, 0]]), {})
+    half = np.sqrt(0.5)
+    rest = np.array([[1.0, 0, 0, 0], [0, 0, 0, 1.0], [half, half, 0, 0]])  # w-first: a half turn about z, 90 deg about x
+    still = Animation(rig, np.tile([0.0, 0.9, 0], (2, 1)), np.stack([rest, rest]), 10.0)
+    body = mannequin(rig, {"left": "#1f6fd1", "right": "#d62f2f", "center": "#444444"}, rest, (0.0, 0.9, 0.0))
+    data = glb_bytes(rig, still, body, rest_rotations=rest, rest_root=(0.0, 0.9, 0.0))
+    doc, world, _ = pose_file(data)
+    binary = read_glb(data)[1]
+    for prim, verts in zip(doc["meshes"][0]["primitives"], skinned_vertices(data, world)):
+        bound = accessor_array(doc, binary, prim["attributes"]["POSITION"])
+        assert np.abs(verts - bound).max() < 1e-5
+    # the knee (LeftLeg): the hip joint at (0.1, 0.85, 0), turned half round z, puts the knee's 0.4 m
+    # +y offset below it
+    assert np.allclose(world[0, 2, :3, 3], [0.1, 0.85 - 0.4, 0.0], atol=1e-6)
+    if available() is None:
+        (tmp_path / "rig.glb").write_bytes(data)
+        (report,) = validate([tmp_path / "rig.glb"])
+        assert (report["errors"], report["warnings"]) == (0, 0), report["messages"][:5]
+
+
 def test_the_standing_body_stands_on_the_floor():
     data = standing_glb("humanml3d", colours=COLOURS)
     _, world, times = pose_file(data)
