@@ -181,7 +181,7 @@ def test_write_glb_is_fast_and_atomic(tmp_path, walk):
     start = time.perf_counter()
     write_glb(tmp_path / "w.glb", long, colours=COLOURS)
     took = time.perf_counter() - start
-    assert took < 0.5, took  # beside seconds of generation: ~30 ms measured on 2 busy cores
+    assert took < 0.5, took  # beside seconds of generation: 50-62 ms measured on the 2 cores at load ~10
     assert sorted(p.name for p in tmp_path.iterdir()) == ["w.glb"]
     with pytest.raises(StableMoError, match="NaN"):
         write_glb(tmp_path / "bad.glb", np.full_like(joints, np.nan))
