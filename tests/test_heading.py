@@ -133,3 +133,13 @@ def test_a_controlnet_without_guidance_is_steered_by_its_own_hook():
     assert np.all(facing[True] < 10) and np.all(facing[False] > 2 * facing[True]), facing
     # the hook turns the body, not the ControlNet's path
     assert torch.allclose(paths[True][..., [0, 2]], paths[False][..., [0, 2]], atol=1e-4)
+
+
+def test_facing_error_is_zero_for_the_gait_of_the_reference_and_large_against_another():
+    from stablemo.eval.heading import facing_error
+
+    walk = torch.tensor(_clip("walk", 21)[:60])[None]
+    back = torch.tensor(_clip("walk_backward", 22)[:60])[None]
+    n = torch.tensor([60])
+    assert facing_error(walk, walk, n, "humanml3d")[0] < 1 and facing_error(back, back, n, "humanml3d")[0] < 1
+    assert facing_error(back, walk, n, "humanml3d")[0] > 170

@@ -31,7 +31,7 @@ ROWS = [("none", "100%"), ("pelvis", "100%"), ("pelvis", "25%"), ("pelvis", "5")
         ("left_wrist", "25%"), ("keyframes", "4")]
 COLS = [("fid", "FID"), ("r3", "R@3"), ("diversity", "Div."), ("skate_ratio", "Skate"), ("foot_acc", "Foot acc."),
         ("traj_err", "Traj. err"), ("loc_err", "Loc. err"), ("avg_err", "Avg. err (m)"), ("spikes", "Spikes"),
-        ("facing_deg", "Facing° vs travel"), ("unasked_backward", "Backward"), ("unasked_sideways", "Sideways"),
+        ("facing_deg", "Facing err °"), ("unasked_backward", "Backward"), ("unasked_sideways", "Sideways"),
         ("stance_speed", "Stance v cm/s")]
 
 

@@ -34,7 +34,7 @@ COLUMNS = [  # (json key, table header, lower/higher/closer-is-better hint only 
     ("r1", "R@1"), ("r2", "R@2"), ("r3", "R@3"), ("fid", "FID"), ("mm_dist", "MM-Dist"),
     ("diversity", "Diversity"), ("multimodality", "MModality"), ("skate_ratio", "Skate"),
     ("foot_acc", "Foot acc."), ("traj_err", "Traj. err"), ("loc_err", "Loc. err"), ("avg_err", "Avg. err"),
-    ("spikes", "Spikes"), ("facing_deg", "Facing° vs travel"), ("unasked_backward", "Backward"),
+    ("spikes", "Spikes"), ("facing_deg", "Facing err °"), ("unasked_backward", "Backward"),
     ("unasked_sideways", "Sideways"),
     # kinematics.MEASURES (foot_acc above): units in the headers, definitions in docs/evaluation.md
     ("bone_change", "Bone Δ cm"), ("floor_p1", "Floor p1 cm"), ("below_floor", "Below floor"),
@@ -121,11 +121,12 @@ def _control_metrics(joints: list[torch.Tensor], hints: list, reference: list[to
     """Control errors (metres) of generated joints (L_i, J, 3) against their hints, the share
     of hinted frames with a root/foot acceleration spike above the reference motions' 99th
     percentile, and where the body faces against where it travels (stablemo.eval.heading): the
-    mean over motions of the median facing-vs-travel angle (degrees, motions that move), and the
-    shares of moving frames walked backwards / sideways where the hinted motion (`reference`, the
-    same items) walks forward there: not asked for."""
+    mean over motions of the median difference (degrees) between its facing-vs-travel angle and the
+    hinted motion's (`reference`, the same items: the path is walked as that motion walked it), and
+    the shares of moving frames walked backwards / sideways where the hinted motion walks forward
+    there: not asked for."""
     from stablemo.eval.control import acceleration_spikes, control_errors
-    from stablemo.eval.heading import heading_measures
+    from stablemo.eval.heading import facing_error, heading_measures
 
     padded, _ = _padded_joints(joints)
     targets, masks = torch.zeros_like(padded), torch.zeros(padded.shape[:3], dtype=torch.bool)
@@ -140,7 +141,7 @@ def _control_metrics(joints: list[torch.Tensor], hints: list, reference: list[to
     gen, _ = _padded_joints([j[:n] for j, n in zip(joints, lengths)])
     unasked = heading_measures(gen, lengths, skeleton, reference=ref)
     with np.errstate(all="ignore"):  # a batch where nothing moves: NaN, not a warning
-        errors["facing_deg"] = float(np.nanmean(heading_measures(gen, lengths, skeleton)["facing_deg"]))
+        errors["facing_deg"] = float(np.nanmean(facing_error(gen, ref, lengths, skeleton)))
         errors["unasked_backward"] = float(np.nanmean(unasked["backward"]))
         errors["unasked_sideways"] = float(np.nanmean(unasked["sideways"]))
     return errors

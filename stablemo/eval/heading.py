@@ -55,4 +55,17 @@ def heading_measures(joints, lengths, skeleton, reference=None) -> dict[str, np.
     return {"facing_deg": med.numpy(), "backward": back.numpy(), "sideways": side.numpy()}
 
 
-__all__ = ["facing_vs_travel", "heading_measures"]
+def facing_error(joints, reference, lengths, skeleton) -> np.ndarray:
+    """(B,) degrees: per motion, the median over frames where both move of the difference between
+    the generated and the reference motion's signed facing-vs-travel angles: 0 when the body walks
+    its path the way the motion the path came from did (forward, backwards or sideways alike);
+    NaN where they never move together."""
+    gen = facing_vs_travel(joints, lengths, skeleton)
+    ref = facing_vs_travel(reference, lengths, skeleton)
+    both = gen["moving"] & ref["moving"]
+    diff = torch.rad2deg(wrap(torch.deg2rad(gen["signed"] - ref["signed"]))).abs()
+    return torch.stack([d[m].median() if m.any() else torch.tensor(float("nan"), dtype=d.dtype)
+                        for d, m in zip(diff, both)]).numpy()
+
+
+__all__ = ["facing_error", "facing_vs_travel", "heading_measures"]
