@@ -217,6 +217,16 @@ def polyline_length(p: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(p, axis=0), axis=-1).sum())
 
 
+def assert_control_panel(page, control: dict) -> None:
+    """The panel shows the server's verdict: its note, else "targets reached" (never both)."""
+    note = page.find_element(By.ID, "control-note")
+    info = page.find_element(By.ID, "control-info").text
+    if control["note"] is None:
+        assert note.text == "" and "targets reached within" in info
+    else:
+        assert note.is_displayed() and note.text == control["note"] and "reached" not in info
+
+
 def max_turn_degrees(p: np.ndarray) -> float:
     """The sharpest change of direction between consecutive steps of a polyline (N, 2)."""
     steps = np.diff(p, axis=0)
@@ -268,8 +278,10 @@ def test_a_path_drawn_with_the_pages_defaults_is_what_was_drawn_and_is_followed(
     assert np.linalg.norm(free_end - path[-1]) > 0.3
     nearest = np.linalg.norm(path[:, None] - pelvis[None], axis=-1).min(1)  # (N,)
     assert nearest.max() < 0.1
-    assert "targets reached within" in page.find_element(By.ID, "control-info").text
-    assert page.find_element(By.ID, "control-note").text == ""
+    # a walking pace: the panel says "reached", or the server's note when a target was missed
+    control = page.execute_script("return window.stablemo.motion.control")
+    assert control["pace_m_s"] == pytest.approx(polyline_length(path) / 6, rel=0.02) and control["pace_m_s"] < 1
+    assert_control_panel(page, control)
 
     # a stroke far faster than a body walks (about 10 m in 2 s): a visible note, not "reached"
     seconds = page.find_element(By.ID, "seconds")
@@ -284,9 +296,9 @@ def test_a_path_drawn_with_the_pages_defaults_is_what_was_drawn_and_is_followed(
     start = page.execute_script("return window.stablemo.toScreen([0, 0, 0])")
     drag(page, [[start[0], start[1] + (far[1] - start[1]) * k / 12] for k in range(13)])
     wait_for(page, "const s = window.stablemo; return s.motion.control && s.motion.control.pace_m_s > 4")
-    note = page.find_element(By.ID, "control-note")
-    assert note.is_displayed() and note.text.startswith("too fast to follow: the targets ask for")
-    assert "reached" not in page.find_element(By.ID, "control-info").text
+    control = page.execute_script("return window.stablemo.motion.control")
+    assert control["note"].startswith("too fast to follow: the targets ask for")
+    assert_control_panel(page, control)
     seconds.clear()
     seconds.send_keys("6", Keys.TAB)  # the same path over 6 s
     wait_for(page, "const s = window.stablemo; return s.motion.frames === 120 && s.motion.control "
@@ -303,7 +315,7 @@ def test_a_path_drawn_with_the_pages_defaults_is_what_was_drawn_and_is_followed(
     drag(page, [[x, y], [x, y - 30], [x, y - 60]])
     wait_for(page, "const s = window.stablemo; return s.motion.control && s.motion.control.targets === s.motion.frames + 1")
     assert page.execute_script("return window.stablemo.three.camera.position.toArray()") == camera  # held
-    assert page.find_element(By.ID, "control-note").text == ""
+    assert_control_panel(page, page.execute_script("return window.stablemo.motion.control"))
     (key,) = page.execute_script("return window.stablemo.keyframes")
     assert key["frame"] == frame and key["joint"] == 21
     after = page.execute_script("const m = window.stablemo.motion; const o = (arguments[0] * m.J + 21) * 3;"

@@ -465,12 +465,14 @@ function setMode(next) {
 
 // Before a stroke: pause at frame 0, where the motion (and so the path) starts, with the camera on
 // the figure; the camera then holds until the mode ends, so the floor stays under the cursor.
-function holdForStroke() {
+// recentre: move the camera onto the figure once (entering the mode); a stroke starting keeps the
+// camera where it is, so the press and the moves are read through the same view.
+function holdForStroke(recentre = true) {
   if (S.playing) { togglePlay(); resumeAfterPath = true; }
   framePos = 0;
   if (S.motion && S.motion.available > 0) {
     pose(0);
-    followCamera();
+    if (recentre) followCamera();
     dirtyView = true;
   }
 }
@@ -564,7 +566,7 @@ canvas.addEventListener('pointerdown', (e) => {
   if (mode === 'path') {
     const p = raycaster.ray.intersectPlane(floorPlane, new THREE.Vector3());
     if (!p) return;
-    holdForStroke();  // a motion that arrived since plays on: stop it, back to where the path starts
+    holdForStroke(false);  // a motion that arrived since plays on: stop it, back to where the path starts
     // the path starts at the figure (the motion's start, the origin), wherever the stroke begins
     draft = [[0, 0]];
     if (Math.hypot(p.x, p.z) > 0.03) draft.push([p.x, p.z]);
