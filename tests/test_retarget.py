@@ -218,6 +218,31 @@ def test_a_z_up_rig_and_a_z_up_bvh_motion(tmp_path, walk):
     assert np.abs(again.positions - direct.positions).max() < 1e-4
 
 
+def test_a_rig_standing_on_its_floor_plants_its_feet_at_their_own_height(walk):
+    """A rig modelled standing on the floor (its ankles 10 cm up, toes 35 degrees below them, as
+    drawn feet are, not HumanML3D's 5 cm and 20 degrees): where the source's foot is flat, the rig's
+    ankle and toe are where they are at rest."""
+    from dataclasses import replace
+
+    rig, index = variant_rig("mixamo", scale=1.2, a_pose_deg=45, body=body_of(walk))
+    offsets = rig.offsets.copy()
+    for ankle, toe in ((index[7], index[10]), (index[8], index[11])):
+        offsets[toe] = 0.17 * np.array([0.0, -np.sin(np.radians(35)), np.cos(np.radians(35))])
+    standing = replace(rig, offsets=offsets)
+    offsets[0, 1] -= standing.rest[:, 1].min()  # the root raised: the toes on y = 0
+    standing = replace(rig, offsets=offsets)
+    solved = retarget(walk, standing)
+    rest = standing.rest
+    for s_i, side in enumerate(("Left", "Right")):
+        flat = solved.contacts[:, 2 * s_i:2 * s_i + 2].all(-1)
+        for role in ("Foot", "Toes"):
+            j = solved.roles.sides[side][role]
+            assert abs(np.median(solved.positions[flat, j, 1]) - rest[j, 1]) < 0.01, (side, role)
+    as_scaled = retarget(walk, rig)  # the same rig hanging from its root at the origin: only scaled
+    free = as_scaled.held[:, 0] == 0
+    assert free.sum() > 5 and np.abs(as_scaled.positions[free, index[7]] - as_scaled.scaled[free, 7]).max() < 1e-9
+
+
 def test_a_rig_facing_backwards_at_rest_walks_the_motion_s_way(walk):
     """A y-up rig that faces -z at rest (its left at -x): every bone turns from its own rest, so the
     joints land where they do on the same rig facing +z."""

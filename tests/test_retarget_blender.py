@@ -87,14 +87,20 @@ def blender(script: str, tmp_path: Path, *args: str) -> None:
 
 
 def custom_spec(walk: np.ndarray) -> list:
-    """An armature in Blender's axes (z up, facing -y): SMPL-X names, 1.25x legs, arms 40 degrees down,
-    finger and twist bones; each bone from its joint to its first child (leaves: along the parent)."""
+    """An armature in Blender's axes (z up, facing -y), standing on the floor: SMPL-X names, 1.25x legs,
+    arms 40 degrees down, finger and twist bones; each bone from its joint to its first child
+    (leaves: along the parent)."""
+    from dataclasses import replace
+
     from stablemo.bvh import motion_to_animation
     from stablemo.retarget.variants import variant_rig
 
-    rig, _ = variant_rig("smplx", legs=1.25, a_pose_deg=40, body=motion_to_animation(walk).rig.offsets)
-    rest = rig.rest
-    rest = rest - [0.0, rest[:, 1].min() - 0.02, 0.0]  # feet on the floor
+    rig, index = variant_rig("smplx", legs=1.25, a_pose_deg=40, body=motion_to_animation(walk).rig.offsets)
+    offsets = rig.offsets.copy()
+    for toe in (index[10], index[11]):  # feet as modelled, toes 25 degrees below the ankles, not a T-pose's level feet
+        offsets[toe] = np.linalg.norm(offsets[toe]) * np.array([0.0, -np.sin(np.radians(25)), np.cos(np.radians(25))])
+    rest = replace(rig, offsets=offsets).rest
+    rest = rest - [0.0, rest[:, 1].min(), 0.0]  # standing on the floor
     blender_xyz = np.stack([rest[:, 0], -rest[:, 2], rest[:, 1]], axis=-1)  # y up, +z front -> z up, -y front
     spec = []
     for j, p in enumerate(rig.parents):

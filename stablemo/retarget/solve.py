@@ -2,7 +2,8 @@
 
 1. Proportions: the source is scaled by k = the target's leg length (thigh + shin) over the
    source's, about the world origin, so the root's travel is scaled by the leg ratio and the hips
-   sit as high as the target's legs carry them (both floors at y = 0).
+   sit as high as the target's legs carry them; a rig standing on its floor at rest is raised (or
+   lowered) so that its planted ankles are as high as its own ankles at rest (_floor_lift).
 2. The trunk: the hips turn with the source's pelvis (up: towards the first spine joint; across:
    the legs); the spine and neck joints, whatever their number on either side, are matched by their
    fraction of the chain's length, each aiming where the source's chain runs at that fraction, its
@@ -89,7 +90,11 @@ def solve(source: Source, target: RestRig, roles: Roles, contacts_cfg: dict) -> 
     k = leg_t / leg_s
     unit_scale = guess_per_metre(leg_t) / source.per_metre  # target units per source unit
     axes = up_axes(rest, roles, target.path)
-    x = k * source.positions @ axes.T  # (T, Js, 3) the source in the target's units and axes
+    contacts = _contacts(source, contacts_cfg)
+    up = axes[:, 1]  # the rig's up axis
+    standing = abs((rest @ up).min()) <= 0.02 * leg_t  # its lowest joint on the floor: it stands at rest
+    lift = up * (_floor_lift(source, rest @ up, roles, k, contacts, leg_t) if standing else 0.0)  # (3,)
+    x = k * source.positions @ axes.T + lift  # (T, Js, 3) the source in the target's units, axes and floor
     frames = len(x)
 
     def src(side: str, role: str) -> np.ndarray:
@@ -136,7 +141,6 @@ def solve(source: Source, target: RestRig, roles: Roles, contacts_cfg: dict) -> 
             frames_of[joint] = align(neck_s.at(f1) - neck_s.at(f0), chest_lat_s,
                                      rest[neck_t[i + 1]] - rest[neck_t[i]], chest_lat_r)
 
-    contacts = _contacts(source, contacts_cfg)
     ramp = max(1, int(round(contacts_cfg["ramp_s"] * source.fps)))
     limbs = {}  # upper joint -> what its IK needs
     held = np.zeros((frames, 2))
@@ -146,7 +150,7 @@ def solve(source: Source, target: RestRig, roles: Roles, contacts_cfg: dict) -> 
             ju, jm, je = (roles.sides[side][r] for r in (upper, mid, end))
             if limb == "leg":
                 goal, held[:, s_i] = _planted(source, k, unit_scale, side, contacts[:, 2 * s_i:2 * s_i + 2], ramp)
-                goal = goal @ axes.T
+                goal = goal @ axes.T + lift
                 fallback_s, fallback_r = forward_s, forward_r  # knees bend forward
             else:
                 goal = src(side, end)
@@ -165,7 +169,10 @@ def solve(source: Source, target: RestRig, roles: Roles, contacts_cfg: dict) -> 
             jt, jc = roles.sides[side].get(role), roles.sides[side].get(child)
             js, jsc = sr.sides[side].get(role), sr.sides[side].get(child)
             if None not in (jt, jc, js, jsc):
-                swings[jt] = (rest[jc] - rest[jt], x[:, jsc] - x[:, js])
+                now = x[:, jsc] - x[:, js]
+                if role == "Foot" and standing:
+                    now = _foot_pitch(now, rest[jc] - rest[jt], up, contacts[:, 2 * SIDES.index(side):][:, :2].all(-1))
+                swings[jt] = (rest[jc] - rest[jt], now)
 
     world = np.empty((frames, target.num_joints, 3, 3))
     pos = np.empty((frames, target.num_joints, 3))
@@ -202,6 +209,40 @@ def solve(source: Source, target: RestRig, roles: Roles, contacts_cfg: dict) -> 
     return Solved(anim, pos, x, contacts, held, k, axes, roles, source, target)
 
 
+def _floor_lift(source: Source, heights: np.ndarray, roles: Roles, k: float, contacts: np.ndarray,
+                leg: float) -> float:
+    """How far (target units) to raise everything so the rig's planted ankles stand as high above
+    its floor as its own ankles do at rest: rigs that stand on the floor at rest (Blender, Mixamo,
+    Unreal, VRM) have feet of their own height (the Rigify metarig's ankles are 8.5 cm up, a scaled
+    HumanML3D foot's 6 cm). heights (J,): the rig's rest joints along its up axis. Only for such
+    rigs: one hanging from its root at the origin (our own BVH) says nothing of its floor."""
+    rest_ankles = np.mean([heights[roles.sides[side]["Foot"]] for side in SIDES])
+    planted = []
+    for s_i, side in enumerate(SIDES):
+        ankle = source.positions[:, source.roles.sides[side]["Foot"], 1]
+        planted.append(ankle[contacts[:, 2 * s_i]])
+    planted = np.concatenate(planted)
+    if len(planted) == 0:  # never planted (a jump caught mid-air): nothing to stand on
+        return 0.0
+    return float(np.clip(rest_ankles - k * np.median(planted), -0.1 * leg, 0.1 * leg))
+
+
+def _foot_pitch(now: np.ndarray, rest_dir: np.ndarray, up: np.ndarray, flat: np.ndarray) -> np.ndarray:
+    """Foot directions (T, 3) pitched so that where the source's foot is flat on the floor (`flat`
+    (T,): ankle and toe planted) the rig's foot has its own rest pitch: feet are drawn differently
+    (a HumanML3D toe joint sits on the floor, 20 degrees below its ankle; the Rigify metarig's toe
+    bone starts 7 cm below its ankle), and copying the direction would tilt a flat foot. The foot's
+    heading and its pitch's changes are the source's."""
+    if not flat.any():
+        return now
+    d = unit(now)
+    pitch = np.arcsin(np.clip(d @ up, -1.0, 1.0))  # (T,) radians, negative: pointing down
+    level = unit(across(d, up))
+    rest_pitch = float(np.arcsin(np.clip(unit(rest_dir) @ up, -1.0, 1.0)))
+    new = pitch + rest_pitch - float(np.median(pitch[flat]))
+    return np.linalg.norm(now, axis=-1, keepdims=True) * (np.cos(new)[:, None] * level + np.sin(new)[:, None] * up)
+
+
 def _contacts(source: Source, cfg: dict) -> np.ndarray:
     """(T, 4) [L ankle, L toe, R ankle, R toe] contacts of the source (a missing toe: its ankle's)."""
     feet = []
@@ -212,7 +253,7 @@ def _contacts(source: Source, cfg: dict) -> np.ndarray:
 
 
 def _planted(source: Source, k: float, unit_scale: float, side: str, contact: np.ndarray,
-             ramp: int) -> tuple[np.ndarray, np.ndarray]:
+             ramp: int) -> tuple[np.ndarray, np.ndarray]:  # in the source's axes
     """(T, 3) where the target's ankle goes, and (T,) how firmly it is held: the scaled source's ankle, except while the source's foot
     is planted (its ankle or its toe): then the scaling's offset is frozen at its value at the
     contact's mean place, so the target's foot moves exactly as the source's does (in metres), and
