@@ -15,7 +15,7 @@ Where things live (docs/architecture.md has the whole map):
     control/    in-painting and joint-control specs, control files, body parts, guidance, the ControlNet
     motion/     skeletons, features <-> joints, plausibility limits
     retarget/   a motion onto any humanoid rig (BVH, glTF/GLB, FBX through Blender)
-    data/ text/ nets/ diffusion/ distill/ fast/ timeline/ skating/ eval/ outputs/ bvh/ serve/ official/
+    data/ text/ nets/ diffusion/ distill/ fast/ timeline/ skating/ eval/ outputs/ bvh/ gltf/ serve/ official/
     bench/      every benchmark;  cli/  every subcommand's argument parsing (one dispatch table)
 """
 
@@ -36,6 +36,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "stablemo.outputs.render": ("render_animation", "render_strip"),
     "stablemo.outputs.files": ("write_motion",),
     "stablemo.bvh": ("bvh_text", "export_motion", "read_bvh", "write_bvh"),
+    "stablemo.gltf": ("glb_bytes", "motion_glb", "write_glb"),
     "stablemo.retarget": ("retarget_file",),  # not `retarget`: the name is the package's
 }
 # Training classes (DiffusionModule, MotionDataModule, ...) are not re-exported here: LightningCLI
