@@ -7,6 +7,7 @@ server's error. Skipped when Chromium, its driver, selenium or the vendored thre
 from __future__ import annotations
 
 import io
+import itertools
 import shutil
 import time
 from pathlib import Path
@@ -107,9 +108,9 @@ def test_before_any_motion_the_figure_stands_at_rest_and_the_menus_are_readable(
     assert 1.4 < np.ptp(pose[:, 1]) < 1.8 and np.ptp(pose[:, 0]) > 1.0  # head to feet, arm span
     shot = screenshot(page)
     Image.fromarray(shot).save(tmp_path / "rest.png")
-    left, top, ratio, joints, width = page.execute_script(
+    left, top, ratio, joints = page.execute_script(
         "const r = document.getElementById('canvas').getBoundingClientRect();"
-        "return [r.left, r.top, window.devicePixelRatio, window.stablemo.screenPose, r.width]")
+        "return [r.left, r.top, window.devicePixelRatio, window.stablemo.screenPose]")
     # what is drawn (the body, or the sticks until its file arrives) stands where the page says,
     # as tall on screen as the rest pose's head to feet
     xy = np.array(joints)  # (22, 2) canvas pixels
@@ -208,7 +209,7 @@ def drag(page, points):
     x0, y0 = points[0]
     chain = ActionChains(page, duration=10).move_to_element_with_offset(
         canvas, round(x0 - width / 2), round(y0 - height / 2)).click_and_hold()
-    for (xa, ya), (xb, yb) in zip(points[:-1], points[1:]):
+    for (xa, ya), (xb, yb) in itertools.pairwise(points):
         chain.move_by_offset(round(xb) - round(xa), round(yb) - round(ya))
     chain.release().perform()
 

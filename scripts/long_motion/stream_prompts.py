@@ -92,8 +92,8 @@ def run(pipe, seeds, steps=None) -> dict:
 
 def to_markdown(result: dict) -> str:
     steps = result["steps"] or "the bundle's"
-    lines = [f"Model: {result['bundle']}, {steps} steps, seeds {result['seeds']}, {CHUNK_S:g}-s chunks, overlap and "
-             "settle as the server streams", "",
+    lines = [(f"Model: {result['bundle']}, {steps} steps, seeds {result['seeds']}, {CHUNK_S:g}-s chunks, overlap and "
+              "settle as the server streams"), "",
              "| timeline | prompt | s | turn deg: streamed / alone / old stream | travel m: streamed / alone / old stream |",
              "|---|---|---|---|---|"]
     for r in result["segments"]:
