@@ -92,7 +92,7 @@ def solve(source: Source, target: RestRig, roles: Roles, contacts_cfg: dict) -> 
     axes = up_axes(rest, roles, target.path)
     contacts = _contacts(source, contacts_cfg)
     up = axes[:, 1]  # the rig's up axis
-    standing = abs((rest @ up).min()) <= 0.02 * leg_t  # its lowest joint on the floor: it stands at rest
+    standing = _stands(rest @ up, roles, leg_t)
     lift = up * (_floor_lift(source, rest @ up, roles, k, contacts, leg_t) if standing else 0.0)  # (3,)
     x = k * source.positions @ axes.T + lift  # (T, Js, 3) the source in the target's units, axes and floor
     frames = len(x)
@@ -207,6 +207,21 @@ def solve(source: Source, target: RestRig, roles: Roles, contacts_cfg: dict) -> 
     rotations = continuous_hemisphere(matrix_to_quat(local))
     anim = Animation(target.bvh_rig(), pos[:, 0].copy(), rotations, source.fps)
     return Solved(anim, pos, x, contacts, held, k, axes, roles, source, target)
+
+
+def _stands(heights: np.ndarray, roles: Roles, leg: float) -> bool:
+    """Whether a rig is drawn standing on its floor at rest: its lowest joint on y = 0 (within 2 % of
+    its leg) and its ankles above it as a foot holds them (by 2 % of the leg, above the toes too).
+    Characters are modelled so (Blender, Mixamo, Unreal, VRM); a rig hanging from its root at the
+    origin (our own BVH), or one whose ankles lie on the floor, says nothing of how its feet stand.
+    heights (J,): the rest joints along the rig's up axis."""
+    if abs(heights.min()) > 0.02 * leg:
+        return False
+    for side in SIDES:
+        ankle, toes = heights[roles.sides[side]["Foot"]], heights[roles.sides[side].get("Toes", roles.sides[side]["Foot"])]
+        if ankle - heights.min() < 0.02 * leg or (toes != ankle and ankle - toes < 0.02 * leg):
+            return False
+    return True
 
 
 def _floor_lift(source: Source, heights: np.ndarray, roles: Roles, k: float, contacts: np.ndarray,
