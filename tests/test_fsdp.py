@@ -140,6 +140,23 @@ def test_sharded_step_equals_unsharded_step(one_process_group, net, fast):
         assert torch.allclose(grads_a[name], grads_b[name], rtol=1e-5, atol=1e-7), name
 
 
+def test_bf16_units_keep_float32_master_weights_and_gradients(one_process_group):
+    """param_dtype=bfloat16 (the 1 B config's): units compute in bf16, the sharded weights and their
+    gradients stay float32, and the loss is the float32 network's to bf16 precision."""
+    from stablemo.training.sharding import shard_model
+
+    whole = small_model("dit", fast=True)
+    sharded = copy.deepcopy(whole)
+    shard_model(sharded, one_process_group, param_dtype=torch.bfloat16)
+    x = torch.randn(2, 8, 263, generator=torch.Generator().manual_seed(2))
+    t, mask = torch.tensor([10, 700]), torch.ones(2, 8, dtype=torch.bool)
+    loss_a, _ = _loss_and_grads(whole, x, t, ["a person waves", "jump"], mask)
+    loss_b, grads = _loss_and_grads(sharded, x, t, ["a person waves", "jump"], mask)
+    assert all(p.dtype == torch.float32 and p.grad.dtype == torch.float32 for p in sharded.parameters())
+    assert all(torch.isfinite(g).all() for g in grads.values())
+    assert loss_a != loss_b and torch.allclose(loss_a, loss_b, rtol=2e-2)  # computed in bf16, not float32
+
+
 def test_ema_of_sharded_weights_saves_full_tensors_and_loads_back(one_process_group):
     from stablemo.training.ema import EMA
     from stablemo.training.sharding import shard_model
@@ -325,3 +342,13 @@ def test_fsdp_trains_like_ddp_to_float_rounding(fsdp_run, tiny_data, tmp_path):
     ema = _max_diff(a["stablemo"]["ema"]["shadow"], b["stablemo"]["ema"]["shadow"])
     print(f"FSDP vs DDP after {STEPS} steps: weights max |diff| = {weights:.3g}, EMA {ema:.3g}")
     assert weights < 1e-4 and ema < 1e-4
+
+
+def test_fsdp_for_a_module_without_a_policy_is_one_line(tmp_path):
+    """`--trainer.strategy=fsdp` on another LightningModule (the evaluator) stops before any process
+    starts, naming the flag."""
+    from stablemo.cli.train import main_fit
+
+    with pytest.raises(StableMoError, match=r"^--trainer.strategy=fsdp: EvaluatorModule has no sharding policy"):
+        main_fit(["--config", str(REPO / "configs" / "evaluator_synth.yaml"), "--trainer.strategy=fsdp",
+                  f"--trainer.default_root_dir={tmp_path}", f"--data.data_dir={tmp_path}"])

@@ -129,6 +129,9 @@ class StableMoCLI(LightningCLI):
             # Lightning's own "fsdp" (FSDP1) refuses CPUs; ours is FSDP2 with the networks' block policy
             from stablemo.training.sharding import FullShardStrategy
 
+            if not isinstance(self.model, DiffusionModule):
+                raise StableMoError(f"--trainer.strategy=fsdp: {type(self.model).__name__} has no sharding policy "
+                                    "(only DiffusionModule is sharded); train it with ddp")
             kwargs.setdefault("strategy", FullShardStrategy())
         return super().instantiate_trainer(**kwargs)
 
