@@ -167,3 +167,29 @@ def test_shard_settings_are_checked(synth, tmp_path):
         MotionDataModule(shards=str(tmp_path / "missing")).prepare_data()
     with pytest.raises(StableMoError, match=r"manifest.json: not found \(not a shard folder\)"):
         MotionDataModule(shards=str(folder)).prepare_data()
+
+
+@pytest.mark.skipif(__import__("shutil").which("curl") is None, reason="WebDataset opens http:// URLs with curl")
+def test_shards_stream_from_an_http_url(synth):
+    import functools
+    import http.server
+    import threading
+
+    folder, shards = synth
+    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(shards))
+    handler.log_message = lambda *a: None
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        url = f"http://127.0.0.1:{server.server_address[1]}"
+        local = MotionDataModule(shards=str(shards), batch_size=4, seed=5)
+        remote = MotionDataModule(shards=url, batch_size=4, seed=5)
+        local.setup("fit"), remote.setup("fit")
+        assert np.array_equal(local.mean, remote.mean)
+        a, b = local.datasets["train"], remote.datasets["train"]
+        for i in range(0, len(a), 3):
+            assert a[(i, 1)]["id"] == b[(i, 1)]["id"] and torch.equal(a[(i, 1)]["motion"], b[(i, 1)]["motion"])
+        with pytest.raises(StableMoError, match=r"/nothing/manifest.json: cannot open"):
+            MotionDataModule(shards=url + "/nothing").prepare_data()
+    finally:
+        server.shutdown()

@@ -61,7 +61,7 @@ def run_ab(args) -> None:
     from stablemo.data import MotionDataModule
 
     module, folder = build(args.config, [f"--data.data_dir={args.data}"])
-    keep = {k: v for k, v in folder.hparams.items() if k not in ("data_dir", "shards")}
+    keep = {k: v for k, v in folder.hparams.items() if k not in ("data_dir", "shards") and not k.startswith("_")}
     shards = MotionDataModule(shards=args.shards, **keep)
     print(f"model {sum(p.numel() for p in module.parameters() if p.requires_grad) / 1e6:.2f} M trainable, "
           f"batch {folder.batch_size}, {torch.get_num_threads()} torch threads")
