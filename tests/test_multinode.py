@@ -2,7 +2,9 @@
 through the cluster entry points users run (scripts/cluster/torchrun_node.sh, the srun line of
 scripts/cluster/sbatch_fit.sh under the variables srun sets), against 1 node x 2 processes
 (Lightning's own launcher) on the same global batch; and a hard kill on either node, resumed by
-restarting both nodes with `--ckpt_path last`, against the uninterrupted run.
+restarting both nodes with `--ckpt_path last`, against the uninterrupted run. Each with the folder
+reader and streaming from `stablemo data shard` shards; and the model fully sharded (FSDP) over the
+2 torchrun nodes, streaming shards, against the same on 1 node.
 
 Each run is a set of fresh processes (~10-30 s apiece on 2 busy cores): the tests are marked slow
 and .ci/run runs them.
@@ -76,8 +78,18 @@ def folder_source(data: Path) -> list[str]:
     return [f"--data.data_dir={data}"]
 
 
-# the data source is a parameter: the streaming reader joins this table when it exists
-SOURCES = {"folder": folder_source}
+def shard_source(data: Path) -> list[str]:
+    """`stablemo fit` flags that stream the same clips from `stablemo data shard` shards (8 clips a shard:
+    each rank streams its own shards), made once beside the folder."""
+    shards = data.parent / "shards"
+    if not shards.exists():
+        from stablemo.cli import main as cli
+
+        assert cli(["data", "shard", str(data), "--out", str(shards), "--clips-per-shard", "8", "--workers", "1"]) == 0
+    return ["--data.data_dir=null", f"--data.shards={shards}"]
+
+
+SOURCES = {"folder": folder_source, "shards": shard_source}
 
 
 @pytest.fixture(scope="module", params=sorted(SOURCES))
@@ -96,11 +108,11 @@ def run_config(folder: Path, data: Path, *callbacks: dict) -> Path:
                                          "trainer.callbacks": probes, "checkpoint.every_n_train_steps": 1})
 
 
-def one_node_two_processes(folder: Path, data: Path, source: list[str]) -> Path:
+def one_node_two_processes(folder: Path, data: Path, source: list[str], strategy: str = "ddp") -> Path:
     """The reference: Lightning's own launcher, 2 processes on one node."""
     cfg = run_config(folder, data)
     done = subprocess.run([sys.executable, "-m", "stablemo.cli", "fit", "--config", str(cfg), *source,
-                           "--trainer.strategy=ddp", "--trainer.devices=2"],
+                           f"--trainer.strategy={strategy}", "--trainer.devices=2"],
                           cwd=REPO, env=environment(MASTER_PORT=str(free_port())), capture_output=True, text=True,
                           timeout=TIMEOUT)
     assert done.returncode == 0, done.stderr[-3000:]
@@ -240,3 +252,16 @@ def test_a_kill_on_either_node_resumes_exactly(runs, synth_data, source, tmp_pat
     print(f"killed on node 1 at step 3 and on node 0 at step 7, resumed: max |diff| = {worst:.3g}")
     assert worst == 0.0
     ranks_agree(folder)
+
+
+def test_fsdp_over_two_torchrun_nodes_streaming_shards(synth_data, tmp_path):
+    """The scale path end to end: shards streamed, the model fully sharded over 2 nodes x 1 process
+    (torchrun recipe, `--trainer.strategy=fsdp`), equal to the same FSDP run on 1 node x 2 processes."""
+    source = shard_source(synth_data)
+    one = one_node_two_processes(tmp_path / "one_node", synth_data, source, strategy="fsdp")
+    two = tmp_path / "torchrun"
+    wait_all(start_torchrun_nodes(run_config(two, synth_data), source, "--trainer.strategy=fsdp"), two)
+    worst = max_difference(*(load_checkpoint_file(f / "checkpoints" / "last.ckpt") for f in (one, two)))
+    print(f"FSDP, 2 nodes (torchrun) vs 1 node x 2 processes, from shards: max |diff| = {worst:.3g}")
+    assert worst <= 1e-6
+    ranks_agree(two)
