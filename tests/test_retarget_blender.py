@@ -38,6 +38,15 @@ bpy.ops.wm.read_factory_settings(use_empty=True)
 addon_utils.enable("rigify", default_set=True)
 bpy.ops.object.armature_human_metarig_add()
 export("metarig")
+# the metarig as a character: a body skinned to it (envelope weights), exported to FBX with its mesh
+arm = bpy.context.active_object
+bpy.ops.mesh.primitive_cylinder_add(radius=0.15, depth=1.7, location=(0, 0, 0.85), vertices=12)
+body = bpy.context.active_object
+body.select_set(True)
+arm.select_set(True)
+bpy.context.view_layer.objects.active = arm
+bpy.ops.object.parent_set(type="ARMATURE_ENVELOPE")
+bpy.ops.export_scene.fbx(filepath=f"{out}/character.fbx", use_selection=True, add_leaf_bones=False, bake_anim=False)
 
 bpy.ops.wm.read_factory_settings(use_empty=True)
 arm = bpy.data.objects.new("Armature", bpy.data.armatures.new("Armature"))
@@ -165,7 +174,8 @@ def test_blender_plays_the_retargeted_motion_on_rigs_it_made(rigs, tmp_path):
         err = np.linalg.norm(heads - want, axis=-1)
         assert err.max() < 1e-3, (path, err.max())  # Blender works in float32
         ankles = [s.target.names.index(n) for n in ("foot.L", "foot.R", "left_ankle", "right_ankle") if n in names]
-        assert len(ankles) == 2 and s.positions[:, ankles, 2].min() > 0.0, path  # z up: the ankles above the floor
+        upright = s.positions @ s.axes  # y up (a BVH rig from Blender is z up, an FBX read as GLB y up)
+        assert len(ankles) == 2 and upright[:, ankles, 1].min() > 0.0, path  # the ankles above the floor
 
 
 # Runs inside Blender: import a GLB at the scene rate of its animation, then every pose bone's head
@@ -205,3 +215,42 @@ def test_blender_plays_the_animation_we_add_to_a_glb_character(tmp_path):
     heads = np.stack([heads[..., 0], heads[..., 2], -heads[..., 1]], axis=-1)  # Blender z up -> glTF y up
     assert heads.shape == s.positions.shape
     assert np.linalg.norm(heads - s.positions, axis=-1).max() < 1e-4
+
+
+# Runs inside Blender: import an FBX at the motion's frame rate, then every pose bone's head at every
+# frame of its action.
+READ_FBX = """
+import bpy, sys, json
+src, dst, fps = sys.argv[sys.argv.index("--") + 1:]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.context.scene.render.fps = int(float(fps))
+bpy.ops.import_scene.fbx(filepath=src)
+scene = bpy.context.scene
+arm = next(o for o in scene.objects if o.type == "ARMATURE")
+action = arm.animation_data.action
+frames = []
+for frame in range(int(action.frame_range[0]), int(action.frame_range[1]) + 1):
+    scene.frame_set(frame)
+    frames.append({b.name: list(arm.matrix_world @ b.head) for b in arm.pose.bones})
+json.dump({"meshes": sum(o.type == "MESH" for o in scene.objects), "frames": frames}, open(dst, "w"))
+"""
+
+
+def test_an_fbx_character_gets_the_motion_as_fbx(rigs, tmp_path):
+    """The skinned metarig as an FBX character: one command writes it back as FBX with the motion
+    (read through the GLB Blender makes of it, written through stablemo.gltf.fbx), and Blender plays
+    it with the character's own mesh: bone heads where the solve put them."""
+    from test_bvh import synth_joints
+
+    walk = synth_joints("walk", 3)
+    s = retarget(walk, rigs / "character.fbx")
+    assert s.target.fmt == "fbx" and "glb" in s.target.extra
+    write_result(tmp_path / "walk.fbx", s)
+    blender(READ_FBX, tmp_path, str(tmp_path / "walk.fbx"), str(tmp_path / "heads.json"), "20")
+    data = json.loads((tmp_path / "heads.json").read_text())
+    assert data["meshes"] == 1
+    names = list(s.target.names)
+    heads = np.array([[frame[n] for n in names] for frame in data["frames"]])
+    heads = np.stack([heads[..., 0], heads[..., 2], -heads[..., 1]], axis=-1)  # Blender z up -> glTF y up
+    assert heads.shape == s.positions.shape
+    assert np.linalg.norm(heads - s.positions, axis=-1).max() < 1e-3

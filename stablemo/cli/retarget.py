@@ -2,7 +2,7 @@
 
     stablemo retarget outputs/walk.features.npy --rig character.bvh --out walk_character.bvh
     stablemo retarget outputs/walk.joints.npy --rig character.glb --out walk_character.glb   # the character + the animation
-    stablemo retarget mocap.bvh --rig character.fbx --out walk_character.bvh                  # FBX through Blender on PATH
+    stablemo retarget mocap.bvh --rig character.fbx --out walk_character.fbx                  # FBX through Blender on PATH
     stablemo retarget outputs/walk.features.npy --rig odd_names.bvh --map odd_names.yaml --out walk.bvh
 
 MOTION: a StableMo motion (.features.npy / .joints.npy) or a BVH. The rig's joints are found by
@@ -22,7 +22,8 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="stablemo retarget", description=__doc__.split("\n")[0].split(": ", 1)[1])
     p.add_argument("motion", help="a StableMo motion (.features.npy / .joints.npy) or a .bvh")
     p.add_argument("--rig", required=True, help="the target rig: .bvh, .glb/.gltf, or .fbx (needs Blender on PATH)")
-    p.add_argument("--out", required=True, help="output: .bvh for a BVH or FBX rig; .glb (or .bvh) for a glTF rig")
+    p.add_argument("--out", required=True, help="output: .bvh for a BVH rig; .glb (the character with the motion) or "
+                                                ".bvh for a glTF rig; .fbx, .glb or .bvh for an FBX rig")
     p.add_argument("--map", default=None, help="YAML {Role: the rig's joint name} for joints not found by name")
     p.add_argument("--source-map", default=None, help="the same for a BVH MOTION whose joint names do not tell their roles")
     p.add_argument("--fps", type=float, default=None, help="output frame rate (default: the motion's, 20 for HumanML3D)")

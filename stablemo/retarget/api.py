@@ -13,7 +13,8 @@ from stablemo.retarget.solve import Solved, solve
 from stablemo.retarget.source import Source, motion_source, read_source
 from stablemo.retarget.target import read_rig
 
-OUTPUTS = {"bvh": (".bvh",), "fbx": (".bvh",), "gltf": (".glb", ".bvh")}  # rig format -> what OUT may be
+# rig format -> what OUT may be (an FBX skeleton without a skinned mesh: BVH only, see check_written)
+OUTPUTS = {"bvh": (".bvh",), "fbx": (".fbx", ".glb", ".bvh"), "gltf": (".glb", ".bvh")}
 
 
 @dataclass(frozen=True)
@@ -77,23 +78,44 @@ def check_out(out: str | os.PathLike, rig: str | os.PathLike) -> Path:
     return out
 
 
+def check_written(out: Path, target: RestRig) -> None:
+    """An FBX rig is written back as FBX or GLB only when it is a skinned character (read through
+    its GLB); a bare skeleton only as BVH."""
+    if target.fmt == "fbx" and "glb" not in target.extra and out.suffix.lower() in (".fbx", ".glb"):
+        raise StableMoError(f"--out: {out}: {target.path} has no skinned mesh to write the motion onto; "
+                            "write its skeleton's animation as .bvh")
+
+
 def retarget_file(motion, rig, out, role_map=None, fps: float | None = None, source_map=None) -> Report:
-    """Retarget and write OUT atomically (BVH, or for a glTF rig a GLB: its own file plus the animation)."""
+    """Retarget and write OUT atomically: BVH, or for a glTF or skinned FBX character the character
+    itself with the animation added (GLB, or FBX through Blender)."""
     from stablemo.io import check_output_file
 
     out = check_out(out, rig)
     check_output_file(out, "--out")
-    return write_result(out, retarget(motion, rig, role_map, fps, source_map))
+    target = rig if isinstance(rig, RestRig) else read_rig(rig)
+    check_written(out, target)
+    return write_result(out, retarget(motion, target, role_map, fps, source_map))
 
 
 def write_result(out: str | os.PathLike, solved: Solved) -> Report:
-    """Write a solve as OUT (atomically): a GLB onto a glTF rig's own file, else BVH."""
+    """Write a solve as OUT (atomically): a GLB onto a glTF (or skinned FBX) character's own file,
+    FBX through Blender from that GLB, else BVH."""
     out = Path(out)
-    if out.suffix.lower() == ".glb":
-        from stablemo.retarget.gltf_out import write_onto_gltf
+    check_written(out, solved.target)
+    if out.suffix.lower() in (".glb", ".fbx"):
+        from stablemo.retarget.gltf_out import character_glb
 
-        write_onto_gltf(out, solved)
-        fmt = "glb"
+        data = character_glb(solved)
+        if out.suffix.lower() == ".glb":
+            from stablemo.io import write_bytes
+
+            write_bytes(out, data)
+        else:
+            from stablemo.gltf.fbx import glb_to_fbx
+
+            glb_to_fbx(data, out, solved.anim.fps)
+        fmt = out.suffix.lower()[1:]
     else:
         from stablemo.bvh.text import format_bvh
         from stablemo.io import write_text

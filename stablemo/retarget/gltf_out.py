@@ -1,7 +1,7 @@
 """A retargeted motion written onto a glTF character: the user's own GLB (mesh, materials, skin,
-every node and animation it had) with one animation added that drives its skeleton's nodes; a
-.gltf rig (whose buffers live in other files) gives a GLB of its skeleton alone, through our glTF
-writer (stablemo.gltf).
+every node and animation it had; for an FBX character the GLB Blender made of it) with one
+animation added that drives its skeleton's nodes; a .gltf rig (whose buffers live in other files)
+gives a GLB of its skeleton alone, through our glTF writer (stablemo.gltf).
 
 The solve's rotations are world-axis local rotations (the BVH convention); a glTF node has a rest
 orientation of its own, so each becomes G_parent^-1 L G_joint (G: world rest orientations of the
@@ -123,13 +123,13 @@ def onto_glb(data: bytes, solved: Solved, where: str) -> bytes:
     return pack_glb(doc, bytes(binary))
 
 
-def write_onto_gltf(out: str | Path, solved: Solved) -> Path:
-    """Write the retargeted motion as a GLB (atomically): onto the target's own .glb file, or for a
-    .gltf rig its skeleton alone with the animation."""
-    from stablemo.io import write_bytes
-
+def character_glb(solved: Solved) -> bytes:
+    """The GLB bytes of the retargeted motion: onto the character's own GLB (a .glb rig, or the GLB
+    Blender made of an FBX character), or for a .gltf rig its skeleton alone with the animation."""
     source = Path(solved.target.path)
+    if "glb" in solved.target.extra:
+        return onto_glb(solved.target.extra["glb"], solved, str(source))
     if source.suffix.lower() == ".glb":
-        return write_bytes(Path(out), onto_glb(source.read_bytes(), solved, str(source)))
+        return onto_glb(source.read_bytes(), solved, str(source))
     # the skeleton alone, in world axes at rest (identity rest rotations), as our writer takes it
-    return write_bytes(Path(out), pack_glb(*gltf_document(solved.anim.rig, solved.anim, name=ANIMATION_NAME)))
+    return pack_glb(*gltf_document(solved.anim.rig, solved.anim, name=ANIMATION_NAME))
