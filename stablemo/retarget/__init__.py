@@ -8,8 +8,8 @@
 MOTION: a StableMo motion (features or joints .npy, or an array) or a BVH. TARGET: a BVH,
 glTF/GLB or FBX (through Blender on PATH) rig; the joint roles come from its names
 (stablemo.retarget.names), a YAML map overrides them. The solve: stablemo.retarget.solve. Output in
-the target's format: BVH for BVH and FBX rigs, GLB (the target's own file with the animation added)
-for glTF rigs. See docs/retarget.md.
+the target's format: BVH for BVH rigs; for glTF and FBX characters the character itself with the
+animation added (GLB; FBX through Blender), or BVH. See docs/retarget.md.
 """
 
 from stablemo.retarget.api import Report, retarget, retarget_file

@@ -2,7 +2,8 @@
 
 - BVH: stablemo.bvh.read_bvh; the OFFSETs are the rest pose (T-pose, A-pose, whatever the file says).
 - glTF / GLB: stablemo.retarget.gltf_rig (the node tree of the first skin).
-- FBX: converted to BVH by Blender on PATH (stablemo.retarget.blender).
+- FBX: converted by Blender on PATH to a GLB (a skinned character) or a BVH (a bare skeleton),
+  read as above (stablemo.retarget.blender).
 """
 
 from __future__ import annotations
