@@ -193,3 +193,54 @@ def test_shards_stream_from_an_http_url(synth):
             MotionDataModule(shards=url + "/nothing").prepare_data()
     finally:
         server.shutdown()
+
+
+DDP_SCRIPT = '''
+import json, sys
+import lightning as L
+import torch
+from stablemo.data import MotionDataModule
+
+class Recorder(L.LightningModule):
+    def __init__(self):
+        super().__init__()
+        self.w = torch.nn.Parameter(torch.zeros(1))
+        self.seen = []
+
+    def training_step(self, batch, i):
+        self.seen.append(list(batch["id"]))
+        return self.w.sum() * batch["motion"].mean()
+
+    def configure_optimizers(self):
+        return torch.optim.SGD(self.parameters(), lr=0.0)
+
+    def on_train_end(self):
+        with open(f"{sys.argv[2]}/rank{self.global_rank}.json", "w") as f:
+            json.dump({"seen": self.seen, "sampler": type(self.trainer.train_dataloader.sampler).__name__}, f)
+
+if __name__ == "__main__":
+    trainer = L.Trainer(accelerator="cpu", devices=2, strategy="ddp", max_epochs=1, logger=False,
+                        enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False,
+                        limit_val_batches=0)
+    trainer.fit(Recorder(), datamodule=MotionDataModule(shards=sys.argv[1], batch_size=4, seed=1))
+'''
+
+
+@pytest.mark.slow  # two processes under Lightning's DDP (gloo)
+def test_lightning_ddp_keeps_the_shard_sampler_and_ranks_share_the_epoch(synth, tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    _, shards = synth
+    script = tmp_path / "ddp_ids.py"
+    script.write_text(DDP_SCRIPT)
+    subprocess.run([sys.executable, str(script), str(shards), str(tmp_path)], check=True, capture_output=True,
+                   timeout=600)
+    ranks = [json.loads((tmp_path / f"rank{r}.json").read_text()) for r in range(2)]
+    assert [r["sampler"] for r in ranks] == ["ShardSampler", "ShardSampler"]  # not wrapped by Lightning
+    ids = [[i for batch in r["seen"] for i in batch] for r in ranks]
+    _, b = both(synth)
+    total = len(b.datasets["train"])
+    assert len(ranks[0]["seen"]) == len(ranks[1]["seen"])  # same number of steps on both ranks
+    assert len(ids[0]) == len(ids[1]) == total // 2 and not set(ids[0]) & set(ids[1])
