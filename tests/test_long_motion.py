@@ -328,3 +328,24 @@ def test_a_streamed_timeline_is_the_composers_motion_cut_into_chunks_within_prom
     assert np.abs(joints - composed.joints).max() < 0.05
     with pytest.raises(StableMoError, match="chunk_seconds: 0.1 s is 2 frames"):
         stream_timeline(demo, segs, chunk_seconds=0.1)
+
+
+def test_without_context_a_chunk_does_not_carry_the_streams_heading_in_its_first_row(demo):
+    # a chunk finished alone read its first row's turn against facing +z: the stream's whole heading
+    # (-0.93 against the network's -0.013 for chunk 1 of a left turn, before the fix)
+    chunks = list(demo.stream("a person turns left", chunk_seconds=1.0, context_seconds=0, max_chunks=3, seed=1, **FAST))
+    for c in chunks[1:]:
+        assert abs(c.features[0, 0] - c.raw_features[0, 0]) < 0.05
+    segs = [(0, 2.5, "a person turns left"), (2.5, 5, "a person walks forward")]
+    chunks = list(stream_timeline(demo, segs, seed=1, overlap=0.0, **FAST).chunks)
+    later = [c for c in chunks if c.start == 50]
+    assert len(later) == 1 and abs(later[0].features[0, 0] - later[0].raw_features[0, 0]) < 0.05
+
+
+def test_a_streamed_timelines_whole_features_recover_to_its_joints(demo):
+    from stablemo.timeline.timeline_stream import whole_features
+
+    segs = [(0, 2.5, "a person turns left"), (2.5, 5, "a person walks forward")]
+    joints = np.concatenate([c.joints for c in stream_timeline(demo, segs, seed=1, **FAST).chunks])
+    back = _global_joints(whole_features(demo, joints))
+    assert np.abs(back - joints).max() < 1e-3

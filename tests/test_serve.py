@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 pytest.importorskip("fastapi")
 pytest.importorskip("httpx")  # FastAPI's TestClient
@@ -431,6 +432,12 @@ def test_timeline_streams_whole_prompts_in_chunks_and_downloads_what_it_streamed
     assert np.array_equal(np.load(io.BytesIO(res.content)), streamed)
     bvh = client.post("/api/download", json={**body, "format": "bvh"})
     assert bvh.status_code == 200 and bvh.content.startswith(b"HIERARCHY") and "\nFrames: 110\n" in bvh.text
+    # its features file recovers to the joints received (one global frame, from the origin)
+    feats = np.load(io.BytesIO(client.post("/api/download", json={**body, "format": "features.npy"}).content))
+    from stablemo.motion import features_to_joints
+
+    back = features_to_joints(torch.from_numpy(feats.astype(np.float64))).numpy()
+    assert feats.shape == (110, 263) and np.abs(back - streamed).max() < 1e-3
     # ... and gives the same arrays when it was never streamed (another server: an empty cache)
     with TestClient(create_app(ModelSet({"teacher": DEMO}), hosts=TEST_HOSTS)) as other:
         again = other.post("/api/download", json={**body, "format": "joints.npy"})

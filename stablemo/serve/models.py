@@ -26,7 +26,7 @@ from stablemo.errors import StableMoError
 from stablemo.inference.pipeline import Pipeline, Request
 from stablemo.timeline.spec import canonical_timeline, format_timeline, parse_timeline
 from stablemo.timeline.stream import chunk_length
-from stablemo.timeline.timeline_stream import stream_timeline
+from stablemo.timeline.timeline_stream import stream_timeline, whole_features
 
 MAX_TEXT_CHARS = 1000  # the text encoders keep far fewer tokens; longer is a pasting accident
 ENCODINGS = ("lists", "base64")
@@ -241,14 +241,14 @@ class ModelSet:
     def _recorded(self, spec: StreamSpec, stream, pipe) -> Iterator:
         """The stream's chunks, passed on as they come; once the last one is out, the whole motion
         goes into the cache of recent motions, so a download of it re-uses what the page received."""
-        start, features, joints = time.perf_counter(), [], []
+        start, joints = time.perf_counter(), []
         for chunk in stream.chunks:
-            features.append(chunk.features)
             joints.append(chunk.joints)
             yield chunk
         info = {"skeleton": pipe.skeleton, "segments": [vars(s) for s in stream.plan.segments]}
-        self._remember(self._motion(spec, np.concatenate(joints), np.concatenate(features), pipe, info,
-                                    time.perf_counter() - start))
+        joints = np.concatenate(joints)  # (N, J, 3): what the page received
+        # the features file recovers to these joints (a chunk's features are its window's)
+        self._remember(self._motion(spec, joints, whole_features(pipe, joints), pipe, info, time.perf_counter() - start))
 
     def stream_motion(self, job: StreamJob) -> tuple[Motion, bool]:
         """(the whole motion of a checked timeline, whether it came from the cache): a stream the page

@@ -119,6 +119,8 @@ def _chunks(pipe, next_text, n: int, k: int, h: int, seed: int, max_chunks, samp
             control) -> Iterator[Chunk]:
     frame = RootFrame(pipe.skeleton)  # the global frame of the window's first row
     context = None  # (<=k, D) the last rows produced
+    lead = None  # without context: (features (1, D), global joints (1, J, 3)) of the last row produced
+    contacts = feature_slices(pipe.skeleton)["contacts"]
     produced, prev, index = 0, None, 0
     while max_chunks is None or index < max_chunks:
         text = next_text(index, prev)
@@ -133,21 +135,39 @@ def _chunks(pipe, next_text, n: int, k: int, h: int, seed: int, max_chunks, samp
         if p:
             feats[p:] = settle(feats[:p], feats[p:], h, pipe.skeleton)
         joints = frame.joints(feats)  # (p + n, J, 3) global
-        # finished with its context, so the floor and the velocities continue across the join
-        body = pipe.finish.joints(torch.from_numpy(joints)[None], [p + n], _global_targets(pipe, spec, frame, length, p + n),
-                                  torch.from_numpy(feats[None, :, feature_slices(pipe.skeleton)["contacts"]]))
-        done = pipe.finish.features_of(body, [p + n])[0, p:].float().numpy()  # (n, D)
-        chunk = Chunk(index, text, produced, done, body[0, p:].float().numpy(), length, feats[p:])
+        # finished with its context, so the floor and the velocities continue across the join; without
+        # context the last row produced stands in front: features_of reads a row's turn against the
+        # row before it, and a first row of its own would carry the stream's whole heading
+        targets = _global_targets(pipe, spec, frame, length, p + n)
+        rows, placed, q = feats, joints, p
+        if not p and lead is not None:
+            rows, placed, q = np.concatenate([lead[0], feats]), np.concatenate([lead[1], joints]), 1
+            targets = _lead_free(targets)
+        body = pipe.finish.joints(torch.from_numpy(placed)[None], [q + n], targets,
+                                  torch.from_numpy(rows[None, :, contacts]))
+        done = pipe.finish.features_of(body, [q + n])[0, q:].float().numpy()  # (n, D)
+        chunk = Chunk(index, text, produced, done, body[0, q:].float().numpy(), length, feats[p:])
         if not (np.isfinite(chunk.features).all() and np.isfinite(chunk.joints).all()):
             raise StableMoError(f"stream: chunk {index} ({text!r}) is not finite")
         # the next window starts k rows before the end of this one
         start = max(0, p + n - k)
         frame.advance(feats, joints, start)
         context = feats[start:] if k else None
+        lead = None if k else (feats[-1:], joints[-1:])
         produced += n
         prev = chunk
         index += 1
         yield chunk
+
+
+def _lead_free(targets):
+    """Targets (1, T, ...) with one free frame in front (the lead row the finishing step is given)."""
+    if targets is None:
+        return None
+    from stablemo.control.spec import ControlTargets
+
+    return ControlTargets(torch.cat([torch.zeros_like(targets.targets[:, :1]), targets.targets], 1),
+                          torch.cat([torch.zeros_like(targets.mask[:, :1]), targets.mask], 1))
 
 
 def _global_targets(pipe, spec, frame: RootFrame, length: int, frames: int):

@@ -9,8 +9,12 @@ A prompt lasting several chunks is therefore one action over its whole span ("tu
 walks" over 4 s turns once), where `stream` with one text per chunk would start it again in each.
 Chunks never straddle two prompts: a segment is cut into chunks of `chunk_seconds`, the last one
 shorter. The raw rows are the composer's to the bit; the finishing step (the rigid body on the
-floor) runs once per window, over the window's new rows and the `overlap` rows before them, so the
+floor) runs once per window, over the window's new rows and the `overlap` rows (at least one) before them, so the
 rows of a window are finished together and the floor and velocities continue across windows.
+A chunk's features are its window's (`Finish.features_of` of the window's finished joints): each
+window's recover to its own joints, but concatenated they drift from the streamed joints (a
+heading offset per window: 0.44 m after 2.5 s past one join in a measured case); `whole_features`
+gives the features of the whole streamed motion, which recover to its joints exactly.
 """
 
 from __future__ import annotations
@@ -73,7 +77,9 @@ def stream_timeline(pipe, segments: Sequence[Segment | tuple], chunk_seconds: fl
     check_seed("seed", seed)
     plan = plan_timeline(pipe, segments, seed, overlap, 0.0, settle_s, source)
     spans = chunk_spans(plan.frames, chunk_length(pipe, chunk_seconds))
-    keep = round(overlap * pipe.fps)
+    # rows before a window's new ones that its finishing step sees: the overlap, and at least one,
+    # since features_of reads a row's turn against the row before it
+    keep = max(1, round(overlap * pipe.fps))
     sampling = Sampling(steps, sampler, cfg, dtype, tuple(hooks))
     return TimelineStream(plan, spans, _chunks(pipe, plan, spans, seed, sampling, keep))
 
@@ -105,4 +111,10 @@ def _chunks(pipe, plan: Plan, spans: list[Span], seed: int, sampling: Sampling, 
             sent += 1
 
 
-__all__ = ["Span", "TimelineStream", "chunk_spans", "stream_timeline"]
+def whole_features(pipe, joints: np.ndarray) -> np.ndarray:
+    """Features (N, D) of a whole streamed motion's joints (N, J, 3), in its one global frame:
+    recovering them gives the joints back (what a features file of the stream holds)."""
+    return pipe.finish.features_of(torch.from_numpy(np.asarray(joints, np.float64))[None], [len(joints)])[0].float().numpy()
+
+
+__all__ = ["Span", "TimelineStream", "chunk_spans", "stream_timeline", "whole_features"]
