@@ -9,7 +9,8 @@ round trains `warmup + steps` optimiser steps from the folder, then as many from
 order alternates every round: this VM's speed drifts, and a pair measured back to back sees the same
 machine). Only the steps after the warm-up are timed (stablemo.bench.train.StepTimer), so a round
 includes data loading, text encoding, forward, backward and the optimiser, not the Trainer's set-up.
-Prints every pair and the ratio of the medians (shards / folder speed).
+Prints every pair, and the median over pairs of the speed ratio (shards / folder) from wall time
+and from this process's CPU time per step (less sensitive to other jobs on a shared machine).
 
 `rss`: the resident memory of this process while the shard loader serves one whole training epoch
 (every item decoded, cropped, collated), sampled every `--every` batches; then the same for `--steps`
@@ -42,8 +43,8 @@ def build(config: str, data: list[str]):
     return cli.model, cli.datamodule
 
 
-def timed_fit(module, datamodule, steps: int, warmup: int) -> float:
-    """Optimiser steps per second after the warm-up."""
+def timed_fit(module, datamodule, steps: int, warmup: int) -> tuple[float, float]:
+    """(optimiser steps per second, process CPU seconds per step) after the warm-up."""
     from lightning.pytorch import Trainer
 
     from stablemo.bench.train import StepTimer
@@ -53,8 +54,8 @@ def timed_fit(module, datamodule, steps: int, warmup: int) -> float:
                       num_sanity_val_steps=0, logger=False, enable_checkpointing=False, enable_progress_bar=False,
                       enable_model_summary=False, callbacks=[timer], gradient_clip_val=1.0)
     trainer.fit(module, datamodule=datamodule)
-    stamps = timer.stamps[warmup - 1:]
-    return (len(stamps) - 1) / (stamps[-1] - stamps[0])
+    stamps, cpu = timer.stamps[warmup - 1:], timer.cpu[warmup - 1:]
+    return (len(stamps) - 1) / (stamps[-1] - stamps[0]), (cpu[-1] - cpu[0]) / (len(cpu) - 1)
 
 
 def run_ab(args) -> None:
@@ -67,15 +68,24 @@ def run_ab(args) -> None:
           f"batch {folder.batch_size}, {torch.get_num_threads()} torch threads")
     arms = {"folder": folder, "shards": shards}
     speeds: dict[str, list[float]] = {"folder": [], "shards": []}
+    cpus: dict[str, list[float]] = {"folder": [], "shards": []}
     for r in range(args.rounds):
         order = ["folder", "shards"] if r % 2 == 0 else ["shards", "folder"]
         for name in order:
-            speeds[name].append(timed_fit(module, arms[name], args.steps, args.warmup))
-        print(f"round {r}: folder {speeds['folder'][-1]:.3f} it/s, shards {speeds['shards'][-1]:.3f} it/s, "
-              f"ratio {speeds['shards'][-1] / speeds['folder'][-1]:.3f}", flush=True)
+            speed, cpu = timed_fit(module, arms[name], args.steps, args.warmup)
+            speeds[name].append(speed)
+            cpus[name].append(cpu)
+        print(f"round {r}: folder {speeds['folder'][-1]:.3f} it/s ({cpus['folder'][-1]:.3f} CPU-s/it), shards "
+              f"{speeds['shards'][-1]:.3f} it/s ({cpus['shards'][-1]:.3f} CPU-s/it), ratio "
+              f"{speeds['shards'][-1] / speeds['folder'][-1]:.3f} (CPU {cpus['folder'][-1] / cpus['shards'][-1]:.3f})",
+              flush=True)
     ratios = [s / f for s, f in zip(speeds["shards"], speeds["folder"])]
+    cpu_ratios = [f / s for s, f in zip(cpus["shards"], cpus["folder"])]
     print(f"median it/s: folder {statistics.median(speeds['folder']):.3f}, shards {statistics.median(speeds['shards']):.3f}")
-    print(f"shards / folder: median of pairs {statistics.median(ratios):.3f} (min {min(ratios):.3f}, max {max(ratios):.3f})")
+    print(f"shards / folder speed (wall): median of pairs {statistics.median(ratios):.3f} "
+          f"(min {min(ratios):.3f}, max {max(ratios):.3f})")
+    print(f"shards / folder speed (CPU time per step): median of pairs {statistics.median(cpu_ratios):.3f} "
+          f"(min {min(cpu_ratios):.3f}, max {max(cpu_ratios):.3f})")
 
 
 def run_rss(args) -> None:
