@@ -242,8 +242,10 @@ def environment() -> dict[str, str]:
 
 def fit(folder: Path, data: Path, *extra: str, steps: int = STEPS) -> Path:
     probes = [{"class_path": "cluster_probes.SaveRankWeights", "init_args": {"dirpath": str(folder / "ranks")}}]
+    # validation at step STEPS: the EMA swapped into the (sharded) network, its loss averaged over ranks
     cfg = tiny_config(folder, data, **{"trainer.max_steps": steps, "trainer.accelerator": "cpu",
-                                       "trainer.callbacks": probes})
+                                       "trainer.callbacks": probes, "trainer.limit_val_batches": 2,
+                                       "trainer.val_check_interval": STEPS, "trainer.check_val_every_n_epoch": None})
     done = subprocess.run([sys.executable, "-m", "stablemo.cli", "fit", "--config", str(cfg), *extra], cwd=REPO,
                           env=environment(), capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stderr[-3000:]
@@ -340,8 +342,19 @@ def test_fsdp_trains_like_ddp_to_float_rounding(fsdp_run, tiny_data, tmp_path):
     a, b = (load_checkpoint_file(f / "checkpoints" / "last.ckpt") for f in (fsdp_run, ddp))
     weights = _max_diff(a["state_dict"], b["state_dict"])
     ema = _max_diff(a["stablemo"]["ema"]["shadow"], b["stablemo"]["ema"]["shadow"])
-    print(f"FSDP vs DDP after {STEPS} steps: weights max |diff| = {weights:.3g}, EMA {ema:.3g}")
+    val = [_val_loss(f) for f in (fsdp_run, ddp)]
+    print(f"FSDP vs DDP after {STEPS} steps: weights max |diff| = {weights:.3g}, EMA {ema:.3g}, "
+          f"val/loss {val[0]:.7f} vs {val[1]:.7f}")
     assert weights < 1e-4 and ema < 1e-4
+    assert val[0] > 0 and abs(val[0] - val[1]) < 1e-5
+
+
+def _val_loss(run: Path) -> float:
+    """The last val/loss a run's CSV log holds."""
+    import csv
+
+    rows = [row for log in sorted((run / "logs").glob("version_*/metrics.csv")) for row in csv.DictReader(open(log))]
+    return float([row["val/loss"] for row in rows if row.get("val/loss")][-1])
 
 
 def test_fsdp_for_a_module_without_a_policy_is_one_line(tmp_path):

@@ -104,7 +104,9 @@ def run_config(folder: Path, data: Path, *callbacks: dict) -> Path:
     at the end (cluster_probes.SaveRankWeights) and any further callbacks."""
     probes = [{"class_path": "cluster_probes.SaveRankWeights", "init_args": {"dirpath": str(folder / "ranks")}},
               *callbacks]
+    # the config states 1 node of 1 device, as configs do: the launch scripts' layout flags must win
     return tiny_config(folder, data, **{"trainer.max_steps": STEPS, "trainer.accelerator": "cpu",
+                                         "trainer.num_nodes": 1, "trainer.devices": 1,
                                          "trainer.callbacks": probes, "checkpoint.every_n_train_steps": 1})
 
 

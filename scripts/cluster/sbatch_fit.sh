@@ -20,4 +20,6 @@
 set -euo pipefail
 PYTHON=${PYTHON:-python}
 # SIGUSR1 two minutes before the time limit: Lightning saves a checkpoint and requeues the job
-srun "$PYTHON" -m stablemo.cli fit --trainer.num_nodes "$SLURM_NNODES" --trainer.devices "$SLURM_NTASKS_PER_NODE" --ckpt_path last "$@"
+# the layout flags come last: they win over a config's trainer.num_nodes/devices (Lightning checks them
+# against the allocation)
+srun "$PYTHON" -m stablemo.cli fit --ckpt_path last "$@" --trainer.num_nodes "$SLURM_NNODES" --trainer.devices "$SLURM_NTASKS_PER_NODE"

@@ -5,8 +5,9 @@
 #   NNODES=4 NODE_RANK=0 MASTER_ADDR=10.0.0.1 GPUS_PER_NODE=8 \
 #     bash scripts/cluster/torchrun_node.sh --config configs/synth_small.yaml --trainer.accelerator=gpu
 #
-# Every argument after the script goes to `stablemo fit`; add `--ckpt_path last` to resume (a first
-# run with it starts from scratch). tests/test_multinode.py runs exactly this file, 2 nodes x 1 process
+# Every argument after the script goes to `stablemo fit`, before the node layout flags, which so win
+# over a config's own trainer.num_nodes/devices; add `--ckpt_path last` to resume (a first run with it
+# starts from scratch). tests/test_multinode.py runs exactly this file, 2 nodes x 1 process
 # on 127.0.0.1 with gloo.
 set -euo pipefail
 : "${NNODES:?set NNODES (number of nodes)}"
@@ -19,4 +20,4 @@ PYTHON=${PYTHON:-python}            # the environment's interpreter (e.g. .venv/
 exec "$PYTHON" -m torch.distributed.run \
   --nnodes "$NNODES" --nproc-per-node "$GPUS_PER_NODE" --node-rank "$NODE_RANK" \
   --master-addr "$MASTER_ADDR" --master-port "$MASTER_PORT" \
-  -m stablemo.cli fit --trainer.num_nodes "$NNODES" --trainer.devices "$GPUS_PER_NODE" "$@"
+  -m stablemo.cli fit "$@" --trainer.num_nodes "$NNODES" --trainer.devices "$GPUS_PER_NODE"
