@@ -6,8 +6,9 @@ again in every chunk).
 
     OMP_NUM_THREADS=1 python scripts/long_motion/stream_prompts.py --out /tmp/stream_prompts [--bundle DIR] [--seeds 8] [--steps N]
 
-Per segment, mean over the seeds: turn (degrees, the sum of the root's yaw velocity) and travel
-(metres of the root's path on the floor). A single prompt of seed s, segment i uses seed 100 s + i
+Per segment, mean over the seeds: turn (degrees the body's facing turns, from the hips and
+shoulders of the finished joints, what the page shows) and travel (metres of the root's path on
+the floor). A single prompt of seed s, segment i uses seed 100 s + i
 (as scripts/long_motion/report.py). Seams (stablemo.timeline.seams): at every join of the streamed
 motion (where a window's new rows begin, and where a chunk begins), the largest root and foot
 acceleration over the motion's own inside 99th percentile. Writes report.json and report.md.
@@ -27,6 +28,7 @@ from stablemo.errors import run_script
 from stablemo.inference.bundle import DEMO_STUDENT
 from stablemo.inference.pipeline import Pipeline
 from stablemo.io import write_text
+from stablemo.motion.skeleton import get_skeleton
 from stablemo.timeline import segment_frames, stream_timeline
 from stablemo.timeline.seams import seam_report
 from stablemo.timeline.spec import check_segments
@@ -39,12 +41,22 @@ TIMELINES = [
 CHUNK_S = 2.0
 
 
-def measures(features: np.ndarray, joints: np.ndarray) -> dict:
-    """features (T, D), joints (T, J, 3) of one segment -> turn (degrees) and travel (m)."""
-    # the root's yaw velocity channel is the half-angle per frame (recover_root's quaternion)
-    turn = math.degrees(2.0 * float(features[:-1, 0].sum()))
+def facing_turn(joints: np.ndarray, skeleton: str) -> float:
+    """Degrees the body's facing turns over joints (T, J, 3), left negative (as the root's yaw
+    velocity channel): the facing is the floor direction at right angles to the hips and shoulders
+    (the joints the features' facing is read from), unwrapped frame to frame."""
+    r_hip, l_hip, r_sh, l_sh = get_skeleton(skeleton).face_joints
+    across = (joints[:, r_hip] - joints[:, l_hip]) + (joints[:, r_sh] - joints[:, l_sh])  # (T, 3)
+    forward = np.stack([-across[:, 2], across[:, 0]], -1)  # up x across on the floor: (x, z)
+    angle = np.unwrap(np.arctan2(forward[:, 0], forward[:, 1]))
+    return -math.degrees(float(angle[-1] - angle[0]))
+
+
+def measures(joints: np.ndarray, skeleton: str) -> dict:
+    """The finished joints (T, J, 3) of one segment -> turn (degrees, the body's facing, what the
+    page shows) and travel (m, the root's path on the floor)."""
     travel = float(np.linalg.norm(np.diff(joints[:, 0, [0, 2]], axis=0), axis=-1).sum())
-    return {"turn": turn, "travel": travel}
+    return {"turn": facing_turn(joints, skeleton), "travel": travel}
 
 
 def old_stream(pipe, segments, seed: int, steps=None):
@@ -56,7 +68,7 @@ def old_stream(pipe, segments, seed: int, steps=None):
     texts = [segments[min(int(np.searchsorted(ends, (i + 0.5) * CHUNK_S, side="right")), len(segments) - 1)][2]
              for i in range(count)]
     chunks = list(pipe.stream(texts, chunk_seconds=CHUNK_S, seed=seed, max_chunks=count, steps=steps))
-    return np.concatenate([c.features for c in chunks]), np.concatenate([c.joints for c in chunks])
+    return np.concatenate([c.joints for c in chunks])
 
 
 def run(pipe, seeds, steps=None) -> dict:
@@ -68,13 +80,13 @@ def run(pipe, seeds, steps=None) -> dict:
         for seed in seeds:
             stream = stream_timeline(pipe, segments, chunk_seconds=CHUNK_S, seed=seed, steps=steps)
             chunks = list(stream.chunks)
-            feats, joints = np.concatenate([c.features for c in chunks]), np.concatenate([c.joints for c in chunks])
-            old_f, old_j = old_stream(pipe, segments, seed, steps)
+            joints = np.concatenate([c.joints for c in chunks])
+            old_j = old_stream(pipe, segments, seed, steps)
             for i, (a, b) in enumerate(frames):
                 alone = pipe.generate([segments[i][2]], b - a, seed=seed * 100 + i, steps=steps)
-                per[i]["streamed"].append(measures(feats[a:b], joints[a:b]))
-                per[i]["old"].append(measures(old_f[a:b], old_j[a:b]))
-                per[i]["alone"].append(measures(alone.feature_list()[0], alone.joint_list()[0]))
+                per[i]["streamed"].append(measures(joints[a:b], pipe.skeleton))
+                per[i]["old"].append(measures(old_j[a:b], pipe.skeleton))
+                per[i]["alone"].append(measures(alone.joint_list()[0], pipe.skeleton))
             window_joins = [w.new_start for w in stream.plan.windows if w.new_start > 0]
             chunk_joins = [c.start for c in chunks if c.start > 0 and c.start not in window_joins]
             rep = seam_report(joints, window_joins + chunk_joins, pipe.fps, pipe.skeleton)

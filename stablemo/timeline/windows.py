@@ -63,9 +63,9 @@ def settle(before: np.ndarray, new: np.ndarray, frames: int, skeleton: str) -> n
     along a half cosine (flat at both ends, so no velocity kink is added). Replacement in-painting
     leaves such a jump where the kept prefix ends (measured in docs/long_motion.md); foot contacts
     are labels, not positions, and are left as they are, and so is the root's yaw velocity: an
-    offset faded out there is a turn taken away from the new text (a 170-degree "turns right"
-    after a walk turned 116 degrees; 135 without it, scripts/long_motion/stream_prompts.py), while
-    a body may start turning at once."""
+    offset faded out there is a turn taken away from the new text (the demo student's "turns
+    right" after a walk turned the body 141 degrees where it turns 176 alone; 169 without it,
+    scripts/long_motion/stream_prompts.py), while a body may start turning at once."""
     if frames <= 0 or len(before) < 2 or len(new) == 0:
         return new
     from stablemo.motion.features import feature_slices
