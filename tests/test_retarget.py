@@ -397,6 +397,28 @@ def test_every_glb_we_write_passes_the_khronos_validator(tmp_path, walk):
     assert [(r["errors"], r["warnings"]) for r in reports] == [(0, 0), (0, 0)], reports
 
 
+@pytest.mark.parametrize("doc, message", [
+    ({"nodes": [{"name": "a", "children": [1]}, {"name": "b", "children": [0]}], "skins": [{"joints": [0, 1]}]},
+     "children form a loop"),
+    ({"nodes": [{"name": "a", "children": [5]}], "skins": [{"joints": [0]}]}, "children: 5 is not a node"),
+    ({"nodes": [{"name": "a", "rotation": [0, 0, 0]}], "skins": [{"joints": [0]}]}, "node 'a': not a transform"),
+    ({"nodes": [{"name": "a", "translation": [0, float("nan"), 0]}], "skins": [{"joints": [0]}]}, "NaN or Inf"),
+    ({"nodes": [{"name": "a"}], "skins": [{"joints": [3]}]}, "names a node that does not exist"),
+    ({"nodes": [{"name": "a"}]}, "no skin"),
+    ({"nodes": [{"name": "a"}, {"name": "b"}], "skins": [{"joints": [0, 1]}]}, "form 2 trees"),
+])
+def test_a_broken_gltf_rig_is_one_line_naming_the_file(tmp_path, doc, message):
+    import json
+
+    from stablemo.retarget.target import read_rig
+
+    path = tmp_path / "rig.gltf"
+    path.write_text(json.dumps({"asset": {"version": "2.0"}, **doc}))
+    with pytest.raises(StableMoError, match=message) as err:
+        read_rig(path)
+    assert str(err.value).startswith(str(path)) and "\n" not in str(err.value)
+
+
 def test_command_line_errors_are_one_line_before_any_work(tmp_path, walk, capsys, monkeypatch):
     from stablemo.cli import main
 

@@ -48,12 +48,39 @@ def read_json(path: Path) -> dict:
 
 def node_matrix(node: dict) -> np.ndarray:
     """(4, 4) local transform of a node (matrix, or translation * rotation * scale)."""
-    if "matrix" in node:
-        return np.array(node["matrix"], dtype=np.float64).reshape(4, 4).T  # column-major in the file
-    m = np.eye(4)
-    m[:3, :3] = Rotation.from_quat(node.get("rotation", [0, 0, 0, 1])).as_matrix() * np.array(node.get("scale", [1, 1, 1]))
-    m[:3, 3] = node.get("translation", [0, 0, 0])
+    try:
+        if "matrix" in node:
+            m = np.array(node["matrix"], dtype=np.float64).reshape(4, 4).T  # column-major in the file
+        else:
+            m = np.eye(4)
+            m[:3, :3] = (Rotation.from_quat(np.array(node.get("rotation", [0, 0, 0, 1]), dtype=np.float64)).as_matrix()
+                         * np.array(node.get("scale", [1, 1, 1]), dtype=np.float64))
+            m[:3, 3] = np.array(node.get("translation", [0, 0, 0]), dtype=np.float64)
+    except (TypeError, ValueError) as err:  # wrong lengths, strings, a zero quaternion
+        raise StableMoError(f"node {node.get('name', '?')!r}: not a transform ({err})") from None
+    if not np.all(np.isfinite(m)):
+        raise StableMoError(f"node {node.get('name', '?')!r}: a transform with NaN or Inf")
     return m
+
+
+def _parents(nodes: list, path: Path) -> dict[int, int]:
+    """node -> its parent; a child index out of range, a node with two parents or a loop is one line."""
+    parent: dict[int, int] = {}
+    for i, node in enumerate(nodes):
+        if not isinstance(node, dict):
+            raise StableMoError(f"{path}: nodes[{i}] is not an object")
+        for c in node.get("children", []):
+            if not isinstance(c, int) or not 0 <= c < len(nodes) or c in parent or c == i:
+                raise StableMoError(f"{path}: nodes[{i}].children: {c!r} is not a node of its own (glTF: a tree)")
+            parent[c] = i
+    for i in range(len(nodes)):  # a loop never reaches a root
+        seen, n = set(), i
+        while n in parent:
+            if n in seen:
+                raise StableMoError(f"{path}: the nodes' children form a loop (at nodes[{n}]); glTF nodes form trees")
+            seen.add(n)
+            n = parent[n]
+    return parent
 
 
 def read_gltf_rig(path: str | Path) -> RestRig:
@@ -61,12 +88,9 @@ def read_gltf_rig(path: str | Path) -> RestRig:
     doc = read_json(path)
     nodes = doc["nodes"]
     skins = doc.get("skins") or []
-    if not skins or not skins[0].get("joints"):
+    if not isinstance(skins, list) or not skins or not isinstance(skins[0], dict) or not skins[0].get("joints"):
         raise StableMoError(f"{path}: no skin; a rig to retarget onto is a skinned character")
-    parent = {}
-    for i, node in enumerate(nodes):
-        for c in node.get("children", []):
-            parent[c] = i
+    parent = _parents(nodes, path)
     world: dict[int, np.ndarray] = {}
 
     def world_of(i: int) -> np.ndarray:
@@ -81,7 +105,10 @@ def read_gltf_rig(path: str | Path) -> RestRig:
             world[n] = above @ node_matrix(nodes[n])
         return world[chain[0]] if chain else world[i]
 
-    joints = list(dict.fromkeys(skins[0]["joints"]))
+    joints = skins[0]["joints"]
+    joints = list(dict.fromkeys(joints)) if isinstance(joints, list) else [None]
+    if not all(isinstance(j, int) and 0 <= j < len(nodes) for j in joints):
+        raise StableMoError(f"{path}: skins[0].joints names a node that does not exist")
     members = set(joints)
 
     def joint_parent(n: int) -> int | None:
@@ -103,7 +130,10 @@ def read_gltf_rig(path: str | Path) -> RestRig:
         raise StableMoError(f"{path}: the skin's joints form {len(roots)} trees; expected one skeleton")
     index = {n: i for i, n in enumerate(order)}
     parents = tuple(-1 if joint_parent(n) is None else index[joint_parent(n)] for n in order)
-    mats = np.stack([world_of(n) for n in order])  # (J, 4, 4)
+    try:
+        mats = np.stack([world_of(n) for n in order])  # (J, 4, 4)
+    except StableMoError as err:
+        raise StableMoError(f"{path}: {err}") from None
     pos = mats[:, :3, 3]
     offsets = pos - np.where(np.array(parents)[:, None] >= 0, pos[[max(p, 0) for p in parents]], 0.0)
     basis = mats[:, :3, :3] / np.linalg.norm(mats[:, :3, :3], axis=1, keepdims=True)  # scale out of the columns
