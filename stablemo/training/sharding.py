@@ -26,7 +26,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from datetime import timedelta
-from typing import Optional
 
 import torch
 from lightning.pytorch.strategies import ModelParallelStrategy
@@ -84,10 +83,14 @@ def shard_units(model: nn.Module) -> list[tuple[nn.Module, ShardUnit]]:
     return found
 
 
-def shard_model(model: nn.Module, mesh, param_dtype: Optional[torch.dtype] = None) -> int:
+def shard_model(model: nn.Module, mesh, param_dtype: torch.dtype | None = None) -> int:
     """fully_shard every unit of `model` (a MotionDiffusionModel), then the model itself as the root,
     over the 1-D data-parallel `mesh`. Returns the number of units (root included)."""
-    from torch.distributed.fsdp import MixedPrecisionPolicy, fully_shard, register_fsdp_forward_method
+    from torch.distributed.fsdp import (
+        MixedPrecisionPolicy,
+        fully_shard,
+        register_fsdp_forward_method,
+    )
 
     # param_dtype: the dtype units are gathered and computed in; gradients are reduced in float32
     # and the sharded (master) weights stay float32 whatever it is
@@ -122,8 +125,8 @@ class FullShardStrategy(ModelParallelStrategy):
         process_group_backend: "gloo" on CPUs, "nccl" on GPUs when None.
     """
 
-    def __init__(self, param_dtype: Optional[str] = None, save_distributed_checkpoint: bool = False,
-                 process_group_backend: Optional[str] = None, timeout: Optional[timedelta] = None) -> None:
+    def __init__(self, param_dtype: str | None = None, save_distributed_checkpoint: bool = False,
+                 process_group_backend: str | None = None, timeout: timedelta | None = None) -> None:
         if param_dtype is not None and param_dtype not in DTYPES:
             raise StableMoError(f"--trainer.strategy.param_dtype: expected one of {sorted(DTYPES)} or null, "
                                 f"got {param_dtype!r}")
