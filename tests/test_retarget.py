@@ -13,7 +13,12 @@ from stablemo.bvh import forward_kinematics, motion_to_animation, write_bvh
 from stablemo.bvh.names import bvh_names
 from stablemo.errors import StableMoError
 from stablemo.retarget import retarget, retarget_file
-from stablemo.retarget.measure import flipped_joints, heading_error, reach_error, stance_speed
+from stablemo.retarget.measure import (
+    flipped_joints,
+    heading_error,
+    reach_error,
+    stance_speed,
+)
 from stablemo.retarget.names import find_roles
 from stablemo.retarget.source import SKELETON_ROLES
 from stablemo.retarget.variants import CONVENTIONS, rig_bvh, variant_rig
@@ -315,7 +320,6 @@ def as_matrices(path: Path) -> None:
 def test_a_glb_character_gets_its_own_file_back_with_the_animation(tmp_path, walk, matrices):
     from stablemo.gltf import read_glb
     from stablemo.gltf.writer import accessor_array
-    from stablemo.retarget.gltf_rig import node_matrix
 
     path, rig = glb_character(tmp_path, walk)
     if matrices:
@@ -333,16 +337,22 @@ def test_a_glb_character_gets_its_own_file_back_with_the_animation(tmp_path, wal
         for ch in anim["channels"]:
             values = accessor_array(doc, binary, anim["samplers"][ch["sampler"]]["output"])
             nodes[ch["target"]["node"]][ch["target"]["path"]] = values[frame].tolist()
-        parent = {c: i for i, n in enumerate(nodes) for c in n.get("children", [])}
-        world: dict[int, np.ndarray] = {}
-
-        def at(i: int) -> np.ndarray:
-            if i not in world:
-                world[i] = (at(parent[i]) if i in parent else np.eye(4)) @ node_matrix(nodes[i])
-            return world[i]
-
-        heads = np.array([at(n)[:3, 3] for n in solved.target.extra["nodes"]])
+        heads = np.array([node_world(nodes, n)[:3, 3] for n in solved.target.extra["nodes"]])
         assert np.abs(heads - solved.positions[frame]).max() < 1e-5
+
+
+def node_world(nodes: list, node: int) -> np.ndarray:
+    """(4, 4) a glTF node's world transform: its ancestors' and its own, from the root down."""
+    from stablemo.retarget.gltf_rig import node_matrix
+
+    parent = {c: i for i, n in enumerate(nodes) for c in n.get("children", [])}
+    chain = [node]
+    while chain[-1] in parent:
+        chain.append(parent[chain[-1]])
+    out = np.eye(4)
+    for n in reversed(chain):
+        out = out @ node_matrix(nodes[n])
+    return out
 
 
 def gltf_skeleton(tmp_path, walk):

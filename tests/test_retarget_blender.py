@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stablemo.retarget import retarget
 from stablemo.gltf.fbx import NUMPY_FALLBACK
+from stablemo.retarget import retarget
 from stablemo.retarget.api import write_result
 from stablemo.retarget.measure import flipped_joints, heading_error, stance_speed
 

@@ -47,7 +47,7 @@ def test_the_motion_comes_back_on_the_clients_rig(client, tmp_path):
 
 
 def test_bad_rigs_are_one_line_400s_naming_the_field(client):
-    rig, index = variant_rig("mixamo", extras=False)
+    rig, _ = variant_rig("mixamo", extras=False)
     no_hands = rig_bvh(rig).replace("mixamorig:LeftHand", "mixamorig:Prop1").replace("mixamorig:RightHand", "mixamorig:Prop2")
     body = {"text": "a person walks forward", "frames": 40}
     cases = [

@@ -50,8 +50,8 @@ def motions() -> dict[str, np.ndarray]:
 
 
 def rigify(tmp: Path):
-    from test_retarget_blender import MAKE_RIGS, blender, custom_spec
     from test_bvh import synth_joints
+    from test_retarget_blender import MAKE_RIGS, blender, custom_spec
 
     (tmp / "spec.json").write_text(json.dumps(custom_spec(synth_joints("walk", 3))))
     blender(MAKE_RIGS, tmp, str(tmp), str(tmp / "spec.json"))

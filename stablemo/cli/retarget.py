@@ -15,8 +15,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-from stablemo.errors import StableMoError
-
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="stablemo retarget", description=__doc__.split("\n")[0].split(": ", 1)[1])

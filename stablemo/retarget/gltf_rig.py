@@ -32,7 +32,7 @@ def read_json(path: Path) -> dict:
             raise StableMoError(f"{path}: truncated GLB header")
         version, length = struct.unpack_from("<II", data, 4)
         chunk_len, chunk_type = struct.unpack_from("<II", data, 12)
-        if version != 2 or chunk_type != JSON_CHUNK or 20 + chunk_len > len(data):
+        if version != 2 or chunk_type != JSON_CHUNK or 20 + chunk_len > min(length, len(data)):
             raise StableMoError(f"{path}: not a glTF 2.0 GLB (version {version}, first chunk not JSON or cut short)")
         text = data[20:20 + chunk_len]
     else:

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from stablemo.retarget.names import LIMBS, SIDES
 from stablemo.retarget.frames import unit
+from stablemo.retarget.names import LIMBS, SIDES
 from stablemo.retarget.solve import Solved
 from stablemo.retarget.source import guess_per_metre, leg_length
 
@@ -45,7 +45,7 @@ def stance_speed(solved: Solved) -> dict[str, float]:
                 out.append(v[both])
     t, s = np.concatenate(tgt_speeds), np.concatenate(src_speeds)
     return {"target_m_s": float(t.mean()) if len(t) else 0.0, "source_m_s": float(s.mean()) if len(s) else 0.0,
-            "steps": int(len(t))}
+            "steps": len(t)}
 
 
 def reach_error(solved: Solved) -> dict[str, float]:

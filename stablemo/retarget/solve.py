@@ -41,6 +41,7 @@ from stablemo.retarget.names import LIMBS, SIDES, Roles
 from stablemo.retarget.rest import RestRig
 from stablemo.retarget.source import Source, guess_per_metre, leg_length
 
+
 @dataclass(frozen=True)
 class Solved:
     """anim: the target rig in motion (world-axis local rotations, root position, source fps);
@@ -122,26 +123,9 @@ def solve(source: Source, target: RestRig, roles: Roles, contacts_cfg: dict) -> 
     hip_mid_s = 0.5 * (src("Left", "UpperLeg") + src("Right", "UpperLeg"))
     hip_mid_r = 0.5 * (tgt("Left", "UpperLeg") + tgt("Right", "UpperLeg"))
     hips_at = hip_mid_s - frames_of[roles.hips] @ (hip_mid_r - rest[roles.hips])  # (T, 3)
-    # the trunk hips -> spine -> first neck joint (or head), and the neck chain up to the head
-    trunk_t = [roles.hips, *roles.spine, (roles.neck or (roles.head,))[0]]
-    trunk_s = _Polyline(x[:, [sr.hips, *sr.spine, (sr.neck or (sr.head,))[0]]])
-    trunk_r = _Polyline(rest[trunk_t])
-    chest_at = trunk_r.fractions[len(roles.spine)]  # the last spine joint's fraction: its twist is the chest's
-    for i, joint in enumerate(roles.spine):
-        f0, f1 = trunk_r.fractions[i + 1], trunk_r.fractions[i + 2]
-        w = f0 / max(chest_at, EPS)
-        frames_of[joint] = align(trunk_s.at(f1) - trunk_s.at(f0), (1 - w) * hip_lat_s + w * chest_lat_s,
-                                 rest[trunk_t[i + 2]] - rest[trunk_t[i + 1]], (1 - w) * hip_lat_r + w * chest_lat_r)
-    if roles.neck:
-        neck_t = [*roles.neck, roles.head]
-        neck_s = _Polyline(x[:, [*(sr.neck or (sr.spine[-1],)), sr.head]])
-        neck_r = _Polyline(rest[neck_t])
-        for i, joint in enumerate(roles.neck):
-            f0, f1 = neck_r.fractions[i], neck_r.fractions[i + 1]
-            frames_of[joint] = align(neck_s.at(f1) - neck_s.at(f0), chest_lat_s,
-                                     rest[neck_t[i + 1]] - rest[neck_t[i]], chest_lat_r)
+    frames_of.update(_trunk_frames(x, rest, sr, roles, (hip_lat_s, hip_lat_r), (chest_lat_s, chest_lat_r)))
 
-    ramp = max(1, int(round(contacts_cfg["ramp_s"] * source.fps)))
+    ramp = max(1, round(contacts_cfg["ramp_s"] * source.fps))
     limbs = {}  # upper joint -> what its IK needs
     held = np.zeros((frames, 2))
     swings = {}  # joint -> (rest direction (3,), direction now (T, 3))
@@ -171,9 +155,27 @@ def solve(source: Source, target: RestRig, roles: Roles, contacts_cfg: dict) -> 
             if None not in (jt, jc, js, jsc):
                 now = x[:, jsc] - x[:, js]
                 if role == "Foot" and standing:
-                    now = _foot_pitch(now, rest[jc] - rest[jt], up, contacts[:, 2 * SIDES.index(side):][:, :2].all(-1))
+                    now = _foot_pitch(now, rest[jc] - rest[jt], up, contacts[:, 2 * s_i:2 * s_i + 2].all(-1))
                 swings[jt] = (rest[jc] - rest[jt], now)
 
+    world, pos = _pose(target, rest, roles, hips_at, frames_of, limbs, swings)
+    parents = np.array(target.parents)
+    parent_world = np.where((parents >= 0)[None, :, None, None], world[:, np.maximum(parents, 0)], np.eye(3))
+    local = np.swapaxes(parent_world, -1, -2) @ world  # (T, J, 3, 3)
+    if not np.all(np.isfinite(local)) or not np.all(np.isfinite(pos)):
+        raise StableMoError("retarget: the solve gave a non-finite pose (coinciding joints in the motion or the rig?)")
+    rotations = continuous_hemisphere(matrix_to_quat(local))
+    anim = Animation(target.bvh_rig(), pos[:, 0].copy(), rotations, source.fps)
+    return Solved(anim, pos, x, contacts, held, k, axes, roles, source, target)
+
+
+def _pose(target: RestRig, rest: np.ndarray, roles: Roles, hips_at: np.ndarray, frames_of: dict, limbs: dict,
+          swings: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Forward through the rig, parents first -> world rotations (T, J, 3, 3) and positions (T, J, 3):
+    the root carries the hips to hips_at (T, 3); frames_of: joints turned as given; limbs: upper
+    joints whose limb is solved by IK on the way (their middle joints then too); swings: joints aimed
+    from their parent's frame; every other joint keeps its rest under its parent."""
+    frames = len(hips_at)
     world = np.empty((frames, target.num_joints, 3, 3))
     pos = np.empty((frames, target.num_joints, 3))
     pending: dict[int, np.ndarray] = {}  # a limb's middle joint -> its world rotation, set with the limb
@@ -199,14 +201,7 @@ def solve(source: Source, target: RestRig, roles: Roles, contacts_cfg: dict) -> 
             world[:, j] = swing(parent @ rest_dir, now) @ parent
         else:
             world[:, j] = parent
-    parents = np.array(target.parents)
-    parent_world = np.where((parents >= 0)[None, :, None, None], world[:, np.maximum(parents, 0)], np.eye(3))
-    local = np.swapaxes(parent_world, -1, -2) @ world  # (T, J, 3, 3)
-    if not np.all(np.isfinite(local)) or not np.all(np.isfinite(pos)):
-        raise StableMoError("retarget: the solve gave a non-finite pose (coinciding joints in the motion or the rig?)")
-    rotations = continuous_hemisphere(matrix_to_quat(local))
-    anim = Animation(target.bvh_rig(), pos[:, 0].copy(), rotations, source.fps)
-    return Solved(anim, pos, x, contacts, held, k, axes, roles, source, target)
+    return world, pos
 
 
 def _stands(heights: np.ndarray, roles: Roles, leg: float) -> bool:
@@ -256,6 +251,32 @@ def _foot_pitch(now: np.ndarray, rest_dir: np.ndarray, up: np.ndarray, flat: np.
     rest_pitch = float(np.arcsin(np.clip(unit(rest_dir) @ up, -1.0, 1.0)))
     new = pitch + rest_pitch - float(np.median(pitch[flat]))
     return np.linalg.norm(now, axis=-1, keepdims=True) * (np.cos(new)[:, None] * level + np.sin(new)[:, None] * up)
+
+
+def _trunk_frames(x: np.ndarray, rest: np.ndarray, sr: Roles, roles: Roles, hip_lat: tuple, chest_lat: tuple) -> dict:
+    """World rotations (T, 3, 3) of the rig's spine and neck joints: the trunk hips -> spine -> first
+    neck joint (or head) and the neck chain up to the head, matched by fraction of length; twist from
+    the across-axes (source (T, 3), rig (3,)) of the hips and the chest, blended up the spine.
+    x (T, Js, 3): the scaled source; rest (J, 3): the rig at rest."""
+    out = {}
+    trunk_t = [roles.hips, *roles.spine, (roles.neck or (roles.head,))[0]]
+    trunk_s = _Polyline(x[:, [sr.hips, *sr.spine, (sr.neck or (sr.head,))[0]]])
+    trunk_r = _Polyline(rest[trunk_t])
+    chest_at = trunk_r.fractions[len(roles.spine)]  # the last spine joint's fraction: its twist is the chest's
+    for i, joint in enumerate(roles.spine):
+        f0, f1 = trunk_r.fractions[i + 1], trunk_r.fractions[i + 2]
+        w = f0 / max(chest_at, EPS)
+        out[joint] = align(trunk_s.at(f1) - trunk_s.at(f0), (1 - w) * hip_lat[0] + w * chest_lat[0],
+                           rest[trunk_t[i + 2]] - rest[trunk_t[i + 1]], (1 - w) * hip_lat[1] + w * chest_lat[1])
+    if roles.neck:
+        neck_t = [*roles.neck, roles.head]
+        neck_s = _Polyline(x[:, [*(sr.neck or (sr.spine[-1],)), sr.head]])
+        neck_r = _Polyline(rest[neck_t])
+        for i, joint in enumerate(roles.neck):
+            f0, f1 = neck_r.fractions[i], neck_r.fractions[i + 1]
+            out[joint] = align(neck_s.at(f1) - neck_s.at(f0), chest_lat[0], rest[neck_t[i + 1]] - rest[neck_t[i]],
+                               chest_lat[1])
+    return out
 
 
 def _contacts(source: Source, cfg: dict) -> np.ndarray:
