@@ -138,6 +138,8 @@ RIGS = [  # (convention, legs, arms, scale, A-pose degrees, units)
     ("unreal", 1.0, 1.0, 1.25, 45.0, "cm"),
     ("vrm", 1.0, 1.0, 1.25, 30.0, "m"),
     ("smplx", 1.0, 1.0, 0.8, 0.0, "m"),
+    ("daz", 1.0, 1.0, 1.25, 45.0, "cm"),  # the hips above a pelvis that holds only the thighs
+    ("cc", 1.0, 1.0, 0.8, 45.0, "cm"),
 ]
 
 

@@ -125,7 +125,7 @@ def find_roles(names, parents, rest: np.ndarray, where: str, override: dict | No
             taken.update(j for js in found.values() for j in js)
             break
     read = {i: read_name(plain[i]) for i in candidates}
-    hips_x = None
+    hips_x, hips_hits = None, []
     for role, keys in conv["center"].items():
         if role in found:
             continue
@@ -133,8 +133,18 @@ def find_roles(names, parents, rest: np.ndarray, where: str, override: dict | No
         hits = [i for key in keys for i in sorted(candidates, key=lambda i: (depth[i], i))
                 if i not in taken and read[i][0] is None and (read[i][2] if chain else read[i][1]) == key]
         if hits:
-            found[role] = sorted(set(hits), key=lambda i: depth[i]) if chain else [hits[0]]
+            found[role] = sorted(set(hits), key=lambda i: depth[i]) if chain else hits[:1]
             taken.update(found[role])
+            if role == "Hips":
+                hips_hits = hits
+    # the hips carry the spine: where several joints read as hips (Daz and Character Creator have a
+    # `hip` above a `pelvis` that holds only the thighs) the first one above the head wins
+    if "Hips" in found and "Head" in found:
+        above = [i for i in hips_hits if is_ancestor(parents, i, found["Head"][0])]
+        if above and above[0] != found["Hips"][0]:
+            taken.discard(found["Hips"][0])
+            found["Hips"] = above[:1]
+            taken.add(above[0])
     if "Hips" in found:
         hips_x = rest[found["Hips"][0], 0]
     sides: dict[str, dict[str, int]] = {"Left": {}, "Right": {}}

@@ -51,6 +51,16 @@ CONVENTIONS: dict[str, tuple[str, ...]] = {
     "cmu": _sided("Hips {Side}UpLeg {Side}UpLeg LowerBack {Side}Leg {Side}Leg Spine {Side}Foot {Side}Foot Spine1 "
                   "{Side}ToeBase {Side}ToeBase Neck {Side}Shoulder {Side}Shoulder Head {Side}Arm {Side}Arm "
                   "{Side}ForeArm {Side}ForeArm {Side}Hand {Side}Hand"),
+    # Daz Genesis and Character Creator: a `hip` above the pelvis (CC: CC_Base_Hip, CC_Base_Pelvis);
+    # here the hips joint is `hip` and the extras add the pelvis below it (see variant_rig)
+    "daz": _sided("hip {s}ThighBend {s}ThighBend abdomenLower {s}Shin {s}Shin abdomenUpper {s}Foot {s}Foot chestUpper "
+                  "{s}Toe {s}Toe neckLower {s}Collar {s}Collar head {s}ShldrBend {s}ShldrBend {s}ForearmBend "
+                  "{s}ForearmBend {s}Hand {s}Hand"),
+    "cc": _sided("CC_Base_Hip CC_Base_{S}_Thigh CC_Base_{S}_Thigh CC_Base_Waist CC_Base_{S}_Calf CC_Base_{S}_Calf "
+                 "CC_Base_Spine01 CC_Base_{S}_Foot CC_Base_{S}_Foot CC_Base_Spine02 CC_Base_{S}_ToeBase "
+                 "CC_Base_{S}_ToeBase CC_Base_NeckTwist01 CC_Base_{S}_Clavicle CC_Base_{S}_Clavicle CC_Base_Head "
+                 "CC_Base_{S}_Upperarm CC_Base_{S}_Upperarm CC_Base_{S}_Forearm CC_Base_{S}_Forearm CC_Base_{S}_Hand "
+                 "CC_Base_{S}_Hand"),
     "biped": tuple(n for n in _sided(
         "Bip01_Pelvis Bip01_{S}_Thigh Bip01_{S}_Thigh Bip01_Spine Bip01_{S}_Calf Bip01_{S}_Calf Bip01_Spine1 "
         "Bip01_{S}_Foot Bip01_{S}_Foot Bip01_Spine2 Bip01_{S}_Toe0 Bip01_{S}_Toe0 Bip01_Neck Bip01_{S}_Clavicle "
@@ -101,6 +111,9 @@ def variant_rig(convention: str = "mixamo", legs: float = 1.0, arms: float = 1.0
             add(f"{names[hand]}Index2", first, 0.03 * reach)
         for upper in (16, 17):
             add(f"{names[upper]}_twist_01", upper, 0.5 * offsets[ARM_CHAINS[upper][0]])
+        if convention in ("daz", "cc"):  # a pelvis under the hip holding the thighs, the spine beside it
+            pelvis = add("pelvis" if convention == "daz" else "CC_Base_Pelvis", 0, np.zeros(3))
+            parents[1] = parents[2] = pelvis
         if convention == "unreal":  # a root bone on the floor above the pelvis
             height = -min(_world(offsets, parents)[:, 1])
             names.insert(0, "root")
