@@ -176,6 +176,22 @@ def test_targets_on_a_demo_model_motion():
         check_targets(joints, rig, uniform=True)
 
 
+def test_a_kit_motion_in_millimetres(walk):
+    """KIT-ML joints (21, millimetres, no clavicle, no neck joint), made from the HumanML3D walk by
+    joint correspondence: retargeted with the same targets as a HumanML3D motion."""
+    kit_from_ours = [0, 3, 6, 9, 15, 17, 19, 21, 16, 18, 20, 2, 5, 8, 11, 11, 1, 4, 7, 10, 10]
+    kit = walk[:, kit_from_ours] * 1000.0
+    kit[:, [15, 20]] += [0.0, 0.0, 50.0]  # toe tips 5 cm in front of the metatarsals
+    rig, _ = variant_rig("unity", scale=1.1, a_pose_deg=45, body=body_of(walk))
+    solved = retarget(kit, rig)
+    assert solved.scale == pytest.approx(1.1 / 1000, rel=1e-3)
+    speed = stance_speed(solved)
+    assert speed["target_m_s"] <= speed["source_m_s"] + 0.02
+    flips = flipped_joints(solved)
+    assert flips.pop("bent") > 50 and not any(flips.values())
+    assert heading_error(solved) < 5.0
+
+
 def test_extra_bones_stay_at_rest_and_the_root_bone_carries_the_travel(walk):
     rig, index = variant_rig("unreal", scale=1.1, body=body_of(walk))  # a root bone on the floor, fingers, twists
     solved = retarget(walk, rig)
