@@ -35,18 +35,19 @@ def export(name):
     bpy.ops.export_scene.fbx(filepath=f"{out}/{name}.fbx", use_selection=True, add_leaf_bones=False, bake_anim=False)
 
 bpy.ops.wm.read_factory_settings(use_empty=True)
-addon_utils.enable("rigify", default_set=True)
-bpy.ops.object.armature_human_metarig_add()
-export("metarig")
-# the metarig as a character: a body skinned to it (envelope weights), exported to FBX with its mesh
-arm = bpy.context.active_object
-bpy.ops.mesh.primitive_cylinder_add(radius=0.15, depth=1.7, location=(0, 0, 0.85), vertices=12)
-body = bpy.context.active_object
-body.select_set(True)
-arm.select_set(True)
-bpy.context.view_layer.objects.active = arm
-bpy.ops.object.parent_set(type="ARMATURE_ENVELOPE")
-bpy.ops.export_scene.fbx(filepath=f"{out}/character.fbx", use_selection=True, add_leaf_bones=False, bake_anim=False)
+if addon_utils.enable("rigify", default_set=True) is not None:  # a Blender without Rigify: the custom rig only
+    bpy.ops.object.armature_human_metarig_add()
+    export("metarig")
+    # the metarig as a character: a body skinned to it (envelope weights), exported to FBX with its mesh
+    arm = bpy.context.active_object
+    bpy.ops.mesh.primitive_cylinder_add(radius=0.15, depth=1.7, location=(0, 0, 0.85), vertices=12)
+    body = bpy.context.active_object
+    body.select_set(True)
+    arm.select_set(True)
+    bpy.context.view_layer.objects.active = arm
+    bpy.ops.object.parent_set(type="ARMATURE_ENVELOPE")
+    bpy.ops.export_scene.fbx(filepath=f"{out}/character.fbx", use_selection=True, add_leaf_bones=False,
+                             bake_anim=False)
 
 bpy.ops.wm.read_factory_settings(use_empty=True)
 arm = bpy.data.objects.new("Armature", bpy.data.armatures.new("Armature"))
@@ -149,6 +150,8 @@ def test_blender_plays_the_retargeted_motion_on_rigs_it_made(rigs, tmp_path):
     jobs, solved = [], {}
     for label, joints in motions().items():
         for rig in ("metarig.bvh", "custom.bvh", "metarig.fbx", "custom.fbx"):
+            if not (rigs / rig).is_file():
+                continue  # no Rigify in this Blender
             if rig.endswith(".fbx") and label != "demo model":
                 continue  # each FBX costs a Blender start: one motion is enough to show the path
             out = tmp_path / f"{label.replace(' ', '_')}-{rig.replace('.', '_')}.bvh"
@@ -242,6 +245,8 @@ def test_an_fbx_character_gets_the_motion_as_fbx(rigs, tmp_path):
     it with the character's own mesh: bone heads where the solve put them."""
     from test_bvh import synth_joints
 
+    if not (rigs / "character.fbx").is_file():
+        pytest.skip("this Blender has no Rigify add-on (the character is the metarig)")
     walk = synth_joints("walk", 3)
     s = retarget(walk, rigs / "character.fbx")
     assert s.target.fmt == "fbx" and "glb" in s.target.extra

@@ -55,7 +55,7 @@ def rigify(tmp: Path):
 
     (tmp / "spec.json").write_text(json.dumps(custom_spec(synth_joints("walk", 3))))
     blender(MAKE_RIGS, tmp, str(tmp), str(tmp / "spec.json"))
-    return tmp / "metarig.bvh"
+    return tmp / "metarig.bvh" if (tmp / "metarig.bvh").is_file() else None  # None: a Blender without Rigify
 
 
 def row(solved) -> dict:
