@@ -296,6 +296,63 @@ def test_a_bvh_motion_with_odd_names_takes_a_source_map(tmp_path, walk, capsys):
                   - direct.positions).max() < 1e-4
 
 
+def test_a_bvh_motion_turns_the_rig_s_hands_and_head(tmp_path, walk):
+    """A BVH file's wrists bend and its head turns (joint positions cannot say so): the rig's hands
+    and head turn the same way from their own rest (A-pose arms against the file's T-pose)."""
+    from scipy.spatial.transform import Rotation
+
+    from stablemo.bvh.text import format_bvh
+
+    anim = motion_to_animation(walk)
+    names = list(anim.rig.names)
+    turns = {"LeftHand": [0.0, 0.0, -50.0], "RightHand": [0.0, 40.0, 0.0], "Head": [0.0, 60.0, 0.0]}
+    for name, degrees in turns.items():  # a bend of the wrist, a turn of the head, growing over the motion
+        ramp = np.linspace(0.0, 1.0, anim.num_frames)[:, None] * np.radians(degrees)
+        anim.rotations[:, names.index(name)] = Rotation.from_rotvec(ramp).as_quat()[:, [3, 0, 1, 2]]
+    (tmp_path / "turns.bvh").write_text(format_bvh(anim))
+    rig, index = variant_rig("unity", scale=1.2, a_pose_deg=45, body=body_of(walk))  # fingers under the hands
+    solved = retarget(tmp_path / "turns.bvh", rig)
+    file_joints = forward_kinematics(anim)
+    ends = {"LeftHand": index[20], "RightHand": index[21]}
+    for name, hand in ends.items():
+        finger = rig.names.index(rig.names[hand] + "Index1")
+        got = solved.positions[:, finger] - solved.positions[:, hand]
+        # where the file's hand points: its End Site turned with it
+        j = names.index(name)
+        world = Rotation.from_quat(anim.rotations[:, j][:, [1, 2, 3, 0]])
+        for p in _ancestors(anim.rig.parents, j):  # parent first: R_root ... R_parent R_joint
+            world = Rotation.from_quat(anim.rotations[:, p][:, [1, 2, 3, 0]]) * world
+        want = world.apply(anim.rig.end_sites[j])
+        cos = (got * want).sum(-1) / np.linalg.norm(got, axis=-1) / np.linalg.norm(want, axis=-1)
+        assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 1.0, name
+        forearm = file_joints[:, j] - file_joints[:, anim.rig.parents[j]]
+        bend = (forearm[-1] * want[-1]).sum() / np.linalg.norm(forearm[-1]) / np.linalg.norm(want[-1])
+        assert np.degrees(np.arccos(np.clip(bend, -1, 1))) > 30  # the wrist did bend away from the forearm
+    # the head: the rig's (same rest direction, up) turns as the file's, 60 degrees by the end
+    turned = [_world(anim.rotations, anim.rig.parents, names.index("Head")),
+              _world(solved.anim.rotations, rig.parents, index[15])]
+    assert (turned[0].inv() * turned[1]).magnitude().max() < np.radians(1.0)
+    assert turned[0][-1].magnitude() > np.radians(30)
+
+
+def _world(rotations: np.ndarray, parents, joint: int):
+    """scipy Rotation (T,): a joint's world rotation from local ones (T, J, 4) w-first."""
+    from scipy.spatial.transform import Rotation
+
+    world = Rotation.from_quat(rotations[:, joint][:, [1, 2, 3, 0]])
+    for p in _ancestors(parents, joint):
+        world = Rotation.from_quat(rotations[:, p][:, [1, 2, 3, 0]]) * world
+    return world
+
+
+def _ancestors(parents, joint: int) -> list[int]:
+    out = []
+    while parents[joint] >= 0:
+        joint = parents[joint]
+        out.append(joint)
+    return out
+
+
 def glb_character(tmp_path, joints) -> tuple[Path, object]:
     """A GLB character (our mannequin) whose nodes have rest rotations of their own, as an FBX's do."""
     from scipy.spatial.transform import Rotation

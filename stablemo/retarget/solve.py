@@ -15,9 +15,9 @@
    (upper arm and forearm) reaches them (stablemo.motion.rigid.two_bone: as close as the straight
    limb reaches when it cannot), bending towards the source's knee (elbow), so no joint flips. Both
    bones of a limb share one bend axis, so the knee and elbow turn as hinges.
-4. Clavicles and feet aim as the source's (swing from the parent, twist kept); hands, head, toes
-   and every joint without a role (fingers, twist bones, props) keep their rest pose relative to
-   their parent.
+4. Clavicles and feet aim as the source's (swing from the parent, twist kept); hands and head turn
+   as a BVH source's do, else (joint positions carry no such turn) they, the toes and every joint
+   without a role (fingers, twist bones, props) keep their rest pose relative to their parent.
 
 Rest poses: every rotation maps the target's own rest geometry (T-pose, A-pose, bent knees, any
 facing) onto the source's pose, so nothing assumes a particular rest. Rotations are world-axis
@@ -36,7 +36,7 @@ from stablemo.bvh.rig import Animation, continuous_hemisphere, matrix_to_quat
 from stablemo.errors import StableMoError
 from stablemo.motion.rigid import two_bone
 from stablemo.retarget.contacts import hold, source_contacts
-from stablemo.retarget.frames import EPS, across, align, swing, unit, up_axes
+from stablemo.retarget.frames import EPS, across, align, basis, swing, unit, up_axes
 from stablemo.retarget.names import LIMBS, SIDES, Roles
 from stablemo.retarget.rest import RestRig
 from stablemo.retarget.source import Source, guess_per_metre, leg_length
@@ -158,6 +158,7 @@ def solve(source: Source, target: RestRig, roles: Roles, contacts_cfg: dict) -> 
                     now = _foot_pitch(now, rest[jc] - rest[jt], up, contacts[:, 2 * s_i:2 * s_i + 2].all(-1))
                 swings[jt] = (rest[jc] - rest[jt], now)
 
+    frames_of.update(_turned_ends(source, target, roles, axes, hip_lat_r))
     world, pos = _pose(target, rest, roles, hips_at, frames_of, limbs, swings)
     parents = np.array(target.parents)
     parent_world = np.where((parents >= 0)[None, :, None, None], world[:, np.maximum(parents, 0)], np.eye(3))
@@ -276,6 +277,26 @@ def _trunk_frames(x: np.ndarray, rest: np.ndarray, sr: Roles, roles: Roles, hip_
             f0, f1 = neck_r.fractions[i], neck_r.fractions[i + 1]
             out[joint] = align(neck_s.at(f1) - neck_s.at(f0), chest_lat[0], rest[neck_t[i + 1]] - rest[neck_t[i]],
                                chest_lat[1])
+    return out
+
+
+def _turned_ends(source: Source, target: RestRig, roles: Roles, axes: np.ndarray, hip_lat_r: np.ndarray) -> dict:
+    """World rotations (T, 3, 3) of the rig's hands and head where the source is a BVH file whose
+    hands and head turn on their own: each takes its source joint's turn from rest, the two rest
+    bones matched first (their direction, and the hips' across-axis for the twist), so a rig whose
+    hands hang in an A-pose follows a T-pose file's wrists. Empty for joint positions alone."""
+    if source.orient is None:
+        return {}
+    sr, out = source.roles, {}
+    lat_s = axes @ (source.rest[sr.sides["Left"]["UpperLeg"]] - source.rest[sr.sides["Right"]["UpperLeg"]])
+    pairs = [(roles.head, sr.head)] + [(roles.sides[side]["Hand"], sr.sides[side]["Hand"]) for side in SIDES]
+    for jt, js in pairs:
+        kids = [c for c, p in enumerate(target.parents) if p == jt]
+        t_dir = target.offsets[kids[0]] if kids else target.end_sites.get(jt)
+        if t_dir is None or js not in source.ends or np.linalg.norm(t_dir) <= EPS:
+            continue
+        rest_match = basis(axes @ source.ends[js], lat_s) @ basis(t_dir, hip_lat_r).T  # rig rest -> file rest
+        out[jt] = axes @ source.orient[:, js] @ axes.T @ rest_match
     return out
 
 

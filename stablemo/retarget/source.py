@@ -31,13 +31,19 @@ SKELETON_ROLES = {
 @dataclass(frozen=True)
 class Source:
     """positions (T, J, 3) world joints in the source's units, `per_metre` of those units per metre,
-    roles, fps, names (J,) for messages."""
+    roles, fps, names (J,) for messages. A BVH motion also gives its joints' turns: orient
+    (T, J, 3, 3) each joint's world rotation from its rest (y up), and the rest pose they turn from:
+    rest (J, 3) and ends {joint: (3,) where its bone points at rest} (its first child or End Site),
+    so hands and head turn as the file's do (a HumanML3D motion has no hand or head turn to give)."""
 
     positions: np.ndarray
     roles: Roles
     fps: float
     per_metre: float
     names: tuple[str, ...]
+    orient: np.ndarray | None = None
+    rest: np.ndarray | None = None
+    ends: dict | None = None
 
     def leg_length(self) -> float:
         """Median over frames of thigh + shin, both sides averaged (the source's units)."""
@@ -80,12 +86,32 @@ def bvh_source(path: str | Path, role_map: dict | None = None) -> Source:
     if anim.num_frames < 2:
         raise StableMoError(f"{path}: one frame; a motion to retarget needs at least two")
     joints = forward_kinematics(anim)
-    rest = np.zeros((anim.rig.num_joints, 3))
-    for j, p in enumerate(anim.rig.parents):
-        rest[j] = anim.rig.offsets[j] + (rest[p] if p >= 0 else 0.0)
-    roles = find_roles(anim.rig.names, anim.rig.parents, rest, str(path), role_map, flag="--source-map")
-    joints = joints @ up_axes(rest, roles, str(path))  # a z-up file (Blender's export) read y up
-    return Source(joints, roles, anim.fps, guess_per_metre(leg_length(rest, roles)), anim.rig.names)
+    rig = anim.rig
+    rest = np.zeros((rig.num_joints, 3))
+    for j, p in enumerate(rig.parents):
+        rest[j] = rig.offsets[j] + (rest[p] if p >= 0 else 0.0)
+    roles = find_roles(rig.names, rig.parents, rest, str(path), role_map, flag="--source-map")
+    axes = up_axes(rest, roles, str(path))  # a z-up file (Blender's export) is read y up
+    orient = world_rotations(anim.rotations, rig.parents)  # (T, J, 3, 3) file axes
+    ends = {}
+    for j in range(rig.num_joints):
+        kids = rig.children(j)
+        end = rig.offsets[kids[0]] if kids else rig.end_sites.get(j)
+        if end is not None and np.linalg.norm(end) > 0:
+            ends[j] = end @ axes
+    return Source(joints @ axes, roles, anim.fps, guess_per_metre(leg_length(rest, roles)), rig.names,
+                  axes.T @ orient @ axes, rest @ axes, ends)
+
+
+def world_rotations(local: np.ndarray, parents) -> np.ndarray:
+    """Local rotations (T, J, 4) w-first -> world rotation matrices (T, J, 3, 3), parents first."""
+    from scipy.spatial.transform import Rotation
+
+    mats = Rotation.from_quat(local.reshape(-1, 4)[:, [1, 2, 3, 0]]).as_matrix().reshape(local.shape[:2] + (3, 3))
+    out = np.empty_like(mats)
+    for j, p in enumerate(parents):
+        out[:, j] = mats[:, j] if p < 0 else out[:, p] @ mats[:, j]
+    return out
 
 
 def read_source(path: str | Path, role_map: dict | None = None) -> Source:
