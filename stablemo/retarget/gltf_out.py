@@ -64,6 +64,26 @@ def node_tracks(solved: Solved, doc: dict) -> tuple[np.ndarray, np.ndarray]:
     return quats, translation
 
 
+def _skinned_meshes_at_root(doc: dict) -> None:
+    """Move skinned mesh nodes to their scene's root: glTF ignores a skinned mesh's parents (its
+    joints place it), so nothing moves, and Khronos' validator stops warning about the layout
+    Blender's exporter writes (the mesh under the armature node)."""
+    parent = {c: i for i, n in enumerate(doc["nodes"]) for c in n.get("children", [])}
+    for i, node in enumerate(doc["nodes"]):
+        if "skin" not in node or "mesh" not in node or i not in parent:
+            continue
+        above = doc["nodes"][parent[i]]
+        above["children"] = [c for c in above["children"] if c != i]
+        if not above["children"]:
+            del above["children"]
+        top = parent[i]
+        while top in parent:
+            top = parent[top]
+        for scene in doc.get("scenes", []):
+            if top in scene.get("nodes", []):
+                scene["nodes"].append(i)
+
+
 def _to_trs(node: dict) -> None:
     """Replace a node's `matrix` by the translation, rotation and scale it holds (no shear in a rig)."""
     if "matrix" not in node:
@@ -102,6 +122,7 @@ def onto_glb(data: bytes, solved: Solved, where: str) -> bytes:
         raise StableMoError(f"{where}: its first buffer is an external file; write the rig as a self-contained GLB")
     binary = bytearray(chunk[:buffers[0]["byteLength"]] if buffers else b"")
     quats, translation = node_tracks(solved, doc)
+    _skinned_meshes_at_root(doc)
     for node in solved.target.extra["nodes"]:  # an animated node must hold TRS, not a matrix (glTF 2.0, 5.25)
         _to_trs(doc["nodes"][node])
     anim = solved.anim
