@@ -65,12 +65,19 @@ def node_tracks(solved: Solved, doc: dict) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _skinned_meshes_at_root(doc: dict) -> None:
-    """Move skinned mesh nodes to their scene's root: glTF ignores a skinned mesh's parents (its
-    joints place it), so nothing moves, and Khronos' validator stops warning about the layout
-    Blender's exporter writes (the mesh under the armature node)."""
+    """Move skinned mesh nodes whose parents do not transform them to their scene's root: nothing
+    moves in any viewer, and Khronos' validator stops warning about the layout Blender's exporter
+    writes (the mesh under an identity armature node). Under a transforming parent the mesh stays:
+    glTF says such a parent is ignored, but not every engine does."""
     parent = {c: i for i, n in enumerate(doc["nodes"]) for c in n.get("children", [])}
     for i, node in enumerate(doc["nodes"]):
         if "skin" not in node or "mesh" not in node or i not in parent:
+            continue
+        above, n = np.eye(4), i
+        while n in parent:
+            n = parent[n]
+            above = node_matrix(doc["nodes"][n]) @ above
+        if not np.allclose(above, np.eye(4), atol=1e-9):
             continue
         above = doc["nodes"][parent[i]]
         above["children"] = [c for c in above["children"] if c != i]
