@@ -298,3 +298,23 @@ def test_a_giant_stride_does_not_drop_the_body_into_a_lunge():
     move = out[:, 0, 1] - long[:, 0, 1]
     assert np.abs(move).max() <= MAX_ROOT_MOVE_M + 1e-9
     assert np.abs(move).max() > 0.05  # it still moves where the legs ask for it
+
+
+def test_planted_feet_stay_where_they_land():
+    """The demo student's walks drag their stance feet (~24 cm/s over the kinematic prompts); the
+    finishing step anchors each planted ankle over its stance, so what the user receives keeps
+    its feet still while the raw output slides, and no ankle moves further than ANCHOR_REACH_M."""
+    from stablemo.eval.kinematics import stance_speed
+    from stablemo.inference.bundle import DEMO_STUDENT
+    from stablemo.inference.finish import ANCHOR_REACH_M
+    from stablemo.inference.pipeline import Pipeline, Request
+
+    pipe = Pipeline.from_bundle(DEMO_STUDENT)
+    out = pipe.generate(Request(["a person walks forward", "a person walks slowly in a circle"] * 2, 120,
+                                seed=[0, 1, 2, 3]))
+    n = torch.tensor(out.lengths)
+    raw, final = stance_speed(out.raw_joints, n, "humanml3d"), stance_speed(out.joints, n, "humanml3d")
+    assert final.mean() < 0.6 * raw.mean() and np.all(final < 0.8 * raw), (raw, final)
+    ankles = [7, 8]
+    moved = (out.joints[:, :, ankles][..., [0, 2]] - out.raw_joints[:, :, ankles][..., [0, 2]]).norm(dim=-1)
+    assert moved.max() < ANCHOR_REACH_M + 0.02  # the anchor's reach, plus the rigid legs' own few centimetres

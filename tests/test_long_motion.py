@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from stablemo.errors import StableMoError
+from stablemo.inference.finish import ANCHOR_REACH_M
 from stablemo.inference.pipeline import Pipeline
 from stablemo.motion import features_to_joints
 from stablemo.motion.skeleton import HUMANML3D
@@ -324,8 +325,11 @@ def test_a_streamed_timeline_is_the_composers_motion_cut_into_chunks_within_prom
         *[(62 + 40 * i, 40, "a person turns") for i in range(5)], (262, 18, "a person turns")]
     joints = np.concatenate([c.joints for c in chunks])
     _assert_finished_from(joints, raw)
-    # finished window by window instead of once: within a few centimetres of the composed motion
-    assert np.abs(joints - composed.joints).max() < 0.05
+    # finished window by window instead of once: within a few centimetres of the composed motion (a stance
+    # cut by a window's edge gets its planted foot's anchor from the frames that window sees, each at most
+    # ANCHOR_REACH_M from the generated place); the median joint well under a centimetre
+    assert np.abs(joints - composed.joints).max() < 2 * ANCHOR_REACH_M + 0.01
+    assert np.median(np.abs(joints - composed.joints)) < 0.005
     with pytest.raises(StableMoError, match="chunk_seconds: 0.1 s is 2 frames"):
         stream_timeline(demo, segs, chunk_seconds=0.1)
 

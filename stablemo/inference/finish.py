@@ -51,6 +51,7 @@ def body_lengths(config: dict, skeleton: Skeleton | str, source: str = "config.j
     return lengths
 
 
+ANCHOR_REACH_M = 0.08  # a planted ankle moves at most this far to its stance's anchor
 HOLD_S = 0.25  # a hand's hold on its joint target fades in and out over this many seconds
 
 
@@ -79,7 +80,8 @@ class Finish:
         n = valid_lengths(lengths, *joints.shape[:2], joints.device)
         contacts = None if contacts is None else fill_padding(contacts.to(joints.device), n)
         held = None if mask is None else fill_padding(mask, n)
-        body = rigid_joints(joints, self.skeleton, self.bone_lengths, lengths, self.hold(joints, held, contacts))
+        hold = self.hold(joints, held, contacts)
+        body = rigid_joints(joints, self.skeleton, self.bone_lengths, lengths, hold, self.anchored(joints, hold, n))
         if control is None:
             return place_on_floor(body, lengths, self.skeleton, self.fps)
         return place_on_floor(body, lengths, self.skeleton, self.fps, control.targets[:, :t].to(body), mask)
@@ -111,6 +113,38 @@ class Finish:
                 planted = torch.nn.functional.avg_pool1d(planted[:, None], 5, 1, 2, count_include_pad=False)[:, 0]
             hold[..., ankle] = torch.maximum(hold[..., ankle], planted)
         return hold
+
+    def anchored(self, joints: torch.Tensor, hold: torch.Tensor, n: torch.Tensor) -> torch.Tensor:
+        """joints (B, T, J, 3) with each planted ankle's horizontal place fixed over its stance.
+
+        A generated stance foot drifts (the demo student's free walks: ~30 cm/s; more where a path
+        or guidance moves the pelvis under it), and holding it where it was generated keeps the
+        drift. Over each stretch where the foot is planted (hold above one half), the ankle goes to
+        one anchor, the stretch's hold-weighted mean place, blended in from the stretch's edges
+        (weight 2 hold - 1), so the foot lands, stays and lifts off without a jump; an ankle moves at
+        most ANCHOR_REACH_M. n (B,): valid
+        frames (padding takes no part in an anchor, so a motion is finished alike alone or batched)."""
+        out = joints.clone()
+        b, t = joints.shape[:2]
+        valid = torch.arange(t, device=joints.device)[None, :] < n[:, None]
+        for _, _, ankle in self.skeleton.legs.values():
+            h = hold[..., ankle]  # (B, T)
+            inside = (h > 0.5) & valid
+            lock = ((2 * h - 1) * inside).clamp(0, 1)
+            start = inside & ~torch.cat([torch.zeros_like(inside[:, :1]), inside[:, :-1]], 1)
+            run = start.long().cumsum(1) * inside  # (B, T): 1, 2, ... per stance, 0 outside
+            xz = joints[..., ankle, :][..., [0, 2]]  # (B, T, 2)
+            sums = torch.zeros(b, t + 1, 3, dtype=joints.dtype, device=joints.device)
+            sums.scatter_add_(1, run[..., None].expand(-1, -1, 3), torch.cat([xz * lock[..., None], lock[..., None]], -1))
+            anchor = sums[..., :2] / sums[..., 2:].clamp(min=1e-9)  # (B, T+1, 2) per stance
+            at = anchor.gather(1, run[..., None].expand(-1, -1, 2))
+            shift = at - xz
+            reach = shift.norm(dim=-1, keepdim=True)
+            # a "stance" whose foot travels far is a pivot or a mislabelled step: move it a little only
+            shift = shift * (ANCHOR_REACH_M * self.skeleton.per_metre / reach.clamp(min=1e-9)).clamp(max=1.0)
+            placed = xz + lock[..., None] * shift
+            out[..., ankle, 0], out[..., ankle, 2] = placed[..., 0], placed[..., 1]
+        return out
 
     def __call__(self, features: torch.Tensor, lengths, control: ControlTargets | None = None,
                  raw_joints: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:

@@ -114,7 +114,7 @@ def _branch_frames(x: torch.Tensor, skel: Skeleton, valid: torch.Tensor) -> dict
 
 
 def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=None, lengths=None,
-                 hold: torch.Tensor | None = None) -> torch.Tensor:
+                 hold: torch.Tensor | None = None, ends: torch.Tensor | None = None) -> torch.Tensor:
     """joints (B, T, J, 3) or (T, J, 3) -> the same shape on the body with `bone_lengths` (J,)
     parent -> joint, root 0, in the skeleton's units (None: the skeleton's standard body); lengths
     (B,): valid frames per motion (the shapes of the pelvis and chest are measured on those).
@@ -125,7 +125,8 @@ def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
     are a third short, and reaching the generated wrists with arms of the body's length folds the
     elbows; on the synthetic benchmark that costs FID 0.15 -> 0.23 and R@3 0.77 -> 0.66, keeping
     the angles costs nothing (0.16, 0.77), for hands 4.7 cm further out on average. A wrist with a
-    joint target is held (stablemo.inference.finish)."""
+    joint target is held (stablemo.inference.finish). ends (B, T, J, 3): where a held end goes
+    (default: where it was generated; the finishing step gives planted feet their anchors)."""
     skel = get_skeleton(skeleton)
     x = torch.as_tensor(joints)
     if x.dim() not in (3, 4) or tuple(x.shape[-2:]) != (skel.num_joints, 3) or not x.is_floating_point():
@@ -133,7 +134,8 @@ def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
                             f"got {tuple(x.shape)} {x.dtype}")
     if x.dim() == 3:
         return rigid_joints(x[None], skel, bone_lengths, None if lengths is None else [lengths],
-                            None if hold is None else torch.as_tensor(hold)[None])[0]
+                            None if hold is None else torch.as_tensor(hold)[None],
+                            None if ends is None else torch.as_tensor(ends)[None])[0]
     frames_n = torch.full((x.shape[0],), x.shape[1]) if lengths is None else torch.as_tensor(lengths).reshape(-1)
     valid = torch.arange(x.shape[1])[None, :] < frames_n[:, None]  # (B, T)
     branches = _branch_frames(x, skel, valid.to(x.device))
@@ -150,6 +152,7 @@ def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
         hold = torch.zeros(x.shape[:3], dtype=x.dtype, device=x.device)
         hold[..., sorted(legs)] = 1.0
     hold = torch.as_tensor(hold).to(x)
+    goal = x if ends is None else torch.as_tensor(ends).to(x)
 
     def along(parent: int, child: int, out: list) -> torch.Tensor:
         """Where `child` goes from its placed parent: the body's length along the generated direction."""
@@ -175,7 +178,7 @@ def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
                     w = hold[..., child, None]
                     # knees bend forward, elbows backward, where the generated limb is straight
                     bend = forward if child in legs else -forward
-                    out[mid], out[child] = two_bone(out[upper], kept + w * (x[..., child, :] - kept), out[mid], bend,
+                    out[mid], out[child] = two_bone(out[upper], kept + w * (goal[..., child, :] - kept), out[mid], bend,
                                                      raw_dir[mid].expand_as(forward), float(body[mid]),
                                                      float(body[child]))
                     continue
