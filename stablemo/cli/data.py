@@ -41,7 +41,7 @@ def _parser() -> argparse.ArgumentParser:
     shard.add_argument("--dataset", default="humanml3d", choices=sorted(DATASETS), help="feature width and limits")
     shard.add_argument("--licence", nargs="+", default=None,
                        help="licence of the sources: one for all or one per source (default: the first line "
-                            "of a LICENCE/LICENSE file in the source, else 'unknown')")
+                            "of a LICENCE/LICENSE file in the source, else 'unknown'); give it after the SRC folders")
     shard.add_argument("--clips-per-shard", type=int, default=None, help="clips per shard file (default 512)")
     shard.add_argument("--skip-bad", action="store_true", help="skip unreadable clips (listed in the manifest)")
     shard.add_argument("--workers", type=int, default=None,
