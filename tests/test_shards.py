@@ -181,3 +181,21 @@ def test_cli_shards_checks_and_refuses_bad_input_in_one_line(sources, tmp_path, 
         assert message in str(err.value) and "\n" not in str(err.value), (args, str(err.value))
     assert not any((tmp_path / name).exists() for name in ("o1", "o2", "o3"))
     assert sorted(p.name for p in (tmp_path / "junk").iterdir()) == ["notes.txt"]
+
+
+def test_bad_clips_stop_the_command_or_are_skipped_and_listed(tmp_path):
+    from stablemo.data.synth.writer import write_dataset
+
+    src = write_dataset(tmp_path / "src", num=8, seed=3, workers=1)
+    bad = (src / "train.txt").read_text().split()[2]
+    motion = np.load(src / "new_joint_vecs" / f"{bad}.npy")
+    motion[5, 7] = np.nan
+    np.save(src / "new_joint_vecs" / f"{bad}.npy", motion)
+    with pytest.raises(StableMoError, match=rf"{bad}.npy: 1 NaN/Inf value\(s\), first in frame 5"):
+        write_shards([str(src)], str(tmp_path / "strict"), clips_per_shard=4, progress=False)
+    assert not (tmp_path / "strict" / MANIFEST).exists()
+    manifest, _ = write_shards([str(src)], str(tmp_path / "lax"), clips_per_shard=4, skip_bad=True, progress=False)
+    assert len(manifest["skipped"]) == 1 and f"{bad}.npy" in manifest["skipped"][0]
+    listed = len((src / "train.txt").read_text().split())
+    assert manifest["splits"]["train"]["clips"] == listed - 1 and manifest["sources"][0]["clips"]["train"] == listed - 1
+    assert check_shards(str(tmp_path / "lax")).ok
