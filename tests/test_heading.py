@@ -143,3 +143,17 @@ def test_facing_error_is_zero_for_the_gait_of_the_reference_and_large_against_an
     n = torch.tensor([60])
     assert facing_error(walk, walk, n, "humanml3d")[0] < 1 and facing_error(back, back, n, "humanml3d")[0] < 1
     assert facing_error(back, walk, n, "humanml3d")[0] > 170
+
+
+def test_a_controlnet_with_guidance_walks_a_path_behind_it_forward():
+    """A ControlNet's x0 already walks where its hint pulls (backwards, for a path behind the body), so
+    its gait is not read from it: the body turns and walks the path forward."""
+    from stablemo.inference.bundle import DEMO_CONTROLNET
+    from stablemo.inference.pipeline import Pipeline, Request
+
+    pipe = Pipeline.from_bundle(DEMO_CONTROLNET)
+    T = 100
+    xz = np.stack([np.zeros(T), -0.9 * np.arange(T) / 20.0], -1)
+    control = path_control(xz, np.full(T, 0.93), 22)
+    out = pipe.generate(Request(["a person walks forward"] * 2, T, seed=[0, 1], control=[control] * 2))
+    assert np.all(heading_measures(out.joints, torch.tensor([T, T]), "humanml3d")["facing_deg"] < 15)

@@ -130,10 +130,11 @@ class JointGuidance:
 
     def __init__(self, targets: torch.Tensor, mask: torch.Tensor, mean: torch.Tensor, std: torch.Tensor,
                  skeleton, iters: int = 10, final_iters: int = 40, smooth: float = 2.0, follow: float = 0.5,
-                 face_travel: bool = True, named_gaits: torch.Tensor | None = None):
+                 face_travel: bool = True, named_gaits: torch.Tensor | None = None, own_gait: bool = True):
         self.targets, self.mask = targets.float(), mask.bool()
         self.face_travel = bool(face_travel)
         self.named_gaits = named_gaits
+        self.own_gait = bool(own_gait)
         self.mean, self.std = mean.float(), std.float()
         self.skeleton = get_skeleton(skeleton)
         self.iters, self.final_iters = int(iters), int(final_iters)
@@ -171,7 +172,10 @@ class JointGuidance:
             root, root_mask = self._root_targets(feats, targets, mask)
             named = None if self.named_gaits is None else self.named_gaits.to(dev)
             # the network's own walk, before its path is moved
-            gait = gait_angle(feats, lengths, self.skeleton.fps, self.skeleton.per_metre, named)
+            if self.own_gait:
+                gait = gait_angle(feats, lengths, self.skeleton.fps, self.skeleton.per_metre, named)
+            else:
+                gait = torch.zeros(feats.shape[0], device=dev) if named is None else torch.nan_to_num(named.float(), nan=0.0)
             feats = project_root(feats, root, root_mask, lengths)
             if self.face_travel:
                 steer = steers_heading(mask, self.skeleton)

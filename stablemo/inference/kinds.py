@@ -52,6 +52,10 @@ class DenoiserInputs:
 
 
 class ModelKind(Protocol):
+    # the network itself reads the request's joint targets (a ControlNet's hint): its predicted x0
+    # already walks where the targets pull it, so it cannot say which gait the text asked for
+    reads_control: bool
+
     def build_model(self, config: dict, source: str) -> nn.Module:
         """The untrained network for a bundle config (`source` names the file in errors)."""
 
@@ -64,6 +68,8 @@ class ModelKind(Protocol):
 
 class DiffusionKind:
     """A text-conditioned diffusion model (MotionDiffusionModel) sampled with classifier-free guidance."""
+
+    reads_control = False
 
     def build_model(self, config: dict, source: str) -> nn.Module:
         from stablemo.nets.model import MotionDiffusionModel
@@ -83,6 +89,8 @@ class DiffusionKind:
 
 class ConsistencyKind:
     """A 1-4-step consistency student (LCM/PCM) with its guidance scale embedded."""
+
+    reads_control = False
 
     def build_model(self, config: dict, source: str) -> nn.Module:
         from stablemo.distill.student import ConsistencyStudent
@@ -136,6 +144,8 @@ class ControlNetKind:
     Bundle config: the base bundle's config with `kind: "controlnet"` and a section `controlnet:
     {base_kind, joints, hint_scale, control: {channels, layers, path, output, output_scale[, blocks]}}`.
     """
+
+    reads_control = True
 
     def build_model(self, config: dict, source: str) -> nn.Module:
         from stablemo.control.controlnet import ControlledModel

@@ -429,7 +429,8 @@ class Pipeline:
             from stablemo.control.heading import named_gaits
 
             hooks.append(JointGuidance(targets.targets, targets.mask, self.mean, self.std, self.skeleton,
-                                       face_travel=req.face_travel, named_gaits=named_gaits(texts)))
+                                       face_travel=req.face_travel, named_gaits=named_gaits(texts),
+                                       own_gait=not getattr(self.kind, "reads_control", False)))
         elif targets is not None and req.face_travel:
             from stablemo.control.guidance import steers_heading
             from stablemo.control.heading import FaceTravel, named_gaits
