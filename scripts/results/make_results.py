@@ -200,6 +200,16 @@ CONTROL_TABLES = [  # (JSON in docs/data/results/, heading, how it was made)
      "--rows pelvis:100%,pelvis:5 --replications 2 --max-items 64 --out docs/data/results/controlnet_teacher_results.json` "
      "(`configs/control/controlnet_teacher_pelvis_synth.yaml`, exported to bundles/demo_pelvis_control). "
      "Training and reading: docs/control.md."),
+    ("control_facing.json", "Facing along hinted paths, 1-step student and its ControlNet (body steered)",
+     "`python scripts/control/report.py --no-teacher --student LCM=stablemo/assets/demo_student --controlnet "
+     "\"LCM 1-step=stablemo/assets/demo_controlnet\" --rows none:100%,pelvis:100%,pelvis:5 --replications 2 "
+     "--max-items 64 --out docs/data/results/control_facing.json`, after the foot anchors of the finishing step. "
+     "Facing err: the median over moving frames of the difference between the generated and the hinted motion's "
+     "facing-against-travel angles (degrees); Backward / Sideways: shares of moving frames walked so where the "
+     "hinted motion walks forward (stablemo.eval.heading). Paths of test motions start facing +z: drawn paths, "
+     "which start anywhere, are measured in docs/control.md."),
+    ("control_facing_unsteered.json", "Facing along hinted paths, the same with the facing left to the network",
+     "The same command with `--no-face-travel` (Request.face_travel=False), the A/B of the steering."),
 ]
 
 
