@@ -84,12 +84,13 @@ def test_edit_inbetweens_and_edits_body_parts_exactly(clip, tmp_path):
                  "a person jumps in place", "--out", str(out), "--name", "inb", "--no-render"]) == 0
     # the network keeps the known features exactly (tests/test_control.py); what is written is then
     # finished (rigid body, floor), which moves the kept frames' body (root-relative joints, ric) by
-    # millimetres, most at the hand-over frames
+    # millimetres, most at the hand-over frames (a knee 3.4 cm there since the free frames' planted feet are
+    # anchored: 2.3 cm before)
     ric = feature_slices("humanml3d")["ric"]
 
     def close(feats, frames, joints=slice(None)):
         diff = np.linalg.norm((feats[frames, ric] - src[frames, ric]).reshape(-1, 21, 3)[:, joints], axis=-1)
-        return diff.max() < 0.03 and np.median(diff) < 0.005
+        return diff.max() < 0.04 and np.median(diff) < 0.005
 
     got = np.load(out / "inb.features.npy")
     assert close(got, slice(0, 20)) and close(got, slice(60, 80))

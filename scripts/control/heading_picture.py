@@ -10,7 +10,6 @@ half second; the title of each panel gives the median facing-vs-travel angle.
 from __future__ import annotations
 
 import argparse
-import io
 
 import matplotlib
 
@@ -23,9 +22,9 @@ from stablemo.eval.heading import heading_measures
 from stablemo.eval.paths import family_path, path_control
 from stablemo.inference.bundle import DEMO_BUNDLE, DEMO_STUDENT
 from stablemo.inference.pipeline import Pipeline, Request
-from stablemo.io import write_bytes
 from stablemo.motion.heading import facing_yaw
 from stablemo.motion.skeleton import get_skeleton
+from stablemo.outputs.render import save_png
 
 
 def main(argv=None) -> int:
@@ -57,9 +56,7 @@ def main(argv=None) -> int:
     axes[0, 0].legend(loc="best", fontsize=8)
     fig.suptitle(f'"{text}", {args.model}, pelvis at every frame; arrows: facing every 0.5 s (start at the origin)')
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    write_bytes(args.out, buf.getvalue())
+    save_png(fig, args.out, dpi=90)
     print(args.out)
     return 0
 

@@ -16,6 +16,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from stablemo.io import write_bytes, write_text
+
 ROOT = Path(__file__).resolve().parents[2]
 PROMPT = "a person walks forward, then waves their right hand"
 FRAME = 100  # 5 s in: the wave
@@ -69,7 +71,7 @@ def blender_picture(glb: Path, png: Path) -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         script = Path(tmp) / "render.py"
-        script.write_text(RENDER.replace("{numpy_fallback}", NUMPY_FALLBACK))
+        write_text(script, RENDER.replace("{numpy_fallback}", NUMPY_FALLBACK))
         subprocess.run(["blender", "-b", "--factory-startup", "--python-exit-code", "1", "--python", str(script), "--",
                         str(glb), str(png), str(FRAME), site_packages()], check=True, capture_output=True, timeout=600)
 
@@ -77,7 +79,6 @@ def blender_picture(glb: Path, png: Path) -> None:
 def page_pictures(out: Path) -> None:
     """The page before any motion (the body at rest) and paused on a motion, the canvas cropped."""
     sys.path.insert(0, str(ROOT / "tests"))
-    from PIL import Image
     from selenium.webdriver.common.by import By
     from test_serve_browser import ASSETS, chrome_driver, wait_for
 
@@ -86,12 +87,7 @@ def page_pictures(out: Path) -> None:
     from stablemo.serve.models import ModelSet
 
     def canvas_shot(driver, path: Path) -> None:
-        import io
-
-        box = driver.execute_script("const r = document.getElementById('canvas').getBoundingClientRect();"
-                                    "return [r.left, r.top, r.right, r.bottom, window.devicePixelRatio]")
-        shot = Image.open(io.BytesIO(driver.get_screenshot_as_png()))
-        shot.crop(tuple(round(v * box[4]) for v in box[:4])).save(path)
+        write_bytes(path, driver.find_element(By.ID, "canvas").screenshot_as_png)  # the canvas alone
 
     with serving(create_app(ModelSet({"student": ASSETS / "demo_student"}))) as url, tempfile.TemporaryDirectory() as tmp:
         driver = chrome_driver(Path(tmp))

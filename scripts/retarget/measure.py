@@ -12,7 +12,6 @@ scaled; the Rigify human metarig made by Blender (when installed).
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import shutil
 import sys
@@ -53,7 +52,9 @@ def rigify(tmp: Path):
     from test_bvh import synth_joints
     from test_retarget_blender import MAKE_RIGS, blender, custom_spec
 
-    (tmp / "spec.json").write_text(json.dumps(custom_spec(synth_joints("walk", 3))))
+    from stablemo.io import write_text
+
+    write_text(tmp / "spec.json", json.dumps(custom_spec(synth_joints("walk", 3))))
     blender(MAKE_RIGS, tmp, str(tmp), str(tmp / "spec.json"))
     return tmp / "metarig.bvh" if (tmp / "metarig.bvh").is_file() else None  # None: a Blender without Rigify
 
@@ -79,7 +80,8 @@ def main(argv=None) -> int:
     from stablemo.retarget.variants import variant_rig
 
     results: dict = {"targets": {}, "round_trip_mm": {}, "speed": {}}
-    tmp = Path(tempfile.mkdtemp(prefix="stablemo-retarget-"))
+    scratch = tempfile.TemporaryDirectory(prefix="stablemo-retarget-")  # removed when the script ends
+    tmp = Path(scratch.name)
     metarig = rigify(tmp) if not args.no_blender and shutil.which("blender") else None
     found = motions()
     for label, joints in found.items():
@@ -126,7 +128,6 @@ def figure(joints: np.ndarray, metarig, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     from stablemo.bvh import motion_to_animation
-    from stablemo.io import write_bytes
     from stablemo.motion.skeleton import HUMANML3D
     from stablemo.retarget import retarget
     from stablemo.retarget.variants import variant_rig
@@ -169,10 +170,10 @@ def figure(joints: np.ndarray, metarig, path: Path) -> None:
     fig.suptitle("2 s of a synthetic walk retargeted (3 moments, darker later; orange: ankles and toes, green: hips)",
                  fontsize=9)
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
+    from stablemo.outputs.render import save_png
+
+    save_png(fig, path, dpi=110)
     plt.close(fig)
-    write_bytes(path, buffer.getvalue())
 
 
 if __name__ == "__main__":

@@ -78,14 +78,14 @@ def check_blender(flag: str = "--format fbx") -> str:
 def glb_to_fbx(glb: bytes, fbx_path: str | os.PathLike, fps: float, timeout: float = TIMEOUT_S) -> Path:
     """Write the FBX of a GLB's bytes (atomically: Blender writes a temporary file that replaces
     `fbx_path` once complete). fps: the animation's frame rate (one FBX key per frame)."""
-    from stablemo.io import atomic_path
+    from stablemo.io import atomic_path, write_bytes, write_text
 
     exe = check_blender()
     fbx_path = Path(fbx_path)
     with tempfile.TemporaryDirectory(prefix="stablemo-fbx-") as tmp:
         src, script = Path(tmp) / "motion.glb", Path(tmp) / "to_fbx.py"
-        src.write_bytes(glb)
-        script.write_text(_SCRIPT)
+        write_bytes(src, glb)
+        write_text(script, _SCRIPT)
         with atomic_path(fbx_path, suffix=".fbx") as dst:
             try:
                 run = subprocess.run([exe, "-b", "--factory-startup", "--python-exit-code", "1", "--python", str(script),

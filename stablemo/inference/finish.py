@@ -51,6 +51,7 @@ def body_lengths(config: dict, skeleton: Skeleton | str, source: str = "config.j
     return lengths
 
 
+GIVEN_FADE = 5  # frames over which a foot anchor fades in beside frames whose feet were given
 ANCHOR_REACH_M = 0.08  # a planted ankle moves at most this far to its stance's anchor
 HOLD_S = 0.25  # a hand's hold on its joint target fades in and out over this many seconds
 
@@ -69,11 +70,13 @@ class Finish:
         return cls(skel, body_lengths(config, skel, source), float(fps))
 
     def joints(self, joints: torch.Tensor, lengths, control: ControlTargets | None = None,
-               contacts: torch.Tensor | None = None) -> torch.Tensor:
+               contacts: torch.Tensor | None = None, given: torch.Tensor | None = None) -> torch.Tensor:
         """Raw joints (B, T, J, 3) -> the rigid body on the floor, same shape (padding as given).
         control: the joint targets the motion was generated for; frames with targets keep their
         heights, and a hand with a target reaches it. contacts (B, T, 4): the motion's foot-contact
-        channels (features' last four columns), which say when a foot is planted (None: always)."""
+        channels (features' last four columns), which say when a foot is planted (None: always).
+        given (B, T) bool: frames whose feet were given (an edit's kept part): their feet are not
+        anchored, and a stance that reaches into them is anchored where they put it."""
         t = joints.shape[1]
         mask = None if control is None else control.mask[:, :t].to(joints.device)
         # padding repeats the last frame, so the ramps see each motion as if alone
@@ -81,7 +84,8 @@ class Finish:
         contacts = None if contacts is None else fill_padding(contacts.to(joints.device), n)
         held = None if mask is None else fill_padding(mask, n)
         hold = self.hold(joints, held, contacts)
-        body = rigid_joints(joints, self.skeleton, self.bone_lengths, lengths, hold, self.anchored(joints, hold, n))
+        given = None if given is None else fill_padding(given.to(joints.device), n)
+        body = rigid_joints(joints, self.skeleton, self.bone_lengths, lengths, hold, self.anchored(joints, hold, n, given))
         if control is None:
             return place_on_floor(body, lengths, self.skeleton, self.fps)
         return place_on_floor(body, lengths, self.skeleton, self.fps, control.targets[:, :t].to(body), mask)
@@ -114,7 +118,8 @@ class Finish:
             hold[..., ankle] = torch.maximum(hold[..., ankle], planted)
         return hold
 
-    def anchored(self, joints: torch.Tensor, hold: torch.Tensor, n: torch.Tensor) -> torch.Tensor:
+    def anchored(self, joints: torch.Tensor, hold: torch.Tensor, n: torch.Tensor,
+                 given: torch.Tensor | None = None) -> torch.Tensor:
         """joints (B, T, J, 3) with each planted ankle's horizontal place fixed over its stance.
 
         A generated stance foot drifts (the demo student's free walks: ~30 cm/s; more where a path
@@ -123,19 +128,30 @@ class Finish:
         one anchor, the stretch's hold-weighted mean place, blended in from the stretch's edges
         (weight 2 hold - 1), so the foot lands, stays and lifts off without a jump; an ankle moves at
         most ANCHOR_REACH_M. n (B,): valid
-        frames (padding takes no part in an anchor, so a motion is finished alike alone or batched)."""
+        frames (padding takes no part in an anchor, so a motion is finished alike alone or batched);
+        given (B, T) bool: frames whose feet the user gave stay as given and pin their stance's anchor."""
         out = joints.clone()
         b, t = joints.shape[:2]
         valid = torch.arange(t, device=joints.device)[None, :] < n[:, None]
+        away = None
+        if given is not None:  # 0 on given frames, rising to 1 over GIVEN_FADE frames beside them
+            r = GIVEN_FADE
+            near = torch.nn.functional.max_pool1d(given.to(joints.dtype)[:, None], 2 * r + 1, 1, r)
+            away = 1 - torch.nn.functional.avg_pool1d(near, 2 * r + 1, 1, r, count_include_pad=False)[:, 0]
+            away = torch.where(given, torch.zeros_like(away), away)
         for _, _, ankle in self.skeleton.legs.values():
             h = hold[..., ankle]  # (B, T)
             inside = (h > 0.5) & valid
             lock = ((2 * h - 1) * inside).clamp(0, 1)
+            weight = lock  # of each frame in its stance's anchor
+            if given is not None:
+                weight = weight + 1e3 * (given & inside)  # a given foot decides where its stance is
+                lock = lock * away  # and is left as given, the anchor fading in beside it
             start = inside & ~torch.cat([torch.zeros_like(inside[:, :1]), inside[:, :-1]], 1)
             run = start.long().cumsum(1) * inside  # (B, T): 1, 2, ... per stance, 0 outside
             xz = joints[..., ankle, :][..., [0, 2]]  # (B, T, 2)
             sums = torch.zeros(b, t + 1, 3, dtype=joints.dtype, device=joints.device)
-            sums.scatter_add_(1, run[..., None].expand(-1, -1, 3), torch.cat([xz * lock[..., None], lock[..., None]], -1))
+            sums.scatter_add_(1, run[..., None].expand(-1, -1, 3), torch.cat([xz * weight[..., None], weight[..., None]], -1))
             anchor = sums[..., :2] / sums[..., 2:].clamp(min=1e-9)  # (B, T+1, 2) per stance
             at = anchor.gather(1, run[..., None].expand(-1, -1, 2))
             shift = at - xz
@@ -147,10 +163,12 @@ class Finish:
         return out
 
     def __call__(self, features: torch.Tensor, lengths, control: ControlTargets | None = None,
-                 raw_joints: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                 raw_joints: torch.Tensor | None = None,
+                 given: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """features (B, T, D), zero past lengths[b] -> (features (B, T, D), joints (B, T, J, 3)), zero on
         padding, the joints recovered from the returned features. raw_joints: the features' joints
-        when the caller has them already (the pipeline does).
+        when the caller has them already (the pipeline does). given (B, T) bool: frames whose feet
+        an edit kept (see joints).
 
         The root keeps the network's rotation and path (its first three columns are kept as they
         are): the step moves joints, not the root, so only the columns seen from the root are
@@ -160,7 +178,7 @@ class Finish:
         q, _ = recover_root(features)  # (B, T, 4) the root rotation recovery will use
         raw = features_to_joints(features, self.skeleton) if raw_joints is None else raw_joints.to(features)
         contacts = features[..., feature_slices(self.skeleton)["contacts"]]
-        body = self.joints(raw, n, control, contacts)  # (B, T, J, 3)
+        body = self.joints(raw, n, control, contacts, given)  # (B, T, J, 3)
         ext, last = self._extended(body, n)
         r = torch.cat([q, q.gather(1, last[..., None].expand(b, 1, 4))], dim=1)  # (B, T+1, 4)
         feats = torch.cat([features[..., :3], body_features(ext, r, self.skeleton)], dim=-1)

@@ -377,7 +377,8 @@ class Pipeline:
             targets = None if req.control is None else self._control_targets(req.control, T)
             if targets is not None:
                 targets = ControlTargets(targets.targets.cpu(), targets.mask.cpu())
-            features, joints = self.finish(raw_features, req.lengths, targets, raw_joints)
+            features, joints = self.finish(raw_features, req.lengths, targets, raw_joints,
+                                           self._given_feet(req.inpaint, T))
         info = {"steps": req.steps, "cfg": req.cfg, "sampler": req.sampler,
                 "dtype": str(req.dtype).replace("torch.", ""), "finished": req.finish}
         return Generation(req.texts, req.lengths, req.seed, features, joints, normalized, mask, info,
@@ -467,6 +468,24 @@ class Pipeline:
                 values[i, :n] = torch.where(keep, self.normalize(feats), torch.zeros(()))
                 known[i, :n] = keep
         return Inpainting(values, known, x_T)
+
+    def _given_feet(self, specs: list | None, T: int) -> torch.Tensor | None:
+        """(B, T) bool: the frames whose ankles an in-painting request keeps (their root-relative
+        positions are known), or None without in-painting."""
+        if not specs or all(spec is None for spec in specs):
+            return None
+        from stablemo.motion.features import feature_slices
+        from stablemo.motion.skeleton import get_skeleton
+
+        skel = get_skeleton(self.skeleton)
+        ric = feature_slices(skel).get("ric")
+        cols = [ric.start + 3 * (ankle - 1) for _, _, ankle in skel.legs.values()]
+        given = torch.zeros(len(specs), T, dtype=torch.bool)
+        for i, spec in enumerate(specs):
+            if spec is not None:
+                keep = torch.from_numpy(np.asarray(spec[1]))  # (L, D) bool
+                given[i, :keep.shape[0]] = keep[:, cols].any(-1)
+        return given
 
     def _control_targets(self, specs: list, T: int) -> ControlTargets:
         """The batch's joint targets: targets (B, T, J, 3) and mask (B, T, J), padded, on the device."""

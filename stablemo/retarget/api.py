@@ -144,7 +144,9 @@ def rig_from_text(text, role_map=None, where: str = "rig") -> tuple[RestRig, dic
         raise StableMoError(f"rig_map: unknown role(s) {unknown}; roles are {', '.join(ROLE_KEYS)}")
     with tempfile.TemporaryDirectory(prefix="stablemo-rig-") as tmp:
         path = Path(tmp) / "rig.bvh"
-        path.write_text(text, encoding="utf-8")
+        from stablemo.io import write_text
+
+        write_text(path, text)
         try:
             rig = bvh_rest(path)
         except StableMoError as err:
