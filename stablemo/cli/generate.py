@@ -137,6 +137,10 @@ def main(argv: list[str] | None = None) -> int:
     # generate() checks every setting before its first network call, and raises, writing nothing,
     # if any motion is not finite
     result = pipe.generate(request)
+    from stablemo.text.familiar import Unfamiliar
+
+    for unfamiliar in result.info.get("unfamiliar", []):
+        print(f"warning: {Unfamiliar(**unfamiliar).message()}", file=sys.stderr)
     for text, slug, feats, joints in zip(prompts, slugs, result.feature_list(), result.joint_list()):
         written = write_motion(out, slug, feats, joints, pipe, formats, text, targets,
                                warn=lambda line: print(line, file=sys.stderr))

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -162,6 +162,8 @@ class Pipeline:
         # frozen text encoders wherever the model holds a text conditioner (a student wraps its teacher's)
         frozen = (getattr(m, "frozen", None) for m in self.model.modules())
         self._frozen_encoders = list({id(f): f for f in frozen if hasattr(f, "clear_cache")}.values())
+        # the bundle's training captions (stablemo.text.familiar), to say when a prompt is unlike them
+        self.familiarity = None
         self.samplers = self.kind.samplers(self.config, schedule)
         if self.inference.sampler not in self.samplers:
             raise StableMoError(f"inference.sampler: {self.inference.sampler!r} is not a sampler of this model "
@@ -200,7 +202,12 @@ class Pipeline:
                 model.load_state_dict(bundle.state_dict, strict=True)
             except RuntimeError as err:
                 raise StableMoError(f"{weights_file}: weights do not fit the config ({err})") from None
-        return cls(
+        familiarity = None
+        if config.get("familiarity") is not None:
+            from stablemo.text.familiar import Familiarity
+
+            familiarity = Familiarity.load(path, config["familiarity"], cfg_file)
+        pipe = cls(
             model,
             NoiseSchedule(**config.get("schedule", {})),
             config["mean"],
@@ -214,6 +221,8 @@ class Pipeline:
             inference=InferenceConfig.from_bundle(config, cfg_file),
             fast=fast,
         )
+        pipe.familiarity = familiarity
+        return pipe
 
     # ---- helpers ----------------------------------------------------------------------------
 
@@ -380,7 +389,8 @@ class Pipeline:
             features, joints = self.finish(raw_features, req.lengths, targets, raw_joints,
                                            self._given_feet(req.inpaint, T))
         info = {"steps": req.steps, "cfg": req.cfg, "sampler": req.sampler,
-                "dtype": str(req.dtype).replace("torch.", ""), "finished": req.finish}
+                "dtype": str(req.dtype).replace("torch.", ""), "finished": req.finish,
+                "unfamiliar": [asdict(u) for u in self.unfamiliar(req.texts)]}
         return Generation(req.texts, req.lengths, req.seed, features, joints, normalized, mask, info,
                           raw_features, raw_joints)
 
@@ -468,6 +478,14 @@ class Pipeline:
                 values[i, :n] = torch.where(keep, self.normalize(feats), torch.zeros(()))
                 known[i, :n] = keep
         return Inpainting(values, known, x_T)
+
+    def unfamiliar(self, texts) -> list:
+        """The prompts unlike every training caption of the bundle (`stablemo.text.familiar.Unfamiliar`,
+        with .message()), [] when all are familiar or the bundle carries no captions. A generation's
+        info["unfamiliar"] holds them as dicts."""
+        if self.familiarity is None or not self._frozen_encoders:
+            return []
+        return self.familiarity.check(self._frozen_encoders[0], list(dict.fromkeys(texts)))
 
     def _given_feet(self, specs: list | None, T: int) -> torch.Tensor | None:
         """(B, T) bool: the frames whose ankles an in-painting request keeps (their root-relative

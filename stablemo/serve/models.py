@@ -76,9 +76,13 @@ class Motion:
         return f"{slugify(self.spec.text)}-seed{self.spec.seed}.{fmt}"
 
     def warnings(self) -> list[str]:
-        """One line per download that would be more than 3 cm from the motion (stablemo.bvh.fit)."""
+        """One line for a prompt unlike the model's training texts (stablemo.text.familiar), and one
+        per download that would be more than 3 cm from the motion (stablemo.bvh.fit)."""
+        from stablemo.text.familiar import Unfamiliar
+
+        lines = [Unfamiliar(**u).message() for u in self.info.get("unfamiliar", [])]
         line = self.bvh.fit.warning(self.file_name("bvh"), "the joints .npy download is exact") if self.bvh else None
-        return [line] if line else []
+        return lines + ([line] if line else [])
 
 
 class ServedModel:
