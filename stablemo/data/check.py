@@ -277,6 +277,20 @@ def length_histogram(lengths: list[int], spec: DatasetSpec, bin_width: int = 20,
     return lines
 
 
+def notes_and_problems(notes: list[str], problems: list[str], max_problems: int) -> list[str]:
+    """The closing lines of a check's report (a folder's or shards'): notes, then up to
+    `max_problems` problems and how many more there are."""
+    out = ["", "notes:"] + [f"  - {n}" for n in notes] if notes else []
+    out.append("")
+    if not problems:
+        return [*out, "problems: none"]
+    out.append(f"problems ({len(problems)}):")
+    out += [f"  - {p}" for p in problems[:max_problems]]
+    if len(problems) > max_problems:
+        out.append(f"  ... and {len(problems) - max_problems} more (--all-problems lists them)")
+    return out
+
+
 def format_report(report: CheckReport, max_problems: int = 30) -> str:
     spec = report.spec
     out = [f"dataset: {report.root} ({spec.name}: {spec.feature_dim}-d features, {spec.fps:g} fps, "
@@ -291,14 +305,4 @@ def format_report(report: CheckReport, max_problems: int = 30) -> str:
                 f"vocabulary {len(report.vocabulary)} words",
             "  " + _stats_line("caption lines per motion", report.captions_per_motion),
             "  " + _stats_line("words per caption", report.words_per_caption)]
-    if report.notes:
-        out += ["", "notes:"] + [f"  - {n}" for n in report.notes]
-    out.append("")
-    if report.problems:
-        out.append(f"problems ({len(report.problems)}):")
-        out += [f"  - {p}" for p in report.problems[:max_problems]]
-        if len(report.problems) > max_problems:
-            out.append(f"  ... and {len(report.problems) - max_problems} more (--all-problems lists them)")
-    else:
-        out.append("problems: none")
-    return "\n".join(out)
+    return "\n".join(out + notes_and_problems(report.notes, report.problems, max_problems))

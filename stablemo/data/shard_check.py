@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stablemo.data.check import MAX_ABS_VALUE, MIN_STD
+from stablemo.data.check import MAX_ABS_VALUE, MIN_STD, notes_and_problems
 from stablemo.data.dataset import build_items
 from stablemo.data.shard_format import (
     MANIFEST,
@@ -126,14 +126,4 @@ def format_shard_report(report: ShardReport, max_problems: int = 30) -> str:
             out.append(f"  - {src.get('name')}: {counts}; licence: {src.get('licence')} ({src.get('licence_from')}); "
                        f"{src.get('path')}")
         out.append(f"statistics: {m.raw['stats'].get('from', '?')}")
-    if report.notes:
-        out += ["", "notes:"] + [f"  - {n}" for n in report.notes]
-    out.append("")
-    if report.problems:
-        out.append(f"problems ({len(report.problems)}):")
-        out += [f"  - {p}" for p in report.problems[:max_problems]]
-        if len(report.problems) > max_problems:
-            out.append(f"  ... and {len(report.problems) - max_problems} more (--all-problems lists them)")
-    else:
-        out.append("problems: none")
-    return "\n".join(out)
+    return "\n".join(out + notes_and_problems(report.notes, report.problems, max_problems))
