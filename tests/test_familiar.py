@@ -73,3 +73,15 @@ def test_saved_captions_load_back(tmp_path, student):
     entry = fam.write(tmp_path)
     back = Familiarity.load(tmp_path, entry)
     assert back.captions == fam.captions and torch.allclose(back.embeddings, fam.embeddings, atol=2e-3)
+
+
+def test_a_bundle_written_from_a_config_with_captions_does_not_claim_them(tmp_path):
+    """A student or ControlNet exported from its teacher's config must not name captions it does not hold."""
+    from safetensors.torch import load_file
+
+    from stablemo.inference.bundle import save_bundle
+
+    config = json.loads((DEMO_STUDENT / "config.json").read_text())
+    out = save_bundle(tmp_path / "copy", config, load_file(DEMO_STUDENT / "model.safetensors"))
+    assert "familiarity" not in json.loads((out / "config.json").read_text())
+    assert Pipeline.from_bundle(out).familiarity is None

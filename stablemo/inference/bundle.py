@@ -17,6 +17,7 @@ from safetensors.torch import save as safetensors_bytes
 
 from stablemo.errors import StableMoError
 from stablemo.io import atomic_dir, output_dir_problem, write_bytes, write_text
+from stablemo.text.familiar import FILE as FAMILIAR_FILE
 
 # the bundles that ship inside the package (stablemo/assets): the demo teacher, its 1-step student,
 # the ControlNet on that student, and the synthetic benchmark's evaluator
@@ -39,7 +40,8 @@ class Bundle:
     state_dict: dict[str, torch.Tensor]
 
 
-BUNDLE_FILES = frozenset({CONFIG_NAME, WEIGHTS_NAME})
+# a bundle's own files; familiar.safetensors (stablemo.text.familiar) is added by scripts/text/familiarity.py
+BUNDLE_FILES = frozenset({CONFIG_NAME, WEIGHTS_NAME, FAMILIAR_FILE})
 
 
 def is_bundle(path: Path) -> bool:
@@ -106,7 +108,10 @@ def save_bundle(out_dir: str | os.PathLike, config: dict, state_dict: dict[str, 
     bundle (and nothing else) is replaced. Nothing is ever removed that a bundle write did not make.
     """
     out_dir = check_bundle_target(out_dir, overwrite)
-    config = {"format": BUNDLE_FORMAT, "version": BUNDLE_VERSION, **config}
+    # the training captions of another bundle (a student's teacher) are not written with it: a new
+    # bundle gets its own with scripts/text/familiarity.py
+    config = {"format": BUNDLE_FORMAT, "version": BUNDLE_VERSION,
+              **{k: v for k, v in config.items() if k != "familiarity"}}
     tensors = {k: v.detach().to("cpu").contiguous() for k, v in state_dict.items()}
 
     def replaceable(path: Path) -> bool:  # re-checked at the rename: the folder may have changed
@@ -128,7 +133,7 @@ def write_weights_folder(out_dir: Path, config: dict, tensors: dict[str, torch.T
     return out_dir
 
 
-def bundle_or_demo(arg: "str | os.PathLike | None", flag: str = "--bundle") -> Path:
+def bundle_or_demo(arg: str | os.PathLike | None, flag: str = "--bundle") -> Path:
     """The bundle folder a user named (`flag`), or the packaged demo teacher when none is given."""
     if arg is not None:
         path = Path(arg)
