@@ -27,24 +27,41 @@ def _magic(path: Path) -> bytes:
         raise FootskateError(f"{path}: cannot read ({err.strerror})") from None
 
 
-def load_npy(path: Path) -> np.ndarray:
-    """Read a numeric .npy without pickle; errors name the file and say what it is instead."""
-    if not path.is_file():
-        raise FootskateError(f"{path}: {'is a folder, not a .npy file' if path.is_dir() else 'file not found'}")
-    magic = _magic(path)
-    # checked before np.load: on other content numpy tries pickle and suggests allow_pickle=True
+def _refuse_non_npy(magic: bytes, path: Path) -> None:
+    """Checked before np.load: on other content numpy tries pickle and suggests allow_pickle=True."""
     if magic.startswith(ZIP_MAGIC):
         raise FootskateError(f"{path}: an .npz archive, not a .npy file; save one array with np.save")
-    if magic != NPY_MAGIC:
+    if not magic.startswith(NPY_MAGIC):
         raise FootskateError(f"{path}: not a .npy file ({'empty' if not magic else 'no NUMPY header'})")
+
+
+def _numeric(load, path: Path) -> np.ndarray:
     try:
-        array = np.load(path, allow_pickle=False)
+        array = load()
     except ValueError as err:
         if "allow_pickle" in str(err):  # an object array: numpy's message would hint at enabling pickle
-            raise FootskateError(f"{path}: holds pickled Python objects, not numbers; refused") from None
+            raise FootskateError(f"{path}: holds Python objects (an object array), not numbers; refused") from None
         raise FootskateError(f"{path}: not a readable .npy file ({err})") from None
-    except (EOFError, OSError) as err:  # truncated or unreadable
+    except (EOFError, OSError, SyntaxError) as err:  # truncated or unreadable
         raise FootskateError(f"{path}: not a readable .npy file ({err})") from None
     if not np.issubdtype(array.dtype, np.number):
         raise FootskateError(f"{path}: expected a numeric array, found dtype {array.dtype}")
     return array
+
+
+def load_npy(path: str | Path, *, mmap: bool = False) -> np.ndarray:
+    """Read a numeric .npy without pickle (memory-mapped with `mmap`); errors name the file and say
+    what it is instead. The one .npy reader of both packages (stablemo.io.load_npy wraps it)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FootskateError(f"{path}: {'is a folder, not a .npy file' if path.is_dir() else 'file not found'}")
+    _refuse_non_npy(_magic(path), path)
+    return _numeric(lambda: np.load(path, allow_pickle=False, mmap_mode="r" if mmap else None), path)
+
+
+def npy_from_bytes(data: bytes, path: str | Path) -> np.ndarray:
+    """load_npy for a file's bytes already read (`path` names it in errors)."""
+    import io
+
+    _refuse_non_npy(data[: len(NPY_MAGIC)], Path(path))
+    return _numeric(lambda: np.load(io.BytesIO(data), allow_pickle=False), Path(path))

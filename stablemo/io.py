@@ -37,6 +37,8 @@ from footskate.atomicio import (  # noqa: F401  (re-exported)
     write_bytes,
     write_text,
 )
+from footskate.errors import FootskateError
+from footskate.npyio import load_npy as _load_npy
 from footskate.npyio import save_npy  # noqa: F401  (re-exported: the one .npy writer)
 from stablemo.errors import StableMoError
 
@@ -78,24 +80,9 @@ def read_text(path: str | os.PathLike, what: str) -> str:
 
 
 def load_npy(path: str | os.PathLike, *, mmap: bool = False) -> np.ndarray:
-    """Load a numeric .npy without pickle; errors name the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise StableMoError(f"{path}: file not found")
+    """Load a numeric .npy without pickle; errors name the file (footskate.npyio.load_npy, its
+    error as StableMo's one line)."""
     try:
-        with open(path, "rb") as f:
-            magic = f.read(6)
-    except OSError as err:
-        raise StableMoError(f"{path}: cannot read ({err})") from None
-    if magic != b"\x93NUMPY" and not magic.startswith(b"PK\x03\x04"):
-        # numpy would fall back to pickle here and suggest allow_pickle=True: never for us.
-        raise StableMoError(f"{path}: not a .npy file ({'empty file' if not magic else 'no NUMPY header'})")
-    try:
-        array = np.load(path, allow_pickle=False, mmap_mode="r" if mmap else None)
-    except Exception as err:  # numpy raises ValueError/EOFError/OSError for broken files
-        raise StableMoError(f"{path}: not a readable .npy file ({err})") from None
-    if not isinstance(array, np.ndarray):  # np.load returns an NpzFile for zip content
-        raise StableMoError(f"{path}: not a .npy file (found an .npz archive)")
-    if not np.issubdtype(array.dtype, np.number):
-        raise StableMoError(f"{path}: expected a numeric array, found dtype {array.dtype}")
-    return array
+        return _load_npy(path, mmap=mmap)
+    except FootskateError as err:
+        raise StableMoError(str(err)) from None

@@ -586,9 +586,9 @@ def test_npz_disguised_as_npy(tmp_path):
     for path in (root / "new_joint_vecs" / "000004.npy", root / "Mean.npy"):
         with open(path, "wb") as f:
             np.savez(f, a=np.ones(3))
-    with pytest.raises(StableMoError, match=r"000004.npy: not a .npy file \(found an .npz archive\)"):
+    with pytest.raises(StableMoError, match=r"000004.npy: an .npz archive, not a .npy file"):
         load_split(root, "train", get_spec("humanml3d"), progress=False)
-    with pytest.raises(StableMoError, match=r"Mean.npy: not a .npy file"):
+    with pytest.raises(StableMoError, match=r"Mean.npy: an .npz archive, not a .npy file"):
         MotionDataModule(str(root)).mean
 
 

@@ -15,7 +15,6 @@ with a half-written or foreign data file.
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import os
 import secrets
@@ -26,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from footskate.errors import FootskateError
+from footskate.npyio import npy_from_bytes
 from stablemo.data.layout import (
     FEATURE_DIR,
     TEXT_DIR,
@@ -100,16 +101,12 @@ def validate_features(array: np.ndarray, path: Path, spec: DatasetSpec) -> np.nd
 
 
 def parse_npy(data: bytes, path: Path) -> np.ndarray:
-    """A numeric array from the bytes of the .npy file `path` (named in errors); never unpickles."""
-    # Check the magic ourselves: for other content numpy falls back to pickle and says so.
-    if data.startswith(b"PK\x03\x04"):
-        raise StableMoError(f"{path}: not a .npy file (found an .npz archive)")
-    if not data.startswith(b"\x93NUMPY"):
-        raise StableMoError(f"{path}: not a .npy file ({'empty file' if not data else 'no NUMPY header'})")
+    """A real-valued numeric array from the bytes of the .npy file `path` (named in errors); never
+    unpickles (footskate.npyio.npy_from_bytes, the one .npy reader)."""
     try:
-        array = np.load(io.BytesIO(data), allow_pickle=False)
-    except Exception as err:  # numpy raises ValueError/EOFError/OSError/SyntaxError for broken files
-        raise StableMoError(f"{path}: not a readable .npy file ({err})") from None
+        array = npy_from_bytes(data, path)
+    except FootskateError as err:
+        raise StableMoError(str(err)) from None
     if not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
         raise StableMoError(f"{path}: expected a real-valued numeric array, found dtype {array.dtype}")
     return array
