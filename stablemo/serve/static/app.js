@@ -472,6 +472,7 @@ function holdForStroke(recentre = true) {
   framePos = 0;
   if (S.motion && S.motion.available > 0) {
     pose(0);
+    S.frame = 0;  // shown now, not at the next animation frame (which a busy page may run late)
     if (recentre) followCamera();
     dirtyView = true;
   }
