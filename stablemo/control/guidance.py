@@ -23,7 +23,7 @@ import math
 
 import torch
 
-from stablemo.control.heading import gait_angle, steer_heading
+from stablemo.control.heading import gait_angle, steer_heading, text_gait
 from stablemo.diffusion.hooks import StepState
 from stablemo.motion.features import feature_slices, features_to_joints, recover_root
 from stablemo.motion.quaternion import qinv, qrot
@@ -175,7 +175,7 @@ class JointGuidance:
             if self.own_gait:
                 gait = gait_angle(feats, lengths, self.skeleton.fps, self.skeleton.per_metre, named)
             else:
-                gait = torch.zeros(feats.shape[0], device=dev) if named is None else torch.nan_to_num(named.float(), nan=0.0)
+                gait = text_gait(named, feats.shape[0], dev)
             feats = project_root(feats, root, root_mask, lengths)
             if self.face_travel:
                 steer = steers_heading(mask, self.skeleton)

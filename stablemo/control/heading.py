@@ -65,6 +65,13 @@ def named_gaits(texts) -> torch.Tensor:
     return torch.tensor([math.nan if (g := gait_from_text(t)) is None else g for t in texts])
 
 
+def text_gait(named: torch.Tensor | None, batch: int, device) -> torch.Tensor:
+    """(B,) radians: the texts' gaits (named, NaN for none) where they name one, else forward (0)."""
+    if named is None:
+        return torch.zeros(batch, device=device)
+    return torch.nan_to_num(named.to(device).float(), nan=0.0)
+
+
 def gait_angle(features: torch.Tensor, lengths: torch.Tensor, fps: float = 20.0, per_metre: float = 1.0,
                named: torch.Tensor | None = None) -> torch.Tensor:
     """(B,) radians: where the body walks relative to where it faces (0 forward, pi backwards,
@@ -153,9 +160,7 @@ class FaceTravel:
         mean, std = self.mean.to(dev).float(), self.std.to(dev).float()
         lengths = torch.tensor(state.lengths, device=dev)
         feats = x0.float() * std + mean
-        gait = torch.zeros(x0.shape[0], device=dev)
-        if self.named is not None:
-            gait = torch.nan_to_num(self.named.to(dev).float(), nan=0.0)
+        gait = text_gait(self.named, x0.shape[0], dev)
         feats = steer_heading(feats, lengths, skel.fps, skel.per_metre, self.steer.to(dev), gait)
         return ((feats - mean) / std).to(x0.dtype)
 
