@@ -16,9 +16,9 @@ fi
 PYTHONWARNINGS=ignore .venv/bin/python -m pip install -q -e ".[dev,serve]"
 # `stablemo serve` needs three.js from its npm package (never committed); without npm the command says how to get it
 if command -v npm >/dev/null; then
-  .venv/bin/python -m stablemo.serve.vendor || echo "setup: three.js not vendored; \`stablemo serve\` will say how to get it"
+  .venv/bin/stablemo vendor three || echo "setup: three.js not vendored; \`stablemo serve\` will say how to get it"
   # Khronos' glTF validator, which tests/test_gltf.py runs on every GLB we write (into .venv/node)
-  .venv/bin/python -m stablemo.gltf.validator || echo "setup: gltf-validator not installed; its tests are skipped"
+  .venv/bin/stablemo vendor gltf-validator || echo "setup: gltf-validator not installed; its tests are skipped"
 else
-  echo "setup: npm not found, skipping three.js for \`stablemo serve\` (apt-get install npm, then: .venv/bin/python -m stablemo.serve.vendor)"
+  echo "setup: npm not found, skipping three.js for \`stablemo serve\` (apt-get install npm, then: .venv/bin/stablemo vendor three)"
 fi

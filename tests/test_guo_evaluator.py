@@ -13,7 +13,6 @@ from stablemo.eval import guo
 from stablemo.eval.word_vectorizer import (
     POS_INDEX,
     WordVectorizer,
-    convert_words_to_text,
     read_pickled_strings,
 )
 
@@ -150,11 +149,17 @@ def test_safe_pickle_reader_refuses_code(tmp_path):
         read_pickled_strings(tmp_path / "arr.pkl")
 
 
-def test_text_conversion_matches_pickle(tmp_path):
+def test_text_conversion_matches_pickle(tmp_path, capsys):
+    from stablemo.cli import main as cli
+
     _, root = _fake_archive(tmp_path)
     glove = root / "glove"
     from_pkl = WordVectorizer(glove)
-    out = convert_words_to_text(glove)
+    assert cli(["data", "glove-words", str(tmp_path / "nowhere")]) == 2  # one line naming the file
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "nowhere" in err
+    assert cli(["data", "glove-words", str(glove)]) == 0
+    out = glove / "our_vab_words.txt"
     assert out.read_text().split("\n")[:3] == ["sos", "eos", "unk"]
     (glove / "our_vab_words.pkl").unlink()
     (glove / "our_vab_idx.pkl").unlink()

@@ -296,7 +296,7 @@ def test_serve_command_says_how_to_get_three_js(monkeypatch, tmp_path, capsys):
     monkeypatch.setattr(vendor_mod, "VENDOR_DIR", tmp_path / "vendor")
     assert cli_main(["serve"]) == 2
     err = capsys.readouterr().err.strip()
-    assert "\n" not in err and "python -m stablemo.serve.vendor" in err and "npm" in err
+    assert "\n" not in err and "stablemo vendor three" in err and "npm" in err
     import socket
 
     taken = socket.socket()

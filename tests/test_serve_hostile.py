@@ -332,7 +332,7 @@ def test_sigterm_stops_a_real_server_while_jobs_run():
     from stablemo.serve.vendor import missing
 
     if missing():
-        pytest.skip("three.js is not vendored (python -m stablemo.serve.vendor)")
+        pytest.skip("three.js is not vendored (stablemo vendor three)")
     port = free_port()
     proc = subprocess.Popen([sys.executable, "-m", "stablemo.cli", "serve", "--port", str(port), "--no-warmup",
                              "--bundle", f"teacher={DEMO}"], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,

@@ -36,6 +36,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "bvh": ("bvh", "main", "write features or joints (.npy) as BVH or an AMASS-style SMPL-X pose (.npz)"),
     "serve": ("serve", "main", "a local web page and JSON API for generating motions"),
     "retarget": ("retarget", "main", "put a motion (.npy or .bvh) on any humanoid rig (BVH, glTF/GLB, FBX)"),
+    "vendor": ("vendor", "main", "install pinned npm packages: three (the page), gltf-validator (tests)"),
 }
 
 

@@ -1,5 +1,5 @@
 """`stablemo data check DIR [--dataset humanml3d|kit]`, `stablemo data synth --out DIR [--num N] [--seed S]`,
-`stablemo data preview OUT.png`, `stablemo data shard SRC [SRC ...] --out DIR` (stablemo/data/shards.py) and `stablemo data import-bvh DIR --out DATASET [--texts CSV] [--map YAML]` (stablemo/data/bvh_import.py)."""
+`stablemo data preview OUT.png`, `stablemo data glove-words GLOVE_DIR`, `stablemo data shard SRC [SRC ...] --out DIR` (stablemo/data/shards.py) and `stablemo data import-bvh DIR --out DATASET [--texts CSV] [--map YAML]` (stablemo/data/bvh_import.py)."""
 
 from __future__ import annotations
 
@@ -46,6 +46,10 @@ def _parser() -> argparse.ArgumentParser:
     shard.add_argument("--skip-bad", action="store_true", help="skip unreadable clips (listed in the manifest)")
     shard.add_argument("--workers", type=int, default=None,
                        help="processes writing shards in parallel (default: the CPU count, at most 8)")
+    glove = sub.add_parser("glove-words", help="write GLOVE_DIR/our_vab_words.txt from the published GloVe .pkl "
+                                               "files (parsed, never unpickled), for the Guo et al. evaluator")
+    glove.add_argument("dir", help="folder holding our_vab_words.pkl (and our_vab_idx.pkl)")
+    glove.add_argument("--prefix", default="our_vab", help="file name prefix (default our_vab)")
     preview = sub.add_parser("preview", help="a PNG contact sheet of one synthetic motion per action")
     preview.add_argument("out", help="PNG path")
     preview.add_argument("--seed", type=int, default=0)
@@ -64,6 +68,11 @@ def main(argv: list[str]) -> int:
         if args.frames < 1:
             raise StableMoError(f"--frames: must be >= 1, got {args.frames}")
         print(f"wrote {write_contact_sheet(args.out, args.seed, args.frames, args.only)}")
+        return 0
+    if args.command == "glove-words":
+        from stablemo.eval.word_vectorizer import convert_words_to_text
+
+        print(f"wrote {convert_words_to_text(args.dir, args.prefix)}")
         return 0
     if args.command == "check":
         from stablemo.data.shard_check import check_shards, format_shard_report, is_shard_folder

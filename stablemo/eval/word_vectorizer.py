@@ -6,14 +6,13 @@ word → row). We never unpickle them: `read_pickled_strings` walks the pickle o
 `pickletools.genops` (a parser, it executes nothing) and accepts only the opcodes that build lists
 or dicts of strings and integers; anything else (GLOBAL, REDUCE, BUILD, ...) is refused.
 Alternatively a plain-text `our_vab_words.txt` (one word per line, row order of the .npy) is
-used when present; `python -m stablemo.eval.word_vectorizer GLOVE_DIR` writes it from the .pkl
-with the same safe reader.
+used when present; `stablemo data glove-words GLOVE_DIR` writes it from the .pkl with the same
+safe reader.
 """
 
 from __future__ import annotations
 
 import pickletools
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -206,13 +205,3 @@ def convert_words_to_text(glove_dir: str | Path, prefix: str = "our_vab") -> Pat
     write_text(out, "\n".join(by_row) + "\n")
     return out
 
-
-if __name__ == "__main__":
-    if len(sys.argv) != 2:
-        print("usage: python -m stablemo.eval.word_vectorizer GLOVE_DIR", file=sys.stderr)
-        sys.exit(2)
-    try:
-        print(convert_words_to_text(sys.argv[1]))
-    except StableMoError as err:
-        print(f"error: {err}", file=sys.stderr)
-        sys.exit(2)

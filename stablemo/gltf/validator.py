@@ -1,7 +1,7 @@
 """Khronos' glTF validator (npm `gltf-validator`), installed into the virtual environment and run on
 files we write (tests/test_gltf.py: 0 errors and 0 warnings on every one).
 
-    python -m stablemo.gltf.validator        # scripts/setup.sh runs it when npm is on PATH
+    stablemo vendor gltf-validator        # scripts/setup.sh runs it when npm is on PATH
 
 The package goes under `<venv>/node/` (ignored by git with the venv; nothing third-party is
 committed) at the pinned version, which npm checks against the registry's integrity hash. Node.js
@@ -16,7 +16,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from stablemo.errors import StableMoError, run_script
+from stablemo.errors import StableMoError
 
 VERSION = "2.0.0-dev.3.10"
 PREFIX = Path(sys.prefix) / "node"
@@ -43,7 +43,7 @@ def available() -> str | None:
         return "node is not installed (apt-get install npm brings it)"
     stamp = PACKAGE / "package.json"
     if not stamp.is_file() or json.loads(stamp.read_text()).get("version") != VERSION:
-        return f"gltf-validator {VERSION} is not installed in {PREFIX}: run `python -m stablemo.gltf.validator`"
+        return f"gltf-validator {VERSION} is not installed in {PREFIX}: run `stablemo vendor gltf-validator`"
     return None
 
 
@@ -63,7 +63,7 @@ def install(npm: str = "npm", timeout: float = 300.0) -> Path:
     exe = shutil.which(npm)
     if exe is None:
         raise StableMoError("npm: not found on PATH; install it (Debian/Ubuntu: `apt-get install npm`) and run "
-                            "`python -m stablemo.gltf.validator` again")
+                            "`stablemo vendor gltf-validator` again")
     PREFIX.mkdir(parents=True, exist_ok=True)
     try:
         subprocess.run([exe, "install", "--prefix", str(PREFIX), "--no-audit", "--no-fund", "--silent",
@@ -74,13 +74,3 @@ def install(npm: str = "npm", timeout: float = 300.0) -> Path:
         raise StableMoError(f"npm install gltf-validator@{VERSION}: no answer from the registry in {timeout:g} s") from None
     return PACKAGE
 
-
-def main(argv: list[str] | None = None) -> int:
-    if argv:
-        raise StableMoError(f"usage: python -m stablemo.gltf.validator (no arguments), got {' '.join(argv)}")
-    print(f"gltf-validator {VERSION} installed in {install()}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(run_script(main, "stablemo.gltf.validator", sys.argv[1:]))

@@ -1,6 +1,6 @@
 """Vendor the page's JavaScript library (three.js) from its npm package, at setup time.
 
-    python -m stablemo.serve.vendor          # scripts/setup.sh runs it when npm is on PATH
+    stablemo vendor three          # scripts/setup.sh runs it when npm is on PATH
 
 `npm pack` fetches the pinned release tarball (npm checks it against the registry); we check it
 again against the integrity pinned here, and copy the few files the page imports into
@@ -14,12 +14,11 @@ import base64
 import hashlib
 import shutil
 import subprocess
-import sys
 import tarfile
 import tempfile
 from pathlib import Path
 
-from stablemo.errors import StableMoError, run_script
+from stablemo.errors import StableMoError
 from stablemo.io import atomic_dir, write_bytes
 
 THREE_VERSION = "0.187.0"
@@ -47,7 +46,7 @@ def missing(vendor_dir: Path | None = None) -> str | None:
     ok = stamp.is_file() and stamp.read_text().strip() == THREE_VERSION
     if ok and all((vendor_dir / dest).is_file() for dest in FILES.values()):
         return None
-    return (f"the page's three.js {THREE_VERSION} is not vendored in {vendor_dir}: run `python -m stablemo.serve.vendor` "
+    return (f"the page's three.js {THREE_VERSION} is not vendored in {vendor_dir}: run `stablemo vendor three` "
             "(needs npm, which comes with Node.js: `apt-get install npm` on Debian/Ubuntu) or `bash scripts/setup.sh`")
 
 
@@ -56,7 +55,7 @@ def vendor(vendor_dir: Path | None = None, npm: str = "npm", timeout: float = 30
     exe = shutil.which(npm)
     if exe is None:
         raise StableMoError("npm: not found on PATH; install Node.js's npm (Debian/Ubuntu: `apt-get install npm`) "
-                            "and run `python -m stablemo.serve.vendor` again")
+                            "and run `stablemo vendor three` again")
     with tempfile.TemporaryDirectory(prefix="stablemo-vendor-") as tmp:
         try:
             subprocess.run([exe, "pack", f"three@{THREE_VERSION}", "--silent", "--pack-destination", tmp],
@@ -85,14 +84,3 @@ def vendor(vendor_dir: Path | None = None, npm: str = "npm", timeout: float = 30
         write_bytes(out / STAMP, (THREE_VERSION + "\n").encode())
     return vendor_dir
 
-
-def main(argv: list[str] | None = None) -> int:
-    if argv:
-        raise StableMoError(f"usage: python -m stablemo.serve.vendor (no arguments), got {' '.join(argv)}")
-    path = vendor()
-    print(f"three.js {THREE_VERSION} vendored in {path}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(run_script(main, "stablemo.serve.vendor", sys.argv[1:]))
