@@ -2,6 +2,8 @@
 
 import json
 
+from pathlib import Path
+
 import pytest
 import torch
 
@@ -106,6 +108,16 @@ def test_model_description_formats(tmp_path):
     assert kwargs["denoiser"] == {"name": "dit", "input_dim": 251, "text_dim": 64} and kwargs["text"]["latent_dim"] == 64
     kwargs, source = bench.model_kwargs(None)  # the paper network by default
     assert kwargs["denoiser"]["base_channels"] == 512 and list(kwargs["denoiser"]["channel_mults"]) == [2, 2, 2, 2]
+
+
+def test_the_packaged_paper_network_is_the_one_the_paper_config_trains():
+    """The benchmark's network ships in the package (an installed wheel has no configs/); the
+    training config describes the same network, so the two may not drift apart."""
+    from stablemo.nets.config import load_model_config
+
+    packaged = load_model_config(bench.PAPER_NETWORK)
+    assert packaged == load_model_config(Path(__file__).resolve().parents[1] / "configs" / "humanml3d.yaml")
+    assert packaged["denoiser"]["variant"] == "official" and packaged["text"]["num_layers"] == 4
 
 
 def test_bad_arguments(tmp_path):

@@ -37,7 +37,6 @@ import json
 import statistics
 import sys
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import torch
 
@@ -50,7 +49,7 @@ from stablemo.bench.measure import (  # noqa: F401 (re-exported: tests and scrip
 )
 from stablemo.errors import StableMoError
 from stablemo.fast import gemm
-from stablemo.inference.bundle import DEMO_CONTROLNET
+from stablemo.inference.bundle import ASSETS, DEMO_CONTROLNET
 from stablemo.inference.config import (
     MAX_FRAMES,
     InferenceConfig,
@@ -61,7 +60,7 @@ from stablemo.nets.config import load_model_config
 # Conv1D UNet, base 512, multipliers [2, 2, 2, 2], time embedding 512, text latent 256 with 4
 # transformer layers. The paper's frozen encoder is CLIP ViT-B/32; the packaged MiniLM stands in
 # for it here unless --text-encoder says otherwise (it runs once per request, not per step).
-PAPER_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "humanml3d.yaml"  # of a source checkout
+PAPER_NETWORK = ASSETS / "paper_network.yaml"  # shipped in the package; configs/humanml3d.yaml trains it
 STAND_IN_ENCODER = "minilm"
 
 PROMPTS = [
@@ -122,15 +121,13 @@ class Row:
 
 def model_kwargs(config_path: str | None) -> tuple[dict, str]:
     """MotionDiffusionModel kwargs from YAML (stablemo.nets.config): by default the paper network of
-    configs/humanml3d.yaml with the packaged text encoder; a denoiser-only file gets that config's
-    text conditioner."""
-    if not PAPER_CONFIG.is_file():
-        raise StableMoError(f"{PAPER_CONFIG}: the paper's config is missing (a source checkout has it); pass --config")
-    paper = load_model_config(PAPER_CONFIG)
+    stablemo/assets/paper_network.yaml with the packaged text encoder; a denoiser-only file gets that
+    network's text conditioner."""
+    paper = load_model_config(PAPER_NETWORK)
     paper["text"]["encoder"] = STAND_IN_ENCODER
     if config_path is None:
         layout = paper["denoiser"].get("variant", "stablemo")
-        return paper, f"paper UNet ({PAPER_CONFIG.name}: the {layout} layout, {STAND_IN_ENCODER} text encoder)"
+        return paper, f"paper UNet ({PAPER_NETWORK.name}: the {layout} layout, {STAND_IN_ENCODER} text encoder)"
     kwargs = load_model_config(config_path, "--config", text_defaults=paper["text"])
     kwargs["denoiser"].setdefault("input_dim", 263)
     kwargs["text"].setdefault("latent_dim", kwargs["denoiser"].get("text_dim", 256))

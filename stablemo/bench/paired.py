@@ -318,7 +318,7 @@ def run_paired(args) -> int:
             row.step(device)
     by = {row.name: row for row in rows}
     refs = [name for name in ("official", "stock") if name in by]
-    result = {"config": args.config or "configs/humanml3d.yaml", "device": str(device), "threads": torch.get_num_threads(),
+    result = {"config": args.config or "the paper network (stablemo/assets/paper_network.yaml)", "device": str(device), "threads": torch.get_num_threads(),
               "batch": batch, "frames": args.frames, "rounds": args.rounds, "optimizer": args.optimizer, "rows": {}}
     what = "forward + backward + AdamW" if args.optimizer == "adamw" else "forward + backward (no optimiser)"
     print(f"paired training step: {what} ({result['config']}, batch {batch} x {args.frames} frames, {device}, "

@@ -48,8 +48,8 @@ def main(argv: list[str] | None = None) -> int:
 def _aits_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="stablemo bench aits", description="AITS: inference time per sentence (the paper's Table 5), measured here.")
     src = p.add_mutually_exclusive_group()
-    src.add_argument("--config", help="YAML with the model description (default: the paper network of "
-                                      "configs/humanml3d.yaml with the packaged text encoder)")
+    src.add_argument("--config", help="YAML with the model description (default: the paper network, "
+                                      "stablemo/assets/paper_network.yaml, with the packaged text encoder)")
     src.add_argument("--bundle", help="an inference bundle folder")
     p.add_argument("--random-weights", action="store_true", help="with --bundle: do not load its weights")
     p.add_argument("--text-encoder", help="override the config's frozen text encoder (e.g. minilm when CLIP is not available)")
@@ -128,7 +128,7 @@ def main_stream(argv: list[str]) -> int:
 def main_train(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="stablemo bench train", description="Training throughput of a config (or --paired: the denoiser step of each implementation).")
     parser.add_argument("--config", default=None,
-                        help="training YAML (as for `stablemo fit --config`); --paired: default configs/humanml3d.yaml")
+                        help="training YAML (as for `stablemo fit --config`); --paired: default the paper network")
     parser.add_argument("--steps", type=int, default=20, help="timed optimiser steps (default 20)")
     parser.add_argument("--warmup", type=int, default=3, help="untimed steps first, >= 1 (default 3)")
     parser.add_argument("--batch-size", type=int, default=None, help="override data.batch_size")
