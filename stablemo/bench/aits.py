@@ -54,6 +54,7 @@ from stablemo.inference.config import (
     MAX_FRAMES,
     InferenceConfig,
 )
+from stablemo.inference.kinds import model_kind
 from stablemo.nets.config import load_model_config
 
 # StableMoFusion's network as the HumanML3D training config describes it (paper §4.1.1, §5.1):
@@ -140,9 +141,15 @@ def _build_pipeline(args, fast: bool):
     from stablemo.nets.model import MotionDiffusionModel
 
     if args.bundle:
-        pipe = Pipeline.from_bundle(args.bundle, device=args.device, fast=fast, random_weights=args.random_weights)
-        source = f"bundle {args.bundle}" + (" (random weights)" if args.random_weights else "")
-        return pipe, source
+        pipe = Pipeline.from_bundle(args.bundle, device=args.device, fast=fast and not args.random_weights)
+        if not args.random_weights:
+            return pipe, f"bundle {args.bundle}"
+        # the bundle's network as it is built before training (seeded): its speed, not its weights
+        kind = pipe.config.get("kind", "diffusion")
+        torch.manual_seed(args.seed)
+        model = model_kind(kind, args.bundle).build_model(pipe.config, args.bundle)
+        return (_sibling_pipeline(pipe, model, kind, pipe.config, pipe.inference, fast),
+                f"bundle {args.bundle} (random weights)")
     kwargs, source = model_kwargs(args.config)
     if args.text_encoder:
         kwargs["text"]["encoder"] = args.text_encoder

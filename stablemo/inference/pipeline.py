@@ -172,9 +172,8 @@ class Pipeline:
     # ---- construction -----------------------------------------------------------------------
 
     @classmethod
-    def from_bundle(cls, path: str | Path, device=None, dtype=None, fast: bool = True,
-                    random_weights: bool = False) -> Pipeline:
-        """Load a bundle; `random_weights` keeps the network's fresh initialisation (benchmarks)."""
+    def from_bundle(cls, path: str | Path, device=None, dtype=None, fast: bool = True) -> Pipeline:
+        """Load a bundle: its network with its weights, statistics, schedule and inference defaults."""
         from stablemo.inference.bundle import load_bundle
 
         device = resolve_device(device)  # a wrong device is reported before any loading
@@ -192,16 +191,15 @@ class Pipeline:
             raise StableMoError(f"{cfg_file}: 'model' does not describe a network ({err})") from None
         _check_stats(config, cfg_file)
         body_lengths(config, config.get("skeleton") or config.get("dataset", "humanml3d"), cfg_file)  # named here
-        if not random_weights:
-            weights_file = Path(path) / "model.safetensors"
-            bad = [k for k, v in bundle.state_dict.items() if v.is_floating_point() and not torch.isfinite(v).all()]
-            if bad:
-                raise StableMoError(f"{weights_file}: {len(bad)} weight tensor(s) hold NaN/Inf (e.g. {bad[0]}); "
-                                    "the bundle is broken, export it again from a good checkpoint")
-            try:
-                model.load_state_dict(bundle.state_dict, strict=True)
-            except RuntimeError as err:
-                raise StableMoError(f"{weights_file}: weights do not fit the config ({err})") from None
+        weights_file = Path(path) / "model.safetensors"
+        bad = [k for k, v in bundle.state_dict.items() if v.is_floating_point() and not torch.isfinite(v).all()]
+        if bad:
+            raise StableMoError(f"{weights_file}: {len(bad)} weight tensor(s) hold NaN/Inf (e.g. {bad[0]}); "
+                                "the bundle is broken, export it again from a good checkpoint")
+        try:
+            model.load_state_dict(bundle.state_dict, strict=True)
+        except RuntimeError as err:
+            raise StableMoError(f"{weights_file}: weights do not fit the config ({err})") from None
         familiarity = None
         if config.get("familiarity") is not None:
             from stablemo.text.familiar import Familiarity
