@@ -1,4 +1,4 @@
-"""`stablemo data check DIR [--dataset humanml3d|kit]`, `stablemo data synth --out DIR [--num N] [--seed S]`,
+"""`stablemo data check DIR [--dataset humanml3d|kit]`, `stablemo data synth --out DIR [--num N] [--seed S] [--rest varied|tight]`,
 `stablemo data preview OUT.png`, `stablemo data glove-words GLOVE_DIR`, `stablemo data shard SRC [SRC ...] --out DIR` (stablemo/data/shards.py) and `stablemo data import-bvh DIR --out DATASET [--texts CSV] [--map YAML]` (stablemo/data/bvh_import.py)."""
 
 from __future__ import annotations
@@ -7,6 +7,7 @@ import argparse
 import os
 
 from stablemo.data.layout import DATASETS
+from stablemo.data.synth.idle import DEFAULT_REST, REST_MODES
 from stablemo.errors import StableMoError
 
 
@@ -27,6 +28,9 @@ def _parser() -> argparse.ArgumentParser:
     synth.add_argument("--num", type=int, default=None,
                        help="number of motions, 3 to 100000 (default: the generator's, 2000; ~160 kB each)")
     synth.add_argument("--seed", type=int, default=0, help="random seed (same seed, same dataset)")
+    synth.add_argument("--rest", default=None, choices=list(REST_MODES),
+                       help="idle rest around each action: " + "; ".join(f"{k}: {v}" for k, v in REST_MODES.items())
+                            + f" (default: the generator's, {DEFAULT_REST})")
     imp = sub.add_parser("import-bvh", help="turn a folder of BVH mocap into a HumanML3D-layout dataset")
     imp.add_argument("dir", help="folder searched recursively for .bvh files")
     imp.add_argument("--out", required=True, help="new dataset folder")
@@ -115,9 +119,10 @@ def main(argv: list[str]) -> int:
         check_num(args.num, "--num")  # the cap and the minimum, before anything else
     if args.seed < 0:
         raise StableMoError(f"--seed={args.seed}: must be >= 0")
+    rest = {} if args.rest is None else {"rest": args.rest}
     if args.num is None:
-        write_dataset(args.out, seed=args.seed, flag="--out")
+        write_dataset(args.out, seed=args.seed, flag="--out", **rest)
     else:
-        write_dataset(args.out, args.num, args.seed, flag="--out")
+        write_dataset(args.out, args.num, args.seed, flag="--out", **rest)
     print(f"wrote synthetic dataset to {args.out}")
     return 0

@@ -6,7 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stablemo.data.synth import actions, captions
+from stablemo.data.synth import actions, captions, idle
+from stablemo.data.synth.idle import DEFAULT_REST, REST_MODES
 from stablemo.data.synth.timeline import FPS, Built, Timeline
 from stablemo.motion.skeleton import MAX_FRAMES as HUMANML3D_MAX_FRAMES
 
@@ -58,9 +59,24 @@ def sample_names(rng: np.random.Generator) -> list[str]:
     return names
 
 
-def generate_motion(rng: np.random.Generator, max_tries: int = 40) -> SynthMotion:
+def build_rested(plan: list[tuple[str, dict]], lead_in: int, lead_out: int, styles: tuple[dict, dict]) -> Built:
+    """Build a motion from (action, params) pairs with `lead_in` and `lead_out` frames of idle rest
+    around it (styles: the lead-in's and the lead-out's idle.sample_style)."""
+    tl = Timeline()
+    idle.build_idle(tl, lead_in, styles[0], "in")
+    for name, params in plan:
+        actions.BUILDERS[name](tl, params)
+    idle.build_idle(tl, lead_out, styles[1], "out")
+    return tl.build(tl.t)
+
+
+def generate_motion(rng: np.random.Generator, rest: str = DEFAULT_REST, max_tries: int = 40) -> SynthMotion:
     """One motion of 40..196 feature frames. Parameters are redrawn (then the actions) until the
-    plan fits, so long actions are not crowded out of composites."""
+    plan fits, so long actions are not crowded out of composites. rest: idle.REST_MODES; both
+    modes draw the same actions, parameters and captions from `rng`, "varied" then draws the total
+    length and the idling."""
+    if rest not in REST_MODES:
+        raise ValueError(f"rest={rest!r}: one of {', '.join(REST_MODES)}")
     for attempt in range(max_tries):
         if attempt % 8 == 0:
             names = sample_names(rng)
@@ -73,21 +89,42 @@ def generate_motion(rng: np.random.Generator, max_tries: int = 40) -> SynthMotio
         frames = len(built.joints) - 1
         if frames > MAX_FRAMES:
             continue
+        shortest, short_rest = frames, (int(lead_in * FPS), int(lead_out * FPS))  # the plan's shortest clip
         if frames < MIN_FRAMES:
             lead_out += (MIN_FRAMES - frames) / FPS + rng.uniform(0.0, 0.5)
             built = build(plan, lead_in, lead_out)
-        return _caption(built, plan, rng)
+        texts, part_texts = _draw_captions(plan, rng)
+        if rest == "varied":
+            built = _vary_rest(plan, shortest, *short_rest, rng)
+        return _caption(built, texts, part_texts)
     raise RuntimeError("could not fit a motion into the length limits")
 
 
-def _caption(built: Built, plan: list[tuple[str, dict]], rng: np.random.Generator) -> SynthMotion:
+def _vary_rest(plan: list[tuple[str, dict]], shortest: int, lead_in: int, lead_out: int,
+               rng: np.random.Generator) -> Built:
+    """The plan with idle rest: total length uniform over [max(MIN_FRAMES, shortest), MAX_FRAMES]
+    whatever the action's count, the extra frames split at random between lead-in and lead-out.
+    shortest: the plan's feature frames with lead_in/lead_out frames of rest (the drawn short ones)."""
+    total = int(rng.integers(max(MIN_FRAMES, shortest), MAX_FRAMES + 1))
+    extra = total - shortest
+    before = int(rng.integers(0, extra + 1))
+    styles = (idle.sample_style(rng), idle.sample_style(rng))
+    built = build_rested(plan, lead_in + before, lead_out + extra - before, styles)
+    if len(built.joints) - 1 != total:  # the actions' own length never depends on where they start
+        raise RuntimeError(f"rested motion has {len(built.joints) - 1} frames, planned {total}")
+    return built
+
+
+def _draw_captions(plan: list[tuple[str, dict]], rng: np.random.Generator) -> tuple[list[str], list[str]]:
+    """Whole-clip captions and, for a composite, one sub-caption per part."""
     texts = captions.captions_for(plan, rng)
-    subs: list[tuple[str, float, float]] = []
+    parts = [captions.part_caption(name, params, rng) for name, params in plan] if len(plan) > 1 else []
+    return texts, parts
+
+
+def _caption(built: Built, texts: list[str], part_texts: list[str]) -> SynthMotion:
     n_feat = len(built.joints) - 1
-    if len(plan) > 1:
-        for part in built.parts:
-            start, end = part.start, min(part.end, n_feat)
-            subs.append((captions.part_caption(part.action, part.params, rng), start / FPS, end / FPS))
+    subs = [(text, part.start / FPS, min(part.end, n_feat) / FPS) for text, part in zip(part_texts, built.parts)]
     return SynthMotion(built.joints, built.contacts, built.parts, texts, subs)
 
 

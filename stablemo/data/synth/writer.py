@@ -6,7 +6,7 @@
     texts/<id>.txt           3 whole-clip captions + timed sub-captions for composites
     Mean.npy, Std.npy        statistics over all clips (std averaged within feature groups)
     train/val/test/train_val/all.txt   80 / 5 / 15 % split
-    synth.json               generator version, seed, count, per-action counts
+    synth.json               generator version, seed, rest mode, count, per-action counts
     .stablemo-files.json     every file written, with its size (written last)
 
 Replacing an earlier dataset: only one whose content is exactly what that file lists (a `data
@@ -43,6 +43,7 @@ from tqdm import tqdm
 from stablemo.data.cache import CACHE_DIRNAME
 from stablemo.data.stats import feature_groups
 from stablemo.data.synth.compose import generate_motion, text_file
+from stablemo.data.synth.idle import DEFAULT_REST, REST_MODES
 from stablemo.errors import StableMoError
 from stablemo.io import (
     atomic_dir,
@@ -78,7 +79,7 @@ def clip_id(index: int) -> str:
 
 
 def _write_chunk(args) -> tuple[np.ndarray, np.ndarray, int, list[str]]:
-    root, seed, indices = args
+    root, seed, indices, rest = args
     from stablemo.motion import joints_to_features
 
     root = Path(root)
@@ -87,7 +88,7 @@ def _write_chunk(args) -> tuple[np.ndarray, np.ndarray, int, list[str]]:
     count = 0
     names: list[str] = []
     for i in indices:
-        m = generate_motion(motion_rng(seed, i))
+        m = generate_motion(motion_rng(seed, i), rest)
         feats = joints_to_features(m.joints, "humanml3d")  # (T, 263)
         T = len(feats)
         cid = clip_id(i)
@@ -185,9 +186,9 @@ class _Progress:
             self.bar.close()
 
 
-def _generate(tmp: Path, num: int, seed: int, workers: int) -> list[tuple]:
+def _generate(tmp: Path, num: int, seed: int, workers: int, rest: str) -> list[tuple]:
     """Write the clips into `tmp` in chunks; returns each chunk's statistics and action names."""
-    jobs = [(str(tmp), seed, range(a, min(a + CHUNK, num))) for a in range(0, num, CHUNK)]
+    jobs = [(str(tmp), seed, range(a, min(a + CHUNK, num)), rest) for a in range(0, num, CHUNK)]
     bar = _Progress(num)
     results = []
     if workers == 1 or len(jobs) == 1:
@@ -204,7 +205,7 @@ def _generate(tmp: Path, num: int, seed: int, workers: int) -> list[tuple]:
     return results
 
 
-def _write_summary(tmp: Path, results: list[tuple], num: int, seed: int) -> None:
+def _write_summary(tmp: Path, results: list[tuple], num: int, seed: int, rest: str) -> None:
     """Mean/Std, the split lists and the marker file, from the chunks' statistics."""
     total = sum(r[0] for r in results)
     total_sq = sum(r[1] for r in results)
@@ -219,19 +220,22 @@ def _write_summary(tmp: Path, results: list[tuple], num: int, seed: int) -> None
     for name, ids in _splits(num, seed).items():
         write_text(tmp / f"{name}.txt", "\n".join(ids) + "\n")
     kinds = Counter(a for r in results for names in r[3] for a in names.split("+"))
-    meta = dict(generator="stablemo.data.synth", version=VERSION, seed=seed, num=num, fps=20,
+    meta = dict(generator="stablemo.data.synth", version=VERSION, seed=seed, rest=rest, num=num, fps=20,
                 skeleton="humanml3d", frames=int(count), action_counts=dict(sorted(kinds.items())),
                 parts=dict(sorted(Counter(len(n.split("+")) for r in results for n in r[3]).items())))
     write_text(tmp / MARKER, json.dumps(meta, indent=2) + "\n")
 
 
 def write_dataset(out_dir, num: int = 2000, seed: int = 0, workers: int | None = None,
-                  flag: str | None = None) -> Path:
+                  flag: str | None = None, rest: str = DEFAULT_REST) -> Path:
     """Generate `num` motions with `seed` into `out_dir` (HumanML3D layout); returns the folder.
-    flag: the option that named `out_dir` (e.g. "--out"), to start its error lines."""
+    flag: the option that named `out_dir` (e.g. "--out"), to start its error lines.
+    rest: the idle rest around each action (idle.REST_MODES)."""
     num = check_num(num)
     if int(seed) < 0:
         raise StableMoError(f"seed={seed}: must be >= 0")
+    if rest not in REST_MODES:
+        raise StableMoError(f"rest={rest!r}: must be one of {', '.join(REST_MODES)}")
     seed = int(seed)
     out_dir = Path(out_dir)
     workers = min(os.cpu_count() or 1, 2) if workers is None else int(workers)
@@ -246,7 +250,7 @@ def write_dataset(out_dir, num: int = 2000, seed: int = 0, workers: int | None =
                                                   manifest=MANIFEST, derived=(CACHE_DIRNAME,)) as tmp:
             for sub in ("new_joint_vecs", "new_joints", "contacts", "texts"):
                 (tmp / sub).mkdir()
-            _write_summary(tmp, _generate(tmp, num, seed, workers), num, seed)
+            _write_summary(tmp, _generate(tmp, num, seed, workers, rest), num, seed, rest)
     except FileExistsError as err:
         raise StableMoError(f"{prefix}{out_dir}: changed while the dataset was written ({err.strerror}); "
                             "nothing replaced") from None
