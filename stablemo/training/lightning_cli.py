@@ -34,43 +34,38 @@ from stablemo.training.module import DiffusionModule
 
 
 class StableMoCLI(LightningCLI):
+    """LightningCLI with StableMo's defaults, through its public hooks only."""
+
     def __init__(self, *args, **kwargs) -> None:
         # `stablemo fit ...` hands LightningCLI its own argv; sys.argv must stay intact for DDP's
         # re-launch of the same command, so the "args and sys.argv both given" warning is noise here.
         warnings.filterwarnings("ignore", message="LightningCLI's args parameter is intended")
-        argv = inspect.signature(LightningCLI.__init__).bind_partial(self, *args, **kwargs).arguments.get("args")
-        # read by add_arguments_to_parser, which LightningCLI calls from its __init__
-        self._default_model_class = not names_model_class(sys.argv[1:] if argv is None else argv)
+        self._model_parsers: list = []  # filled by add_arguments_to_parser, read by parse_arguments
         super().__init__(*args, **kwargs)
 
-    def _parse_ckpt_path(self) -> None:
-        """Merge the hyperparameters stored in `--ckpt_path` into the config, as LightningCLI does.
+    def parse_arguments(self, parser, args) -> None:
+        """Parse as LightningCLI does, with two StableMo rules around it:
 
-        LightningCLI reads the file here with a bare torch.load, before the Trainer and its
-        CheckpointIO exist: a truncated file or a pickle that weights_only refuses ended in a raw
-        traceback. The file is read with load_checkpoint_file instead (one error line naming it);
-        the merge below is LightningCLI's own.
+        - DiffusionModule is the model class only for a command line whose configs and flags name
+          none (`names_model_class`): jsonargparse keeps a default class's init_args (filled with its
+          defaults) that the class a config switches to also accepts, so ControlNetTraining trained
+          with DiffusionModule's cond_drop_prob=0.1 and weight_decay=0.01 instead of its own 0.0 while
+          this default was always set.
+        - A `--ckpt_path` file is read once with load_checkpoint_file before LightningCLI merges its
+          hyperparameters: LightningCLI reads it with a bare torch.load before the Trainer and its
+          CheckpointIO exist, where a truncated file or a pickle that weights_only refuses ends in a
+          raw traceback; here it is one line naming the file.
         """
+        argv = sys.argv[1:] if args is None else args  # LightningCLI parses sys.argv when given none
+        if self.subclass_mode_model and not isinstance(argv, (dict, Namespace)) and not names_model_class(argv):
+            default = {"model": {"class_path": f"{DiffusionModule.__module__}.{DiffusionModule.__qualname__}"}}
+            for sub in self._model_parsers:
+                sub.set_defaults(default)
+        super().parse_arguments(parser, args)
         subcommand = self.config.get("subcommand")
-        if not subcommand:
-            return
-        ckpt_path = self.config[subcommand].get("ckpt_path")
-        if not (ckpt_path and Path(ckpt_path).is_file()):
-            return  # "last", "best", URLs and missing files are resolved (and reported) by the Trainer
-        hparams = load_checkpoint_file(ckpt_path).get("hyper_parameters") or {}
-        if not isinstance(hparams, dict):
-            return
-        hparams = dict(hparams)
-        hparams.pop("_instantiator", None)
-        if not hparams:
-            return
-        if "_class_path" in hparams:
-            hparams = {"class_path": hparams.pop("_class_path"), "dict_kwargs": hparams}
-        try:
-            self.config = self.parser.parse_object({subcommand: {"model": hparams}}, self.config)
-        except SystemExit:
-            sys.stderr.write("Parsing of ckpt_path hyperparameters failed!\n")
-            raise
+        ckpt_path = self.config[subcommand].get("ckpt_path") if subcommand else None
+        if ckpt_path and Path(ckpt_path).is_file():  # "last", "best", URLs, missing files: the Trainer's
+            load_checkpoint_file(ckpt_path)
 
     def add_arguments_to_parser(self, parser) -> None:
         parser.add_lightning_class_args(FinalStepCheckpoint, "checkpoint")
@@ -81,13 +76,9 @@ class StableMoCLI(LightningCLI):
             # a resumed run (even with other checkpoint settings) keeps writing last.ckpt, not last-v1.ckpt
             "checkpoint.enable_version_counter": False,
         })
-        if self.subclass_mode_model and self._default_model_class:
-            # any LightningModule by `model.class_path` (e.g. ConsistencyDistillation); a command line
-            # that gives only init arguments trains the diffusion model. Only then: jsonargparse keeps
-            # a default class's init_args (filled with its defaults) that the class a config switches
-            # to also accepts, so ControlNetTraining trained with DiffusionModule's cond_drop_prob=0.1
-            # and weight_decay=0.01 instead of its own 0.0 while this default was always set.
-            parser.set_defaults({"model": {"class_path": f"{DiffusionModule.__module__}.{DiffusionModule.__qualname__}"}})
+        # any LightningModule by `model.class_path` (e.g. ConsistencyDistillation); a command line
+        # that names none trains the diffusion model (its default is set in parse_arguments)
+        self._model_parsers.append(parser)
         parser.add_lightning_class_args(NonFiniteGuard, "guard")
 
     def before_instantiate_classes(self) -> None:
