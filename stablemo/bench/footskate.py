@@ -35,11 +35,13 @@ import numpy as np
 import torch
 
 from stablemo.errors import StableMoError
+from stablemo.motion import skeleton
 
 TYPES = ("walk", "run", "jump", "hop", "turn_in_place", "side_step", "kick", "dance")
-FPS = 20.0
-FEET = [7, 10, 8, 11]                    # HumanML3D [L_ankle, L_toe, R_ankle, R_toe]
-LEGS = {0: (4, 7, 10), 1: (5, 8, 11)}    # knee, ankle, toe per side
+_BODY, _KIT = skeleton.HUMANML3D, skeleton.KIT  # the per-skeleton facts live there
+FPS = _BODY.fps
+FEET = [*_BODY.feet_left, *_BODY.feet_right]  # HumanML3D [L_ankle, L_toe, R_ankle, R_toe]
+LEGS = {0: (_BODY.legs["left"][1], *_BODY.feet_left), 1: (_BODY.legs["right"][1], *_BODY.feet_right)}  # knee, ankle, toe
 
 
 def _plan(kind: str, rng: np.random.Generator) -> tuple:
@@ -77,8 +79,8 @@ def build_motion(kind: str, seed: int) -> tuple[np.ndarray, np.ndarray]:
 # HumanML3D joint -> KIT-ML joint (stablemo.motion.skeleton.KIT names). The KIT foot has an extra
 # metatarsal joint between ankle and toe; it is placed 2/3 of the way from ankle to toe.
 KIT_FROM_HUMANML3D = (0, 3, 6, 12, 15, 17, 19, 21, 16, 18, 20, 2, 5, 8, None, 11, 1, 4, 7, None, 10)
-KIT_FEET = [19, 20, 14, 15]              # [L_metatarsal, L_toe, R_metatarsal, R_toe], the KIT contact joints
-KIT_FPS = 12.5
+KIT_FEET = [*_KIT.feet_left, *_KIT.feet_right]  # [L_metatarsal, L_toe, R_metatarsal, R_toe], the KIT contact joints
+KIT_FPS = _KIT.fps
 
 
 def to_kit(joints: np.ndarray, contacts: np.ndarray, fps: float = FPS) -> tuple[np.ndarray, np.ndarray]:

@@ -29,6 +29,7 @@ import torch
 from stablemo.checks import check_finite, check_positive_int, check_seed
 from stablemo.errors import StableMoError
 from stablemo.eval import metrics
+from stablemo.eval.control import CONTROL_CHOICES
 from stablemo.eval.evaluate import (
     default_evaluator,
     dtype_name,
@@ -59,7 +60,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="generate with foot-skate correction inside denoising (StableMoFusion*) and report the skating ratio")
     p.add_argument("--skate-ratio", action="store_true", help="report the foot-skating ratio (no correction)")
     p.add_argument("--control", default=None,
-                   choices=["pelvis", "left_foot", "right_foot", "head", "left_wrist", "right_wrist", "all", "keyframes"],
+                   choices=CONTROL_CHOICES,
                    help="joint control (OmniControl / MotionLCM protocol): hints from the test motions at this joint "
                         "('all': the six together; 'keyframes': whole poses); reports Traj./Loc./Avg. err, the "
                         "share of hinted frames with an acceleration spike, foot acceleration and skating")

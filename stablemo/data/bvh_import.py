@@ -22,11 +22,13 @@ from stablemo.bvh.names import load_name_map, resolve_name_map
 from stablemo.bvh.resample import resample
 from stablemo.bvh.rig import forward_kinematics
 from stablemo.bvh.text import read_bvh
+from stablemo.data.layout import DATASETS
 from stablemo.errors import StableMoError
 
-FPS = 20.0
-WINDOW = 196  # feature frames per clip at most (HumanML3D's maximum motion length)
-MIN_FRAMES = 40  # shorter clips are skipped by the HumanML3D loader
+_SPEC = DATASETS["humanml3d"]  # imported mocap becomes HumanML3D clips
+FPS = _SPEC.fps
+WINDOW = _SPEC.max_length  # feature frames per clip at most (HumanML3D's maximum motion length)
+MIN_FRAMES = _SPEC.min_length  # shorter clips are skipped by the HumanML3D loader
 SPLIT_FRACTIONS = (0.80, 0.05, 0.15)
 _Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # (x, y, z) -> (x, z, -y)
 

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from stablemo.errors import StableMoError
-from stablemo.motion.skeleton import MAX_FRAMES
+from stablemo.motion.skeleton import MAX_FRAMES, get_skeleton
 
 FEATURE_DIR = "new_joint_vecs"
 JOINT_DIR = "new_joints"
@@ -27,15 +27,27 @@ CAPTION_FPS = 20
 
 @dataclass(frozen=True)
 class DatasetSpec:
+    """A dataset's loading rules; its body's facts (fps, joints, feature width) are its skeleton's
+    (stablemo.motion.skeleton), their one home."""
+
     name: str
     skeleton: str
-    fps: float
-    num_joints: int
-    feature_dim: int
     min_length: int  # clips (and sub-captioned windows) shorter than this are dropped
     max_clip_length: int = 200  # clips this long or longer are dropped
     max_length: int = MAX_FRAMES  # training crop / padding length
     unit_length: int = 4  # evaluation crops are multiples of this
+
+    @property
+    def fps(self) -> float:
+        return get_skeleton(self.skeleton).fps
+
+    @property
+    def num_joints(self) -> int:
+        return get_skeleton(self.skeleton).num_joints
+
+    @property
+    def feature_dim(self) -> int:
+        return get_skeleton(self.skeleton).feature_dim
 
     @property
     def contact_dims(self) -> slice:
@@ -43,8 +55,8 @@ class DatasetSpec:
 
 
 DATASETS: dict[str, DatasetSpec] = {
-    "humanml3d": DatasetSpec("humanml3d", "humanml3d", fps=20.0, num_joints=22, feature_dim=263, min_length=40),
-    "kit": DatasetSpec("kit", "kit", fps=12.5, num_joints=21, feature_dim=251, min_length=24),
+    "humanml3d": DatasetSpec("humanml3d", "humanml3d", min_length=40),
+    "kit": DatasetSpec("kit", "kit", min_length=24),
 }
 
 

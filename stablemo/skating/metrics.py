@@ -12,8 +12,9 @@ import numpy as np
 import torch
 
 from stablemo.errors import StableMoError
+from stablemo.motion.skeleton import HUMANML3D
 
-FEET_HUMANML3D = (10, 11)  # toe joints (left, right)
+FEET_HUMANML3D = (HUMANML3D.feet_left[1], HUMANML3D.feet_right[1])  # toe joints (left, right)
 
 
 def _prepare(joints, mask=None, lengths=None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -50,7 +51,7 @@ def _box_filter(x: torch.Tensor, size: int) -> torch.Tensor:
     return out.reshape(*lead, -1)
 
 
-def foot_skating_ratio(joints, mask=None, lengths=None, feet=FEET_HUMANML3D, fps: float = 20.0,
+def foot_skating_ratio(joints, mask=None, lengths=None, feet=FEET_HUMANML3D, fps: float = HUMANML3D.fps,
                        height_threshold: float = 0.05, velocity_threshold: float = 0.5,
                        window: int = 5) -> np.ndarray:
     """Fraction of valid frame transitions in which a grounded foot slides; returns (B,).
@@ -107,7 +108,8 @@ def foot_second_difference(joints: torch.Tensor, feet, fps: float) -> torch.Tens
     return (feet_pos[:, 2:] - 2 * feet_pos[:, 1:-1] + feet_pos[:, :-2]).abs() * fps * fps
 
 
-def foot_acceleration(joints, mask=None, lengths=None, feet=(7, 8, 10, 11), fps: float = 20.0) -> np.ndarray:
+def foot_acceleration(joints, mask=None, lengths=None, feet=(*HUMANML3D.feet_left, *HUMANML3D.feet_right),
+                      fps: float = HUMANML3D.fps) -> np.ndarray:
     """Mean |second difference| of the feet's (ankles and toes) coordinates, m/s², over valid
     frames; (B,). The jitter measure of foot-skate corrections (scripts/footskate/report.py, docs/
     footskate.md) and of joint control: a target reached by a jerk shows here."""
