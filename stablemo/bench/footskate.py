@@ -536,7 +536,7 @@ def build_training_set(motions: int, per_type: int, seed: int, log, skeleton: st
     joints, forces = [], []
 
     def add(j: np.ndarray, c: np.ndarray, labels_from: np.ndarray | None = None) -> None:
-        topo, fps = HUMANML3D, 20.0
+        topo, fps = HUMANML3D, FPS
         if skeleton == "kit":
             topo, fps = KIT, KIT_FPS
             labels_from = None if labels_from is None else to_kit(labels_from, c)[0]

@@ -13,6 +13,7 @@ import numpy as np
 import torch
 
 from stablemo.errors import StableMoError
+from stablemo.motion.skeleton import get_skeleton
 
 
 def control_errors(joints, hints, hint_mask, threshold: float = 0.5) -> dict[str, float]:
@@ -54,7 +55,6 @@ class ControlProtocol:
 
     def __init__(self, joint: str, density: str, skeleton="humanml3d"):
         from stablemo.control.files import joint_index
-        from stablemo.motion.skeleton import get_skeleton
 
         self.skeleton = get_skeleton(skeleton)
         if joint == "keyframes":
@@ -94,7 +94,7 @@ class ControlProtocol:
         return out
 
 
-def acceleration_spikes(joints, hint_mask, reference, fps: float = 20.0, window: int = 2) -> float:
+def acceleration_spikes(joints, hint_mask, reference, skeleton="humanml3d", window: int = 2) -> float:
     """Share of hinted frames near which the root or a foot accelerates harder than the reference
     motions' 99th percentile: max over frames t-window..t+window of |second difference| (m/s²) of
     the pelvis, ankles and toes, against that percentile over every frame of `reference`.
@@ -103,7 +103,8 @@ def acceleration_spikes(joints, hint_mask, reference, fps: float = 20.0, window:
     of (L_i, J, 3). A target reached by a jerk shows here; natural motion gives ~ the share a
     (2 window + 1)-frame max has of exceeding a 99th percentile.
     """
-    parts = [0, 7, 8, 10, 11]
+    skel = get_skeleton(skeleton)
+    parts, fps = [0, *skel.feet_left, *skel.feet_right], skel.fps  # the root and the contact joints
 
     def accel(x):  # (..., T, J, 3) -> (..., T-2) max over the parts
         a = (x[..., 2:, :, :] - 2 * x[..., 1:-1, :, :] + x[..., :-2, :, :])[..., parts, :]

@@ -135,7 +135,7 @@ def _control_metrics(joints: list[torch.Tensor], hints: list, reference: list[to
         targets[i, :n] = torch.as_tensor(np.asarray(hint.positions, np.float32))
         masks[i, :n] = torch.as_tensor(np.asarray(hint.mask))
     errors = control_errors(padded, targets, masks)
-    errors["spikes"] = acceleration_spikes(padded, masks, reference)
+    errors["spikes"] = acceleration_spikes(padded, masks, reference, skeleton)
     lengths = torch.tensor([min(len(j), len(r)) for j, r in zip(joints, reference)])
     ref, _ = _padded_joints([r[:n] for r, n in zip(reference, lengths)])
     gen, _ = _padded_joints([j[:n] for j, n in zip(joints, lengths)])

@@ -22,12 +22,12 @@ from stablemo.inference.bundle import check_bundle_target, save_bundle
 from stablemo.inference.config import InferenceConfig
 from stablemo.io import load_npy
 from stablemo.motion.plausible import check_feature_stats
-from stablemo.motion.skeleton import MAX_FRAMES
+from stablemo.motion.skeleton import MAX_FRAMES, get_skeleton
 from stablemo.official import layout
 
 DEFAULT_CLIP = "openai/clip-vit-base-patch32"
 # dataset -> (skeleton, feature width, fps) as the published code sets them (options/get_opt.py)
-DATASETS = {"humanml3d": ("humanml3d", 263, 20.0), "kit": ("kit", 251, 12.5)}
+DATASETS = {name: (name, get_skeleton(name).feature_dim, get_skeleton(name).fps) for name in ("humanml3d", "kit")}
 OPT_DATASETS = {"t2m": "humanml3d", "humanml": "humanml3d", "kit": "kit"}
 # the CLIP tensors the official checkpoint carries -> their transformers names (text tower)
 CLIP_CHECKS = {
