@@ -26,7 +26,7 @@ def _parser() -> argparse.ArgumentParser:
                        help="output folder: new, empty, or a dataset this command wrote (replaced whole; "
                             "refused if it holds any other file)")
     synth.add_argument("--num", type=int, default=None,
-                       help="number of motions, 3 to 100000 (default: the generator's, 2000; ~160 kB each)")
+                       help="number of motions, 3 to 100000 (default: the generator's, 2000; ~210 kB each)")
     synth.add_argument("--seed", type=int, default=0, help="random seed (same seed, same dataset)")
     synth.add_argument("--rest", default=None, choices=list(REST_MODES),
                        help="idle rest around each action: " + "; ".join(f"{k}: {v}" for k, v in REST_MODES.items())

@@ -95,12 +95,12 @@ def generate_motion(rng: np.random.Generator, rest: str = DEFAULT_REST, max_trie
             built = build(plan, lead_in, lead_out)
         texts, part_texts = _draw_captions(plan, rng)
         if rest == "varied":
-            built = _vary_rest(plan, shortest, *short_rest, rng)
+            built = draw_rest(plan, shortest, *short_rest, rng)
         return _caption(built, texts, part_texts)
     raise RuntimeError("could not fit a motion into the length limits")
 
 
-def _vary_rest(plan: list[tuple[str, dict]], shortest: int, lead_in: int, lead_out: int,
+def draw_rest(plan: list[tuple[str, dict]], shortest: int, lead_in: int, lead_out: int,
                rng: np.random.Generator) -> Built:
     """The plan with idle rest: total length uniform over [max(MIN_FRAMES, shortest), MAX_FRAMES]
     whatever the action's count, the extra frames split at random between lead-in and lead-out.
