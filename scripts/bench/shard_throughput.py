@@ -1,8 +1,22 @@
-"""Training from shards against the memory-mapped folder reader: a paired, interleaved A/B, and RSS.
+"""Shards: writing speed (paired against another commit), training from shards against the
+memory-mapped folder reader (a paired, interleaved A/B), and RSS.
 
+    .venv/bin/python scripts/bench/shard_throughput.py link SRC --copies 10 --out BIG
+    .venv/bin/python scripts/bench/shard_throughput.py write SRC [SRC ...] [--against REV] [--rounds 3] [--workers 2]
     .venv/bin/python scripts/bench/shard_throughput.py ab --data DIR --shards SHARDS \
         [--config configs/synth_small.yaml] [--rounds 6] [--steps 30] [--warmup 5]
     .venv/bin/python scripts/bench/shard_throughput.py rss --shards SHARDS [--batch-size 32] [--every 200]
+
+`link`: a dataset folder `--copies` times as large as SRC, of hard links (clip `<id>` becomes
+`<id>_0`, `<id>_1`, ...; statistics copied): a large single-source corpus in no time and no disk
+space (`stablemo data synth` makes ~100 clips/s here). Its clips are read from the page cache once
+the first copy has been read, so `write` measures the CPU side of sharding, not a cold disk.
+
+`write`: `stablemo.data.shards.write_shards` of SRC into a fresh folder, in a child process per
+run (imports done before the clock starts), timed by wall clock and by CPU time (the child and its
+worker processes). With `--against REV`, the same run from REV's `stablemo` and `footskate`
+(`git archive`d into a temporary folder), alternating which goes first each round (this VM's speed
+drifts; a pair run back to back sees the same machine); each pair's outputs are compared byte for byte.
 
 `ab`: one model (the config's), two MotionDataModules that differ only in data_dir / shards. Each
 round trains `warmup + steps` optimiser steps from the folder, then as many from the shards (the
@@ -20,8 +34,15 @@ training steps of the config's model. Prints the samples and the spread (max - m
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import shutil
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import torch
 
@@ -109,6 +130,98 @@ def run_rss(args) -> None:
           f"{min(after_warmup):.0f}..{max(after_warmup):.0f} MiB (spread {max(after_warmup) - min(after_warmup):.0f} MiB)")
 
 
+def run_link(args) -> None:
+    src, out = Path(args.src), Path(args.out)
+    if out.exists():
+        raise SystemExit(f"--out: {out}: exists; give a new folder")
+    for sub in ("new_joint_vecs", "texts"):
+        (out / sub).mkdir(parents=True)
+    for name in ("Mean.npy", "Std.npy"):
+        shutil.copyfile(src / name, out / name)
+    for split in ("train", "val", "test"):
+        if not (src / f"{split}.txt").is_file():
+            continue
+        ids = (src / f"{split}.txt").read_text().split()
+        copies = [f"{i}_{k}" for k in range(args.copies) for i in ids]  # copy after copy: split order kept
+        for clip_id, new in zip(ids * args.copies, copies):
+            os.link(src / "new_joint_vecs" / f"{clip_id}.npy", out / "new_joint_vecs" / f"{new}.npy")
+            os.link(src / "texts" / f"{clip_id}.txt", out / "texts" / f"{new}.txt")
+        (out / f"{split}.txt").write_text("\n".join(copies) + "\n")
+    print(f"{out}: {args.copies} copies of {src}")
+
+
+# run in a child process: imports first, then the clock; CPU time counts the worker processes
+_WRITE_ONE = """
+import json, resource, sys, time
+import numpy, torch, tqdm, webdataset, zstandard
+from stablemo.data.shards import write_shards
+def cpu():
+    return sum(r.ru_utime + r.ru_stime for r in (resource.getrusage(resource.RUSAGE_SELF),
+                                                 resource.getrusage(resource.RUSAGE_CHILDREN)))
+sources, out, workers = json.loads(sys.argv[1])
+c0, t0 = cpu(), time.perf_counter()
+manifest, _ = write_shards(sources, out, workers=workers, progress=False)
+took, used = time.perf_counter() - t0, cpu() - c0
+clips = sum(split["clips"] for split in manifest["splits"].values())
+print(json.dumps({"clips": clips, "seconds": took, "cpu": used}))
+"""
+
+
+def write_once(tree: str, sources: list[str], out: str, workers: int) -> dict:
+    env = {**os.environ, "PYTHONPATH": tree}  # before the editable install's finder: this tree's code
+    done = subprocess.run([sys.executable, "-c", _WRITE_ONE, json.dumps([sources, out, workers])], cwd=tree,
+                          env=env, capture_output=True, text=True, check=False)
+    if done.returncode:
+        raise SystemExit(f"write_shards from {tree} failed:\n{done.stderr[-3000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def same_files(a: Path, b: Path) -> bool:
+    names = sorted(p.name for p in a.iterdir())
+    return names == sorted(p.name for p in b.iterdir()) and all(
+        (a / n).read_bytes() == (b / n).read_bytes() for n in names)
+
+
+def run_write(args) -> None:
+    repo = Path(__file__).resolve().parents[2]
+    work = Path(tempfile.mkdtemp(prefix="shard_write_"))
+    trees = {"this tree": str(repo)}
+    try:
+        if args.against:
+            base = work / "against"
+            base.mkdir()
+            archive = subprocess.run(["git", "-C", str(repo), "archive", args.against, "stablemo", "footskate"],
+                                     capture_output=True, check=True).stdout
+            subprocess.run(["tar", "-x", "-C", str(base)], input=archive, check=True)
+            trees = {args.against: str(base), **trees}
+        names = list(trees)
+        rates: dict[str, list[float]] = {n: [] for n in names}
+        cpus: dict[str, list[float]] = {n: [] for n in names}
+        for r in range(args.rounds):
+            outs = {}
+            for name in (names if r % 2 == 0 else names[::-1]):
+                outs[name] = work / f"out_{len(outs)}"
+                got = write_once(trees[name], args.src, str(outs[name]), args.workers)
+                rates[name].append(got["clips"] / got["seconds"])
+                cpus[name].append(got["cpu"] / got["clips"] * 1e3)
+                print(f"round {r} {name}: {got['clips']} clips in {got['seconds']:.2f} s = {rates[name][-1]:.0f} "
+                      f"clips/s, {cpus[name][-1]:.3f} CPU-ms per clip", flush=True)
+            if len(outs) == 2:
+                print(f"round {r}: outputs byte-identical: {same_files(*outs.values())}", flush=True)
+            for out in outs.values():
+                shutil.rmtree(out)
+        for name in names:
+            print(f"{name}: median {statistics.median(rates[name]):.0f} clips/s "
+                  f"({min(rates[name]):.0f}-{max(rates[name]):.0f}), median {statistics.median(cpus[name]):.3f} "
+                  f"CPU-ms per clip, --workers {args.workers}, load average {os.getloadavg()[0]:.1f} at the end")
+        if len(names) == 2:
+            ratios = [b / a for a, b in zip(rates[names[0]], rates[names[1]])]
+            print(f"speed-up (this tree / {names[0]}): median of pairs {statistics.median(ratios):.2f} "
+                  f"(min {min(ratios):.2f}, max {max(ratios):.2f})")
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -119,13 +232,22 @@ def main() -> None:
     ab.add_argument("--rounds", type=int, default=6)
     ab.add_argument("--steps", type=int, default=30)
     ab.add_argument("--warmup", type=int, default=5)
+    link = sub.add_parser("link")
+    link.add_argument("src")
+    link.add_argument("--copies", type=int, required=True)
+    link.add_argument("--out", required=True)
+    write = sub.add_parser("write")
+    write.add_argument("src", nargs="+")
+    write.add_argument("--against", help="a git revision to compare with, e.g. HEAD~3")
+    write.add_argument("--rounds", type=int, default=3)
+    write.add_argument("--workers", type=int, default=2)
     rss = sub.add_parser("rss")
     rss.add_argument("--shards", required=True)
     rss.add_argument("--batch-size", type=int, default=32)
     rss.add_argument("--every", type=int, default=200)
     args = parser.parse_args()
     torch.set_num_threads(1)  # the tests' and the paired benches' setting: a shared 2-core VM
-    run_ab(args) if args.command == "ab" else run_rss(args)
+    {"link": run_link, "write": run_write, "ab": run_ab, "rss": run_rss}[args.command](args)
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ import hashlib
 import io
 import json
 import re
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -74,12 +75,30 @@ def read_bytes(location: str) -> bytes:
 
 
 # -- one clip ---------------------------------------------------------------------------------------
+_COMPRESSORS = threading.local()  # one zstd context per thread (a context is not thread-safe)
+
+
+def _compressor():
+    compressor = getattr(_COMPRESSORS, "zstd", None)
+    if compressor is None:  # made once: a new context per clip cost ~10 % of the compression here
+        import zstandard
+
+        compressor = _COMPRESSORS.zstd = zstandard.ZstdCompressor(level=ZSTD_LEVEL, write_checksum=True)
+    return compressor
+
+
+def byte_planes(features: np.ndarray) -> np.ndarray:
+    """(T, D) float array -> (4, T*D) uint8: plane k holds byte k of every little-endian float32."""
+    words = np.ascontiguousarray(features, DTYPE).reshape(-1).view("<u4")
+    planes = np.empty((4, words.size), np.uint8)
+    for k in range(4):  # shifts: ~1.6x faster here than numpy's strided copy of the transposed bytes
+        planes[k] = words >> (8 * k)  # the assignment keeps the low byte
+    return planes
+
+
 def encode_features(features: np.ndarray) -> bytes:
     """(T, D) float array -> zstd frame of its little-endian float32 bytes in 4 planes."""
-    import zstandard
-
-    planes = np.ascontiguousarray(np.asarray(features, DTYPE).view(np.uint8).reshape(-1, 4).T)
-    return zstandard.ZstdCompressor(level=ZSTD_LEVEL, write_checksum=True).compress(planes.tobytes())
+    return _compressor().compress(byte_planes(features))
 
 
 def decode_features(blob: bytes, frames: int, dim: int, where: str) -> np.ndarray:
