@@ -66,6 +66,7 @@ def row(solved) -> dict:
     return {"stance_target_cm_s": round(100 * r["stance"]["target_m_s"], 2),
             "stance_source_cm_s": round(100 * r["stance"]["source_m_s"], 2),
             "reach_mean_pct": round(100 * r["reach"]["mean"], 3), "reach_max_pct": round(100 * r["reach"]["max"], 2),
+            "hands_unreachable_pct": round(100 * r["reach"]["unreachable"], 2),
             "flipped_frames": sum(v for k, v in r["flipped"].items() if k != "bent"), "bent_frames": r["flipped"]["bent"],
             "heading_max_deg": round(r["heading_deg"], 4), "scale": round(r["scale"], 4)}
 

@@ -49,20 +49,32 @@ def stance_speed(solved: Solved) -> dict[str, float]:
 
 
 def reach_error(solved: Solved) -> dict[str, float]:
-    """Hands and ankles against the scaled source's, as a fraction of the target's leg length: the
-    hands on every frame, each ankle on the frames no contact holds it (neither planted nor within
-    a hold's fade; mean and max)."""
+    """Hands and ankles against the scaled source's, as a fraction of the target's leg length: each
+    hand on the frames its scaled source position is within the target arm's reach of the target's
+    shoulder (a rig whose arms are short for its legs cannot put its hands where the scaled source
+    has them; `unreachable` is the share of hand frames left out so), each ankle on the frames no
+    contact holds it (neither planted nor within a hold's fade); mean and max."""
     leg = leg_length(solved.target.rest, solved.roles)
-    errors = []
+    errors, hand_frames, unreachable = [], 0, 0
     for s_i, side in enumerate(SIDES):
         for role in ("Hand", "Foot"):
             a, b = _pair(solved, side, role)
             err = np.linalg.norm(a - b, axis=-1) / leg
             if role == "Foot":
                 err = err[solved.held[:, s_i] == 0]
+            else:
+                shoulder, elbow, hand = (solved.roles.sides[side][r] for r in LIMBS["arm"])
+                x = solved.positions
+                arm = np.median(np.linalg.norm(x[:, elbow] - x[:, shoulder], axis=-1)
+                                + np.linalg.norm(x[:, hand] - x[:, elbow], axis=-1))
+                reachable = np.linalg.norm(b - x[:, shoulder], axis=-1) <= arm * (1 + 1e-3)
+                hand_frames += len(err)
+                unreachable += int((~reachable).sum())
+                err = err[reachable]
             errors.append(err)
     every = np.concatenate(errors)
-    return {"mean": float(every.mean()), "max": float(every.max())}
+    return {"mean": float(every.mean()) if len(every) else 0.0, "max": float(every.max()) if len(every) else 0.0,
+            "unreachable": unreachable / max(hand_frames, 1)}
 
 
 def _bend_axis(x: np.ndarray, upper: int, mid: int, end: int) -> tuple[np.ndarray, np.ndarray]:
