@@ -23,6 +23,7 @@ from stablemo.errors import StableMoError
 from stablemo.motion.features import FACING_SIGMA
 from stablemo.motion.quaternion import (
     cross,
+    norm,
     qbetween,
     qinv,
     qmul,
@@ -84,10 +85,10 @@ def smooth_frames(v: torch.Tensor, sigma: float, radius: int | None = None) -> t
     return out
 
 
-def _normalize(v: torch.Tensor) -> torch.Tensor:
+def _normalize(v: torch.Tensor, dim: int = -1) -> torch.Tensor:
     # as the numpy twin: a zero vector stays zero, so it does not vote in the facing average
-    norm = torch.linalg.vector_norm(v, dim=-1, keepdim=True)
-    return v / torch.where(norm > 1e-12, norm, torch.ones_like(norm))
+    size = norm(v, dim, keepdim=True)
+    return v / torch.where(size > 1e-12, size, torch.ones_like(size))
 
 
 def _axis(v: torch.Tensor, axis: int) -> torch.Tensor:
@@ -184,27 +185,24 @@ def _facing_rotations(x: torch.Tensor, skel: Skeleton) -> torch.Tensor:
     return torch.cat([identity, r[:, 1:]], dim=1)
 
 
-def _swing_rotations(x: torch.Tensor, r: torch.Tensor, skel: Skeleton) -> torch.Tensor:
-    """Local joint rotations (B, T, J, 4): each chain's swing from the raw rest direction to the
-    measured bone, relative to the chain's accumulated rotation (from the root rotation r (B, T, 4)).
+def _swing_rotations(c: torch.Tensor, r: torch.Tensor, skel: Skeleton) -> torch.Tensor:
+    """Local rotations (4, B, T, J-1) of joints 1.., components first, from joints c (3, B, T, J)
+    and root rotations r (4, B, T, 1): each chain's swing from the raw rest direction to the
+    measured bone, relative to the chain's accumulated rotation.
 
     The reference accumulates acc <- acc * local along a chain with local = acc^-1 * swing, so after
     each bone acc is that bone's swing: the local rotation is the previous bone's swing (r for a
     chain's first bone) inverted, times this bone's swing. All bones at once, no loop."""
-    children, parents_of = _bones(skel)
-    bone = _normalize(x[:, :, children] - x[:, :, parents_of])  # (B, T, J-1, 3)
-    swing = qbetween(_raw_offsets(skel, x)[children].expand_as(bone), bone)  # (B, T, J-1, 4)
-    first = []  # per bone: True where it starts a chain
+    parents = list(skel.parents[1:])
+    bone = _normalize(c[..., 1:] - c[..., parents], dim=0)  # (3, B, T, J-1), bone j-1 ends at joint j
+    raw = _raw_offsets(skel, c)[1:].T[:, None, None, :]  # (3, 1, 1, J-1)
+    swing = qbetween(raw, bone, dim=0)  # (4, B, T, J-1)
+    before = [len(parents)] * len(parents)  # per bone: the slot of the rotation before it (J-1: r)
     for chain in skel.kinematic_chains:
-        first += [True] + [False] * (len(chain) - 2)
-    before = torch.cat([r[:, :, None], swing[:, :, :-1]], dim=2)  # (B, T, J-1, 4): the previous bone's swing
-    starts = torch.tensor(first, device=x.device)[:, None]  # (J-1, 1)
-    acc = torch.where(starts, r[:, :, None].expand_as(swing), before)
-    local = qmul(qinv(acc), swing)  # (B, T, J-1, 4), in bone order
-    quats = torch.empty(*x.shape[:2], skel.num_joints, 4, dtype=x.dtype, device=x.device)
-    quats[:, :, 0] = r
-    quats[:, :, children] = local
-    return quats
+        for p, child in zip(chain[1:-1], chain[2:]):
+            before[child - 1] = p - 1
+    acc = torch.cat([swing, r], dim=-1)[..., before]
+    return qmul(qinv(acc, dim=0), swing, dim=0)
 
 
 def _features(x: torch.Tensor, skel: Skeleton) -> torch.Tensor:
@@ -224,18 +222,26 @@ def body_features(x: torch.Tensor, r: torch.Tensor, skel: Skeleton) -> torch.Ten
     """The feature columns after the root's rotation and linear velocity (root height, ric, 6D
     rotations, local velocities, foot contacts) of joints x (B, T, J, 3) seen from root rotations
     r (B, T, 4) -> (B, T−1, D − 3). Split out so that a motion whose root rotation is already known
-    (the finishing step keeps the network's) skips the facing estimate."""
-    feet = x[:, :, list(skel.contact_joints)]  # (B, T, 4, 3)
-    disp2 = ((feet[:, 1:] - feet[:, :-1]) ** 2).sum(-1)  # (B, T-1, 4)
+    (the finishing step keeps the network's) skips the facing estimate.
+
+    Worked components first, (3, B, T, J): a joint's x, y and z then each lie in one contiguous
+    block, so every step below is a vectorised pass; on (B, T, J, 3) each one strode over the
+    interleaved coordinates (the finishing step spent most of its time here)."""
+    b, t = x.shape[:2]
+    c = x.permute(3, 0, 1, 2).contiguous()  # (3, B, T, J)
+    rq = r.permute(2, 0, 1)[..., None]  # (4, B, T, 1)
+    feet = c[..., list(skel.contact_joints)]  # (3, B, T, 4)
+    disp2 = ((feet[:, :, 1:] - feet[:, :, :-1]) ** 2).sum(0)  # (B, T-1, 4)
     contacts = (disp2 < skel.contact_threshold).to(x.dtype)
-    rot6d = quat_to_rot6d(_swing_rotations(x, r, skel)[:, :, 1:])  # (B, T, J-1, 6)
-    xz = torch.tensor([1.0, 0.0, 1.0], dtype=x.dtype, device=x.device)
-    rel = x - x[:, :, :1] * xz  # root-relative in xz, absolute height
+    rot6d = quat_to_rot6d(_swing_rotations(c[:, :, :-1], rq[:, :, :-1], skel), dim=0)  # (6, B, T-1, J-1)
+    xz = c.new_tensor([1.0, 0.0, 1.0]).view(3, 1, 1, 1)
+    rel = c[:, :, :-1] - c[:, :, :-1, :1] * xz  # root-relative in xz, absolute height
     # r turns about y alone (a facing, or recover_root's yaw): the cheaper exact rotation
-    ric = yaw_rotate(r[:, :-1, None], rel[:, :-1])[:, :, 1:]  # (B, T-1, J-1, 3)
-    local_vel = yaw_rotate(r[:, :-1, None], x[:, 1:] - x[:, :-1])  # (B, T-1, J, 3)
-    return torch.cat([x[:, :-1, 0, 1:2], ric.flatten(2), rot6d[:, :-1].flatten(2),
-                      local_vel.flatten(2), contacts], dim=-1)
+    ric = yaw_rotate(rq[:, :, :-1], rel[..., 1:], dim=0)  # (3, B, T-1, J-1)
+    local_vel = yaw_rotate(rq[:, :, :-1], c[:, :, 1:] - c[:, :, :-1], dim=0)  # (3, B, T-1, J)
+    # back to (B, T-1, D - 3), each block's components last (one strided copy per block)
+    return torch.cat([c[1, :, :-1, :1], ric.permute(1, 2, 3, 0).flatten(2), rot6d.permute(1, 2, 3, 0).flatten(2),
+                      local_vel.permute(1, 2, 3, 0).flatten(2), contacts], dim=-1)
 
 
 def canonicalize_joints_batched(joints: torch.Tensor, lengths, skeleton: Skeleton | str = "humanml3d",

@@ -32,7 +32,7 @@ import torch
 
 from stablemo.errors import StableMoError
 from stablemo.motion.extract_torch import fill_padding, smooth_frames
-from stablemo.motion.quaternion import cross
+from stablemo.motion.quaternion import cross, norm
 from stablemo.motion.skeleton import Skeleton, get_skeleton
 
 _EPS = 1e-9
@@ -42,38 +42,35 @@ _EPS = 1e-9
 MAX_ROOT_MOVE_M = 0.10
 
 
-def _unit(v: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(unit vector, norm (..., 1)); a zero vector stays zero."""
-    norm = torch.linalg.vector_norm(v, dim=-1, keepdim=True)
-    return v / norm.clamp(min=_EPS), norm
+def _unit(v: torch.Tensor, dim: int = -1) -> tuple[torch.Tensor, torch.Tensor]:
+    """(unit vector, norm (keeping axis dim)) over the component axis dim; a zero vector stays zero."""
+    size = norm(v, dim, keepdim=True)
+    return v / size.clamp(min=_EPS), size
 
 
-def _facing(x: torch.Tensor, skel: Skeleton) -> torch.Tensor:
-    """Unit forward direction (B, T, 3) of the hips and shoulders (up × across), horizontal."""
-    r_hip, l_hip, r_sdr, l_sdr = skel.face_joints
-    across = (x[..., l_hip, :] - x[..., r_hip, :]) + (x[..., l_sdr, :] - x[..., r_sdr, :])
-    up = torch.zeros_like(across)
-    up[..., 1] = 1.0
-    return _unit(cross(up, across))[0]
+def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """a · b over the leading component axis (3, ...) -> (1, ...)."""
+    return (a * b).sum(0, keepdim=True)
 
 
 def two_bone(upper: torch.Tensor, target: torch.Tensor, pole: torch.Tensor, fallback_bend: torch.Tensor,
-              rest_dir: torch.Tensor, l1: float, l2: float) -> tuple[torch.Tensor, torch.Tensor]:
+             rest_dir: torch.Tensor, l1: float, l2: float, dim: int = -1) -> tuple[torch.Tensor, torch.Tensor]:
     """Middle and end positions (B, T, 3) of a limb rooted at `upper` whose end aims at `target`.
 
     pole: the generated middle joint, whose side of the upper->target line sets the bend plane;
     fallback_bend: the bend direction where the generated limb is straight (knees forward, elbows
-    back); rest_dir: the aim where the target sits on the upper joint itself.
+    back); rest_dir: the aim where the target sits on the upper joint itself. dim: the component
+    axis (rigid_joints works components first, (3, B, T)).
     """
-    aim, dist = _unit(target - upper)
+    aim, dist = _unit(target - upper, dim)
     aim = torch.where(dist > _EPS, aim, rest_dir)
     # the reachable distance: neither longer than the straight limb nor shorter than the folded one
     d = dist.clamp(min=abs(l1 - l2) + 1e-6, max=l1 + l2)
     to_pole = pole - upper
-    bend = to_pole - (to_pole * aim).sum(-1, keepdim=True) * aim  # the pole's part across the aim line
-    bend, across = _unit(bend)
-    alt = fallback_bend - (fallback_bend * aim).sum(-1, keepdim=True) * aim
-    alt = _unit(alt)[0]
+    bend = to_pole - (to_pole * aim).sum(dim, keepdim=True) * aim  # the pole's part across the aim line
+    bend, across = _unit(bend, dim)
+    alt = fallback_bend - (fallback_bend * aim).sum(dim, keepdim=True) * aim
+    alt = _unit(alt, dim)[0]
     bend = torch.where(across > 1e-4 * l1, bend, alt)
     cos_a = ((l1 * l1 + d * d - l2 * l2) / (2.0 * l1 * d)).clamp(-1.0, 1.0)
     sin_a = (1.0 - cos_a * cos_a).clamp(min=0.0).sqrt()
@@ -81,18 +78,19 @@ def two_bone(upper: torch.Tensor, target: torch.Tensor, pole: torch.Tensor, fall
     return middle, upper + d * aim
 
 
-def _branch_frames(x: torch.Tensor, skel: Skeleton, valid: torch.Tensor) -> dict:
-    """Rigid frames of the joints with several children (the pelvis, the upper chest).
+def _branch_directions(x: torch.Tensor, skel: Skeleton, valid: torch.Tensor) -> dict[int, torch.Tensor]:
+    """Where each child of a joint with several children (the pelvis, the upper chest) points,
+    x (J, 3, B, T) -> {child: unit direction (3, B, T)}.
 
     A bone-by-bone rebuild keeps every length but lets the hips, or the neck and collars, swing
     against each other: the pelvis would change width. Here each such joint gets a frame per frame
     (y: towards its up child, the spine; x: from its -x child to its +x child, the body's right and
     left), the children's offsets are read in that frame, and their mean direction over the motion's
-    valid frames becomes the joint's fixed shape. -> {parent: (frames (B, T, 3, 3) columns x, y, z,
-    {child: unit offset (B, 3) in the frame})}; joints without an up and two side children are left
-    to the bone-by-bone rule."""
+    valid frames (B, T) becomes the joint's fixed shape, turned back with the frame. Joints without
+    an up and two side children are left to the bone-by-bone rule."""
     raw = skel.raw_offsets
     out = {}
+    weight = valid.to(x.dtype)[None]  # (1, B, T): the mean unit offset over the valid frames
     for parent in range(skel.num_joints):
         kids = [c for c in range(skel.num_joints) if skel.parents[c] == parent]
         up = [c for c in kids if raw[c][1] > 0.5]
@@ -100,16 +98,15 @@ def _branch_frames(x: torch.Tensor, skel: Skeleton, valid: torch.Tensor) -> dict
         neg = [c for c in kids if raw[c][0] < -0.5]
         if len(kids) < 2 or len(up) != 1 or len(pos) != 1 or len(neg) != 1:
             continue
-        y = _unit(x[..., up[0], :] - x[..., parent, :])[0]
-        side = x[..., pos[0], :] - x[..., neg[0], :]
-        xa = _unit(side - (side * y).sum(-1, keepdim=True) * y)[0]
-        frame = torch.stack([xa, y, cross(xa, y)], dim=-1)  # (B, T, 3, 3)
-        shape = {}
+        y = _unit(x[up[0]] - x[parent], 0)[0]  # (3, B, T) the frame's columns xa, y, z
+        side = x[pos[0]] - x[neg[0]]
+        xa = _unit(side - _dot(side, y) * y, 0)[0]
+        z = cross(xa, y, 0)
         for c in kids:
-            local = (frame.transpose(-1, -2) @ (x[..., c, :] - x[..., parent, :])[..., None])[..., 0]  # (B, T, 3)
-            weight = valid[..., None].to(local.dtype)  # the mean unit offset over the valid frames
-            shape[c] = _unit((_unit(local)[0] * weight).sum(1) / weight.sum(1).clamp(min=1.0))[0]  # (B, 3)
-        out[parent] = (frame, shape)
+            offset = x[c] - x[parent]
+            local = torch.cat([_dot(xa, offset), _dot(y, offset), _dot(z, offset)])  # (3, B, T) in the frame
+            shape = _unit((_unit(local, 0)[0] * weight).sum(-1, keepdim=True) / weight.sum(-1, keepdim=True).clamp(min=1.0), 0)[0]
+            out[c] = xa * shape[0] + y * shape[1] + z * shape[2]  # (3, B, T)
     return out
 
 
@@ -126,46 +123,58 @@ def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
     elbows; on the synthetic benchmark that costs FID 0.15 -> 0.23 and R@3 0.77 -> 0.66, keeping
     the angles costs nothing (0.16, 0.77), for hands 4.7 cm further out on average. A wrist with a
     joint target is held (stablemo.inference.finish). ends (B, T, J, 3): where a held end goes
-    (default: where it was generated; the finishing step gives planted feet their anchors)."""
+    (default: where it was generated; the finishing step gives planted feet their anchors).
+
+    The work runs joints and components first, (J, 3, B, T): each joint's x, y and z are then one
+    contiguous block, so the many small steps of the rebuild are vectorised passes (on (B, T, J, 3)
+    every one strode over interleaved coordinates, and this step cost as much as the network)."""
     skel = get_skeleton(skeleton)
-    x = torch.as_tensor(joints)
-    if x.dim() not in (3, 4) or tuple(x.shape[-2:]) != (skel.num_joints, 3) or not x.is_floating_point():
+    joints = torch.as_tensor(joints)
+    if joints.dim() not in (3, 4) or tuple(joints.shape[-2:]) != (skel.num_joints, 3) or not joints.is_floating_point():
         raise StableMoError(f"joints: expected a float array (B, T, {skel.num_joints}, 3) for skeleton {skel.name}, "
-                            f"got {tuple(x.shape)} {x.dtype}")
-    if x.dim() == 3:
-        return rigid_joints(x[None], skel, bone_lengths, None if lengths is None else [lengths],
+                            f"got {tuple(joints.shape)} {joints.dtype}")
+    if joints.dim() == 3:
+        return rigid_joints(joints[None], skel, bone_lengths, None if lengths is None else [lengths],
                             None if hold is None else torch.as_tensor(hold)[None],
                             None if ends is None else torch.as_tensor(ends)[None])[0]
-    frames_n = torch.full((x.shape[0],), x.shape[1]) if lengths is None else torch.as_tensor(lengths).reshape(-1)
-    valid = torch.arange(x.shape[1])[None, :] < frames_n[:, None]  # (B, T)
-    branches = _branch_frames(x, skel, valid.to(x.device))
     body = np.asarray(skel.bone_lengths if bone_lengths is None else bone_lengths, dtype=np.float64)
     if body.shape != (skel.num_joints,) or not np.isfinite(body).all() or (body[1:] <= 0).any():
         raise StableMoError(f"bone_lengths: expected {skel.num_joints} finite lengths > 0 (root 0) for skeleton "
                             f"{skel.name}, got shape {body.shape}")
-    raw_dir = torch.tensor(np.array(skel.raw_offsets), dtype=x.dtype, device=x.device)  # (J, 3) rest directions
-    forward = _facing(x, skel)  # (..., T, 3)
+    frames_n = torch.full((joints.shape[0],), joints.shape[1]) if lengths is None else torch.as_tensor(lengths).reshape(-1)
+    valid = (torch.arange(joints.shape[1])[None, :] < frames_n[:, None]).to(joints.device)  # (B, T)
+    x = joints.permute(2, 3, 0, 1).contiguous()  # (J, 3, B, T)
+    legs = {ankle for _, _, ankle in skel.legs.values()}
+    ends_at = [end for _, _, end in skel.ik_limbs]
+    if hold is None:
+        hold_at = {end: float(end in legs) for end in ends_at}
+    else:
+        hold = torch.as_tensor(hold).to(joints)
+        hold_at = {end: hold[..., end][None] for end in ends_at}  # (1, B, T)
+    if ends is None:
+        goal_at = {end: x[end] for end in ends_at}  # (3, B, T)
+    else:
+        ends = torch.as_tensor(ends).to(joints)
+        goal_at = {end: ends[:, :, end].permute(2, 0, 1) for end in ends_at}
+
+    raw_dir = torch.tensor(np.array(skel.raw_offsets), dtype=x.dtype, device=x.device)[..., None, None]  # (J, 3, 1, 1)
+    parents = list(skel.parents[1:])
+    direction, size = _unit(x[1:] - x[parents], 1)  # (J-1, 3, B, T) every bone's generated direction
+    if x.is_cuda or bool((size <= _EPS).any()):  # a zero bone takes its rest direction (a CPU check is free)
+        direction = torch.where(size > _EPS, direction, raw_dir[1:])
+    directions = [None, *direction.unbind(0)]  # per joint (3, B, T)
+    directions_branch = _branch_directions(x, skel, valid)
+    forward = _facing(x, skel)  # (3, B, T)
     limb_of_end = {end: (upper, mid) for upper, mid, end in skel.ik_limbs}
     mids = {mid for _, mid, _ in skel.ik_limbs}
-    legs = {ankle for _, _, ankle in skel.legs.values()}
-    if hold is None:
-        hold = torch.zeros(x.shape[:3], dtype=x.dtype, device=x.device)
-        hold[..., sorted(legs)] = 1.0
-    hold = torch.as_tensor(hold).to(x)
-    goal = x if ends is None else torch.as_tensor(ends).to(x)
 
     def along(parent: int, child: int, out: list) -> torch.Tensor:
-        """Where `child` goes from its placed parent: the body's length along the generated direction."""
-        if parent in branches:  # the joint's fixed shape, turned with its frame
-            frame, shape = branches[parent]
-            direction = (frame @ shape[child][:, None, :, None])[..., 0]  # (B, T, 3)
-        else:
-            direction, norm = _unit(x[..., child, :] - x[..., parent, :])
-            direction = torch.where(norm > _EPS, direction, raw_dir[child].expand_as(direction))
-        return out[parent] + float(body[child]) * direction
+        """Where `child` goes from its placed parent: the body's length along the generated direction
+        (a branching joint's children: its fixed shape, turned with its frame)."""
+        return out[parent] + float(body[child]) * directions_branch.get(child, directions[child])
 
     def build(root: torch.Tensor) -> list[torch.Tensor]:
-        out: list[torch.Tensor | None] = [None] * skel.num_joints  # per joint (B, T, 3)
+        out: list[torch.Tensor | None] = [None] * skel.num_joints  # per joint (3, B, T)
         out[0] = root
         for chain in skel.kinematic_chains:  # chains start at placed joints, parents before children
             for parent, child in zip(chain[:-1], chain[1:]):
@@ -175,38 +184,42 @@ def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
                     upper, mid = limb_of_end[child]
                     out[mid] = along(upper, mid, out)
                     kept = along(mid, child, out)  # the limb with its generated angles
-                    w = hold[..., child, None]
+                    w = hold_at[child]
                     # knees bend forward, elbows backward, where the generated limb is straight
                     bend = forward if child in legs else -forward
-                    out[mid], out[child] = two_bone(out[upper], kept + w * (goal[..., child, :] - kept), out[mid], bend,
-                                                     raw_dir[mid].expand_as(forward), float(body[mid]),
-                                                     float(body[child]))
+                    out[mid], out[child] = two_bone(out[upper], kept + w * (goal_at[child] - kept), out[mid], bend,
+                                                     raw_dir[mid], float(body[mid]), float(body[child]), dim=0)
                     continue
                 out[child] = along(parent, child, out)
         return out
 
     # the hips from the generated root first (the leg's reach sets the root's height), then everything
     hips: list[torch.Tensor | None] = [None] * skel.num_joints
-    hips[0] = x[..., 0, :]
+    hips[0] = x[0]
     for upper in (u for u, _, e in skel.ik_limbs if e in legs):
         path = [upper]
         while skel.parents[path[-1]] != 0:
             path.append(skel.parents[path[-1]])
         for joint in reversed(path):
             hips[joint] = along(skel.parents[joint], joint, hips)
-    root = x[..., 0, :] + _leg_drop(hips, x, skel, body, valid.to(x.device))[..., None] * _axis_y(x)
-    return torch.stack(build(root), dim=-2)
+    root = x[0].clone()
+    root[1] += _leg_drop(hips, x, directions, skel, body, valid)  # the root moves vertically only
+    return torch.stack(build(root)).permute(2, 3, 0, 1).contiguous()  # (B, T, J, 3)
 
 
-def _axis_y(x: torch.Tensor) -> torch.Tensor:
-    up = torch.zeros(3, dtype=x.dtype, device=x.device)
-    up[1] = 1.0
-    return up
+def _facing(x: torch.Tensor, skel: Skeleton) -> torch.Tensor:
+    """Unit forward direction (3, B, T) of the hips and shoulders (up × across), horizontal;
+    x (J, 3, B, T)."""
+    r_hip, l_hip, r_sdr, l_sdr = skel.face_joints
+    across = (x[l_hip] - x[r_hip]) + (x[l_sdr] - x[r_sdr])
+    # (0, 1, 0) × across, written out
+    return _unit(torch.stack([across[2], torch.zeros_like(across[0]), -across[0]]), 0)[0]
 
 
-def _leg_drop(placed: list, x: torch.Tensor, skel: Skeleton, body: np.ndarray, valid: torch.Tensor) -> torch.Tensor:
+def _leg_drop(placed: list, x: torch.Tensor, directions: list, skel: Skeleton, body: np.ndarray,
+              valid: torch.Tensor) -> torch.Tensor:
     """How far (B, T) to move the root up or down so that the supporting leg reaches its foot with
-    the knee bent as generated.
+    the knee bent as generated; x (J, 3, B, T), placed and directions per joint (3, B, T).
 
     A denoiser changes leg lengths (shins of 0.37 to 0.62 m instead of 0.43), so a leg of the body's
     length that reached the generated ankle from the generated hip height would bend its knee more or
@@ -217,23 +230,22 @@ def _leg_drop(placed: list, x: torch.Tensor, skel: Skeleton, body: np.ndarray, v
     so the body does not bob with each frame's stretch."""
     legs = list(skel.legs.values())
     if len(legs) != 2:
-        return torch.zeros(x.shape[:2], dtype=x.dtype, device=x.device)
+        return torch.zeros(x.shape[2:], dtype=x.dtype, device=x.device)
     drops, heights = [], []
     for upper, mid, end in legs:
         l1, l2 = float(body[mid]), float(body[end])
-        thigh = _unit(x[..., mid, :] - x[..., upper, :])[0]
-        shin = _unit(x[..., end, :] - x[..., mid, :])[0]
-        want = (l1 * l1 + l2 * l2 + 2.0 * l1 * l2 * (thigh * shin).sum(-1)).clamp(min=0.0)  # (B, T) squared
+        # the thigh and shin directions (the generated bones')
+        want = (l1 * l1 + l2 * l2 + 2.0 * l1 * l2 * _dot(directions[mid], directions[end])[0]).clamp(min=0.0)  # (B, T) squared
         want = want.clamp(max=(0.999 * (l1 + l2)) ** 2)
-        v = x[..., end, :] - placed[upper]  # (B, T, 3) hip -> generated ankle
-        vy = v[..., 1]
-        disc = vy * vy - (v * v).sum(-1) + want
+        v = x[end] - placed[upper]  # (3, B, T) hip -> generated ankle
+        vy = v[1]
+        disc = vy * vy - _dot(v, v)[0] + want
         # move the hip by s along y so that |v - s y|^2 = want, the smaller move of the two; a foot out
         # of reach sideways at any height: the hip goes to its height at most
         root = disc.clamp(min=0).sqrt()
         s = torch.where((vy - root).abs() < (vy + root).abs(), vy - root, vy + root)
         drops.append(torch.where(disc >= 0, s, vy))
-        heights.append(x[..., end, 1])
+        heights.append(x[end, 1])
     support = heights[0] <= heights[1]
     drop = torch.where(support, drops[0], drops[1])
     reach = MAX_ROOT_MOVE_M * skel.per_metre
