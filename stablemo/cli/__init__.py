@@ -32,6 +32,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "nets": ("nets", "main", "denoiser tools: summary"),
     "bench": ("bench", "main", "benchmarks: aits, stream, train, footskate"),
     "evaluate": ("evaluate", "main", "evaluate a bundle against a dataset"),
+    "behaviour": ("behaviour", "main", "does each motion do what its prompt says (counts, sides, turns, order)"),
     "footskate": ("footskate", "main", "remove foot skating from a motion file"),
     "bvh": ("bvh", "main", "write features or joints (.npy) as BVH or an AMASS-style SMPL-X pose (.npz)"),
     "serve": ("serve", "main", "a local web page and JSON API for generating motions"),

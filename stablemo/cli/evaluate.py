@@ -4,6 +4,8 @@
         [--steps 10 --sampler dpmpp_2m_sde --cfg 2.5] [--dtype fp32|bf16|fp16] [--footskate] [--multimodality]
         [--no-kinematics] [--split test --seed 0 --out results.json --csv results.csv]
 
+    stablemo evaluate --behaviour [--bundle DIR --seeds 4 --lengths ... --out ...]   (= stablemo behaviour)
+
 Protocol: Guo et al. 2022 (docs/evaluation.md). Each replication r makes two passes over the split's items with
 the evaluation crop rule and one random caption per item (the data set's per-epoch randomness):
 pass 2r gives the reference statistics, pass 2r+1 the captions and lengths that are scored. The
@@ -44,6 +46,9 @@ from stablemo.eval.text_motion import load_text_motion_evaluator
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="stablemo evaluate", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--behaviour", action="store_true",
+                   help="run the behaviour suite instead (prompts checked from the joints; the options of "
+                        "`stablemo behaviour`, no --data)")
     p.add_argument("--bundle", help="inference bundle to evaluate (omit to score only the real motions)")
     p.add_argument("--data", required=True, help="dataset folder (HumanML3D layout)")
     p.add_argument("--evaluator",
@@ -119,6 +124,10 @@ def _check_precision(args):
 
 
 def main(argv: list[str]) -> int:
+    if "--behaviour" in argv:  # another protocol with its own options: the behaviour command parses them
+        from stablemo.cli.behaviour import main as behaviour
+
+        return behaviour([a for a in argv if a != "--behaviour"])
     args = _parser().parse_args(argv)
     _check_numbers(args)
     dtype = _check_precision(args)

@@ -1,0 +1,76 @@
+"""Pass rates of a behaviour run with Wilson 95 % intervals: per attribute, per split, per length,
+overall; and the text table the command prints.
+
+A motion passes when every attribute its prompt tests passes. The intervals treat motions as
+independent trials; the seeds of one prompt are not fully independent (a model that cannot do a
+prompt fails all of them), so read them as a lower bound on the uncertainty.
+"""
+
+from __future__ import annotations
+
+import math
+
+from stablemo.eval.behaviour.table import ATTRIBUTES, SPLITS
+
+Z95 = 1.959964
+
+
+def wilson(passed: int, total: int, z: float = Z95) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion; (nan, nan) for no trials."""
+    if total <= 0:
+        return math.nan, math.nan
+    p = passed / total
+    centre = (p + z * z / (2 * total)) / (1 + z * z / total)
+    half = z * math.sqrt(p * (1 - p) / total + z * z / (4 * total * total)) / (1 + z * z / total)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def _rate(passed: int, total: int) -> dict:
+    lo, hi = wilson(passed, total)
+    return {"passed": passed, "total": total, "rate": passed / total if total else math.nan, "low": lo, "high": hi}
+
+
+def summarize(rows: list[dict]) -> dict:
+    """rows: one per motion, {split, length, attributes: {name: {passed, measured}}}.
+    -> {overall, checks, attributes: {name: rate}, splits: {split: {overall, attributes}}, lengths: {...}}"""
+
+    def block(selected: list[dict]) -> dict:
+        attrs = {}
+        for name in ATTRIBUTES:
+            results = [r["attributes"][name]["passed"] for r in selected if name in r["attributes"]]
+            if results:
+                attrs[name] = _rate(sum(results), len(results))
+        checks = [v["passed"] for r in selected for v in r["attributes"].values()]
+        return {"overall": _rate(sum(r["passed"] for r in selected), len(selected)),
+                "checks": _rate(sum(checks), len(checks)), "attributes": attrs}
+
+    out = block(rows)
+    out["splits"] = {s: block([r for r in rows if r["split"] == s]) for s in SPLITS if any(r["split"] == s for r in rows)}
+    lengths = list(dict.fromkeys(r["length"] for r in rows))
+    out["lengths"] = {n: block([r for r in rows if r["length"] == n]) for n in lengths}
+    return out
+
+
+def cell(rate: dict | None) -> str:
+    """`93.1 [90.2, 95.2]`: percent passed and its Wilson 95 % interval."""
+    if not rate or not rate.get("total"):
+        return "–"
+    return f"{100 * rate['rate']:.1f} [{100 * rate['low']:.1f}, {100 * rate['high']:.1f}]"
+
+
+def format_table(summary: dict) -> str:
+    """Rows: every attribute, then all checks and whole motions; columns: checks counted, then
+    percent passed [interval] over all, each split, each length."""
+    columns = [("all", summary)] + [(s, b) for s, b in summary["splits"].items()] + \
+              [(f"length {n}", b) for n, b in summary["lengths"].items()]
+    names = [a for a in ATTRIBUTES if a in summary["attributes"]]
+    picks = [(a, lambda b, a=a: b["attributes"].get(a)) for a in names]
+    picks += [("all checks", lambda b: b["checks"]), ("motions (every check)", lambda b: b["overall"])]
+    rows = [[name, str(pick(summary)["total"])] + [cell(pick(b)) for _, b in columns] for name, pick in picks]
+    header = ["% passed [95 % interval]", "n"] + [c for c, _ in columns]
+    widths = [max(len(str(r[i])) for r in rows + [header]) for i in range(len(header))]
+    line = lambda r: "  ".join(str(v).ljust(w) for v, w in zip(r, widths)).rstrip()
+    return "\n".join([line(header), line(["-" * w for w in widths])] + [line(r) for r in rows])
+
+
+__all__ = ["cell", "format_table", "summarize", "wilson"]
