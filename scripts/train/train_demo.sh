@@ -5,7 +5,13 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 STABLEMO=${STABLEMO:-.venv/bin/stablemo}
-[ -f data/synth/Mean.npy ] || "$STABLEMO" data synth --out data/synth --num 2000 --seed 0
+[ -f data/synth/Mean.npy ] || "$STABLEMO" data synth --out data/synth --num 2000 --seed 0 --rest varied
+# The next demo models train on clips with varied idle rest (docs/synth.md): a data/synth from before
+# (the shipped models' data, no "rest" or "rest": "tight" in its synth.json) is not trained on silently.
+grep -q '"rest": "varied"' data/synth/synth.json || {
+  echo "train_demo.sh: data/synth was written without --rest varied; regenerate it (replaces it): $STABLEMO data synth --out data/synth --num 2000 --seed 0" >&2
+  exit 2
+}
 resume=()
 [ -f runs/demo/checkpoints/last.ckpt ] && resume=(--ckpt_path last)
 "$STABLEMO" fit --config configs/demo.yaml "${resume[@]}" "$@"
