@@ -1,4 +1,4 @@
-"""Synthetic data: the idle rest around each action (issue #40): length does not imply count."""
+"""Synthetic data: the idle rest around each action: length does not imply count."""
 
 from __future__ import annotations
 

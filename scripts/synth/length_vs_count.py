@@ -1,4 +1,4 @@
-"""How much a synthetic clip's length says about its action's count, per rest mode (issue #40).
+"""How much a synthetic clip's length says about its action's count, per rest mode.
 
     .venv/bin/python scripts/synth/length_vs_count.py [--num 2000] [--seed 0] [--data DIR ...]
 
