@@ -91,8 +91,10 @@ def generate_motion(rng: np.random.Generator, rest: str = DEFAULT_REST, max_trie
             continue
         shortest, short_rest = frames, (int(lead_in * FPS), int(lead_out * FPS))  # the plan's shortest clip
         if frames < MIN_FRAMES:
+            # drawn in both modes, so that the captions' draws that follow are the same
             lead_out += (MIN_FRAMES - frames) / FPS + rng.uniform(0.0, 0.5)
-            built = build(plan, lead_in, lead_out)
+            if rest == "tight":
+                built = build(plan, lead_in, lead_out)
         texts, part_texts = _draw_captions(plan, rng)
         if rest == "varied":
             built = draw_rest(plan, shortest, *short_rest, rng)
@@ -101,7 +103,7 @@ def generate_motion(rng: np.random.Generator, rest: str = DEFAULT_REST, max_trie
 
 
 def draw_rest(plan: list[tuple[str, dict]], shortest: int, lead_in: int, lead_out: int,
-               rng: np.random.Generator) -> Built:
+              rng: np.random.Generator) -> Built:
     """The plan with idle rest: total length uniform over [max(MIN_FRAMES, shortest), MAX_FRAMES]
     whatever the action's count, the extra frames split at random between lead-in and lead-out.
     shortest: the plan's feature frames with lead_in/lead_out frames of rest (the drawn short ones)."""
