@@ -236,6 +236,11 @@ def test_cli_ground_truth_writes_json_and_prints_the_table(tmp_path, capsys):
     data = json.loads(out.read_text())
     assert data["summary"]["overall"]["passed"] == 4 and len(data["rows"]) == 4
     assert data["rows"][0]["attributes"]["count"] == {"passed": True, "measured": "2"}
+    assert data["prompts"][1] == {"text": "a kid jogs ahead.", "split": "held_out", "actions": ["jog"],
+                                  "tests": {"speed": "jog"}}
+    from stablemo.eval.behaviour.report import load
+
+    assert load(out) == data
 
 
 def test_cli_with_a_bundle_is_deterministic(tmp_path, capsys):

@@ -14,7 +14,6 @@ length, with Wilson 95 % intervals. docs/evaluation.md ("Behaviour") says what e
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from datetime import datetime, timezone
 
@@ -120,10 +119,10 @@ def main(argv: list[str]) -> int:
           f"= {len(result['rows'])} motions; pass rate [Wilson 95 % interval]")
     print(format_table(result["summary"]))
     if args.out:
+        from stablemo.eval.behaviour.report import dumps
         from stablemo.io import write_text
 
-        write_text(args.out, json.dumps({"settings": settings, "summary": result["summary"], "rows": result["rows"]},
-                                        indent=1) + "\n")
+        write_text(args.out, dumps(settings, result))
         print(f"wrote {args.out}")
     return 0
 

@@ -85,8 +85,9 @@ def truth_generator(default_frames: int) -> Generator:
 
 def run_suite(generate: Generator, prompts: list[Prompt], lengths: Sequence[str], seeds: Sequence[int],
               fps: float, low: int, high: int, progress: Callable[[str], None] | None = None) -> dict:
-    """Every prompt x length x seed: generated (one call per length), scored. Returns
-    {rows: one per motion, summary, seconds}; rows in prompt, length, seed order."""
+    """Every prompt x length x seed: generated (one call per length), scored. Returns {prompts: text,
+    split, actions, tests of each; rows: one per motion (its prompt's index), in prompt, length, seed
+    order; summary; seconds}."""
     frames = {(token, i): frames_for(token, p, fps, low, high) for token in lengths for i, p in enumerate(prompts)}
     started, generating, by_key = time.perf_counter(), 0.0, {}
     for token in lengths:
@@ -98,13 +99,14 @@ def run_suite(generate: Generator, prompts: list[Prompt], lengths: Sequence[str]
         for (i, seed), j in zip(items, joints):
             verdicts = score(prompts[i], j, fps)
             by_key[i, token, seed] = {
-                "prompt": i, "text": prompts[i].text, "split": prompts[i].split, "length": token,
+                "prompt": i, "split": prompts[i].split, "length": token,
                 "frames": int(len(j)), "seed": int(seed), "passed": all(v.passed for v in verdicts.values()),
                 "attributes": {k: {"passed": v.passed, "measured": v.measured} for k, v in verdicts.items()}}
         if progress:
             progress(f"length {token}: {len(items)} motions scored ({time.perf_counter() - started:.0f} s)")
     rows = [by_key[i, token, s] for i in range(len(prompts)) for token in lengths for s in seeds]
-    return {"rows": rows, "summary": summarize(rows),
+    table = [{"text": p.text, "split": p.split, "actions": p.actions, "tests": p.tests} for p in prompts]
+    return {"prompts": table, "rows": rows, "summary": summarize(rows),
             "seconds": {"total": time.perf_counter() - started, "generating": generating}}
 
 

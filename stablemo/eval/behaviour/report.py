@@ -1,0 +1,180 @@
+"""The behaviour section of docs/results.md and its picture, from the JSON that `stablemo behaviour
+--out` writes (docs/data/results/behaviour_<model>.json).
+
+`dumps` writes such a file and `load` reads it back; `section(results)` renders the section (per-attribute pass rates with Wilson intervals for every
+model, suite against held-out, per length); `write_section(path, text)` puts it into the results
+file in place of an older one (before the joint-control sections, where
+scripts/results/make_results.py renders it too); `chart(results, path)` draws the bar chart.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from stablemo.errors import StableMoError
+from stablemo.eval.behaviour.summary import cell
+from stablemo.eval.behaviour.table import ATTRIBUTES, SPLITS
+
+TITLE = "## Behaviour: does the motion do what the prompt says"
+NEXT_SECTIONS = ("\n## Joint control by guidance", "\n## Provenance")  # the section goes before the first found
+INTRO = f"""
+{TITLE}
+
+R-precision asks whether a motion lies nearer its own text than 31 others in the evaluator's space:
+a motion can be "near" a prompt for jumping twice while jumping four times, wave the wrong hand, turn
+270 degrees for "a quarter turn", or do the two parts of "X, then Y" the other way round. The
+behaviour suite (`stablemo behaviour`, docs/evaluation.md "Behaviour") generates each of its prompts
+at several lengths and seeds and checks from the joints what the text asks: counts of flights, hops,
+squats, punches and claps; which hand or foot; the direction of travel against the facing; the turn
+angle; the cruising speed; the body part doing the action; which part of a composite comes first.
+The column "ground truth" scores the synthetic generator's own motions of the same prompts, lengths
+and seeds (`stablemo behaviour --ground-truth`): the checks' validation; tests/test_behaviour.py also
+shows each check failing on motions wrong in its attribute (mirrored bodies, one jump more, the parts
+reversed, another speed, angle or limb). `suite` prompts are sentences the training captions
+can produce; `held_out` ones use a paraphrase or a subject none of them uses. Lengths: `default` (no
+length given: the pipeline's default, 6 s), `natural` (the length the synthetic generator gives the
+actions, 2-9 s), `9.8` (9.8 s, longer than any action needs). Percent passed [Wilson 95 % interval];
+the intervals treat motions as independent, which the 4 seeds of one prompt are not quite.
+"""
+
+
+def dumps(settings: dict, result: dict) -> str:
+    """The results file of a run_suite result: settings, summary and the prompts indented, then one
+    line per motion (diffs stay readable)."""
+    head = json.dumps({"settings": settings, "summary": result["summary"], "prompts": result["prompts"]}, indent=1)
+    rows = result["rows"]
+    lines = ",\n".join("  " + json.dumps(r, separators=(", ", ": ")) for r in rows)
+    return head[:-2] + ',\n "rows": [\n' + lines + "\n ]\n}\n"
+
+
+def load(path: str | Path) -> dict:
+    """A results file written by `stablemo behaviour --out`; one line naming it if it is not one."""
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError) as err:
+        raise StableMoError(f"{path}: not a behaviour results file ({err})") from None
+    if not isinstance(data, dict) or not {"settings", "summary", "prompts", "rows"} <= set(data):
+        raise StableMoError(f"{path}: not a behaviour results file (no settings, summary, prompts and rows)")
+    return data
+
+
+def _model_name(result: dict) -> str:
+    return result["settings"].get("label") or Path(str(result["settings"].get("model", "?"))).name
+
+
+def _table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows]) + "\n"
+
+
+def _attribute_rows(blocks: list[dict], totals: bool = True) -> list[list[str]]:
+    rows = []
+    for a in ATTRIBUTES:
+        if any(a in b["attributes"] for b in blocks):
+            rows.append([a, str(blocks[0]["attributes"].get(a, {}).get("total", "–"))]
+                        + [cell(b["attributes"].get(a)) for b in blocks])
+    if totals:
+        rows.append(["all checks", str(blocks[0]["checks"]["total"])] + [cell(b["checks"]) for b in blocks])
+        rows.append(["**motions (every check)**", str(blocks[0]["overall"]["total"])]
+                    + [f"**{cell(b['overall'])}**" for b in blocks])
+    return rows
+
+
+def section(results: dict[str, dict], picture: str | None = None) -> str:
+    """The markdown section for {label: result JSON}."""
+    names = list(results)
+    summaries = [results[n]["summary"] for n in names]
+    out = [INTRO]
+    settings = [results[n]["settings"] for n in names]
+    for name, s in zip(names, settings):
+        secs = s.get("seconds", {})
+        if "sampler" not in s:  # the synthetic motions
+            out.append(f"- {name}: {s.get('model')}, {s.get('prompts')} prompts x {len(s.get('lengths', []))} lengths "
+                       f"x {len(s.get('seeds', []))} seeds; {secs.get('total', '?')} s, measured {s.get('started')}.\n")
+            continue
+        out.append(f"- {name}: `{s.get('model')}`, {s.get('sampler')} {s.get('steps')} step(s), cfg {s.get('cfg')}, "
+                   f"{s.get('prompts')} prompts x {len(s.get('lengths', []))} lengths x {len(s.get('seeds', []))} seeds, "
+                   f"{s.get('device')}; {secs.get('total', '?')} s ({secs.get('generating', '?')} s generating), "
+                   f"measured {s.get('started')}. Prompts the bundle calls unfamiliar: {len(s.get('unfamiliar', []))} "
+                   f"of {s.get('prompts')}.\n")
+    out.append("\nPer attribute, all prompts and lengths:\n\n")
+    out.append(_table(["attribute", "checks"] + names, _attribute_rows(summaries)))
+    if picture:
+        out.append(f"\n![pass rate per attribute]({picture})\n")
+    out.append("\nSuite against held-out prompts (all lengths):\n\n")
+    split_blocks = [(n, sp, summaries[i]["splits"][sp]) for sp in SPLITS for i, n in enumerate(names)
+                    if sp in summaries[i]["splits"]]
+    out.append(_table(["attribute", "checks (suite)"] + [f"{n}, {sp}" for n, sp, _ in split_blocks],
+                      _attribute_rows([b for _, _, b in split_blocks])))
+    out.append("\nPer length (whole motions passing every check, and the count and angle checks that a length "
+               "longer than the action needs breaks):\n\n")
+    lengths = list(summaries[0]["lengths"])
+    rows = []
+    for what, pick in (("motions", lambda b: b["overall"]), ("count", lambda b: b["attributes"].get("count")),
+                       ("angle", lambda b: b["attributes"].get("angle")), ("order", lambda b: b["attributes"].get("order"))):
+        for i, n in enumerate(names):
+            rows.append([what, n] + [cell(pick(summaries[i]["lengths"][ln])) if ln in summaries[i]["lengths"] else "–"
+                                     for ln in lengths])
+    out.append(_table(["", "model"] + [f"length {ln}" for ln in lengths], rows))
+    return "".join(out)
+
+
+def write_section(path: str | Path, text: str) -> None:
+    """Replace the behaviour section of the results file at `path` (or insert it before the
+    joint-control sections), atomically."""
+    from stablemo.io import write_text
+
+    path = Path(path)
+    doc = path.read_text(encoding="utf-8")
+    start = doc.find("\n" + TITLE)
+    if start >= 0:
+        end = doc.find("\n## ", start + 1)
+        doc = doc[:start] + doc[end if end >= 0 else len(doc):]
+    at = next((doc.find(s) for s in NEXT_SECTIONS if doc.find(s) >= 0), -1)
+    if at < 0:
+        raise StableMoError(f"{path}: found none of the sections the behaviour section goes before")
+    write_text(path, doc[:at] + text.rstrip("\n") + "\n" + doc[at:])
+
+
+def chart(results: dict[str, dict], path: str | Path) -> None:
+    """Bars: pass rate per attribute (and whole motions) per model, Wilson 95 % intervals as whiskers."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from stablemo.outputs.render import save_png
+
+    names = list(results)
+    attrs = [a for a in ATTRIBUTES if any(a in results[n]["summary"]["attributes"] for n in names)]
+    labels = attrs + ["all checks", "motions"]
+    fig, ax = plt.subplots(figsize=(10, 4.2))
+    width = 0.8 / len(names)
+    x = np.arange(len(labels))
+    for k, n in enumerate(names):
+        s = results[n]["summary"]
+        rates = [s["attributes"].get(a) for a in attrs] + [s["checks"], s["overall"]]
+        mid = np.array([100 * r["rate"] if r else np.nan for r in rates])
+        err = np.array([[100 * (r["rate"] - r["low"]), 100 * (r["high"] - r["rate"])] if r else [0, 0] for r in rates]).T
+        bars = ax.bar(x + (k - (len(names) - 1) / 2) * width, mid, width, yerr=err, capsize=2, label=n)
+        for bar, v in zip(bars, mid):
+            ax.text(bar.get_x() + bar.get_width() / 2, 1.5, f"{v:.0f}", ha="center", va="bottom", fontsize=7,
+                    color="white")
+    ax.axhline(95, color="grey", lw=0.8, ls="--")
+    ax.axhline(85, color="grey", lw=0.8, ls=":")
+    ax.text(len(labels) - 0.5, 96, "target 95 % (teacher)", ha="right", fontsize=7, color="grey")
+    ax.text(len(labels) - 0.5, 86, "85 % (every attribute)", ha="right", fontsize=7, color="grey")
+    ax.set_xticks(x, labels, rotation=20)
+    ax.set_ylim(0, 105)
+    ax.set_ylabel("% passed (Wilson 95 % interval)")
+    ax.set_title("Behaviour suite: does the motion do what the prompt says?", fontsize=10)
+    ax.legend(loc="upper left", fontsize=8, ncol=len(names))
+    fig.tight_layout()
+    save_png(fig, path)
+    plt.close(fig)
+
+
+__all__ = ["TITLE", "chart", "dumps", "load", "section", "write_section"]
