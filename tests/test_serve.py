@@ -213,10 +213,11 @@ def test_the_demo_student_is_served_by_default_and_equals_offline(tmp_path):
     with TestClient(create_app(student, hosts=TEST_HOSTS)) as c:
         data = c.post("/api/generate", json={"text": "a person jumps, then turns left", "seed": 11}).json()
         info = c.get("/api/info").json()["models"][0]
-    assert (data["steps"], data["sampler"], data["frames"]) == (1, "lcm", 120)
-    assert info["kind"] == "consistency" and info["label"] == "student (consistency, 1 step)"
     pipe = student.models["student"].pipeline
-    ref = pipe.generate(Request(["a person jumps, then turns left"], 120, seed=11)).joint_list()[0]
+    frames = pipe.text_lengths(["a person jumps, then turns left"])[0]  # no length asked: the text's own
+    assert (data["steps"], data["sampler"], data["frames"], data["length_from"]) == (1, "lcm", frames, "text")
+    assert info["kind"] == "consistency" and info["label"] == "student (consistency, 1 step)"
+    ref = pipe.generate(Request(["a person jumps, then turns left"], seed=11)).joint_list()[0]
     assert np.array_equal(np.asarray(data["joints"], dtype=np.float32), ref)
 
 

@@ -41,7 +41,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("prompt", nargs="*", help="text prompt(s), e.g. \"a person walks forward and waves\"")
     p.add_argument("--prompts", metavar="FILE", help="file with one prompt per line (added to the positional ones)")
     length = p.add_mutually_exclusive_group()
-    length.add_argument("--seconds", type=float, help=f"motion length in seconds (default {DEFAULT_SECONDS:g}, capped at the model's maximum)")
+    length.add_argument("--seconds", type=float,
+                        help="motion length in seconds (default: each prompt's own, from the bundle's length predictor; "
+                             f"{DEFAULT_SECONDS:g} s for a bundle without one)")
     length.add_argument("--frames", type=int, help="motion length in frames")
     p.add_argument("--steps", type=int, default=None,
                    help="sampler steps (default: the bundle's inference config: 10, or a student's 1-4)")
@@ -123,8 +125,8 @@ def main(argv: list[str] | None = None) -> int:
         frames, flag = round(args.seconds * pipe.fps), f"--seconds {args.seconds:g}"
     elif control is not None:
         frames, flag = len(control.positions), f"--control {args.control} ({len(control.positions)} frames)"
-    else:
-        frames, flag = pipe.inference.default_frames, None
+    else:  # each prompt's own length (Pipeline.text_lengths)
+        frames, flag = None, None
     if flag:
         pipe.inference.check_length(frames, flag)
     targets = None
@@ -141,10 +143,12 @@ def main(argv: list[str] | None = None) -> int:
 
     for unfamiliar in result.info.get("unfamiliar", []):
         print(f"warning: {Unfamiliar(**unfamiliar).message()}", file=sys.stderr)
-    for text, slug, feats, joints in zip(prompts, slugs, result.feature_list(), result.joint_list()):
+    sources = result.info["lengths_from"]
+    for text, slug, feats, joints, source in zip(prompts, slugs, result.feature_list(), result.joint_list(), sources):
         written = write_motion(out, slug, feats, joints, pipe, formats, text, targets,
                                warn=lambda line: print(line, file=sys.stderr))
-        print(f"{text!r}: {frames} frames -> {out}/{{{', '.join(written)}}}")
+        said = {"text": ", length from the text", "default": ", default length"}.get(source, "")
+        print(f"{text!r}: {len(feats)} frames ({len(feats) / pipe.fps:g} s{said}) -> {out}/{{{', '.join(written)}}}")
     return 0
 
 

@@ -18,6 +18,8 @@ from safetensors.torch import save as safetensors_bytes
 from stablemo.errors import StableMoError
 from stablemo.io import atomic_dir, output_dir_problem, write_bytes, write_text
 from stablemo.text.familiar import FILE as FAMILIAR_FILE
+from stablemo.text.length import ENTRY as LENGTH_ENTRY
+from stablemo.text.length import FILE as LENGTH_FILE
 
 # the bundles that ship inside the package (stablemo/assets): the demo teacher, its 1-step student,
 # the ControlNet on that student, and the synthetic benchmark's evaluator
@@ -40,8 +42,11 @@ class Bundle:
     state_dict: dict[str, torch.Tensor]
 
 
-# a bundle's own files; familiar.safetensors (stablemo.text.familiar) is added by scripts/text/familiarity.py
-BUNDLE_FILES = frozenset({CONFIG_NAME, WEIGHTS_NAME, FAMILIAR_FILE})
+# a bundle's own files; familiar.safetensors (stablemo.text.familiar) is added by scripts/text/familiarity.py,
+# length.safetensors (stablemo.text.length) by scripts/text/length_predictor.py
+BUNDLE_FILES = frozenset({CONFIG_NAME, WEIGHTS_NAME, FAMILIAR_FILE, LENGTH_FILE})
+# the config entries naming those added files: save_bundle writes neither file, so not their entries
+ADDED_FILE_ENTRIES = ("familiarity", LENGTH_ENTRY)
 
 
 def is_bundle(path: Path) -> bool:
@@ -108,10 +113,12 @@ def save_bundle(out_dir: str | os.PathLike, config: dict, state_dict: dict[str, 
     bundle (and nothing else) is replaced. Nothing is ever removed that a bundle write did not make.
     """
     out_dir = check_bundle_target(out_dir, overwrite)
-    # the training captions of another bundle (a student's teacher) are not written with it: a new
-    # bundle gets its own with scripts/text/familiarity.py
+    # the added files of another bundle (a student's teacher: its training captions, its length
+    # predictor) are not written with it, so their entries are dropped: a bundle without them warns
+    # about no prompt and takes the default length; give it its own with scripts/text/familiarity.py
+    # and scripts/text/length_predictor.py (a student or ControlNet may share its teacher's)
     config = {"format": BUNDLE_FORMAT, "version": BUNDLE_VERSION,
-              **{k: v for k, v in config.items() if k != "familiarity"}}
+              **{k: v for k, v in config.items() if k not in ADDED_FILE_ENTRIES}}
     tensors = {k: v.detach().to("cpu").contiguous() for k, v in state_dict.items()}
 
     def replaceable(path: Path) -> bool:  # re-checked at the rename: the folder may have changed

@@ -46,6 +46,14 @@ class InferenceConfig:
         """The length of a motion when none is asked for: DEFAULT_SECONDS, within the model's range."""
         return min(max(round(DEFAULT_SECONDS * self.fps), self.min_length), self.max_length)
 
+    def nearest_length(self, frames: int, multiple: int = 1) -> int:
+        """The length nearest `frames` within [min_length, max_length] that is a multiple of
+        `multiple` (the network's), or merely within the range when no multiple lies in it."""
+        lo, hi = -(-self.min_length // multiple) * multiple, self.max_length // multiple * multiple
+        if lo > hi:
+            return min(max(int(frames), self.min_length), self.max_length)
+        return min(max((int(frames) + multiple // 2) // multiple * multiple, lo), hi)  # halves round up
+
     def check_length(self, frames: int, what: str, said: str | None = None) -> int:
         """`frames` within [min_length, max_length], else one error naming `what` (the flag or field;
         `said`: how the caller's value reads, e.g. "30 s is 600 frames,"). The one range check of the

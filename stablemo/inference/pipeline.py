@@ -52,7 +52,9 @@ DenoiserFactory = Callable[["Pipeline", list, torch.Tensor, float, "torch.dtype 
 
 @dataclass
 class Request:
-    """One generation request. seed: an int (sample i uses seed + i) or one per text; sampler,
+    """One generation request. lengths: frames, one for all texts or one per text; None (for all, or
+    in the list for one text) = the length the bundle's length predictor gives the text
+    (`Pipeline.text_lengths`); seed: an int (sample i uses seed + i) or one per text; sampler,
     steps, cfg: None = the bundle's inference config; dtype: network precision (None = the
     pipeline's); hooks: sample hooks, applied in this order; batch_size: split large requests into
     chunks (results do not depend on it); inpaint: known features per prompt (`stablemo.control.
@@ -67,7 +69,7 @@ class Request:
     joints are the network's raw output, for code that post-processes it itself)."""
 
     texts: Sequence[str]
-    lengths: int | Sequence[int]
+    lengths: int | Sequence[int | None] | None = None
     seed: int | Sequence[int] = 0
     sampler: str | None = None
     steps: int | None = None
@@ -164,6 +166,8 @@ class Pipeline:
         self._frozen_encoders = list({id(f): f for f in frozen if hasattr(f, "clear_cache")}.values())
         # the bundle's training captions (stablemo.text.familiar), to say when a prompt is unlike them
         self.familiarity = None
+        # the bundle's length predictor (stablemo.text.length): a prompt's length when none is asked for
+        self.length_predictor = None
         self.samplers = self.kind.samplers(self.config, schedule)
         if self.inference.sampler not in self.samplers:
             raise StableMoError(f"inference.sampler: {self.inference.sampler!r} is not a sampler of this model "
@@ -205,6 +209,11 @@ class Pipeline:
             from stablemo.text.familiar import Familiarity
 
             familiarity = Familiarity.load(path, config["familiarity"], cfg_file)
+        length_predictor = None
+        if config.get("length_predictor") is not None:
+            from stablemo.text.length import LengthPredictor
+
+            length_predictor = LengthPredictor.load(path, config["length_predictor"], cfg_file)
         pipe = cls(
             model,
             NoiseSchedule(**config.get("schedule", {})),
@@ -220,6 +229,8 @@ class Pipeline:
             fast=fast,
         )
         pipe.familiarity = familiarity
+        if length_predictor is not None:
+            pipe.use_length_predictor(length_predictor, cfg_file)
         return pipe
 
     # ---- helpers ----------------------------------------------------------------------------
@@ -279,6 +290,25 @@ class Pipeline:
         return self.kind.make_denoiser(DenoiserInputs(self.model, self.config, text, text_mask, motion_mask, cfg, dtype,
                                                       timesteps, self.null_condition, control))
 
+    def use_length_predictor(self, predictor, source: str = "config.json") -> None:
+        """Give prompts without a length the `predictor`'s (stablemo.text.length), refused (one line
+        naming `source`) when it reads another text encoder than the model's."""
+        encoder = self._frozen_encoders[0] if self._frozen_encoders else None
+        if encoder is None or (predictor.encoder, predictor.dim) != (encoder.name, encoder.dim):
+            have = "no frozen text encoder" if encoder is None else f"{encoder.name!r} ({encoder.dim} features)"
+            raise StableMoError(f"{source}: length_predictor reads text encoder {predictor.encoder!r} "
+                                f"({predictor.dim} features); the model has {have}")
+        self.length_predictor = predictor
+
+    def text_lengths(self, texts: Sequence[str]) -> list[int]:
+        """The length in frames of a motion of each text when none is asked for: the bundle's length
+        predictor's (its most likely length) within the model's range at the network's length
+        multiple; without a predictor the inference config's default (DEFAULT_SECONDS)."""
+        if self.length_predictor is None:
+            return [self.inference.default_frames] * len(texts)
+        frames = self.length_predictor.predict(self._frozen_encoders[0], list(texts))
+        return [self.inference.nearest_length(n, self.length_multiple) for n in frames]
+
     def resolve(self, request: Request) -> Request:
         """The request with every default filled in from the inference config, checked: one clear
         error naming the field for anything a sampler could not run or would turn into NaN."""
@@ -289,9 +319,14 @@ class Pipeline:
             if not isinstance(text, str) or not text.strip():
                 raise StableMoError(f"texts[{i}]: empty prompt")
         lengths = request.lengths
-        lengths = [lengths] * len(texts) if isinstance(lengths, (int, np.integer)) else list(lengths)
+        if lengths is None or isinstance(lengths, (int, np.integer)):
+            lengths = [lengths] * len(texts)
+        lengths = list(lengths)
         if len(lengths) != len(texts):
             raise StableMoError(f"lengths: {len(lengths)} lengths for {len(texts)} prompts")
+        unset = [i for i, n in enumerate(lengths) if n is None]
+        for i, n in zip(unset, self.text_lengths([texts[i] for i in unset]) if unset else []):
+            lengths[i] = n
         lengths = [check_positive_int(f"lengths[{i}]", n) for i, n in enumerate(lengths)]
         for i, n in enumerate(lengths):
             self.inference.check_length(n, f"lengths[{i}]")
@@ -347,14 +382,13 @@ class Pipeline:
     def generate(self, request: Request | str | Sequence[str], lengths: int | Sequence[int] | None = None,
                  denoiser: DenoiserFactory | None = None, **fields) -> Generation:
         """Sample one motion per prompt: `generate(Request(...))` or `generate(texts, lengths, steps=...)`
-        with the fields of `Request`. denoiser: a DenoiserFactory replacing the kind's (benchmarks).
+        with the fields of `Request` (lengths None: each text's own, `text_lengths`). denoiser: a
+        DenoiserFactory replacing the kind's (benchmarks).
 
         A result that is not finite everywhere (diverged weights, a hook gone wrong) is an error
         naming the prompt, never a returned motion.
         """
         if not isinstance(request, Request):
-            if lengths is None:
-                raise StableMoError("lengths: give the motion lengths in frames")
             try:
                 request = Request(request, lengths, **fields)
             except TypeError as err:
@@ -362,6 +396,9 @@ class Pipeline:
         elif lengths is not None or fields:
             raise StableMoError("generate: pass either a Request or texts, lengths and options, not both")
         req = self.resolve(request)
+        asked = request.lengths if isinstance(request.lengths, Sequence) else [request.lengths] * len(req.texts)
+        predicted = "text" if self.length_predictor is not None else "default"
+        lengths_from = [predicted if n is None else "given" for n in asked]
         factory = denoiser or Pipeline.make_denoiser
         chunk = req.batch_size or len(req.texts)
         parts = []
@@ -388,6 +425,7 @@ class Pipeline:
                                            self._given_feet(req.inpaint, T))
         info = {"steps": req.steps, "cfg": req.cfg, "sampler": req.sampler,
                 "dtype": str(req.dtype).replace("torch.", ""), "finished": req.finish,
+                "lengths_from": lengths_from,  # per prompt: "given", "text" (the predictor) or "default"
                 "unfamiliar": [asdict(u) for u in self.unfamiliar(req.texts)]}
         return Generation(req.texts, req.lengths, req.seed, features, joints, normalized, mask, info,
                           raw_features, raw_joints)

@@ -6,6 +6,7 @@
                            before its first motion; the glb download is the same body in motion
     POST /api/generate     {"text", "seconds"|"frames", "seed", "model", "sampler", "steps", "cfg",
                             "footskate", "encoding", "features"} -> joints, features, fps, ..., warnings
+                           (no seconds or frames, or "auto": the text's own length, "length_from": "text")
                            (one line per download that would be more than 3 cm from the motion)
     POST /api/download     the same body + "format": joints.npy | features.npy | bvh | gif | glb | fbx -> the file;
                            with /api/stream's body + "format", the streamed motion's file

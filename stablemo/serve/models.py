@@ -28,6 +28,7 @@ from stablemo.timeline.spec import canonical_timeline, format_timeline, parse_ti
 from stablemo.timeline.stream import chunk_length
 from stablemo.timeline.timeline_stream import stream_timeline, whole_features
 
+AUTO = "auto"  # a seconds or frames field that asks for the text's own length, as leaving it out does
 MAX_TEXT_CHARS = 1000  # the text encoders keep far fewer tokens; longer is a pasting accident
 ENCODINGS = ("lists", "base64")
 MAX_STREAM_SECONDS = 300.0  # a bound on one request's work; a longer show is several requests
@@ -49,6 +50,9 @@ class Spec:
     footskate: bool = False
     # joint targets ((frame, joint, x, y, z), ...) sorted; empty = free motion (stablemo.control.JointControl)
     control: tuple = ()
+    # where `frames` came from: "given" (seconds or frames), "text" (the bundle's length predictor) or
+    # "default" (a bundle without one), as the answer says it
+    length_from: str = "given"
 
 
 @dataclass
@@ -159,7 +163,7 @@ class ModelSet:
             raise StableMoError("text: empty prompt")
         if len(text) > MAX_TEXT_CHARS:
             raise StableMoError(f"text: {len(text)} characters, at most {MAX_TEXT_CHARS}")
-        frames = _frames(body, pipe)
+        frames, length_from = _frames(body, pipe, text.strip())
         seed = check_seed("seed", body.get("seed", 0))
         sampler = body.get("sampler")
         if sampler is not None and sampler not in pipe.samplers:
@@ -182,7 +186,7 @@ class ModelSet:
         features = body.get("features", True)
         if not isinstance(features, bool):
             raise StableMoError(f"features: expected true or false, got {json_short(features)}")
-        spec = Spec(name, text.strip(), frames, seed, sampler, steps, cfg, footskate, control)
+        spec = Spec(name, text.strip(), frames, seed, sampler, steps, cfg, footskate, control, length_from)
         # the pipeline's own checks (steps the sampler can run, targets against the motion, ...)
         # before the job is queued
         try:
@@ -367,7 +371,8 @@ def encode_array(arr: np.ndarray, encoding: str) -> Any:
 def motion_json(motion: Motion, encoding: str, features: bool) -> dict:
     spec = motion.spec
     out = {
-        "model": spec.model, "text": spec.text, "seed": spec.seed, "frames": spec.frames, "fps": motion.fps,
+        "model": spec.model, "text": spec.text, "seed": spec.seed, "frames": spec.frames,
+        "length_from": spec.length_from, "fps": motion.fps,
         "sampler": motion.info["sampler"], "steps": motion.info["steps"], "cfg": motion.info["cfg"],
         "footskate": spec.footskate, "joints": encode_array(motion.joints, encoding),
     }
@@ -458,21 +463,24 @@ def json_short(value: Any) -> str:
     return text if len(text) <= 40 else text[:37] + "..."
 
 
-def _frames(body: dict, pipe) -> int:
-    if body.get("seconds") is not None and body.get("frames") is not None:
+def _frames(body: dict, pipe, text: str) -> tuple[int, str]:
+    """(the motion's length in frames, where it came from: "given", "text" or "default"). No length,
+    null or "auto" (either field): the text's own (Pipeline.text_lengths)."""
+    given = {k: body.get(k) for k in ("seconds", "frames") if body.get(k) not in (None, AUTO)}
+    if len(given) == 2:
         raise StableMoError("seconds: give seconds or frames, not both")
-    if body.get("frames") is not None:
+    if not given:
+        return pipe.text_lengths([text])[0], "text" if pipe.length_predictor is not None else "default"
+    if body.get("frames") not in (None, AUTO):
         frames = body["frames"]
         if isinstance(frames, bool) or not isinstance(frames, int):
             raise StableMoError(f"frames: expected a whole number, got {json_short(frames)}")
         flag = ("frames",)
-    elif body.get("seconds") is not None:
+    else:
         seconds = check_finite("seconds", _number("seconds", body["seconds"]), low=0.0, strict=True)
         frames = round(seconds * pipe.fps)
         flag = ("seconds", f"{seconds:g} s is {frames} frames,")
-    else:
-        return pipe.inference.default_frames
-    return pipe.inference.check_length(frames, *flag)
+    return pipe.inference.check_length(frames, *flag), "given"
 
 
 def _number(name: str, value: Any) -> float:

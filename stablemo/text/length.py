@@ -1,0 +1,209 @@
+"""How long should a motion be? A small predictor from the prompt's sentence embedding to a
+distribution over lengths, so a motion asked for without a length gets the text's length.
+
+The synthetic actions have nearly one length each (a double jump ~3.5 s), so the models learnt that
+length implies count: "a person jumps in place twice" at a fixed 6 s jumped four times. Following the
+idea of T2M's length estimator (Guo et al., CVPR 2022: a categorical distribution over 4-frame length
+bins from the text, which MoMask uses at inference), a bundle can carry `length.safetensors`: a
+two-layer network from the sentence embedding of the bundle's frozen text encoder
+(stablemo.text.familiar.sentence_embeddings, the same one the familiarity check uses) to length bins
+of `width` frames between `min_frames` and `max_frames`. Inference takes the mode (the most likely bin):
+a prompt always gets the same length, whatever its seed, and a narrow peak's tail cannot pick the
+length of another count. Trained and measured by scripts/text/length_predictor.py.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from stablemo.errors import StableMoError
+from stablemo.text.familiar import sentence_embeddings
+
+FILE = "length.safetensors"  # in a bundle: hidden.{weight,bias}, out.{weight,bias} (float32)
+ENTRY = "length_predictor"  # its config.json entry
+TENSORS = ("hidden.weight", "hidden.bias", "out.weight", "out.bias")
+
+
+@dataclass(frozen=True)
+class LengthBins:
+    """Bin k holds the lengths [min_frames + k * width, min_frames + (k + 1) * width), the last one
+    ending at max_frames; a length outside [min_frames, max_frames] counts as the nearest bin."""
+
+    min_frames: int
+    max_frames: int
+    width: int
+
+    def __post_init__(self):
+        if not (isinstance(self.width, int) and isinstance(self.min_frames, int) and isinstance(self.max_frames, int)
+                and self.width >= 1 and 1 <= self.min_frames <= self.max_frames):
+            raise StableMoError(f"length bins: need whole numbers 1 <= min_frames <= max_frames and width >= 1, got "
+                                f"{self.min_frames}, {self.max_frames}, {self.width}")
+
+    @property
+    def count(self) -> int:
+        return (self.max_frames - self.min_frames) // self.width + 1
+
+    def of(self, frames: torch.Tensor) -> torch.Tensor:
+        """(N,) lengths -> (N,) bin indices (long)."""
+        frames = frames.long().clamp(self.min_frames, self.max_frames)
+        return (frames - self.min_frames) // self.width
+
+    def frames(self, bins: torch.Tensor) -> torch.Tensor:
+        """(N,) bin indices -> (N,) the middle length of each bin (long), within max_frames."""
+        return (self.min_frames + bins.long() * self.width + self.width // 2).clamp(max=self.max_frames)
+
+
+@dataclass(frozen=True)
+class LengthFit:
+    """Training settings (configs/text/length_predictor.yaml)."""
+
+    bin_frames: int = 4
+    hidden: int = 128
+    dropout: float = 0.1
+    lr: float = 3e-3
+    weight_decay: float = 1e-2
+    batch_size: int = 256
+    max_epochs: int = 200
+    patience: int = 20  # epochs without a better val loss before stopping
+    seed: int = 0
+
+
+class _LengthNet(nn.Module):
+    def __init__(self, dim: int, hidden: int, bins: int, dropout: float = 0.0):
+        super().__init__()
+        self.hidden, self.out, self.drop = nn.Linear(dim, hidden), nn.Linear(hidden, bins), nn.Dropout(dropout)
+
+    def forward(self, emb: torch.Tensor) -> torch.Tensor:  # (N, D) -> (N, K) logits
+        return self.out(self.drop(nn.functional.gelu(self.hidden(emb))))
+
+
+class LengthPredictor:
+    """Sentence embedding (N, D) -> logits over `bins.count` length bins."""
+
+    def __init__(self, tensors: dict[str, torch.Tensor], bins: LengthBins, encoder: str):
+        hidden, dim = tensors["hidden.weight"].shape
+        self.net = _LengthNet(dim, hidden, tensors["out.weight"].shape[0]).eval().requires_grad_(False)
+        self.net.load_state_dict({k: tensors[k].float() for k in TENSORS})
+        self.bins, self.encoder = bins, encoder
+
+    @property
+    def dim(self) -> int:
+        return self.net.hidden.in_features
+
+    def probabilities(self, embeddings: torch.Tensor) -> torch.Tensor:
+        """(N, D) unit sentence embeddings -> (N, K) probabilities over the bins."""
+        with torch.inference_mode():
+            return self.net(embeddings.float()).softmax(-1)
+
+    def mode_frames(self, embeddings: torch.Tensor) -> torch.Tensor:
+        """(N, D) -> (N,) the most likely bin's middle length in frames (long)."""
+        return self.bins.frames(self.probabilities(embeddings).argmax(-1))
+
+    def predict(self, encoder, texts: list[str]) -> list[int]:
+        """One length in frames per text (the mode), from `encoder`'s sentence embeddings."""
+        return [int(n) for n in self.mode_frames(sentence_embeddings(encoder, list(texts)))]
+
+    def measure(self, embeddings: torch.Tensor, frames: torch.Tensor) -> dict:
+        """Held-out numbers: share of modes within one bin of the true length's bin, median absolute
+        error in frames (mode length vs true length), mean negative log-likelihood of the true bin."""
+        probs = self.probabilities(embeddings)
+        true = self.bins.of(frames)
+        mode = probs.argmax(-1)
+        nll = -probs.gather(1, true[:, None]).clamp_min(1e-12).log().mean()
+        err = (self.bins.frames(mode) - frames.long()).abs().float()
+        return {"n": len(frames), "within_one_bin": round(float(((mode - true).abs() <= 1).float().mean()), 4),
+                "median_abs_error_frames": float(err.median()), "nll": round(float(nll), 4)}
+
+    # ---- a bundle's file ------------------------------------------------------------------------
+
+    def write(self, folder: str | Path, report: dict | None = None) -> dict:
+        """Writes FILE into a bundle folder (atomically); returns the config entry (`report`, e.g. the
+        held-out numbers, is kept in it for the reader)."""
+        from safetensors.torch import save
+
+        from stablemo.io import write_bytes
+
+        state = self.net.state_dict()
+        write_bytes(Path(folder) / FILE, save({k: state[k].contiguous() for k in TENSORS}))
+        return {"file": FILE, "encoder": self.encoder, **asdict(self.bins), **(report or {})}
+
+    @classmethod
+    def load(cls, folder: str | Path, entry: dict, source: str = "config.json") -> LengthPredictor:
+        from safetensors import safe_open
+
+        path = Path(folder) / FILE
+        keys = ("min_frames", "max_frames", "width")
+        if not isinstance(entry, dict) or not all(isinstance(entry.get(k), int) for k in keys) \
+                or not isinstance(entry.get("encoder"), str):
+            raise StableMoError(f"{source}: '{ENTRY}' must be an object with the text encoder's name and whole "
+                                f"numbers {', '.join(keys)}")
+        try:
+            bins = LengthBins(*(entry[k] for k in keys))
+        except StableMoError as err:
+            raise StableMoError(f"{source}: '{ENTRY}': {err}") from None
+        if not path.is_file():
+            raise StableMoError(f"{source}: '{ENTRY}' names {FILE}, which the bundle does not hold")
+        try:
+            with safe_open(str(path), framework="pt") as f:
+                tensors = {k: f.get_tensor(k) for k in TENSORS if k in f.keys()}
+        except Exception as err:  # safetensors raises its own error types for a corrupt header
+            raise StableMoError(f"{path}: unreadable safetensors file ({' '.join(str(err).split())})") from None
+        shapes = {k: tuple(v.shape) for k, v in tensors.items()}
+        if len(tensors) < len(TENSORS) or len(shapes["hidden.weight"]) != 2 \
+                or shapes["out.weight"] != (bins.count, shapes["hidden.weight"][0]) \
+                or shapes["hidden.bias"] != shapes["hidden.weight"][:1] or shapes["out.bias"] != (bins.count,):
+            raise StableMoError(f"{path}: expected tensors {', '.join(TENSORS)} of a (D -> H -> {bins.count} bins) "
+                                f"network, found {shapes}")
+        if not all(v.is_floating_point() and torch.isfinite(v).all() for v in tensors.values()):
+            raise StableMoError(f"{path}: the length predictor's weights hold NaN/Inf; write it again "
+                                "(scripts/text/length_predictor.py)")
+        return cls(tensors, bins, entry["encoder"])
+
+    # ---- training -------------------------------------------------------------------------------
+
+    @classmethod
+    def fit(cls, train: tuple[torch.Tensor, torch.Tensor], val: tuple[torch.Tensor, torch.Tensor],
+            bins: LengthBins, encoder: str, settings: LengthFit = LengthFit(),
+            log=None) -> tuple[LengthPredictor, dict]:
+        """Cross-entropy on (embeddings (N, D), lengths (N,)) pairs of the train split, the epoch of
+        the lowest val loss kept (stopping `patience` epochs after it). Deterministic for a seed: its
+        own generator for the initial weights, the batch order and dropout. Returns the predictor and
+        {"epoch": kept epoch, "epochs": epochs run}."""
+        (x, frames), (vx, vframes) = train, val
+        y, vy = bins.of(frames), bins.of(vframes)
+        with torch.random.fork_rng(devices=[]):  # the caller's random state is left as it was
+            torch.manual_seed(settings.seed)
+            net = _LengthNet(x.shape[1], settings.hidden, bins.count, settings.dropout)
+            order = torch.Generator().manual_seed(settings.seed)
+            opt = torch.optim.AdamW(net.parameters(), lr=settings.lr, weight_decay=settings.weight_decay)
+            best, best_epoch, epoch = float("inf"), 0, 0
+            best_state = {k: v.clone() for k, v in net.state_dict().items()}
+            for epoch in range(1, settings.max_epochs + 1):
+                net.train()
+                for idx in torch.randperm(len(x), generator=order).split(settings.batch_size):
+                    loss = nn.functional.cross_entropy(net(x[idx]), y[idx])
+                    opt.zero_grad()
+                    loss.backward()
+                    opt.step()
+                net.eval()
+                with torch.no_grad():
+                    val_loss = float(nn.functional.cross_entropy(net(vx), vy))
+                if not torch.isfinite(torch.tensor(val_loss)):
+                    raise StableMoError(f"length predictor: the val loss is {val_loss} at epoch {epoch}; "
+                                        "nothing written")
+                if val_loss < best:
+                    best, best_epoch = val_loss, epoch
+                    best_state = {k: v.clone() for k, v in net.state_dict().items()}
+                if log and epoch % 20 == 0:
+                    log(f"epoch {epoch}: train loss {float(loss.detach()):.3f}, val loss {val_loss:.3f} "
+                        f"(best {best:.3f} at {best_epoch})")
+                if epoch - best_epoch >= settings.patience:
+                    break
+        return cls(best_state, bins, encoder), {"epoch": best_epoch, "epochs": epoch}
+
+
+__all__ = ["ENTRY", "FILE", "LengthBins", "LengthFit", "LengthPredictor"]
