@@ -144,20 +144,24 @@ def test_rest_mode_is_checked_and_recorded(tmp_path):
 
 
 
-def test_length_vs_count_script(tmp_path, capsys):
-    """scripts/synth/length_vs_count.py: the table of docs/synth.md, and folders checked against it."""
-    import importlib.util
+def test_length_vs_count_script(tmp_path):
+    """scripts/synth/length_vs_count.py, run as a user runs it: the table of docs/synth.md, and
+    folders checked against it."""
+    import subprocess
+    import sys
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "scripts" / "synth" / "length_vs_count.py"
-    spec = importlib.util.spec_from_file_location("length_vs_count", path)
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    repo = Path(__file__).resolve().parents[1]
+    cmd = [sys.executable, str(repo / "scripts" / "synth" / "length_vs_count.py"), "--num", "30"]
     write_dataset(tmp_path / "v", num=30, seed=2, workers=1)
-    assert script.main(["--num", "30", "--seed", "2", "--data", str(tmp_path / "v")]) == 0
-    out, err = capsys.readouterr()
-    assert out.startswith("| action | clips | rho (tight) | rho (varied) |")
-    assert "| all counted, single-action |" in out
-    assert f"{tmp_path / 'v'}: clip lengths are the varied ones" in err
-    with pytest.raises(StableMoError, match="written with num=30 seed=2 rest=varied, measured num=30 seed=3"):
-        script.main(["--num", "30", "--seed", "3", "--data", str(tmp_path / "v")])
+    done = subprocess.run([*cmd, "--seed", "2", "--data", str(tmp_path / "v")], capture_output=True, text=True,
+                          cwd=repo, check=False)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.startswith("| action | clips | rho (tight) | rho (varied) |")
+    assert "| all counted, single-action |" in done.stdout
+    assert f"{tmp_path / 'v'}: clip lengths are the varied ones" in done.stderr
+    other = subprocess.run([*cmd, "--seed", "3", "--data", str(tmp_path / "v")], capture_output=True, text=True,
+                           cwd=repo, check=False)
+    assert other.returncode == 2 and other.stdout == ""
+    assert other.stderr.strip().splitlines()[-1].endswith(
+        "written with num=30 seed=2 rest=varied, measured num=30 seed=3")

@@ -46,22 +46,26 @@ def lengths_and_counts(num: int, seed: int, rest: str) -> tuple[list[int], list[
     return lengths, rows
 
 
-def check_folder(folder: Path, num: int, seed: int, lengths: dict[str, list[int]]) -> str:
-    """The rest mode of a `data synth` folder whose clips have the regenerated lengths."""
+def folder_rest(folder: Path, num: int, seed: int) -> str:
+    """The rest mode of a `data synth` folder written with `num` and `seed` (checked before any compute)."""
     meta_path = folder / MARKER
     if not meta_path.is_file():
         raise StableMoError(f"--data {folder}: no {MARKER} (not written by `stablemo data synth`)")
     meta = json.loads(meta_path.read_text())
     rest = meta.get("rest", "tight")  # folders from before the option are tight
-    if (meta.get("num"), meta.get("seed")) != (num, seed) or rest not in lengths:
+    if (meta.get("num"), meta.get("seed")) != (num, seed) or rest not in REST_MODES:
         raise StableMoError(f"--data {folder}: written with num={meta.get('num')} seed={meta.get('seed')} "
                             f"rest={rest}, measured num={num} seed={seed}")
-    on_disk = [len(load_npy(folder / "new_joint_vecs" / f"{clip_id(i)}.npy", mmap=True)) for i in range(num)]
-    if on_disk != lengths[rest]:
-        bad = next(i for i, (a, b) in enumerate(zip(on_disk, lengths[rest])) if a != b)
-        raise StableMoError(f"--data {folder}: clip {clip_id(bad)} has {on_disk[bad]} frames, the generator "
-                            f"makes {lengths[rest][bad]} (another StableMo version?)")
     return rest
+
+
+def check_lengths(folder: Path, lengths: list[int]) -> None:
+    """Every clip of `folder` has the regenerated length."""
+    on_disk = [len(load_npy(folder / "new_joint_vecs" / f"{clip_id(i)}.npy", mmap=True)) for i in range(len(lengths))]
+    if on_disk != lengths:
+        bad = next(i for i, (a, b) in enumerate(zip(on_disk, lengths)) if a != b)
+        raise StableMoError(f"--data {folder}: clip {clip_id(bad)} has {on_disk[bad]} frames, the generator "
+                            f"makes {lengths[bad]} (another StableMo version?)")
 
 
 def _rho(counts: list[int], frames: list[int]) -> str:
@@ -102,15 +106,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.num < 1 or args.seed < 0:
         raise StableMoError(f"--num {args.num} / --seed {args.seed}: need num >= 1 and seed >= 0")
     modes = sorted(REST_MODES, key=lambda m: m != "tight")  # before (version-1 data), then after
+    folders = {Path(folder): folder_rest(Path(folder), args.num, args.seed) for folder in args.data}
     lengths, rows = {}, {}
     for rest in modes:
         lengths[rest], rows[rest] = lengths_and_counts(args.num, args.seed, rest)
         frames = np.array(lengths[rest])
         print(f"{rest}: {args.num} clips, frames min {frames.min()} mean {frames.mean():.1f} max {frames.max()}",
               file=sys.stderr)
-    for folder in args.data:
-        print(f"{folder}: clip lengths are the {check_folder(Path(folder), args.num, args.seed, lengths)} ones",
-              file=sys.stderr)
+    for folder, rest in folders.items():
+        check_lengths(folder, lengths[rest])
+        print(f"{folder}: clip lengths are the {rest} ones", file=sys.stderr)
     print(table(rows))
     return 0
 
