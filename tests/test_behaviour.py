@@ -197,7 +197,7 @@ def test_run_suite_on_ground_truth_is_deterministic_and_summarised(prompts):
     again = run_suite(generate, picked, ["default", "natural", "8"], [0, 1], FPS, 40, 196)["rows"]
     assert again == rows
     table = format_table(s)
-    assert re.search(r"^count\s+6\s+100\.0 \[", table, re.M) and "held_out" in table and "length 8" in table
+    assert re.search(r"^count\s+6\s+100\.0 \[", table, re.MULTILINE) and "held_out" in table and "length 8" in table
 
 
 def test_summary_counts_a_motion_as_passed_only_when_every_check_passes():
@@ -232,7 +232,7 @@ def test_cli_ground_truth_writes_json_and_prints_the_table(tmp_path, capsys):
     assert main(["behaviour", "--ground-truth", "--prompts", str(table), "--seeds", "2", "--lengths", "natural",
                  "--out", str(out), "--no-progress"]) == 0
     printed = capsys.readouterr().out
-    assert "2 prompts x 1 lengths x 2 seeds = 4 motions" in printed and re.search(r"^speed\s+2\s+100\.0", printed, re.M)
+    assert "2 prompts x 1 lengths x 2 seeds = 4 motions" in printed and re.search(r"^speed\s+2\s+100\.0", printed, re.MULTILINE)
     data = json.loads(out.read_text())
     assert data["summary"]["overall"]["passed"] == 4 and len(data["rows"]) == 4
     assert data["rows"][0]["attributes"]["count"] == {"passed": True, "measured": "2"}

@@ -68,6 +68,7 @@ from stablemo.bench.results import (
     sampler_runs,
 )
 from stablemo.errors import StableMoError, run_script
+from stablemo.eval.behaviour.report import results_section as behaviour_section
 from stablemo.eval.evaluate import REAL_ROW, SYNTH_EVALUATOR
 from stablemo.inference.config import PAPER_CFG
 from stablemo.io import write_text
@@ -319,7 +320,7 @@ model loaded, every sentence encoding its own text (cold caches), over {args.ait
 sentences timed round-robin across the rows. Items scored per replication: {args.max_items or 'the whole test split'}.
 Machine and versions: see Provenance at the end.
 
-{render_samplers(raw, runs)}{render_ratios(raw, runs)}{render_precision(raw, pairs, args)}{render_ddpm(raw, args)}{results_section()}{render_control(RESULTS_DATA)}{render_provenance(raw)}"""
+{render_samplers(raw, runs)}{render_ratios(raw, runs)}{render_precision(raw, pairs, args)}{render_ddpm(raw, args)}{results_section()}{behaviour_section(RESULTS_DATA)}{render_control(RESULTS_DATA)}{render_provenance(raw)}"""
 
 
 # ----------------------------------------------------------------------------- main

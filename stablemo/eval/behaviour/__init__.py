@@ -9,7 +9,11 @@ picture. `stablemo behaviour` (stablemo.cli.behaviour) runs it.
 """
 
 from stablemo.eval.behaviour.checks import Verdict, score
-from stablemo.eval.behaviour.runner import pipeline_generator, run_suite, truth_generator
+from stablemo.eval.behaviour.runner import (
+           pipeline_generator,
+           run_suite,
+           truth_generator,
+)
 from stablemo.eval.behaviour.summary import format_table, summarize, wilson
 from stablemo.eval.behaviour.table import ATTRIBUTES, Prompt, load_prompts
 

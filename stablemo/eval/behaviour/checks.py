@@ -9,6 +9,7 @@ and the parts' median event times must come in the order the text names them.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 
@@ -224,7 +225,7 @@ def _order(actions: list[str], j: np.ndarray, fps: float) -> Verdict:
         frames = np.flatnonzero(events(action, j, fps))
         times.append(float(np.median(frames)) / fps if len(frames) >= EVENT_MIN_FRAMES else None)
     shown = " < ".join(f"{a}@{'none' if t is None else f'{t:.1f}s'}" for a, t in zip(actions, times))
-    ok = None not in times and all(a < b for a, b in zip(times[:-1], times[1:]))
+    ok = None not in times and all(a < b for a, b in pairwise(times))
     return Verdict(ok, shown)
 
 

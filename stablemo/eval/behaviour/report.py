@@ -38,7 +38,14 @@ can produce; `held_out` ones use a paraphrase or a subject none of them uses. Le
 length given: the pipeline's default, 6 s), `natural` (the length the synthetic generator gives the
 actions, 2-9 s), `9.8` (9.8 s, longer than any action needs). Percent passed [Wilson 95 % interval];
 the intervals treat motions as independent, which the 4 seeds of one prompt are not quite.
+
 """
+
+
+# docs/data/results/: the runs the docs show (label -> file), and the picture drawn from them
+FILES = {"ground truth": "behaviour_ground_truth.json", "teacher": "behaviour_teacher.json",
+         "1-step student": "behaviour_student.json"}
+PICTURE = "behaviour.png"
 
 
 def dumps(settings: dict, result: dict) -> str:
@@ -70,17 +77,13 @@ def _table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows]) + "\n"
 
 
-def _attribute_rows(blocks: list[dict], totals: bool = True) -> list[list[str]]:
-    rows = []
-    for a in ATTRIBUTES:
-        if any(a in b["attributes"] for b in blocks):
-            rows.append([a, str(blocks[0]["attributes"].get(a, {}).get("total", "–"))]
-                        + [cell(b["attributes"].get(a)) for b in blocks])
-    if totals:
-        rows.append(["all checks", str(blocks[0]["checks"]["total"])] + [cell(b["checks"]) for b in blocks])
-        rows.append(["**motions (every check)**", str(blocks[0]["overall"]["total"])]
-                    + [f"**{cell(b['overall'])}**" for b in blocks])
-    return rows
+def _attribute_rows(blocks: list[dict], counted: list[dict]) -> list[list[str]]:
+    """Rows per attribute, then all checks and whole motions: the number of checks in each block of
+    `counted`, then the pass rate [interval] in each block of `blocks`."""
+    picks = [(a, lambda b, a=a: b["attributes"].get(a)) for a in ATTRIBUTES if any(a in b["attributes"] for b in blocks)]
+    picks += [("all checks", lambda b: b["checks"]), ("motions (every check)", lambda b: b["overall"])]
+    return [[name] + [str((pick(c) or {}).get("total", "–")) for c in counted] + [cell(pick(b)) for b in blocks]
+            for name, pick in picks]
 
 
 def section(results: dict[str, dict], picture: str | None = None) -> str:
@@ -101,14 +104,15 @@ def section(results: dict[str, dict], picture: str | None = None) -> str:
                    f"measured {s.get('started')}. Prompts the bundle calls unfamiliar: {len(s.get('unfamiliar', []))} "
                    f"of {s.get('prompts')}.\n")
     out.append("\nPer attribute, all prompts and lengths:\n\n")
-    out.append(_table(["attribute", "checks"] + names, _attribute_rows(summaries)))
+    out.append(_table(["attribute", "checks"] + names, _attribute_rows(summaries, summaries[:1])))
     if picture:
         out.append(f"\n![pass rate per attribute]({picture})\n")
     out.append("\nSuite against held-out prompts (all lengths):\n\n")
-    split_blocks = [(n, sp, summaries[i]["splits"][sp]) for sp in SPLITS for i, n in enumerate(names)
-                    if sp in summaries[i]["splits"]]
-    out.append(_table(["attribute", "checks (suite)"] + [f"{n}, {sp}" for n, sp, _ in split_blocks],
-                      _attribute_rows([b for _, _, b in split_blocks])))
+    splits = [sp for sp in SPLITS if sp in summaries[0]["splits"]]
+    blocks = [summaries[i]["splits"].get(sp, {"attributes": {}, "checks": {}, "overall": {}})
+              for i in range(len(names)) for sp in splits]
+    out.append(_table(["attribute"] + [f"checks, {sp}" for sp in splits] + [f"{n}, {sp}" for n in names for sp in splits],
+                      _attribute_rows(blocks, [summaries[0]["splits"][sp] for sp in splits])))
     out.append("\nPer length (whole motions passing every check, and the count and angle checks that a length "
                "longer than the action needs breaks):\n\n")
     lengths = list(summaries[0]["lengths"])
@@ -120,6 +124,16 @@ def section(results: dict[str, dict], picture: str | None = None) -> str:
                                      for ln in lengths])
     out.append(_table(["", "model"] + [f"length {ln}" for ln in lengths], rows))
     return "".join(out)
+
+
+def results_section(folder: str | Path) -> str:
+    """The section for the runs of FILES kept in `folder` (docs/data/results), "" when none is."""
+    folder = Path(folder)
+    results = {label: load(folder / name) for label, name in FILES.items() if (folder / name).is_file()}
+    if not results:
+        return ""
+    picture = f"data/results/{PICTURE}" if (folder / PICTURE).is_file() else None
+    return section(results, picture)
 
 
 def write_section(path: str | Path, text: str) -> None:
@@ -158,7 +172,8 @@ def chart(results: dict[str, dict], path: str | Path) -> None:
         s = results[n]["summary"]
         rates = [s["attributes"].get(a) for a in attrs] + [s["checks"], s["overall"]]
         mid = np.array([100 * r["rate"] if r else np.nan for r in rates])
-        err = np.array([[100 * (r["rate"] - r["low"]), 100 * (r["high"] - r["rate"])] if r else [0, 0] for r in rates]).T
+        err = np.array([[100 * (r["rate"] - r["low"]), 100 * (r["high"] - r["rate"])] if r else [0, 0]
+                        for r in rates]).T.clip(min=0)  # rounding can put a bound a hair past the rate
         bars = ax.bar(x + (k - (len(names) - 1) / 2) * width, mid, width, yerr=err, capsize=2, label=n)
         for bar, v in zip(bars, mid):
             ax.text(bar.get_x() + bar.get_width() / 2, 1.5, f"{v:.0f}", ha="center", va="bottom", fontsize=7,
@@ -177,4 +192,4 @@ def chart(results: dict[str, dict], path: str | Path) -> None:
     plt.close(fig)
 
 
-__all__ = ["TITLE", "chart", "dumps", "load", "section", "write_section"]
+__all__ = ["FILES", "PICTURE", "TITLE", "chart", "dumps", "load", "results_section", "section", "write_section"]

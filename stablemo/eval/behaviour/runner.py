@@ -100,7 +100,7 @@ def run_suite(generate: Generator, prompts: list[Prompt], lengths: Sequence[str]
             verdicts = score(prompts[i], j, fps)
             by_key[i, token, seed] = {
                 "prompt": i, "split": prompts[i].split, "length": token,
-                "frames": int(len(j)), "seed": int(seed), "passed": all(v.passed for v in verdicts.values()),
+                "frames": len(j), "seed": int(seed), "passed": all(v.passed for v in verdicts.values()),
                 "attributes": {k: {"passed": v.passed, "measured": v.measured} for k, v in verdicts.items()}}
         if progress:
             progress(f"length {token}: {len(items)} motions scored ({time.perf_counter() - started:.0f} s)")

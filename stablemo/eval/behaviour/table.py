@@ -102,7 +102,7 @@ def _entry(raw, where: str) -> Prompt:
         params = {k: v for k, v in part.items() if k != "action"}
         unknown = set(params) - _param_keys(part["action"])
         if unknown:
-            raise StableMoError(f"{where}: {part['action']} has no parameter {sorted(unknown)[0]!r}")
+            raise StableMoError(f"{where}: {part['action']} has no parameter {min(unknown)!r}")
         parts.append(Part(part["action"], params))
     parts = tuple(parts)
     tests = raw["tests"]
