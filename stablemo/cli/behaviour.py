@@ -32,7 +32,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--prompts", help="prompt table (YAML, the layout of the packaged one)")
     p.add_argument("--split", choices=["suite", "held_out"], help="only this split's prompts")
     p.add_argument("--lengths", nargs="+", default=list(DEFAULT_LENGTHS),
-                   help="'default' (no length given), 'natural' (the action's own length) or seconds "
+                   help="'default' (no length given: the bundle's length predictor, else its default length; "
+                        "--ground-truth: 6 s), 'natural' (the action's own length) or seconds "
                         f"(default: {' '.join(DEFAULT_LENGTHS)})")
     p.add_argument("--seeds", type=int, default=DEFAULT_SEEDS, help="motions per prompt and length")
     p.add_argument("--seed", type=int, default=0, help="first seed")
@@ -92,7 +93,7 @@ def main(argv: list[str]) -> int:
         config = InferenceConfig()
         generate = runner.truth_generator(config.default_frames)
         fps, low, high = config.fps, config.min_length, config.max_length
-        settings.update(model="ground truth (stablemo.data.synth)", default_frames=config.default_frames)
+        settings.update(model="ground truth (stablemo.data.synth)", default_length=f"{config.default_frames} frames")
     else:
         from stablemo.inference.bundle import bundle_or_demo
         from stablemo.inference.pipeline import Pipeline
@@ -108,7 +109,9 @@ def main(argv: list[str]) -> int:
         inference = pipe.inference
         settings.update(model=str(bundle), sampler=args.sampler or inference.sampler,
                         steps=args.steps or inference.steps, cfg=inference.cfg if args.cfg is None else args.cfg,
-                        device=str(pipe.device), default_frames=inference.default_frames,
+                        device=str(pipe.device),
+                        default_length="the bundle's length predictor" if pipe.length_predictor is not None
+                        else f"{inference.default_frames} frames",
                         unfamiliar=[u.text for u in pipe.unfamiliar([p.text for p in prompts])])
     for token in lengths:  # explicit lengths outside the model's range: one line before any generation
         runner.frames_for(token, prompts[0], fps, low, high)

@@ -2,10 +2,10 @@
 
 A generator is a function (prompts, frames, seeds) -> list of (T, 22, 3) joint arrays, one per
 item, where a frame count of None means "no length given". `pipeline_generator` asks a stablemo.Pipeline (all
-motions of one length in one batched request; the pipeline's default length where none is given),
+motions of one length in one batched request),
 `truth_generator` the synthetic generator itself (the checks' own validation). Lengths are tokens:
-`default` (no length given), `natural` (the prompt's length as the synthetic generator makes it)
-or seconds (`9.8`).
+`default` (no length given: a pipeline's length predictor chooses, or its default length),
+`natural` (the prompt's length as the synthetic generator makes it) or seconds (`9.8`).
 """
 
 from __future__ import annotations
@@ -62,12 +62,12 @@ def frames_for(token: str, prompt: Prompt, fps: float, low: int, high: int) -> i
 
 
 def pipeline_generator(pipe, batch_size: int = 64, **request_fields) -> Generator:
-    """Generation through a stablemo.Pipeline; a length of None is the pipeline's default length."""
+    """Generation through a stablemo.Pipeline; a length of None is passed on as none: the length the
+    pipeline gives the text (its bundle's length predictor, else its default length)."""
     from stablemo.inference.pipeline import Request
 
     def generate(prompts, frames, seeds):
-        lengths = [pipe.inference.default_frames if n is None else n for n in frames]
-        out = pipe.generate(Request([p.text for p in prompts], lengths, seed=list(seeds), batch_size=batch_size, **request_fields))
+        out = pipe.generate(Request([p.text for p in prompts], list(frames), seed=list(seeds), batch_size=batch_size, **request_fields))
         return out.joint_list()
 
     return generate
