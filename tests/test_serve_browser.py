@@ -6,6 +6,7 @@ server's error. Skipped when Chromium, its driver, selenium or the vendored thre
 
 from __future__ import annotations
 
+import functools
 import io
 import itertools
 import shutil
@@ -84,6 +85,14 @@ def page(downloads):
             driver.quit()
 
 
+@functools.cache
+def text_frames(text: str) -> int:
+    """The length the served student gives a text when the page asks for none."""
+    from stablemo.inference.pipeline import Pipeline
+
+    return Pipeline.from_bundle(ASSETS / "demo_student").text_lengths([text])[0]
+
+
 def limb_coloured(rgb: np.ndarray) -> np.ndarray:
     """(..., 3) pixels -> (...,) bool: within shading distance of one of the limb colours."""
     dist = np.abs(rgb[..., None, :].astype(float) - LIMBS).max(-1)  # (..., 3)
@@ -139,8 +148,12 @@ def test_typed_prompt_is_drawn_and_moves_then_empty_prompt_shows_the_error(page,
     time.sleep(0.5)
     assert page.execute_script("return window.stablemo.requests") - sent == 1
     state = page.execute_script("const s = window.stablemo; return {frames: s.motion.frames, error: s.error, "
-                                "fps: s.motion.fps, model: s.motion.model}")
-    assert state == {"frames": 120, "error": None, "fps": 20, "model": "student"}
+                                "fps: s.motion.fps, model: s.motion.model, from: s.motion.lengthFrom, "
+                                "said: document.getElementById('seconds').placeholder}")
+    # the seconds field is empty: the motion has the text's length, and the field says it
+    frames = text_frames(PROMPT)
+    assert state == {"frames": frames, "error": None, "fps": 20, "model": "student", "from": "text",
+                     "said": f"auto ({frames / 20:.1f} s)"}
 
     # the figure moves: two poses drawn 0.5 s apart differ by more than a few centimetres
     first = page.execute_script("return [window.stablemo.frame, window.stablemo.worldPose]")
@@ -187,7 +200,7 @@ def test_typed_prompt_is_drawn_and_moves_then_empty_prompt_shows_the_error(page,
     from stablemo.bvh import read_bvh
 
     anim = read_bvh(bvh)
-    assert anim.num_frames == 120 and anim.fps == 20.0
+    assert anim.num_frames == frames and anim.fps == 20.0
     # the motion is one rigid body, so the file is within 3 cm of it and the page says nothing
     assert page.find_element(By.ID, "download-note").text == ""
 
@@ -280,8 +293,11 @@ def test_a_path_drawn_with_the_pages_defaults_is_what_was_drawn_and_is_followed(
     nearest = np.linalg.norm(path[:, None] - pelvis[None], axis=-1).min(1)  # (N,)
     assert nearest.max() < 0.1
     # a walking pace: the panel says "reached", or the server's note when a target was missed
-    control = page.execute_script("return window.stablemo.motion.control")
-    assert control["pace_m_s"] == pytest.approx(polyline_length(path) / 6, rel=0.02) and control["pace_m_s"] < 1
+    control, frames = page.execute_script("return [window.stablemo.motion.control, window.stablemo.motion.frames]")
+    # with no seconds given, the path takes the length of the motion it was drawn on (the text's)
+    assert frames == text_frames("a person walks forward")
+    assert control["pace_m_s"] == pytest.approx(polyline_length(path) / (frames / 20), rel=0.02)
+    assert control["pace_m_s"] < 1
     assert_control_panel(page, control)
 
     # a stroke far faster than a body walks (about 10 m in 2 s): a visible note, not "reached"

@@ -111,6 +111,8 @@ class ServedModel:
             "fps": pipe.fps,
             "min_frames": pipe.min_length,
             "max_frames": pipe.max_length,
+            # the length of a motion with no length and no text to predict one from (a path drawn first)
+            "default_frames": pipe.inference.default_frames,
             "samplers": sorted(pipe.samplers),
             "defaults": {"sampler": inf.sampler, "steps": inf.steps, "cfg": inf.cfg},
             "skeleton": {"name": skel.name, "units": skel.units, "joints": list(skel.joint_names),

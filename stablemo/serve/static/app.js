@@ -301,14 +301,24 @@ S.cancelled = 0;       // of those, cancelled by a newer one
 
 function modelInfo(name) { return S.info.models.find((m) => m.name === name); }
 
+// targets are per frame, so a path or keyframes need the length before the server chooses it: with
+// no seconds given, that of the motion on screen (the text's own), else the model's default
+function targetFrames(model) {
+  const m = S.motion;
+  const frames = m && !m.streaming && m.model === model.name ? m.frames : model.default_frames;
+  return Math.min(Math.max(frames, model.min_frames), model.max_frames);
+}
+
 function currentSpec() {
-  const spec = { text: $('prompt').value, seconds: Number($('seconds').value), seed: Number($('seed').value),
-                 model: $('model').value, footskate: $('footskate').checked };
+  // an empty seconds field: the length the text asks for (the bundle's length predictor)
+  const spec = { text: $('prompt').value, seed: Number($('seed').value), model: $('model').value,
+                 footskate: $('footskate').checked };
+  if ($('seconds').value !== '') spec.seconds = Number($('seconds').value);
   if ($('sampler').value) spec.sampler = $('sampler').value;
   if ($('steps').value !== '') spec.steps = Number($('steps').value);
   if ($('cfg').value !== '') spec.cfg = Number($('cfg').value);
   const model = modelInfo(spec.model);
-  const frames = Math.round(spec.seconds * model.fps);
+  const frames = spec.seconds === undefined ? targetFrames(model) : Math.round(spec.seconds * model.fps);
   const targets = controlTargets(frames);
   if (targets.length) {  // targets are per frame: say the frame count rather than have it rounded twice
     delete spec.seconds;
@@ -362,9 +372,12 @@ function setMotion(data, spec, rec) {
   const [T, J] = data.joints.shape;
   buildFigure(model.skeleton);
   S.motion = { spec, text: data.text, seed: data.seed, model: data.model, frames: T, J, fps: data.fps,
+               lengthFrom: data.length_from,
                steps: data.steps, sampler: data.sampler, cfg: data.cfg, joints: decode(data.joints), control: data.control,
                available: T, streaming: false,
                scale: model.skeleton.units === 'mm' ? 0.001 : 1 };
+  // an empty seconds field says the length the text got
+  if (data.length_from !== 'given') $('seconds').placeholder = `auto (${(T / data.fps).toFixed(1)} s)`;
   buildPath(S.motion);
   // a new prompt plays from the start; an edit made while paused stays at the frame being edited;
   // the motion of a path just drawn plays from the start if the page was playing before the stroke
