@@ -23,14 +23,15 @@ import torch
 from stablemo.control.spec import ControlTargets
 from stablemo.errors import StableMoError
 from stablemo.motion.extract_torch import (
-    body_features,
+    body_columns,
     fill_padding,
     joints_to_features_batched,
     valid_lengths,
 )
 from stablemo.motion.features import feature_slices, features_to_joints, recover_root
-from stablemo.motion.floor import place_on_floor
-from stablemo.motion.rigid import rigid_joints
+from stablemo.motion.floor import lowest_shift, target_pins
+from stablemo.motion.quaternion import norm
+from stablemo.motion.rigid import rigid_joint_major
 from stablemo.motion.skeleton import Skeleton, get_skeleton
 
 
@@ -77,6 +78,13 @@ class Finish:
         channels (features' last four columns), which say when a foot is planted (None: always).
         given (B, T) bool: frames whose feet were given (an edit's kept part): their feet are not
         anchored, and a stance that reaches into them is anchored where they put it."""
+        return self.body(joints, lengths, control, contacts, given).permute(2, 3, 0, 1).contiguous()
+
+    def body(self, joints: torch.Tensor, lengths, control: ControlTargets | None = None,
+             contacts: torch.Tensor | None = None, given: torch.Tensor | None = None) -> torch.Tensor:
+        """Finish.joints, joint-major: raw joints (B, T, J, 3) -> the body (J, 3, B, T). The step keeps
+        this layout from the rebuild to the features (stablemo.motion.rigid.rigid_joint_major: every
+        joint's coordinates contiguous, so each of its many small steps is one vectorised pass)."""
         t = joints.shape[1]
         mask = None if control is None else control.mask[:, :t].to(joints.device)
         # padding repeats the last frame, so the ramps see each motion as if alone
@@ -85,10 +93,14 @@ class Finish:
         held = None if mask is None else fill_padding(mask, n)
         hold = self.hold(joints, held, contacts)
         given = None if given is None else fill_padding(given.to(joints.device), n)
-        body = rigid_joints(joints, self.skeleton, self.bone_lengths, lengths, hold, self.anchored(joints, hold, n, given))
-        if control is None:
-            return place_on_floor(body, lengths, self.skeleton, self.fps)
-        return place_on_floor(body, lengths, self.skeleton, self.fps, control.targets[:, :t].to(body), mask)
+        x = joints.permute(2, 3, 0, 1).contiguous()  # (J, 3, B, T)
+        body = rigid_joint_major(x, self.skeleton, self.bone_lengths, n, hold, self.anchored(x, hold, n, given))
+        heights = body[:, 1]  # (J, B, T)
+        pins = pinned = None
+        if control is not None:
+            pins, pinned = target_pins(heights.permute(1, 2, 0), control.targets[:, :t].to(body), mask)
+        body[:, 1] += lowest_shift(heights.amin(0), n, self.skeleton, self.fps, pins, pinned)  # onto the floor
+        return body
 
     def hold(self, joints: torch.Tensor, mask: torch.Tensor | None, contacts: torch.Tensor | None) -> torch.Tensor:
         """How firmly (B, T, J) each limb's end keeps its generated place (stablemo.motion.rigid).
@@ -118,9 +130,9 @@ class Finish:
             hold[..., ankle] = torch.maximum(hold[..., ankle], planted)
         return hold
 
-    def anchored(self, joints: torch.Tensor, hold: torch.Tensor, n: torch.Tensor,
+    def anchored(self, x: torch.Tensor, hold: torch.Tensor, n: torch.Tensor,
                  given: torch.Tensor | None = None) -> torch.Tensor:
-        """joints (B, T, J, 3) with each planted ankle's horizontal place fixed over its stance.
+        """Joint-major joints x (J, 3, B, T) with each planted ankle's horizontal place fixed over its stance.
 
         A generated stance foot drifts (the demo student's free walks: ~30 cm/s; more where a path
         or guidance moves the pelvis under it), and holding it where it was generated keeps the
@@ -130,13 +142,13 @@ class Finish:
         most ANCHOR_REACH_M. n (B,): valid
         frames (padding takes no part in an anchor, so a motion is finished alike alone or batched);
         given (B, T) bool: frames whose feet the user gave stay as given and pin their stance's anchor."""
-        out = joints.clone()
-        b, t = joints.shape[:2]
-        valid = torch.arange(t, device=joints.device)[None, :] < n[:, None]
+        out = x.clone()
+        b, t = x.shape[2:]
+        valid = torch.arange(t, device=x.device)[None, :] < n[:, None]
         away = None
         if given is not None:  # 0 on given frames, rising to 1 over GIVEN_FADE frames beside them
             r = GIVEN_FADE
-            near = torch.nn.functional.max_pool1d(given.to(joints.dtype)[:, None], 2 * r + 1, 1, r)
+            near = torch.nn.functional.max_pool1d(given.to(x.dtype)[:, None], 2 * r + 1, 1, r)
             away = 1 - torch.nn.functional.avg_pool1d(near, 2 * r + 1, 1, r, count_include_pad=False)[:, 0]
             away = torch.where(given, torch.zeros_like(away), away)
         for _, _, ankle in self.skeleton.legs.values():
@@ -149,17 +161,15 @@ class Finish:
                 lock = lock * away  # and is left as given, the anchor fading in beside it
             start = inside & ~torch.cat([torch.zeros_like(inside[:, :1]), inside[:, :-1]], 1)
             run = start.long().cumsum(1) * inside  # (B, T): 1, 2, ... per stance, 0 outside
-            xz = joints[..., ankle, :][..., [0, 2]]  # (B, T, 2)
-            sums = torch.zeros(b, t + 1, 3, dtype=joints.dtype, device=joints.device)
-            sums.scatter_add_(1, run[..., None].expand(-1, -1, 3), torch.cat([xz * weight[..., None], weight[..., None]], -1))
-            anchor = sums[..., :2] / sums[..., 2:].clamp(min=1e-9)  # (B, T+1, 2) per stance
-            at = anchor.gather(1, run[..., None].expand(-1, -1, 2))
-            shift = at - xz
-            reach = shift.norm(dim=-1, keepdim=True)
+            xz = x[ankle, 0::2]  # (2, B, T)
+            sums = torch.zeros(3, b, t + 1, dtype=x.dtype, device=x.device)
+            sums.scatter_add_(2, run[None].expand(3, -1, -1), torch.cat([xz * weight, weight[None]]))
+            anchor = sums[:2] / sums[2:].clamp(min=1e-9)  # (2, B, T+1) per stance
+            shift = anchor.gather(2, run[None].expand(2, -1, -1)) - xz
+            reach = norm(shift, 0, keepdim=True)
             # a "stance" whose foot travels far is a pivot or a mislabelled step: move it a little only
             shift = shift * (ANCHOR_REACH_M * self.skeleton.per_metre / reach.clamp(min=1e-9)).clamp(max=1.0)
-            placed = xz + lock[..., None] * shift
-            out[..., ankle, 0], out[..., ankle, 2] = placed[..., 0], placed[..., 1]
+            out[ankle, 0::2] = xz + lock * shift
         return out
 
     def __call__(self, features: torch.Tensor, lengths, control: ControlTargets | None = None,
@@ -178,10 +188,10 @@ class Finish:
         q, _ = recover_root(features)  # (B, T, 4) the root rotation recovery will use
         raw = features_to_joints(features, self.skeleton) if raw_joints is None else raw_joints.to(features)
         contacts = features[..., feature_slices(self.skeleton)["contacts"]]
-        body = self.joints(raw, n, control, contacts, given)  # (B, T, J, 3)
+        body = self.body(raw, n, control, contacts, given)  # (J, 3, B, T)
         ext, last = self._extended(body, n)
         r = torch.cat([q, q.gather(1, last[..., None].expand(b, 1, 4))], dim=1)  # (B, T+1, 4)
-        feats = torch.cat([features[..., :3], body_features(ext, r, self.skeleton)], dim=-1)
+        feats = torch.cat([features[..., :3], body_columns(ext, r, self.skeleton)], dim=-1)
         mask = torch.arange(t, device=features.device)[None, :] < n[:, None]  # (B, T)
         feats = torch.where(mask[..., None], feats, torch.zeros((), dtype=feats.dtype, device=feats.device))
         joints = features_to_joints(feats, self.skeleton)
@@ -189,28 +199,26 @@ class Finish:
 
     @staticmethod
     def _extended(body: torch.Tensor, n: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """body (B, T, J, 3) -> (B, T+1, J, 3) with frames n.. the last pose moved on by the last root
-        step (a rigid move: row n-1's velocities need frame n), and last = n - 1 as (B, 1)."""
-        b, t = body.shape[:2]
+        """Joint-major body (J, 3, B, T) -> (J, 3, B, T+1) with frames n.. the last pose moved on by the
+        last root step (a rigid move: row n-1's velocities need frame n), and last = n - 1 as (B, 1)."""
+        j, _, b, t = body.shape
         frames = torch.arange(t + 1, device=body.device)[None, :]
         last = (n - 1)[:, None]  # (B, 1)
-
-        def at(index: torch.Tensor) -> torch.Tensor:  # index (B, K) -> frames (B, K, J, 3)
-            return body.gather(1, index[..., None, None].expand(b, index.shape[1], *body.shape[2:]))
-
-        flat = torch.tensor([1.0, 0.0, 1.0], dtype=body.dtype, device=body.device)
-        step = (at(last)[:, :, :1] - at(last - 1)[:, :, :1]) * flat  # (B, 1, 1, 3) horizontal root step
-        ahead = (frames - last).clamp(min=0).to(body.dtype)[..., None, None]  # (B, T+1, 1, 1)
-        return at(torch.minimum(frames, last)) + ahead * step, last
+        root = body[0]  # (3, B, T)
+        flat = body.new_tensor([1.0, 0.0, 1.0])[:, None, None]
+        step = (root.gather(2, last[None].expand(3, b, 1)) - root.gather(2, last[None].expand(3, b, 1) - 1)) * flat
+        ahead = (frames - last).clamp(min=0).to(body.dtype)  # (B, T+1)
+        index = torch.minimum(frames, last)[None, None].expand(j, 3, b, t + 1)
+        return body.gather(3, index) + ahead * step, last  # step (3, B, 1): the horizontal root step
 
     def features_of(self, body: torch.Tensor, lengths) -> torch.Tensor:
         """Features (B, T, D) float64 of joints (B, T, J, 3) in any frame (a stream's global one), the
         root rotation estimated from the hips and shoulders as in extraction; zero past lengths[b].
         Recovering them gives these joints back when frame 0's root is at the origin facing +z."""
         n = valid_lengths(lengths, *body.shape[:2], body.device)
-        ext, _ = self._extended(body, n)
-        feats = joints_to_features_batched(ext, n + 1, self.skeleton, refit=False, place=False)  # (B, T, D)
-        mask = torch.arange(body.shape[1], device=body.device)[None, :] < n[:, None]
+        ext, _ = self._extended(body.permute(2, 3, 0, 1), n)
+        feats = joints_to_features_batched(ext.permute(2, 3, 0, 1), n + 1, self.skeleton, refit=False, place=False)
+        mask = torch.arange(body.shape[1], device=body.device)[None, :] < n[:, None]  # (B, T)
         return torch.where(mask[..., None], feats, torch.zeros((), dtype=feats.dtype, device=feats.device))
 
 

@@ -83,14 +83,20 @@ def floor_shift(joints: torch.Tensor, lengths, skeleton: Skeleton | str, fps: fl
     """The height to add to every joint of each frame: joints (B, T, J, 3) -> shift (B, T), zero on
     padding (lengths (B,) valid frames). pins (B, T) with pinned (B, T) bool: frames whose shift is
     given (a joint target's height, which the user asked for, wins over the floor there)."""
+    return lowest_shift(joints[..., 1].amin(-1), lengths, skeleton, fps, pins, pinned)
+
+
+def lowest_shift(lowest: torch.Tensor, lengths, skeleton: Skeleton | str, fps: float | None = None,
+                 pins: torch.Tensor | None = None, pinned: torch.Tensor | None = None) -> torch.Tensor:
+    """floor_shift from each frame's lowest joint height lowest (B, T) alone: all the floor reads
+    (the finishing step hands it over from its joint-major body)."""
     skel = get_skeleton(skeleton)
-    b, t = joints.shape[:2]
-    n = valid_lengths(lengths, b, t, joints.device, min_frames=1)
-    x = fill_padding(joints, n)
+    b, t = lowest.shape
+    n = valid_lengths(lengths, b, t, lowest.device, min_frames=1)
     fps = float(fps or skel.fps)
-    h = x[..., 1].amin(-1)  # (B, T) lowest joint
+    h = fill_padding(lowest, n)  # (B, T) lowest joint, padding as the last valid frame
     ground = _running_min(h, max(1, round(WINDOW_S * fps)))
-    valid = torch.arange(t, device=joints.device)[None, :] < n[:, None]  # (B, T)
+    valid = torch.arange(t, device=lowest.device)[None, :] < n[:, None]  # (B, T)
     supported = _on_ground(h - ground, skel.per_metre, fps, valid) & valid
     values = -h
     if pinned is not None:
@@ -104,6 +110,16 @@ def floor_shift(joints: torch.Tensor, lengths, skeleton: Skeleton | str, fps: fl
     return torch.where(valid, shift, torch.zeros((), dtype=shift.dtype, device=shift.device))
 
 
+def target_pins(heights: torch.Tensor, targets: torch.Tensor, target_mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Joint targets as floor pins: heights (B, T, J) of the joints, targets (B, T, J, 3) with
+    target_mask (B, T, J) -> (pins (B, T): the shift that meets the frame's targets' mean height,
+    pinned (B, T) bool: frames with targets)."""
+    m = target_mask.to(heights.dtype)  # (B, T, J)
+    count = m.sum(-1)  # (B, T)
+    pins = ((targets[..., 1].to(heights.dtype) - heights) * m).sum(-1) / count.clamp(min=1)
+    return pins, count > 0
+
+
 def place_on_floor(joints: torch.Tensor, lengths, skeleton: Skeleton | str, fps: float | None = None,
                    targets: torch.Tensor | None = None, target_mask: torch.Tensor | None = None) -> torch.Tensor:
     """joints (B, T, J, 3) with each frame raised or lowered onto the floor (see the module doc).
@@ -111,14 +127,12 @@ def place_on_floor(joints: torch.Tensor, lengths, skeleton: Skeleton | str, fps:
     shift meets their mean height instead."""
     pins = pinned = None
     if target_mask is not None:
-        m = target_mask.to(joints.dtype)  # (B, T, J)
-        count = m.sum(-1)  # (B, T)
-        pins = ((targets[..., 1].to(joints.dtype) - joints[..., 1]) * m).sum(-1) / count.clamp(min=1)
-        pinned = count > 0
+        pins, pinned = target_pins(joints[..., 1], targets, target_mask)
     shift = floor_shift(joints, lengths, skeleton, fps, pins, pinned)  # (B, T)
     up = torch.zeros(3, dtype=joints.dtype, device=joints.device)
     up[1] = 1.0
     return joints + shift[..., None, None] * up
 
 
-__all__ = ["FLOAT_S", "HIGH_M", "LOW_M", "RISE_MPS", "WINDOW_S", "floor_shift", "place_on_floor"]
+__all__ = ["FLOAT_S", "HIGH_M", "LOW_M", "RISE_MPS", "WINDOW_S", "floor_shift", "lowest_shift", "place_on_floor",
+           "target_pins"]

@@ -125,9 +125,7 @@ def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
     joint target is held (stablemo.inference.finish). ends (B, T, J, 3): where a held end goes
     (default: where it was generated; the finishing step gives planted feet their anchors).
 
-    The work runs joints and components first, (J, 3, B, T): each joint's x, y and z are then one
-    contiguous block, so the many small steps of the rebuild are vectorised passes (on (B, T, J, 3)
-    every one strode over interleaved coordinates, and this step cost as much as the network)."""
+    The work runs joint-major, (J, 3, B, T) (rigid_joint_major)."""
     skel = get_skeleton(skeleton)
     joints = torch.as_tensor(joints)
     if joints.dim() not in (3, 4) or tuple(joints.shape[-2:]) != (skel.num_joints, 3) or not joints.is_floating_point():
@@ -137,25 +135,37 @@ def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
         return rigid_joints(joints[None], skel, bone_lengths, None if lengths is None else [lengths],
                             None if hold is None else torch.as_tensor(hold)[None],
                             None if ends is None else torch.as_tensor(ends)[None])[0]
+    major = (lambda v: None if v is None else torch.as_tensor(v).to(joints).permute(2, 3, 0, 1))  # noqa: E731
+    out = rigid_joint_major(major(joints).contiguous(), skel, bone_lengths, lengths, hold, major(ends))
+    return out.permute(2, 3, 0, 1).contiguous()
+
+
+def rigid_joint_major(x: torch.Tensor, skeleton: Skeleton | str, bone_lengths=None, lengths=None,
+                      hold: torch.Tensor | None = None, ends: torch.Tensor | None = None) -> torch.Tensor:
+    """rigid_joints on joint-major joints x (J, 3, B, T) -> the body (J, 3, B, T); ends (J, 3, B, T)
+    joint-major too, hold (B, T, J) as there.
+
+    Joint-major, each joint's x, y and z are one contiguous block, so the many small steps of the
+    rebuild (a few per bone) are vectorised passes; on (B, T, J, 3) every one strode over the
+    interleaved coordinates, and this step cost as much as the network. The finishing step keeps
+    its motion in this layout from the rebuild to the features."""
+    skel = get_skeleton(skeleton)
     body = np.asarray(skel.bone_lengths if bone_lengths is None else bone_lengths, dtype=np.float64)
     if body.shape != (skel.num_joints,) or not np.isfinite(body).all() or (body[1:] <= 0).any():
         raise StableMoError(f"bone_lengths: expected {skel.num_joints} finite lengths > 0 (root 0) for skeleton "
                             f"{skel.name}, got shape {body.shape}")
-    frames_n = torch.full((joints.shape[0],), joints.shape[1]) if lengths is None else torch.as_tensor(lengths).reshape(-1)
-    valid = (torch.arange(joints.shape[1])[None, :] < frames_n[:, None]).to(joints.device)  # (B, T)
-    x = joints.permute(2, 3, 0, 1).contiguous()  # (J, 3, B, T)
+    b, t = x.shape[2:]
+    frames_n = torch.full((b,), t) if lengths is None else torch.as_tensor(lengths).reshape(-1).cpu()
+    valid = (torch.arange(t)[None, :] < frames_n[:, None]).to(x.device)  # (B, T)
     legs = {ankle for _, _, ankle in skel.legs.values()}
     ends_at = [end for _, _, end in skel.ik_limbs]
     if hold is None:
         hold_at = {end: float(end in legs) for end in ends_at}
     else:
-        hold = torch.as_tensor(hold).to(joints)
+        hold = torch.as_tensor(hold).to(x)
         hold_at = {end: hold[..., end][None] for end in ends_at}  # (1, B, T)
-    if ends is None:
-        goal_at = {end: x[end] for end in ends_at}  # (3, B, T)
-    else:
-        ends = torch.as_tensor(ends).to(joints)
-        goal_at = {end: ends[:, :, end].permute(2, 0, 1) for end in ends_at}
+    goal = x if ends is None else ends
+    goal_at = {end: goal[end] for end in ends_at}  # (3, B, T)
 
     raw_dir = torch.tensor(np.array(skel.raw_offsets), dtype=x.dtype, device=x.device)[..., None, None]  # (J, 3, 1, 1)
     parents = list(skel.parents[1:])
@@ -204,7 +214,7 @@ def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
             hips[joint] = along(skel.parents[joint], joint, hips)
     root = x[0].clone()
     root[1] += _leg_drop(hips, x, directions, skel, body, valid)  # the root moves vertically only
-    return torch.stack(build(root)).permute(2, 3, 0, 1).contiguous()  # (B, T, J, 3)
+    return torch.stack(build(root))  # (J, 3, B, T)
 
 
 def _facing(x: torch.Tensor, skel: Skeleton) -> torch.Tensor:
@@ -263,4 +273,4 @@ def bone_lengths_of(joints: torch.Tensor, skeleton: Skeleton | str) -> torch.Ten
     return torch.linalg.vector_norm(x - x[..., parents, :], dim=-1)
 
 
-__all__ = ["bone_lengths_of", "rigid_joints", "two_bone"]
+__all__ = ["bone_lengths_of", "rigid_joint_major", "rigid_joints", "two_bone"]
