@@ -16,6 +16,15 @@ with the methods other than `forward` through which the network reads its weight
 (the UNet's `adagn`, the cross-attention's per-request `context`); FSDP2 all-gathers for those calls
 too. Whatever no unit holds (embeddings, heads) is sharded with the whole network, the root unit.
 
+Unsharded runs (DDP, one process) group their gradient sums as sharded runs do (group_unit_gradients):
+FSDP2 passes every call of a unit through one autograd node on the call's inputs, so a tensor that
+feeds a unit at several places (the UNet's skip connections: a down stage's output enters the next
+block's convolution and its residual sum, and the up stage's concatenation) has the unit's share
+summed first, then added to the rest. Without the same node the sum is associated otherwise: the
+UNet's gradients differed in the last bits and Adam lifted that to 8.3e-6 in the weights after 4
+steps (the DiT and RetNet, whose block inputs have one consumer, were equal). With it, a sharded and
+an unsharded run compute the same floating-point sums.
+
 Checkpoints are full (unsharded) files written by rank 0 through the run's CheckpointIO (atomic),
 the same layout as an unsharded run's: a checkpoint written by N sharded processes loads in one
 unsharded process (`stablemo export`, a DDP or single-process resume) and the other way round.
@@ -24,6 +33,8 @@ The EMA keeps its shadow sharded like the weights and is gathered into the check
 
 from __future__ import annotations
 
+import dataclasses
+import types
 from dataclasses import dataclass
 from datetime import timedelta
 
@@ -106,6 +117,97 @@ def shard_model(model: nn.Module, mesh, param_dtype: torch.dtype | None = None) 
     return len(units) + 1
 
 
+class UnitInputs(torch.autograd.Function):
+    """Identity on the gradient-requiring inputs of one call of a unit: the node FSDP2 puts there
+    (its RegisterPostBackwardFunction, whose backward starts the unit's reduce-scatter), without
+    the communication. Each input's gradients from inside the call are summed in this node's
+    buffer, then added to the input's other gradients as one term."""
+
+    @staticmethod
+    def forward(*inputs: torch.Tensor):
+        return inputs
+
+    @staticmethod
+    def setup_context(ctx, inputs, output) -> None:
+        pass
+
+    @staticmethod
+    def backward(ctx, *grads: torch.Tensor):
+        return grads
+
+
+def _grad_tensors(value, found: list[torch.Tensor]) -> None:
+    """The tensors that require gradients in nested arguments, in FSDP2's order (torch 2.13's
+    collect_grad_tensors: named tuples, dataclasses, dicts, lists and tuples)."""
+    if isinstance(value, torch.Tensor):
+        if value.requires_grad:
+            found.append(value)
+    elif isinstance(value, tuple) and hasattr(value, "_fields"):
+        for item in value:
+            _grad_tensors(item, found)
+    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+        for field in dataclasses.fields(value):
+            _grad_tensors(getattr(value, field.name), found)
+    elif isinstance(value, dict):
+        for item in value.values():
+            _grad_tensors(item, found)
+    elif isinstance(value, (list, tuple)):
+        for item in value:
+            _grad_tensors(item, found)
+
+
+def _put_back(value, new):
+    """`value` with each gradient-requiring tensor replaced by next(new), in _grad_tensors' order."""
+    if isinstance(value, torch.Tensor):
+        return next(new) if value.requires_grad else value
+    if isinstance(value, tuple) and hasattr(value, "_fields"):
+        return type(value)(*(_put_back(item, new) for item in value))
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return dataclasses.replace(value, **{f.name: _put_back(getattr(value, f.name), new)
+                                             for f in dataclasses.fields(value) if f.init})
+    if isinstance(value, dict):
+        return type(value)((k, _put_back(item, new)) for k, item in value.items())
+    if isinstance(value, (list, tuple)):
+        return type(value)(_put_back(item, new) for item in value)
+    return value
+
+
+def _through_unit_inputs(name: str):
+    """A method calling the class's `name` with its gradient-requiring arguments passed through
+    UnitInputs first (bound to each module: a deep copy of the module calls its own class's method)."""
+
+    def call(self, *args, **kwargs):
+        if torch.is_grad_enabled():
+            tensors: list[torch.Tensor] = []
+            _grad_tensors((args, kwargs), tensors)
+            if tensors:
+                args, kwargs = _put_back((args, kwargs), iter(UnitInputs.apply(*tensors)))
+        return getattr(type(self), name)(self, *args, **kwargs)
+
+    return call
+
+
+def group_unit_gradients(model: nn.Module) -> bool:
+    """Give an unsharded MotionDiffusionModel FSDP2's node on the inputs of every unit call (its
+    forward and the methods SHARD_UNITS names; the root: forward and ROOT_METHODS), so that its
+    gradients are the sharded network's to the bit (see the module docstring). False for a network
+    without a sharding policy (it cannot be sharded, so there is nothing to match). Idempotent."""
+    from stablemo.nets.model import MotionDiffusionModel
+
+    if not isinstance(model, MotionDiffusionModel):
+        return False
+    try:
+        units = shard_units(model)
+    except StableMoError:
+        return False
+    for module, names in [*((m, ("forward", *u.methods)) for m, u in units), (model, ("forward", *ROOT_METHODS))]:
+        for name in names:
+            if name in vars(module):  # already grouped (or patched by someone else): leave it
+                continue
+            setattr(module, name, types.MethodType(_through_unit_inputs(name), module))
+    return True
+
+
 def is_sharded(model: nn.Module) -> bool:
     from torch.distributed.tensor import DTensor
 
@@ -155,8 +257,12 @@ class FullShardStrategy(ModelParallelStrategy):
 
 
 def configure_sharding(module) -> None:
-    """DiffusionModule.configure_model: shard under FullShardStrategy, nothing under any other."""
+    """DiffusionModule.configure_model: shard under FullShardStrategy; under any other strategy,
+    group the network's gradient sums as a sharded run's (group_unit_gradients), so that the same
+    steps sharded and unsharded give the same weights."""
     trainer = module._trainer
     strategy = getattr(trainer, "strategy", None) if trainer is not None else None
     if isinstance(strategy, FullShardStrategy):
         strategy.shard(module)
+    elif strategy is not None:
+        group_unit_gradients(module.model)
