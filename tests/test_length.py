@@ -146,11 +146,13 @@ def teacher():
 
 
 def test_the_shipped_teacher_gives_more_counts_more_time(teacher):
-    twice, thrice, walk = teacher.text_lengths(["a person jumps in place twice", "a person jumps in place three times",
-                                                "a person walks forward"])
-    assert twice < thrice
-    assert 60 <= twice <= 90  # a double jump of the synthetic data is ~3.5 s; not the old default 6 s
-    assert walk != teacher.inference.default_frames or walk > thrice
+    texts = ["a person jumps in place once", "a person jumps in place twice", "a person jumps in place three times",
+             "a person walks forward"]
+    once, twice, thrice, walk = lengths = teacher.text_lengths(texts)
+    # training clips: one jump 40-45 frames, two 56-71, three 80-97, a walk forward 61-114 (median 88)
+    assert once < twice < thrice and twice < walk
+    assert 56 <= twice <= 71 and 80 <= thrice <= 97
+    assert all(n % teacher.length_multiple == 0 for n in lengths) and teacher.length_multiple == 4
 
 
 def test_every_shipped_model_carries_the_same_predictor():
@@ -202,3 +204,28 @@ def test_copied_demo_bundle_without_the_file_entry_falls_back(tmp_path):
     (bundle / "config.json").write_text(json.dumps(config))
     pipe = Pipeline.from_bundle(bundle)
     assert pipe.text_lengths(["a person jumps in place twice"]) == [120]
+
+
+def test_the_script_trains_on_a_data_folder_and_writes_into_a_bundle(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from stablemo.cli import main
+
+    assert main(["data", "synth", "--out", str(tmp_path / "data"), "--num", "24", "--seed", "0"]) == 0
+    bundle = tmp_path / "student"
+    shutil.copytree(DEMO_STUDENT, bundle, ignore=shutil.ignore_patterns(FILE))
+    config = json.loads((bundle / "config.json").read_text())
+    del config[ENTRY]
+    (bundle / "config.json").write_text(json.dumps(config))
+    script = Path(__file__).resolve().parents[1] / "scripts/text/length_predictor.py"
+    run = subprocess.run([sys.executable, str(script), "--data", str(tmp_path / "data"), str(bundle)],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert "test: {'n': " in run.stdout and "actions whose lengths grow with the count" in run.stdout
+    entry = json.loads((bundle / "config.json").read_text())[ENTRY]
+    assert entry["fit"]["data"] == str(tmp_path / "data") and entry["val"]["n"] > 0 and entry["test"]["n"] > 0
+    pipe = Pipeline.from_bundle(bundle)
+    assert pipe.length_predictor.bins == LengthBins(40, 196, 4)
+    assert 40 <= pipe.text_lengths(["a person claps twice"])[0] <= 196

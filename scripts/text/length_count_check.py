@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 PROMPTS = {  # text -> the synthetic parts it asks for (stablemo.eval.behaviour.table)
     "a person jumps in place twice": [("jump", {"count": 2})],
@@ -50,4 +51,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from stablemo.errors import run_script
+
+    sys.exit(run_script(main, "/".join(Path(__file__).parts[-2:]), sys.argv[1:]))

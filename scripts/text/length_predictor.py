@@ -82,7 +82,10 @@ def main(argv=None) -> int:
     # (the training captions had not been embedded after 14 min with 2 threads on the loaded 2-core
     # machine; 2 min with one)
     torch.set_num_threads(1)
-    settings = LengthFit(**yaml.safe_load(Path(args.config).read_text()))
+    try:
+        settings = LengthFit(**yaml.safe_load(Path(args.config).read_text()))
+    except (OSError, TypeError, yaml.YAMLError) as err:
+        raise StableMoError(f"--config {args.config}: not a length predictor's settings ({err})") from None
     data = Path(args.data)
     pipe = Pipeline.from_bundle(args.bundles[0])
     encoder = pipe._frozen_encoders[0]
@@ -109,12 +112,13 @@ def main(argv=None) -> int:
     texts, emb, frames = splits["test"]
     counted = torch.tensor([bool(NAMES_A_COUNT.search(t)) for t in texts])
     print(f"test captions naming a count: {predictor.measure(emb[counted], frames[counted])}", flush=True)
-    ordered = 0
+    grow = never_shrink = 0
     for action, prompts in COUNTED.items():
         lengths = predictor.predict(encoder, prompts)
-        ordered += all(a <= b for a, b in zip(lengths, lengths[1:]))
+        grow += all(a < b for a, b in zip(lengths, lengths[1:]))
+        never_shrink += all(a <= b for a, b in zip(lengths, lengths[1:]))
         print(f"{action}: " + ", ".join(f"{p.split(action)[-1].strip() or p}: {n}" for p, n in zip(prompts, lengths)))
-    print(f"counted prompts whose lengths grow with the count: {ordered} of {len(COUNTED)}")
+    print(f"actions whose lengths grow with the count: {grow} of {len(COUNTED)}; never shrink: {never_shrink}")
     for prompt, n in zip(OTHERS, predictor.predict(encoder, OTHERS)):
         print(f"{prompt!r}: {n} frames")
     for bundle in args.bundles:
@@ -127,4 +131,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from stablemo.errors import run_script
+
+    sys.exit(run_script(main, "/".join(Path(__file__).parts[-2:]), sys.argv[1:]))

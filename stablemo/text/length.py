@@ -14,6 +14,7 @@ length of another count. Trained and measured by scripts/text/length_predictor.p
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -192,7 +193,7 @@ class LengthPredictor:
                 net.eval()
                 with torch.no_grad():
                     val_loss = float(nn.functional.cross_entropy(net(vx), vy))
-                if not torch.isfinite(torch.tensor(val_loss)):
+                if not math.isfinite(val_loss):
                     raise StableMoError(f"length predictor: the val loss is {val_loss} at epoch {epoch}; "
                                         "nothing written")
                 if val_loss < best:
