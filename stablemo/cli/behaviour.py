@@ -40,6 +40,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=None, help="default: the bundle's inference config")
     p.add_argument("--sampler", default=None, help="default: the bundle's inference config")
     p.add_argument("--cfg", type=float, default=None, help="default: the bundle's inference config")
+    p.add_argument("--evaluator", help="text-motion evaluator for the R@3 of the same motions "
+                                        "(default: the packaged synthetic one, stablemo/assets/evaluator_synth)")
+    p.add_argument("--no-retrieval", dest="retrieval", action="store_false",
+                   help="leave out R@3 (which shows what retrieval misses: motions failing a check that it ranks top 3)")
     p.add_argument("--batch-size", type=int, default=64, help="motions per network batch")
     p.add_argument("--device", default=None)
     p.add_argument("--dtype", choices=["fp32", "bf16", "fp16"], default=None)
@@ -57,6 +61,8 @@ def _check(args) -> None:
         check_positive_int("--steps", args.steps)
     if args.cfg is not None:
         check_finite("--cfg", args.cfg, low=0.0, high=100.0)
+    if args.evaluator and not args.retrieval:
+        raise StableMoError("--evaluator: serves the R@3 column, which --no-retrieval leaves out")
     if args.ground_truth:
         given = [f for f, v in (("--bundle", args.bundle), ("--steps", args.steps), ("--sampler", args.sampler),
                                 ("--cfg", args.cfg), ("--dtype", args.dtype), ("--device", args.device)) if v is not None]
@@ -115,8 +121,15 @@ def main(argv: list[str]) -> int:
                         unfamiliar=[u.text for u in pipe.unfamiliar([p.text for p in prompts])])
     for token in lengths:  # explicit lengths outside the model's range: one line before any generation
         runner.frames_for(token, prompts[0], fps, low, high)
+    evaluator = None
+    if args.retrieval:
+        from stablemo.eval.evaluate import SYNTH_EVALUATOR
+        from stablemo.eval.text_motion import load_text_motion_evaluator
+
+        evaluator = load_text_motion_evaluator(args.evaluator or SYNTH_EVALUATOR)
+        settings["evaluator"] = evaluator.name
     log = None if args.no_progress else (lambda line: print(line, file=sys.stderr, flush=True))
-    result = runner.run_suite(generate, prompts, lengths, seeds, fps, low, high, progress=log)
+    result = runner.run_suite(generate, prompts, lengths, seeds, fps, low, high, progress=log, evaluator=evaluator)
     settings["seconds"] = {k: round(v, 1) for k, v in result["seconds"].items()}
     print(f"behaviour: {settings['model']}; {len(prompts)} prompts x {len(lengths)} lengths x {len(seeds)} seeds "
           f"= {len(result['rows'])} motions; pass rate [Wilson 95 % interval]")

@@ -35,9 +35,18 @@ and seeds (`stablemo behaviour --ground-truth`): the checks' validation; tests/t
 shows each check failing on motions wrong in its attribute (mirrored bodies, one jump more, the parts
 reversed, another speed, angle or limb). `suite` prompts are sentences the training captions
 can produce; `held_out` ones use a paraphrase or a subject none of them uses. Lengths: `default` (no
-length given: the pipeline's default, 6 s), `natural` (the length the synthetic generator gives the
-actions, 2-9 s), `9.8` (9.8 s, longer than any action needs). Percent passed [Wilson 95 % interval];
-the intervals treat motions as independent, which the 4 seeds of one prompt are not quite.
+length given: the bundle's length predictor chooses it, stablemo.text.length; for the ground truth
+6 s), `natural` (the length the synthetic generator gives the actions, 2-9 s), seconds (`6`, the
+fixed default before the length predictor; `9.8`, longer than any action needs). Percent passed
+[Wilson 95 % interval]; the intervals treat motions as independent, which the 4 seeds of one prompt
+are not quite.
+
+What R@3 misses: R@3 rewards a motion for being nearer its own caption than 31 other captions, which
+are mostly other actions; "jumps twice" and "jumps four times", "waves the left hand" and "waves the
+right hand", "walks, then jumps" and "jumps, then walks" sit close together in the evaluator's space,
+and a motion of the right action with the wrong count, side or order still ranks its caption in the
+top 3. The demo models reach R@3 0.96 on the test split (the samplers table above) while most of
+their motions fail a check below.
 
 """
 
@@ -165,28 +174,29 @@ def chart(results: dict[str, dict], path: str | Path) -> None:
     names = list(results)
     attrs = [a for a in ATTRIBUTES if any(a in results[n]["summary"]["attributes"] for n in names)]
     labels = attrs + ["all checks", "motions"]
-    fig, ax = plt.subplots(figsize=(10, 4.2))
+    fig, ax = plt.subplots(figsize=(11, 4.4))
     width = 0.8 / len(names)
     x = np.arange(len(labels))
+    colours = {"ground truth": "#9e9e9e"}
     for k, n in enumerate(names):
         s = results[n]["summary"]
         rates = [s["attributes"].get(a) for a in attrs] + [s["checks"], s["overall"]]
         mid = np.array([100 * r["rate"] if r else np.nan for r in rates])
         err = np.array([[100 * (r["rate"] - r["low"]), 100 * (r["high"] - r["rate"])] if r else [0, 0]
                         for r in rates]).T.clip(min=0)  # rounding can put a bound a hair past the rate
-        bars = ax.bar(x + (k - (len(names) - 1) / 2) * width, mid, width, yerr=err, capsize=2, label=n)
+        bars = ax.bar(x + (k - (len(names) - 1) / 2) * width, mid, width, yerr=err, capsize=2, label=n,
+                      color=colours.get(n, f"C{k}"), error_kw={"elinewidth": 0.8})
         for bar, v in zip(bars, mid):
-            ax.text(bar.get_x() + bar.get_width() / 2, 1.5, f"{v:.0f}", ha="center", va="bottom", fontsize=7,
-                    color="white")
-    ax.axhline(95, color="grey", lw=0.8, ls="--")
-    ax.axhline(85, color="grey", lw=0.8, ls=":")
-    ax.text(len(labels) - 0.5, 96, "target 95 % (teacher)", ha="right", fontsize=7, color="grey")
-    ax.text(len(labels) - 0.5, 86, "85 % (every attribute)", ha="right", fontsize=7, color="grey")
+            ax.text(bar.get_x() + bar.get_width() / 2, 1.5, f"{v:.0f}", ha="center", va="bottom", fontsize=7)
+    for level, text, style in ((95, "95 %: target, teacher", "--"), (85, "85 %: every attribute", ":")):
+        ax.axhline(level, color="black", lw=0.7, ls=style)
+        ax.text(1.005, level, text, transform=ax.get_yaxis_transform(), va="center", fontsize=7)
     ax.set_xticks(x, labels, rotation=20)
-    ax.set_ylim(0, 105)
+    ax.set_xlim(-0.6, len(labels) - 0.4)
+    ax.set_ylim(0, 100)
     ax.set_ylabel("% passed (Wilson 95 % interval)")
     ax.set_title("Behaviour suite: does the motion do what the prompt says?", fontsize=10)
-    ax.legend(loc="upper left", fontsize=8, ncol=len(names))
+    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.06), fontsize=8, ncol=len(names), frameon=False)
     fig.tight_layout()
     save_png(fig, path)
     plt.close(fig)

@@ -17,6 +17,7 @@ import numpy as np
 
 from stablemo.errors import StableMoError
 from stablemo.eval.behaviour.checks import score
+from stablemo.eval.behaviour.retrieval import top3_hits
 from stablemo.eval.behaviour.summary import summarize
 from stablemo.eval.behaviour.table import Prompt
 from stablemo.eval.behaviour.truth import natural_frames, truth_joints
@@ -84,10 +85,13 @@ def truth_generator(default_frames: int) -> Generator:
 
 
 def run_suite(generate: Generator, prompts: list[Prompt], lengths: Sequence[str], seeds: Sequence[int],
-              fps: float, low: int, high: int, progress: Callable[[str], None] | None = None) -> dict:
+              fps: float, low: int, high: int, progress: Callable[[str], None] | None = None,
+              evaluator=None) -> dict:
     """Every prompt x length x seed: generated (one call per length), scored. Returns {prompts: text,
     split, actions, tests of each; rows: one per motion (its prompt's index), in prompt, length, seed
-    order; summary; seconds}."""
+    order; summary; seconds}. With a text-motion `evaluator`, each row also says whether the motion
+    is a top-3 retrieval hit (`r3`, stablemo.eval.behaviour.retrieval; None where a seed's prompts
+    are fewer than a batch)."""
     frames = {(token, i): frames_for(token, p, fps, low, high) for token in lengths for i, p in enumerate(prompts)}
     started, generating, by_key = time.perf_counter(), 0.0, {}
     for token in lengths:
@@ -96,12 +100,18 @@ def run_suite(generate: Generator, prompts: list[Prompt], lengths: Sequence[str]
         joints = generate([prompts[i] for i, _ in items], [frames[token, i] for i, _ in items],
                           [int(s) for _, s in items])
         generating += time.perf_counter() - t0
-        for (i, seed), j in zip(items, joints):
+        hits = [None] * len(items)
+        if evaluator is not None:  # batches of distinct prompts: one group per seed
+            groups = [[k for k, (_, s) in enumerate(items) if s == seed] for seed in seeds]
+            hits = top3_hits(evaluator, [prompts[i].text for i, _ in items], joints, groups)
+        for (i, seed), j, hit in zip(items, joints, hits):
             verdicts = score(prompts[i], j, fps)
             by_key[i, token, seed] = {
                 "prompt": i, "split": prompts[i].split, "length": token,
                 "frames": len(j), "seed": int(seed), "passed": all(v.passed for v in verdicts.values()),
                 "attributes": {k: {"passed": v.passed, "measured": v.measured} for k, v in verdicts.items()}}
+            if evaluator is not None:
+                by_key[i, token, seed]["r3"] = hit
         if progress:
             progress(f"length {token}: {len(items)} motions scored ({time.perf_counter() - started:.0f} s)")
     rows = [by_key[i, token, s] for i in range(len(prompts)) for token in lengths for s in seeds]

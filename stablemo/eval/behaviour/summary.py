@@ -26,13 +26,16 @@ def wilson(passed: int, total: int, z: float = Z95) -> tuple[float, float]:
 
 
 def _rate(passed: int, total: int) -> dict:
+    if total == 0:  # nothing to count (no motion failed): no rate, rather than NaN in the JSON
+        return {"passed": 0, "total": 0, "rate": None, "low": None, "high": None}
     lo, hi = wilson(passed, total)
     return {"passed": passed, "total": total, "rate": passed / total if total else math.nan, "low": lo, "high": hi}
 
 
 def summarize(rows: list[dict]) -> dict:
-    """rows: one per motion, {split, length, attributes: {name: {passed, measured}}}.
-    -> {overall, checks, attributes: {name: rate}, splits: {split: {overall, attributes}}, lengths: {...}}"""
+    """rows: one per motion, {split, length, passed, attributes: {name: {passed, measured}}, r3 (optional)}.
+    -> {overall, checks, attributes: {name: rate}, r3, r3_failed (with retrieval), splits: {split: the
+    same}, lengths: {length: the same}}"""
 
     def block(selected: list[dict]) -> dict:
         attrs = {}
@@ -41,8 +44,14 @@ def summarize(rows: list[dict]) -> dict:
             if results:
                 attrs[name] = _rate(sum(results), len(results))
         checks = [v["passed"] for r in selected for v in r["attributes"].values()]
-        return {"overall": _rate(sum(r["passed"] for r in selected), len(selected)),
-                "checks": _rate(sum(checks), len(checks)), "attributes": attrs}
+        out = {"overall": _rate(sum(r["passed"] for r in selected), len(selected)),
+               "checks": _rate(sum(checks), len(checks)), "attributes": attrs}
+        scored = [r for r in selected if r.get("r3") is not None]
+        if scored:  # retrieval of the same motions, and of those that fail a check
+            failed = [r["r3"] for r in scored if not r["passed"]]
+            out["r3"] = _rate(sum(r["r3"] for r in scored), len(scored))
+            out["r3_failed"] = _rate(sum(failed), len(failed))
+        return out
 
     out = block(rows)
     out["splits"] = {s: block([r for r in rows if r["split"] == s]) for s in SPLITS if any(r["split"] == s for r in rows)}
@@ -66,7 +75,10 @@ def format_table(summary: dict) -> str:
     names = [a for a in ATTRIBUTES if a in summary["attributes"]]
     picks = [(a, lambda b, a=a: b["attributes"].get(a)) for a in names]
     picks += [("all checks", lambda b: b["checks"]), ("motions (every check)", lambda b: b["overall"])]
-    rows = [[name, str(pick(summary)["total"])] + [cell(pick(b)) for _, b in columns] for name, pick in picks]
+    if "r3" in summary:
+        picks += [("R@3 of the motions", lambda b: b.get("r3")),
+                  ("R@3 of those failing a check", lambda b: b.get("r3_failed"))]
+    rows = [[name, str((pick(summary) or {}).get("total", "–"))] + [cell(pick(b)) for _, b in columns] for name, pick in picks]
     header = ["% passed [95 % interval]", "n"] + [c for c, _ in columns]
     widths = [max(len(str(r[i])) for r in rows + [header]) for i in range(len(header))]
     line = lambda r: "  ".join(str(v).ljust(w) for v, w in zip(r, widths)).rstrip()
