@@ -28,7 +28,8 @@ def toy():
     texts = SHORT + LONG
     emb = sentence_embeddings(encoder, texts)
     frames = torch.tensor([12] * len(SHORT) + [36] * len(LONG))
-    settings = LengthFit(hidden=16, dropout=0.0, lr=0.01, max_epochs=60, patience=60, batch_size=4)
+    settings = LengthFit(bin_frames=4, hidden=16, dropout=0.0, lr=0.01, weight_decay=0.01, batch_size=4,
+                         max_epochs=60, patience=60, seed=0)
     predictor, fit = LengthPredictor.fit((emb, frames), (emb, frames), LengthBins(8, 40, 4), encoder.name, settings)
     return predictor, fit, emb, frames, settings
 

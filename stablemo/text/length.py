@@ -1,15 +1,15 @@
 """How long should a motion be? A small predictor from the prompt's sentence embedding to a
 distribution over lengths, so a motion asked for without a length gets the text's length.
 
-The synthetic actions have nearly one length each (a double jump ~3.5 s), so the models learnt that
+The synthetic actions have nearly one length each (a double jump ~3 s), so the models learnt that
 length implies count: "a person jumps in place twice" at a fixed 6 s jumped four times. Following the
 idea of T2M's length estimator (Guo et al., CVPR 2022: a categorical distribution over 4-frame length
 bins from the text, which MoMask uses at inference), a bundle can carry `length.safetensors`: a
 two-layer network from the sentence embedding of the bundle's frozen text encoder
 (stablemo.text.familiar.sentence_embeddings, the same one the familiarity check uses) to length bins
 of `width` frames between `min_frames` and `max_frames`. Inference takes the mode (the most likely bin):
-a prompt always gets the same length, whatever its seed, and a narrow peak's tail cannot pick the
-length of another count. Trained and measured by scripts/text/length_predictor.py.
+a prompt always gets the same length, whatever its seed, and no draw from a wide distribution's tail
+picks the length of another count. Trained and measured by scripts/text/length_predictor.py.
 """
 
 from __future__ import annotations
@@ -60,17 +60,17 @@ class LengthBins:
 
 @dataclass(frozen=True)
 class LengthFit:
-    """Training settings (configs/text/length_predictor.yaml)."""
+    """Training settings; their values live in configs/text/length_predictor.yaml."""
 
-    bin_frames: int = 4
-    hidden: int = 128
-    dropout: float = 0.1
-    lr: float = 3e-3
-    weight_decay: float = 1e-2
-    batch_size: int = 256
-    max_epochs: int = 200
-    patience: int = 20  # epochs without a better val loss before stopping
-    seed: int = 0
+    bin_frames: int
+    hidden: int
+    dropout: float
+    lr: float
+    weight_decay: float
+    batch_size: int
+    max_epochs: int
+    patience: int  # epochs without a better val loss before stopping
+    seed: int
 
 
 class _LengthNet(nn.Module):
@@ -168,12 +168,13 @@ class LengthPredictor:
 
     @classmethod
     def fit(cls, train: tuple[torch.Tensor, torch.Tensor], val: tuple[torch.Tensor, torch.Tensor],
-            bins: LengthBins, encoder: str, settings: LengthFit = LengthFit(),
+            bins: LengthBins, encoder: str, settings: LengthFit,
             log=None) -> tuple[LengthPredictor, dict]:
         """Cross-entropy on (embeddings (N, D), lengths (N,)) pairs of the train split, the epoch of
-        the lowest val loss kept (stopping `patience` epochs after it). Deterministic for a seed: its
-        own generator for the initial weights, the batch order and dropout. Returns the predictor and
-        {"epoch": kept epoch, "epochs": epochs run}."""
+        the lowest val loss kept (stopping `patience` epochs after it). Deterministic for a seed: the
+        initial weights and dropout draw from torch's generator seeded inside a forked random state,
+        the batch order from a generator of its own. Returns the predictor and {"epoch": kept epoch,
+        "epochs": epochs run}."""
         (x, frames), (vx, vframes) = train, val
         y, vy = bins.of(frames), bins.of(vframes)
         with torch.random.fork_rng(devices=[]):  # the caller's random state is left as it was
