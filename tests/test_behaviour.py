@@ -279,3 +279,61 @@ def test_bad_input_is_one_line(argv, message, tmp_path, capsys):
     assert main(["behaviour", *[a.replace("{tmp}", str(tmp_path)) for a in argv]]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith(f"stablemo behaviour: error: {message}") and "\n" not in err
+
+
+# --------------------------------------------------------------------------- retrieval and the report
+
+
+def test_retrieval_blocks_score_each_item_once():
+    from stablemo.eval.behaviour.retrieval import blocks
+
+    out = blocks(list(range(100, 170)), np.random.default_rng(0))
+    assert [len(b) for b, _ in out] == [32, 32, 32] and [len(s) for _, s in out] == [32, 32, 6]
+    scored = [i for _, s in out for i in s]
+    assert sorted(scored) == list(range(100, 170))
+    assert all(set(s) <= set(b) for b, s in out)
+    assert blocks(list(range(31)), np.random.default_rng(0)) == []
+
+
+def test_ground_truth_motions_are_retrieved(prompts):
+    from stablemo.eval.behaviour.retrieval import top3_hits
+    from stablemo.eval.evaluate import SYNTH_EVALUATOR
+    from stablemo.eval.text_motion import load_text_motion_evaluator
+
+    picked = prompts[::3][:36]
+    joints = [truth.truth_joints(p, 0) for p in picked]
+    hits = top3_hits(load_text_motion_evaluator(SYNTH_EVALUATOR), [p.text for p in picked], joints,
+                     [list(range(len(picked)))])
+    assert None not in hits and sum(hits) >= 32  # the real motions' R@3 is 0.99 on the test split
+
+
+def test_summary_of_retrieval_counts_the_motions_that_fail_a_check():
+    rows = [{"split": "suite", "length": "6", "passed": p, "r3": hit, "attributes": {"count": {"passed": p, "measured": ""}}}
+            for p, hit in ((True, True), (False, True), (False, False), (False, True), (True, None))]
+    s = summarize(rows)
+    assert (s["r3"]["passed"], s["r3"]["total"]) == (3, 4)
+    assert (s["r3_failed"]["passed"], s["r3_failed"]["total"]) == (2, 3)
+    assert re.search(r"^R@3 of those failing a check\s+3\s+66\.7 \[", format_table(s), re.MULTILINE)
+    assert "r3" not in summarize([{**r, "r3": None} for r in rows])
+
+
+def test_report_section_chart_and_its_place_in_the_results(tmp_path, prompts):
+    from stablemo.eval.behaviour.report import TITLE, chart, section, write_section
+
+    picked = [p for p in prompts if p.split == "held_out"][:4]
+    result = run_suite(truth_generator(120), picked, ["natural", "9.8"], [0], FPS, 40, 196)
+    settings = {"model": "ground truth (stablemo.data.synth)", "prompts": 4, "lengths": ["natural", "9.8"],
+                "seeds": [0], "seconds": {"total": 1.0}, "started": "now"}
+    runs = {"ground truth": {"settings": settings, **result},
+            "teacher": {"settings": {**settings, "model": "m", "sampler": "ddim", "steps": 1, "cfg": 2.5}, **result}}
+    text = section(runs, "data/results/behaviour.png")
+    assert text.lstrip().startswith(TITLE) and "| attribute | checks | ground truth | teacher |" in text
+    assert "| motions (every check) | 8 | 100.0 [67.6, 100.0] | 100.0 [67.6, 100.0] |" in text
+    doc = tmp_path / "results.md"
+    doc.write_text("# Results\n\n## Kinematic measures\n\ntext\n\n## Joint control by guidance\n\nmore\n")
+    write_section(doc, text)
+    write_section(doc, text)  # replaced, not added twice
+    body = doc.read_text()
+    assert body.count(TITLE) == 1 and body.index("## Kinematic") < body.index(TITLE) < body.index("## Joint control")
+    chart(runs, tmp_path / "b.png")
+    assert (tmp_path / "b.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

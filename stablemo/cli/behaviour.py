@@ -122,7 +122,9 @@ def main(argv: list[str]) -> int:
     for token in lengths:  # explicit lengths outside the model's range: one line before any generation
         runner.frames_for(token, prompts[0], fps, low, high)
     evaluator = None
-    if args.retrieval:
+    from stablemo.eval.metrics import R_PRECISION_BATCH
+
+    if args.retrieval and len(prompts) >= R_PRECISION_BATCH:  # fewer prompts than a batch: no R@3 to take
         from stablemo.eval.evaluate import SYNTH_EVALUATOR
         from stablemo.eval.text_motion import load_text_motion_evaluator
 
