@@ -91,6 +91,9 @@ def _attribute_rows(blocks: list[dict], counted: list[dict]) -> list[list[str]]:
     `counted`, then the pass rate [interval] in each block of `blocks`."""
     picks = [(a, lambda b, a=a: b["attributes"].get(a)) for a in ATTRIBUTES if any(a in b["attributes"] for b in blocks)]
     picks += [("all checks", lambda b: b["checks"]), ("motions (every check)", lambda b: b["overall"])]
+    if any("r3" in b for b in blocks):
+        picks += [("R@3 of the motions", lambda b: b.get("r3")),
+                  ("R@3 of those failing a check", lambda b: b.get("r3_failed"))]
     return [[name] + [str((pick(c) or {}).get("total", "–")) for c in counted] + [cell(pick(b)) for b in blocks]
             for name, pick in picks]
 
@@ -122,12 +125,15 @@ def section(results: dict[str, dict], picture: str | None = None) -> str:
               for i in range(len(names)) for sp in splits]
     out.append(_table(["attribute"] + [f"checks, {sp}" for sp in splits] + [f"{n}, {sp}" for n in names for sp in splits],
                       _attribute_rows(blocks, [summaries[0]["splits"][sp] for sp in splits])))
-    out.append("\nPer length (whole motions passing every check, and the count and angle checks that a length "
-               "longer than the action needs breaks):\n\n")
+    out.append("\nPer length (whole motions passing every check; the count, angle and order checks, which a length "
+               "unlike the action's own breaks; the R@3 of the same motions):\n\n")
     lengths = list(summaries[0]["lengths"])
     rows = []
     for what, pick in (("motions", lambda b: b["overall"]), ("count", lambda b: b["attributes"].get("count")),
-                       ("angle", lambda b: b["attributes"].get("angle")), ("order", lambda b: b["attributes"].get("order"))):
+                       ("angle", lambda b: b["attributes"].get("angle")), ("order", lambda b: b["attributes"].get("order")),
+                       ("R@3", lambda b: b.get("r3")), ("R@3, failing a check", lambda b: b.get("r3_failed"))):
+        if what.startswith("R@3") and not any("r3" in sm for sm in summaries):
+            continue
         for i, n in enumerate(names):
             rows.append([what, n] + [cell(pick(summaries[i]["lengths"][ln])) if ln in summaries[i]["lengths"] else "–"
                                      for ln in lengths])
@@ -163,7 +169,8 @@ def write_section(path: str | Path, text: str) -> None:
 
 
 def chart(results: dict[str, dict], path: str | Path) -> None:
-    """Bars: pass rate per attribute (and whole motions) per model, Wilson 95 % intervals as whiskers."""
+    """Bars: pass rate per attribute, all checks, whole motions (and the R@3 of the same motions) per
+    model, Wilson 95 % intervals as whiskers."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -173,14 +180,15 @@ def chart(results: dict[str, dict], path: str | Path) -> None:
 
     names = list(results)
     attrs = [a for a in ATTRIBUTES if any(a in results[n]["summary"]["attributes"] for n in names)]
-    labels = attrs + ["all checks", "motions"]
+    retrieval = all("r3" in results[n]["summary"] for n in names)
+    labels = attrs + ["all checks", "motions"] + (["R@3"] if retrieval else [])
     fig, ax = plt.subplots(figsize=(11, 4.4))
     width = 0.8 / len(names)
     x = np.arange(len(labels))
     colours = {"ground truth": "#9e9e9e"}
     for k, n in enumerate(names):
         s = results[n]["summary"]
-        rates = [s["attributes"].get(a) for a in attrs] + [s["checks"], s["overall"]]
+        rates = [s["attributes"].get(a) for a in attrs] + [s["checks"], s["overall"]] + ([s["r3"]] if retrieval else [])
         mid = np.array([100 * r["rate"] if r else np.nan for r in rates])
         err = np.array([[100 * (r["rate"] - r["low"]), 100 * (r["high"] - r["rate"])] if r else [0, 0]
                         for r in rates]).T.clip(min=0)  # rounding can put a bound a hair past the rate
