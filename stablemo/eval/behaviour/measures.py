@@ -5,9 +5,9 @@ turns them into verdicts.
 Heights are taken above the motion's own ground (GROUND_QUANTILE of the lowest foot joint) so a body
 the network left floating a few centimetres counts its flights from where it stands. Directions are
 read in the body's own frame: facing from the hips and shoulders (stablemo.motion.heading), forward
-(sin yaw, cos yaw) and left (cos yaw, -sin yaw) in xz, yaw increasing to the left. Thresholds were
-set on the synthetic generator's motions (tests/test_behaviour.py and `stablemo behaviour
---ground-truth` hold them there) with margins for a network's looser rendering; docs/evaluation.md
+(sin yaw, cos yaw) and left (cos yaw, -sin yaw) in xz, yaw increasing to the left. Thresholds lie
+between what the synthetic generator's body does when it does the action and when it does not
+(tests/test_behaviour.py and `stablemo behaviour --ground-truth` hold them there); docs/evaluation.md
 says where each is fragile.
 """
 
@@ -39,7 +39,7 @@ STAND_QUANTILE = 90.0  # percent: the pelvis's standing height (a squat clip is 
 RAISED_MIN_S = 0.5  # a raised hand: held at least this long (a jump's arm swing is shorter)
 WAVE_SWING_M = 0.03  # a waving forearm crosses this far either side of its running mean
 WAVE_SWINGS = 2  # at least this many side-to-side swings while raised
-CLAP_ON_M, CLAP_OFF_M = 0.12, 0.18  # wrists this close: hands together
+CLAP_ON_M, CLAP_OFF_M = 0.12, 0.18  # wrists this close: hands together (synthetic claps 5 cm, hanging arms 51)
 PUNCH_ON_M, PUNCH_OFF_M = 0.43, 0.35  # wrist in front of the pelvis: half-way from the guard (0.32 m) to a punch (0.53)
 ARM_OUT_M = 0.35  # a wrist this far out from its shoulder (forward or to the side): a stretched arm
 ARM_LEVEL_M = 0.25  # ... and within this of the shoulder's height
