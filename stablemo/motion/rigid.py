@@ -54,18 +54,19 @@ def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def two_bone(upper: torch.Tensor, target: torch.Tensor, pole: torch.Tensor, fallback_bend: torch.Tensor,
-             rest_dir: torch.Tensor, l1: float, l2: float, dim: int = -1) -> tuple[torch.Tensor, torch.Tensor]:
+             rest_dir: torch.Tensor, l1, l2, dim: int = -1) -> tuple[torch.Tensor, torch.Tensor]:
     """Middle and end positions (B, T, 3) of a limb rooted at `upper` whose end aims at `target`.
 
     pole: the generated middle joint, whose side of the upper->target line sets the bend plane;
     fallback_bend: the bend direction where the generated limb is straight (knees forward, elbows
-    back); rest_dir: the aim where the target sits on the upper joint itself. dim: the component
-    axis (rigid_joints works components first, (3, B, T)).
+    back); rest_dir: the aim where the target sits on the upper joint itself. l1, l2: the bones'
+    lengths, numbers or tensors that broadcast (rigid_joints solves all limbs at once, (L, 3, B, T)
+    with lengths (L, 1, 1, 1)). dim: the component axis.
     """
     aim, dist = _unit(target - upper, dim)
     aim = torch.where(dist > _EPS, aim, rest_dir)
     # the reachable distance: neither longer than the straight limb nor shorter than the folded one
-    d = dist.clamp(min=abs(l1 - l2) + 1e-6, max=l1 + l2)
+    d = torch.clamp(dist, min=abs(l1 - l2) + 1e-6, max=l1 + l2)
     to_pole = pole - upper
     bend = to_pole - (to_pole * aim).sum(dim, keepdim=True) * aim  # the pole's part across the aim line
     bend, across = _unit(bend, dim)
@@ -102,11 +103,11 @@ def _branch_directions(x: torch.Tensor, skel: Skeleton, valid: torch.Tensor) -> 
         side = x[pos[0]] - x[neg[0]]
         xa = _unit(side - _dot(side, y) * y, 0)[0]
         z = cross(xa, y, 0)
-        for c in kids:
-            offset = x[c] - x[parent]
-            local = torch.cat([_dot(xa, offset), _dot(y, offset), _dot(z, offset)])  # (3, B, T) in the frame
-            shape = _unit((_unit(local, 0)[0] * weight).sum(-1, keepdim=True) / weight.sum(-1, keepdim=True).clamp(min=1.0), 0)[0]
-            out[c] = xa * shape[0] + y * shape[1] + z * shape[2]  # (3, B, T)
+        offset = x[kids] - x[parent]  # (K, 3, B, T), all children at once
+        local = torch.stack([(offset * axis).sum(1) for axis in (xa, y, z)], 1)  # (K, 3, B, T) in the frame
+        shape = _unit((_unit(local, 1)[0] * weight).sum(-1, keepdim=True) / weight.sum(-1, keepdim=True).clamp(min=1.0), 1)[0]
+        turned = xa * shape[:, :1] + y * shape[:, 1:2] + z * shape[:, 2:]  # (K, 3, B, T)
+        out.update(zip(kids, turned.unbind(0)))
     return out
 
 
@@ -154,67 +155,66 @@ def rigid_joint_major(x: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
     if body.shape != (skel.num_joints,) or not np.isfinite(body).all() or (body[1:] <= 0).any():
         raise StableMoError(f"bone_lengths: expected {skel.num_joints} finite lengths > 0 (root 0) for skeleton "
                             f"{skel.name}, got shape {body.shape}")
-    b, t = x.shape[2:]
+    j, _, b, t = x.shape
     frames_n = torch.full((b,), t) if lengths is None else torch.as_tensor(lengths).reshape(-1).cpu()
     valid = (torch.arange(t)[None, :] < frames_n[:, None]).to(x.device)  # (B, T)
     legs = {ankle for _, _, ankle in skel.legs.values()}
-    ends_at = [end for _, _, end in skel.ik_limbs]
-    if hold is None:
-        hold_at = {end: float(end in legs) for end in ends_at}
-    else:
-        hold = torch.as_tensor(hold).to(x)
-        hold_at = {end: hold[..., end][None] for end in ends_at}  # (1, B, T)
-    goal = x if ends is None else ends
-    goal_at = {end: goal[end] for end in ends_at}  # (3, B, T)
-
+    uppers, mids, ends_at = (list(v) for v in zip(*skel.ik_limbs))
     raw_dir = torch.tensor(np.array(skel.raw_offsets), dtype=x.dtype, device=x.device)[..., None, None]  # (J, 3, 1, 1)
-    parents = list(skel.parents[1:])
-    direction, size = _unit(x[1:] - x[parents], 1)  # (J-1, 3, B, T) every bone's generated direction
-    if x.is_cuda or bool((size <= _EPS).any()):  # a zero bone takes its rest direction (a CPU check is free)
-        direction = torch.where(size > _EPS, direction, raw_dir[1:])
-    directions = [None, *direction.unbind(0)]  # per joint (3, B, T)
-    directions_branch = _branch_directions(x, skel, valid)
-    forward = _facing(x, skel)  # (3, B, T)
-    limb_of_end = {end: (upper, mid) for upper, mid, end in skel.ik_limbs}
-    mids = {mid for _, mid, _ in skel.ik_limbs}
+    lengths_j = torch.tensor(body, dtype=x.dtype, device=x.device)[:, None, None, None]  # (J, 1, 1, 1)
 
-    def along(parent: int, child: int, out: list) -> torch.Tensor:
-        """Where `child` goes from its placed parent: the body's length along the generated direction
-        (a branching joint's children: its fixed shape, turned with its frame)."""
-        return out[parent] + float(body[child]) * directions_branch.get(child, directions[child])
+    # every bone's generated direction, a branching joint's children its fixed shape turned with its
+    # frame; times the body's lengths, the step (J, 3, B, T) from each joint's parent (row 0 unused)
+    direction, size = _unit(x - x[[0, *skel.parents[1:]]], 1)
+    if x.is_cuda or bool((size[1:] <= _EPS).any()):  # a zero bone takes its rest direction (a CPU check is free)
+        direction = torch.where(size > _EPS, direction, raw_dir)
+    for child, turned in _branch_directions(x, skel, valid).items():
+        direction[child] = turned
+    steps = lengths_j * direction
 
-    def build(root: torch.Tensor) -> list[torch.Tensor]:
-        out: list[torch.Tensor | None] = [None] * skel.num_joints  # per joint (3, B, T)
-        out[0] = root
-        for chain in skel.kinematic_chains:  # chains start at placed joints, parents before children
-            for parent, child in zip(chain[:-1], chain[1:]):
-                if child in mids:
-                    continue  # placed with its limb's end
-                if child in limb_of_end:
-                    upper, mid = limb_of_end[child]
-                    out[mid] = along(upper, mid, out)
-                    kept = along(mid, child, out)  # the limb with its generated angles
-                    w = hold_at[child]
-                    # knees bend forward, elbows backward, where the generated limb is straight
-                    bend = forward if child in legs else -forward
-                    out[mid], out[child] = two_bone(out[upper], kept + w * (goal_at[child] - kept), out[mid], bend,
-                                                     raw_dir[mid], float(body[mid]), float(body[child]), dim=0)
-                    continue
-                out[child] = along(parent, child, out)
-        return out
-
-    # the hips from the generated root first (the leg's reach sets the root's height), then everything
-    hips: list[torch.Tensor | None] = [None] * skel.num_joints
+    # the hips from the generated root first (the leg's reach sets the root's height)
+    hips: list[torch.Tensor | None] = [None] * j
     hips[0] = x[0]
     for upper in (u for u, _, e in skel.ik_limbs if e in legs):
         path = [upper]
         while skel.parents[path[-1]] != 0:
             path.append(skel.parents[path[-1]])
         for joint in reversed(path):
-            hips[joint] = along(skel.parents[joint], joint, hips)
-    root = x[0].clone()
-    root[1] += _leg_drop(hips, x, directions, skel, body, valid)  # the root moves vertically only
-    return torch.stack(build(root))  # (J, 3, B, T)
+            hips[joint] = hips[skel.parents[joint]] + steps[joint]
+    out = torch.empty_like(x)  # (J, 3, B, T), filled parents before children
+    out[0] = x[0]
+    out[0, 1] += _leg_drop(hips, x, direction, skel, body, valid)  # the root moves vertically only
+
+    limbs = set(mids) | set(ends_at)
+    beyond = set()  # joints past a limb's end (the feet), placed from the end the IK gives
+    for chain in skel.kinematic_chains:
+        for parent, child in zip(chain[:-1], chain[1:]):
+            if parent in ends_at or parent in beyond:
+                beyond.add(child)
+    order = [c for chain in skel.kinematic_chains for c in chain[1:]]
+    for child in order:  # the trunk: its generated directions at the body's lengths
+        if child not in limbs and child not in beyond:
+            torch.add(out[skel.parents[child]], steps[child], out=out[child])
+
+    # all limbs at once, each with its generated angles, then pulled by two-bone IK towards its
+    # end's goal as firmly as `hold` says
+    upper = out[uppers]  # (L, 3, B, T)
+    middle = upper + steps[mids]
+    kept = middle + steps[ends_at]
+    if hold is None:
+        w = torch.tensor([float(e in legs) for e in ends_at], dtype=x.dtype, device=x.device)[:, None, None, None]
+    else:
+        w = torch.as_tensor(hold).to(x)[..., ends_at].permute(2, 0, 1)[:, None]  # (L, 1, B, T)
+    goal = (x if ends is None else ends)[ends_at]
+    # knees bend forward, elbows backward, where the generated limb is straight
+    side = torch.tensor([1.0 if e in legs else -1.0 for e in ends_at], dtype=x.dtype, device=x.device)
+    bend = side[:, None, None, None] * _facing(x, skel)
+    out[mids], out[ends_at] = two_bone(upper, kept + w * (goal - kept), middle, bend, raw_dir[mids],
+                                       lengths_j[mids], lengths_j[ends_at], dim=1)
+    for child in order:
+        if child in beyond:
+            torch.add(out[skel.parents[child]], steps[child], out=out[child])
+    return out
 
 
 def _facing(x: torch.Tensor, skel: Skeleton) -> torch.Tensor:
@@ -229,7 +229,8 @@ def _facing(x: torch.Tensor, skel: Skeleton) -> torch.Tensor:
 def _leg_drop(placed: list, x: torch.Tensor, directions: list, skel: Skeleton, body: np.ndarray,
               valid: torch.Tensor) -> torch.Tensor:
     """How far (B, T) to move the root up or down so that the supporting leg reaches its foot with
-    the knee bent as generated; x (J, 3, B, T), placed and directions per joint (3, B, T).
+    the knee bent as generated; x (J, 3, B, T), placed per joint (3, B, T), directions (J, 3, B, T)
+    the generated bones'.
 
     A denoiser changes leg lengths (shins of 0.37 to 0.62 m instead of 0.43), so a leg of the body's
     length that reached the generated ankle from the generated hip height would bend its knee more or
