@@ -192,12 +192,26 @@ def test_finish_gives_features_that_recover_its_rigid_joints_batch_or_alone():
         assert spread(j) < 1e-3  # written joints: one body (float32 features)
         assert lowest_foot(j).min() > -0.01
         np.testing.assert_allclose(j[:, 0, [0, 2]], raw[i, :n, 0, [0, 2]].numpy(), atol=1e-4)  # the path
-        np.testing.assert_allclose(features_to_joints(out_f[i, :n]).numpy(), out_j[i, :n].numpy(), atol=1e-6)
+        assert torch.equal(features_to_joints(out_f[i, :n]), out_j[i, :n])  # the features' recovery, to the bit
         assert (out_f[i, n:] == 0).all() and (out_j[i, n:] == 0).all()
         alone_f, _ = finish(feats[i:i + 1, :n], [n])
         torch.testing.assert_close(alone_f[0], out_f[i, :n], rtol=0, atol=1e-5)
     # the raw joints were far from rigid
     assert max(spread(raw[i, :n].double().numpy()) for i, n in enumerate(lengths)) > 0.05
+
+
+def test_finish_in_float32_is_its_float64_result_to_rounding():
+    """The step runs in the features' dtype (the pipeline's float32); its many small steps (IK near
+    straight limbs, 6D rotations of short bones) must not amplify float32 rounding beyond noise."""
+    finish = Finish.from_config({}, "humanml3d", 20.0)
+    clips = [stretch(synth(a), seed=i)[:70] for i, a in enumerate(("walk", "run", "squat"))]
+    feats, lengths = make_features(clips)
+    f32, j32 = finish(feats, lengths)
+    f64, j64 = finish(feats.double(), lengths)
+    assert f32.dtype == torch.float32 and f64.dtype == torch.float64
+    assert (j32.double() - j64).abs().max() < 1e-5  # metres
+    assert (f32.double() - f64).abs().max() < 1e-4
+    assert (j32.double() - j64).abs().max() > 0  # truly two precisions
 
 
 def test_joint_targets_keep_their_height():

@@ -26,9 +26,10 @@ from stablemo.motion.extract_torch import (
     body_columns,
     fill_padding,
     joints_to_features_batched,
+    root_relative,
     valid_lengths,
 )
-from stablemo.motion.features import feature_slices, features_to_joints, recover_root
+from stablemo.motion.features import feature_slices, features_to_joints, joints_from_ric, recover_root
 from stablemo.motion.floor import lowest_shift, target_pins
 from stablemo.motion.quaternion import norm
 from stablemo.motion.rigid import rigid_joint_major
@@ -185,7 +186,7 @@ class Finish:
         computed again, from the new joints."""
         n = valid_lengths(lengths, *features.shape[:2], features.device)
         b, t = features.shape[:2]
-        q, _ = recover_root(features)  # (B, T, 4) the root rotation recovery will use
+        q, root = recover_root(features)  # (B, T, 4), (B, T, 3): the root rotation and path recovery will use
         raw = features_to_joints(features, self.skeleton) if raw_joints is None else raw_joints.to(features)
         contacts = features[..., feature_slices(self.skeleton)["contacts"]]
         body = self.body(raw, n, control, contacts, given)  # (J, 3, B, T)
@@ -194,7 +195,12 @@ class Finish:
         feats = torch.cat([features[..., :3], body_columns(ext, r, self.skeleton)], dim=-1)
         mask = torch.arange(t, device=features.device)[None, :] < n[:, None]  # (B, T)
         feats = torch.where(mask[..., None], feats, torch.zeros((), dtype=feats.dtype, device=feats.device))
-        joints = features_to_joints(feats, self.skeleton)
+        # the joints are the features' recovery, features_to_joints(feats) on the valid frames, from
+        # the very numbers written there (the network's root path, the body's height and ric columns)
+        # without reading them back from the interleaved rows
+        root = torch.stack([root[..., 0], body[0, 1], root[..., 2]], dim=-1)
+        ric = root_relative(body, q.permute(2, 0, 1)[None])  # (J-1, 3, B, T)
+        joints = joints_from_ric(q, root, ric.permute(1, 2, 3, 0))
         return feats, torch.where(mask[..., None, None], joints, torch.zeros((), dtype=joints.dtype, device=joints.device))
 
     @staticmethod

@@ -228,6 +228,14 @@ def body_features(x: torch.Tensor, r: torch.Tensor, skel: Skeleton) -> torch.Ten
     return body_columns(x.permute(2, 3, 0, 1).contiguous(), r, skel)
 
 
+def root_relative(x: torch.Tensor, r: torch.Tensor) -> torch.Tensor:
+    """The features' ric columns, joint-major: joints x (J, 3, B, T) seen from the root, in xz
+    relative to it and turned by the root rotations r (1, 4, B, T), heights absolute -> (J-1, 3, B, T)."""
+    xz = x.new_tensor([1.0, 0.0, 1.0]).view(1, 3, 1, 1)
+    # r turns about y alone (a facing, or recover_root's yaw): the cheaper exact rotation
+    return yaw_rotate(r, x[1:] - x[:1] * xz, dim=1)
+
+
 def body_columns(x: torch.Tensor, r: torch.Tensor, skel: Skeleton) -> torch.Tensor:
     """body_features of joint-major joints x (J, 3, B, T) -> (B, T−1, D − 3).
 
@@ -241,9 +249,8 @@ def body_columns(x: torch.Tensor, r: torch.Tensor, skel: Skeleton) -> torch.Tens
     contacts = (disp2 < skel.contact_threshold).to(x.dtype).permute(1, 2, 0)
     now = x[..., :-1]  # (J, 3, B, T-1)
     rot6d = quat_to_rot6d(_swing_rotations(now, rq, skel), dim=1)  # (J-1, 6, B, T-1)
-    xz = x.new_tensor([1.0, 0.0, 1.0]).view(1, 3, 1, 1)
+    ric = root_relative(now, rq)  # (J-1, 3, B, T-1)
     # r turns about y alone (a facing, or recover_root's yaw): the cheaper exact rotation
-    ric = yaw_rotate(rq, now[1:] - now[:1] * xz, dim=1)  # (J-1, 3, B, T-1) root-relative in xz, absolute height
     local_vel = yaw_rotate(rq, x[..., 1:] - now, dim=1)  # (J, 3, B, T-1)
 
     def rows(v: torch.Tensor) -> torch.Tensor:  # (K, C, B, T-1) -> (B, T-1, K * C), one strided copy

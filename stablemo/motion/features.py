@@ -279,11 +279,19 @@ def features_to_joints(features, skeleton: Skeleton | str = "humanml3d"):
         feats = feats.float()
     q, root = recover_root(feats)
     sl = feature_slices(skel)["ric"]
-    # components first, (3, ..., T, J-1): each a contiguous block, so the turn below is a few
-    # vectorised passes (on the interleaved (..., J-1, 3) columns it was most of this function's time)
+    # components first, (3, ..., T, J-1): each a contiguous block, so the turn is a few vectorised
+    # passes (on the interleaved (..., J-1, 3) columns it was most of this function's time)
     ric = feats[..., sl].unflatten(-1, (skel.num_joints - 1, 3)).movedim(-1, 0).contiguous()
+    joints = joints_from_ric(q, root, ric)
+    return joints.numpy() if as_numpy else joints
+
+
+def joints_from_ric(q: torch.Tensor, root: torch.Tensor, ric: torch.Tensor) -> torch.Tensor:
+    """The recovery's last step: joints (..., T, J, 3) from the root's rotation q (..., T, 4) and
+    position root (..., T, 3) (recover_root) and the ric columns components first, (3, ..., T, J-1),
+    in any memory layout. One function for features_to_joints and the finishing step, whose joints
+    are its features' recovery to the bit."""
     xz = root.new_tensor([1.0, 0.0, 1.0])
     # q turns about y alone: the cheaper exact rotation
     body = yaw_rotate(qinv(q).movedim(-1, 0)[..., None], ric, dim=0) + (root * xz).movedim(-1, 0)[..., None]
-    joints = torch.cat([root.movedim(-1, 0)[..., None], body], dim=-1).movedim(0, -1).contiguous()  # (..., T, J, 3)
-    return joints.numpy() if as_numpy else joints
+    return torch.cat([root.movedim(-1, 0)[..., None], body], dim=-1).movedim(0, -1).contiguous()  # (..., T, J, 3)
