@@ -118,6 +118,7 @@ def main(argv: list[str]) -> int:
                         device=str(pipe.device),
                         default_length="the bundle's length predictor" if pipe.length_predictor is not None
                         else f"{inference.default_frames} frames",
+                        length_predictor=pipe.config.get("length_predictor"),  # which one chose 'default
                         unfamiliar=[u.text for u in pipe.unfamiliar([p.text for p in prompts])])
     for token in lengths:  # explicit lengths outside the model's range: one line before any generation
         runner.frames_for(token, prompts[0], fps, low, high)
