@@ -29,7 +29,7 @@ def toy():
     emb = sentence_embeddings(encoder, texts)
     frames = torch.tensor([12] * len(SHORT) + [36] * len(LONG))
     settings = LengthFit(bin_frames=4, hidden=16, dropout=0.0, lr=0.01, weight_decay=0.01, batch_size=4,
-                         max_epochs=60, patience=60, seed=0)
+                         max_epochs=60, patience=60, seed=0, windows=(1,))
     predictor, fit = LengthPredictor.fit((emb, frames), (emb, frames), LengthBins(8, 40, 4), encoder.name, settings)
     return predictor, fit, emb, frames, settings
 
@@ -123,7 +123,7 @@ def test_a_predictor_of_another_encoder_or_range_is_refused(toy, tiny):
     with_predictor(tiny, toy[0])
     config = json.loads((tiny / "config.json").read_text())
     for change, said in (({"encoder": "clip"}, "reads text encoder 'clip'"), ({"width": 5}, "expected tensors"),
-                         ({"min_frames": "8"}, "must be an object")):
+                         ({"min_frames": "8"}, "must be an object"), ({"window": 2}, "window must be an odd")):
         (tiny / "config.json").write_text(json.dumps({**config, ENTRY: {**config[ENTRY], **change}}))
         with pytest.raises(StableMoError, match=said):
             Pipeline.from_bundle(tiny, fast=False)
@@ -207,7 +207,7 @@ def test_copied_demo_bundle_without_the_file_entry_falls_back(tmp_path):
     assert pipe.text_lengths(["a person jumps in place twice"]) == [120]
 
 
-def test_the_script_trains_on_a_data_folder_and_writes_into_a_bundle(tmp_path):
+def test_the_script_trains_on_a_data_folder_and_mends_a_bundles_predictor(tmp_path):
     import subprocess
     import sys
     from pathlib import Path
@@ -215,11 +215,13 @@ def test_the_script_trains_on_a_data_folder_and_writes_into_a_bundle(tmp_path):
     from stablemo.cli import main
 
     assert main(["data", "synth", "--out", str(tmp_path / "data"), "--num", "24", "--seed", "0"]) == 0
+    from safetensors.torch import load_file, save_file
+
     bundle = tmp_path / "student"
-    shutil.copytree(DEMO_STUDENT, bundle, ignore=shutil.ignore_patterns(FILE))
-    config = json.loads((bundle / "config.json").read_text())
-    del config[ENTRY]
-    (bundle / "config.json").write_text(json.dumps(config))
+    shutil.copytree(DEMO_STUDENT, bundle)
+    tensors = load_file(bundle / FILE)
+    tensors["hidden.bias"][0] = float("nan")  # a broken predictor, which the script writes again
+    save_file(tensors, bundle / FILE)
     script = Path(__file__).resolve().parents[1] / "scripts/text/length_predictor.py"
     run = subprocess.run([sys.executable, str(script), "--data", str(tmp_path / "data"), str(bundle)],
                          capture_output=True, text=True, timeout=300)
@@ -227,6 +229,7 @@ def test_the_script_trains_on_a_data_folder_and_writes_into_a_bundle(tmp_path):
     assert "test: {'n': " in run.stdout and "actions whose lengths grow with the count" in run.stdout
     entry = json.loads((bundle / "config.json").read_text())[ENTRY]
     assert entry["fit"]["data"] == str(tmp_path / "data") and entry["val"]["n"] > 0 and entry["test"]["n"] > 0
+    assert entry["window"] == entry["fit"]["window"] in (1, 3, 5)
     pipe = Pipeline.from_bundle(bundle)
     assert pipe.length_predictor.bins == LengthBins(40, 196, 4)
     assert 40 <= pipe.text_lengths(["a person claps twice"])[0] <= 196

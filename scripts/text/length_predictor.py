@@ -65,12 +65,27 @@ def embed(encoder, texts: list[str]) -> torch.Tensor:
     return emb[[row[t] for t in texts]]
 
 
+def text_and_range(bundle: str) -> tuple:
+    """((text encoder, text variant), (min_length, max_length), dataset) of a bundle's config.json."""
+    from stablemo.errors import StableMoError
+    from stablemo.inference.bundle import load_bundle
+    from stablemo.inference.config import InferenceConfig
+
+    config, source = load_bundle(bundle).config, str(Path(bundle) / "config.json")
+    text = config.get("model", {}).get("text")
+    if not isinstance(text, dict) or not isinstance(text.get("encoder"), str):
+        raise StableMoError(f"{source}: the model has no text encoder ('model' -> 'text' -> 'encoder')")
+    inference = InferenceConfig.from_bundle(config, source)
+    return ((text["encoder"], text.get("variant", "stablemo")), (inference.min_length, inference.max_length),
+            config.get("dataset", "humanml3d"))
+
+
 def main(argv=None) -> int:
     import yaml
 
     from stablemo.errors import StableMoError
-    from stablemo.inference.pipeline import Pipeline
     from stablemo.io import write_text
+    from stablemo.text.conditioner import frozen_encoder
     from stablemo.text.length import ENTRY, LengthBins, LengthFit, LengthPredictor
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -87,16 +102,16 @@ def main(argv=None) -> int:
     except (OSError, TypeError, yaml.YAMLError) as err:
         raise StableMoError(f"--config {args.config}: not a length predictor's settings ({err})") from None
     data = Path(args.data)
-    pipe = Pipeline.from_bundle(args.bundles[0])
-    encoder = pipe._frozen_encoders[0]
-    for bundle in args.bundles[1:]:  # one predictor for all: the same encoder and length range
-        config = json.loads((Path(bundle) / "config.json").read_text())
-        inf = config["inference"]
-        other = (config["model"]["text"]["encoder"], inf["min_length"], inf["max_length"])
-        if other != (encoder.name, pipe.min_length, pipe.max_length):
-            raise StableMoError(f"{bundle}: text encoder and length range {other} differ from {args.bundles[0]}'s")
-    bins = LengthBins(pipe.min_length, pipe.max_length, settings.bin_frames)
-    dataset = pipe.config.get("dataset", "humanml3d")
+    # one predictor for all: the same text path and length range (a bundle's own predictor, even a
+    # broken one, is not read: this script writes it again)
+    described = [text_and_range(bundle) for bundle in args.bundles]
+    for bundle, other in zip(args.bundles[1:], described[1:]):
+        if other != described[0]:
+            raise StableMoError(f"{bundle}: text encoder and length range {other} differ from "
+                                f"{args.bundles[0]}'s {described[0]}")
+    (name, variant), (min_length, max_length), dataset = described[0]
+    encoder = frozen_encoder(name, variant)
+    bins = LengthBins(min_length, max_length, settings.bin_frames)
     splits = {}
     for split in ("train", "val", "test"):
         texts, frames = pairs(data, split, dataset)

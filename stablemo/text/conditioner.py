@@ -24,17 +24,24 @@ NULL_TEXT = ""
 OFFICIAL_CONTEXT = 77  # CLIP's context length: the published text path keeps all of its positions
 
 
+def frozen_encoder(encoder: str = MINILM, variant: str = "stablemo", cache_size: int = 4096) -> FrozenTextEncoder:
+    """The shared frozen encoder a model's text config (`encoder`, `variant`) reads its prompts with:
+    the one a TextConditioner holds, for code that needs the encoder without the model (e.g.
+    scripts/text/length_predictor.py)."""
+    if variant not in ("stablemo", "official"):
+        raise StableMoError(f"text variant: expected 'stablemo' or 'official' (the published T2MUnet's "
+                            f"text path), got {variant!r}")
+    return get_encoder(encoder, cache_size, OFFICIAL_CONTEXT if variant == "official" else None)
+
+
 class TextConditioner(nn.Module):
     def __init__(self, encoder: str = MINILM, latent_dim: int = 256, num_layers: int = 4, num_heads: int = 4,
                  ff_dim: int = 2048, dropout: float = 0.1, cache_size: int = 4096, variant: str = "stablemo"):
         super().__init__()
-        if variant not in ("stablemo", "official"):
-            raise StableMoError(f"text variant: expected 'stablemo' or 'official' (the published T2MUnet's "
-                                f"text path), got {variant!r}")
+        frozen = frozen_encoder(encoder, variant, cache_size)
         self.encoder_name, self.latent_dim, self.variant = encoder, latent_dim, variant
-        pad_to = OFFICIAL_CONTEXT if variant == "official" else None
         # stored in __dict__ (not a submodule): no state_dict entry, no parameters, no .to() moves
-        object.__setattr__(self, "_frozen", get_encoder(encoder, cache_size, pad_to))
+        object.__setattr__(self, "_frozen", frozen)
         self.proj = nn.Linear(self.frozen.dim, latent_dim)
         layer = nn.TransformerEncoderLayer(latent_dim, num_heads, ff_dim, dropout, activation="gelu", batch_first=True)
         self.transformer = nn.TransformerEncoder(layer, num_layers, enable_nested_tensor=False)

@@ -7,9 +7,10 @@ idea of T2M's length estimator (Guo et al., CVPR 2022: a categorical distributio
 bins from the text, which MoMask uses at inference), a bundle can carry `length.safetensors`: a
 two-layer network from the sentence embedding of the bundle's frozen text encoder
 (stablemo.text.familiar.sentence_embeddings, the same one the familiarity check uses) to length bins
-of `width` frames between `min_frames` and `max_frames`. Inference takes the mode (the most likely bin):
-a prompt always gets the same length, whatever its seed, and no draw from a wide distribution's tail
-picks the length of another count. Trained and measured by scripts/text/length_predictor.py.
+of `width` frames between `min_frames` and `max_frames`. Inference takes the mode, the middle of the
+most likely `window` bins in a row (window 3 on the demo data: closer to the true length on the val
+split than the single most likely bin): a prompt always gets the same length, whatever its seed, and
+no draw from a wide distribution's tail picks the length of another count. Trained and measured by scripts/text/length_predictor.py.
 """
 
 from __future__ import annotations
@@ -71,6 +72,7 @@ class LengthFit:
     max_epochs: int
     patience: int  # epochs without a better val loss before stopping
     seed: int
+    windows: tuple[int, ...]  # the mode's windows (odd bin counts) to choose from on the val split
 
 
 class _LengthNet(nn.Module):
@@ -85,11 +87,13 @@ class _LengthNet(nn.Module):
 class LengthPredictor:
     """Sentence embedding (N, D) -> logits over `bins.count` length bins."""
 
-    def __init__(self, tensors: dict[str, torch.Tensor], bins: LengthBins, encoder: str):
+    def __init__(self, tensors: dict[str, torch.Tensor], bins: LengthBins, encoder: str, window: int = 1):
+        if not (isinstance(window, int) and window >= 1 and window % 2 == 1):
+            raise StableMoError(f"length predictor: window must be an odd whole number of bins >= 1, got {window!r}")
         hidden, dim = tensors["hidden.weight"].shape
         self.net = _LengthNet(dim, hidden, tensors["out.weight"].shape[0]).eval().requires_grad_(False)
         self.net.load_state_dict({k: tensors[k].float() for k in TENSORS})
-        self.bins, self.encoder = bins, encoder
+        self.bins, self.encoder, self.window = bins, encoder, window
 
     @property
     def dim(self) -> int:
@@ -100,9 +104,15 @@ class LengthPredictor:
         with torch.inference_mode():
             return self.net(embeddings.float()).softmax(-1)
 
+    def mode_bins(self, embeddings: torch.Tensor) -> torch.Tensor:
+        """(N, D) -> (N,) the middle bin of the most likely `window` bins in a row (long)."""
+        probs = self.probabilities(embeddings)[:, None]  # (N, 1, K)
+        ones = torch.ones(1, 1, self.window)
+        return nn.functional.conv1d(probs, ones, padding=self.window // 2)[:, 0].argmax(-1)
+
     def mode_frames(self, embeddings: torch.Tensor) -> torch.Tensor:
-        """(N, D) -> (N,) the most likely bin's middle length in frames (long)."""
-        return self.bins.frames(self.probabilities(embeddings).argmax(-1))
+        """(N, D) -> (N,) the mode's length in frames (the middle of its bin; long)."""
+        return self.bins.frames(self.mode_bins(embeddings))
 
     def predict(self, encoder, texts: list[str]) -> list[int]:
         """One length in frames per text (the mode), from `encoder`'s sentence embeddings."""
@@ -113,7 +123,7 @@ class LengthPredictor:
         error in frames (mode length vs true length), mean negative log-likelihood of the true bin."""
         probs = self.probabilities(embeddings)
         true = self.bins.of(frames)
-        mode = probs.argmax(-1)
+        mode = self.mode_bins(embeddings)
         nll = -probs.gather(1, true[:, None]).clamp_min(1e-12).log().mean()
         err = (self.bins.frames(mode) - frames.long()).abs().float()
         return {"n": len(frames), "within_one_bin": round(float(((mode - true).abs() <= 1).float().mean()), 4),
@@ -130,20 +140,20 @@ class LengthPredictor:
 
         state = self.net.state_dict()
         write_bytes(Path(folder) / FILE, save({k: state[k].contiguous() for k in TENSORS}))
-        return {"file": FILE, "encoder": self.encoder, **asdict(self.bins), **(report or {})}
+        return {"file": FILE, "encoder": self.encoder, **asdict(self.bins), "window": self.window, **(report or {})}
 
     @classmethod
     def load(cls, folder: str | Path, entry: dict, source: str = "config.json") -> LengthPredictor:
         from safetensors import safe_open
 
         path = Path(folder) / FILE
-        keys = ("min_frames", "max_frames", "width")
+        keys = ("min_frames", "max_frames", "width", "window")
         if not isinstance(entry, dict) or not all(isinstance(entry.get(k), int) for k in keys) \
                 or not isinstance(entry.get("encoder"), str):
             raise StableMoError(f"{source}: '{ENTRY}' must be an object with the text encoder's name and whole "
                                 f"numbers {', '.join(keys)}")
         try:
-            bins = LengthBins(*(entry[k] for k in keys))
+            bins = LengthBins(*(entry[k] for k in keys[:3]))
         except StableMoError as err:
             raise StableMoError(f"{source}: '{ENTRY}': {err}") from None
         if not path.is_file():
@@ -162,7 +172,10 @@ class LengthPredictor:
         if not all(v.is_floating_point() and torch.isfinite(v).all() for v in tensors.values()):
             raise StableMoError(f"{path}: the length predictor's weights hold NaN/Inf; write it again "
                                 "(scripts/text/length_predictor.py)")
-        return cls(tensors, bins, entry["encoder"])
+        try:
+            return cls(tensors, bins, entry["encoder"], entry["window"])
+        except StableMoError as err:
+            raise StableMoError(f"{source}: '{ENTRY}': {err}") from None
 
     # ---- training -------------------------------------------------------------------------------
 
@@ -171,10 +184,12 @@ class LengthPredictor:
             bins: LengthBins, encoder: str, settings: LengthFit,
             log=None) -> tuple[LengthPredictor, dict]:
         """Cross-entropy on (embeddings (N, D), lengths (N,)) pairs of the train split, the epoch of
-        the lowest val loss kept (stopping `patience` epochs after it). Deterministic for a seed: the
+        the lowest val loss kept (stopping `patience` epochs after it), then the mode's window of
+        `settings.windows` whose modes fall within one bin of the val lengths most often (the
+        smallest of equals). Deterministic for a seed: the
         initial weights and dropout draw from torch's generator seeded inside a forked random state,
         the batch order from a generator of its own. Returns the predictor and {"epoch": kept epoch,
-        "epochs": epochs run}."""
+        "epochs": epochs run, "window": the mode's window}."""
         (x, frames), (vx, vframes) = train, val
         y, vy = bins.of(frames), bins.of(vframes)
         with torch.random.fork_rng(devices=[]):  # the caller's random state is left as it was
@@ -205,7 +220,12 @@ class LengthPredictor:
                         f"(best {best:.3f} at {best_epoch})")
                 if epoch - best_epoch >= settings.patience:
                     break
-        return cls(best_state, bins, encoder), {"epoch": best_epoch, "epochs": epoch}
+        scored = []
+        for window in sorted(settings.windows):
+            predictor = cls(best_state, bins, encoder, window)
+            scored.append((-predictor.measure(vx, vframes)["within_one_bin"], window, predictor))
+        _, window, predictor = min(scored, key=lambda row: row[:2])
+        return predictor, {"epoch": best_epoch, "epochs": epoch, "window": window}
 
 
 __all__ = ["ENTRY", "FILE", "LengthBins", "LengthFit", "LengthPredictor"]
