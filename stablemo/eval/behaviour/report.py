@@ -98,6 +98,18 @@ def _attribute_rows(blocks: list[dict], counted: list[dict]) -> list[list[str]]:
             for name, pick in picks]
 
 
+def _per_action(result: dict) -> dict[str, dict]:
+    """{action or "composite of n": rate of motions passing every check}, in the table's order."""
+    from stablemo.eval.behaviour.summary import rate
+
+    groups: dict[str, list[bool]] = {}
+    for row in result["rows"]:
+        actions = result["prompts"][row["prompt"]]["actions"]
+        key = actions[0] if len(actions) == 1 else f"composite of {len(actions)}"
+        groups.setdefault(key, []).append(row["passed"])
+    return {k: rate(sum(v), len(v)) for k, v in groups.items()}
+
+
 def section(results: dict[str, dict], picture: str | None = None) -> str:
     """The markdown section for {label: result JSON}."""
     names = list(results)
@@ -125,6 +137,12 @@ def section(results: dict[str, dict], picture: str | None = None) -> str:
               for i in range(len(names)) for sp in splits]
     out.append(_table(["attribute"] + [f"checks, {sp}" for sp in splits] + [f"{n}, {sp}" for n in names for sp in splits],
                       _attribute_rows(blocks, [summaries[0]["splits"][sp] for sp in splits])))
+    out.append("\nPer action (motions passing every check, all lengths; composites by their number of parts):\n\n")
+    per_action = [_per_action(results[n]) for n in names]
+    keys = list(dict.fromkeys(k for table in per_action for k in table))
+    out.append(_table(["prompts of", "motions"] + names,
+                      [[k, str(per_action[0].get(k, {}).get("total", "–"))] + [cell(t.get(k)) for t in per_action]
+                       for k in keys]))
     out.append("\nPer length (whole motions passing every check; the count, angle and order checks, which a length "
                "unlike the action's own breaks; the R@3 of the same motions):\n\n")
     lengths = list(summaries[0]["lengths"])

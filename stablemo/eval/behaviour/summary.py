@@ -25,7 +25,7 @@ def wilson(passed: int, total: int, z: float = Z95) -> tuple[float, float]:
     return max(0.0, centre - half), min(1.0, centre + half)
 
 
-def _rate(passed: int, total: int) -> dict:
+def rate(passed: int, total: int) -> dict:
     if total == 0:  # nothing to count (no motion failed): no rate, rather than NaN in the JSON
         return {"passed": 0, "total": 0, "rate": None, "low": None, "high": None}
     lo, hi = wilson(passed, total)
@@ -42,15 +42,15 @@ def summarize(rows: list[dict]) -> dict:
         for name in ATTRIBUTES:
             results = [r["attributes"][name]["passed"] for r in selected if name in r["attributes"]]
             if results:
-                attrs[name] = _rate(sum(results), len(results))
+                attrs[name] = rate(sum(results), len(results))
         checks = [v["passed"] for r in selected for v in r["attributes"].values()]
-        out = {"overall": _rate(sum(r["passed"] for r in selected), len(selected)),
-               "checks": _rate(sum(checks), len(checks)), "attributes": attrs}
+        out = {"overall": rate(sum(r["passed"] for r in selected), len(selected)),
+               "checks": rate(sum(checks), len(checks)), "attributes": attrs}
         scored = [r for r in selected if r.get("r3") is not None]
         if scored:  # retrieval of the same motions, and of those that fail a check
             failed = [r["r3"] for r in scored if not r["passed"]]
-            out["r3"] = _rate(sum(r["r3"] for r in scored), len(scored))
-            out["r3_failed"] = _rate(sum(failed), len(failed))
+            out["r3"] = rate(sum(r["r3"] for r in scored), len(scored))
+            out["r3_failed"] = rate(sum(failed), len(failed))
         return out
 
     out = block(rows)
@@ -85,4 +85,4 @@ def format_table(summary: dict) -> str:
     return "\n".join([line(header), line(["-" * w for w in widths])] + [line(r) for r in rows])
 
 
-__all__ = ["cell", "format_table", "summarize", "wilson"]
+__all__ = ["cell", "format_table", "rate", "summarize", "wilson"]
