@@ -15,7 +15,8 @@ the first copy has been read, so `write` measures the CPU side of sharding, not 
 `write`: `stablemo.data.shards.write_shards` of SRC into a fresh folder, in a child process per
 run (imports done before the clock starts), timed by wall clock and by CPU time (the child and its
 worker processes). With `--against REV`, the same run from REV's `stablemo` and `footskate`
-(`git archive`d into a temporary folder), alternating which goes first each round (this VM's speed
+(`git archive`d into a temporary folder; with `--only FILE ...`, this checkout with just those files
+as REV has them), alternating which goes first each round (this VM's speed
 drifts; a pair run back to back sees the same machine); each pair's outputs are compared byte for byte.
 
 `ab`: one model (the config's), two MotionDataModules that differ only in data_dir / shards. Each
@@ -189,10 +190,18 @@ def run_write(args) -> None:
     try:
         if args.against:
             base = work / "against"
-            base.mkdir()
-            archive = subprocess.run(["git", "-C", str(repo), "archive", args.against, "stablemo", "footskate"],
-                                     capture_output=True, check=True).stdout
-            subprocess.run(["tar", "-x", "-C", str(base)], input=archive, check=True)
+            if args.only:  # this checkout with only these files as REV has them
+                for package in ("stablemo", "footskate"):
+                    shutil.copytree(repo / package, base / package, ignore=shutil.ignore_patterns("__pycache__"))
+                for path in args.only:
+                    old = subprocess.run(["git", "-C", str(repo), "show", f"{args.against}:{path}"],
+                                         capture_output=True, check=True).stdout
+                    (base / path).write_bytes(old)
+            else:
+                base.mkdir()
+                archive = subprocess.run(["git", "-C", str(repo), "archive", args.against, "stablemo", "footskate"],
+                                         capture_output=True, check=True).stdout
+                subprocess.run(["tar", "-x", "-C", str(base)], input=archive, check=True)
             trees = {args.against: str(base), **trees}
         names = list(trees)
         rates: dict[str, list[float]] = {n: [] for n in names}
@@ -239,6 +248,8 @@ def main() -> None:
     write = sub.add_parser("write")
     write.add_argument("src", nargs="+")
     write.add_argument("--against", help="a git revision to compare with, e.g. HEAD~3")
+    write.add_argument("--only", nargs="+", help="with --against: only these files from that revision, the "
+                       "rest from this checkout (other changes since then, e.g. to the body's kinematics, left out)")
     write.add_argument("--rounds", type=int, default=3)
     write.add_argument("--workers", type=int, default=2)
     rss = sub.add_parser("rss")
