@@ -1,4 +1,5 @@
-"""The compiled CPU kernels of `cpu_kernels.cpp`, compiled on first use (torch.utils.cpp_extension).
+"""The compiled CPU kernels of `cpu_kernels.cpp` (the networks) and `motion_kernels.cpp` (the
+finishing step), each compiled on first use (torch.utils.cpp_extension).
 
 Compilation needs a C++ compiler and ninja and takes ~30 s once; the library is cached under
 torch's extensions folder (TORCH_EXTENSIONS_DIR), in a folder named for this CPU's instruction set
@@ -20,6 +21,9 @@ from pathlib import Path
 
 SOURCE = Path(__file__).with_name("cpu_kernels.cpp")
 FLAGS = ["-O3", "-march=native", "-ffast-math", "-fopenmp"]  # fast-math: glibc's vectorised expf
+MOTION_SOURCE = Path(__file__).with_name("motion_kernels.cpp")
+# the finishing step's kernel repeats its PyTorch twin's arithmetic: no contraction into FMAs, no reordering
+MOTION_FLAGS = ["-O3", "-march=native", "-ffp-contract=off", "-fopenmp"]
 
 
 def enabled() -> bool:
@@ -59,6 +63,16 @@ def clear_stale_lock(build_dir: Path, max_age: float = STALE_LOCK_SECONDS) -> bo
 @functools.lru_cache(maxsize=None)
 def kernels():
     """The compiled module (with `frame_norm_act`), or None where it cannot be built or is turned off."""
+    return _build("stablemo_cpu_kernels", SOURCE, FLAGS)
+
+
+@functools.lru_cache(maxsize=None)
+def motion_kernels():
+    """The finishing step's compiled module (with `body_columns`), or None as kernels()."""
+    return _build("stablemo_motion_kernels", MOTION_SOURCE, MOTION_FLAGS)
+
+
+def _build(stem: str, source: Path, flags: list[str]):
     if not enabled() or sys.platform != "linux":
         return None
     from torch.utils.cpp_extension import load
@@ -70,18 +84,18 @@ def kernels():
             os.environ["PATH"] = ninja.BIN_DIR + os.pathsep + os.environ.get("PATH", "")
         except ImportError:
             pass
-    name = f"stablemo_cpu_kernels_{_cpu_tag()}"
+    name = f"{stem}_{_cpu_tag()}"
     try:
         from torch.utils.cpp_extension import _get_build_directory
 
         build_dir = Path(_get_build_directory(name, False))
         clear_stale_lock(build_dir)
         if not (build_dir / f"{name}.so").is_file():
-            print(f"stablemo: compiling the fused CPU kernels (once, ~30 s): {name}", file=sys.stderr)
+            print(f"stablemo: compiling fused CPU kernels (once, ~30 s): {name}", file=sys.stderr)
     except Exception:  # the notice is a courtesy; the build below reports real problems
         pass
     try:
-        return load(name, [str(SOURCE)], extra_cflags=FLAGS, extra_ldflags=["-fopenmp"], verbose=False)
+        return load(name, [str(source)], extra_cflags=flags, extra_ldflags=["-fopenmp"], verbose=False)
     except Exception as err:  # no compiler, no ninja, unsupported platform: keep the PyTorch path
         warnings.warn(f"stablemo: fused CPU kernels unavailable, using PyTorch ops instead ({err})", stacklevel=2)
         return None

@@ -199,12 +199,18 @@ def _swing_rotations(x: torch.Tensor, r: torch.Tensor, skel: Skeleton) -> torch.
     # qbetween divides by |raw||bone| itself: normalising the bones first (as the reference does)
     # changes the result by rounding only and cost a tenth of this function
     swing = qbetween(raw, bone, dim=1)  # (J-1, 4, B, T)
-    before = [len(parents)] * len(parents)  # per bone: the slot of the rotation before it (J-1: r)
+    acc = torch.cat([swing, r]).index_select(0, torch.tensor(rotation_before(skel), device=x.device))
+    return qmul(qinv(acc, dim=1), swing, dim=1)
+
+
+def rotation_before(skel: Skeleton) -> list[int]:
+    """Per bone (bone j-1 ends at joint j): the bone whose swing its local rotation is relative to,
+    the previous one along its kinematic chain, or J-1 (the root's rotation) for a chain's first."""
+    before = [skel.num_joints - 1] * (skel.num_joints - 1)
     for chain in skel.kinematic_chains:
         for p, child in zip(chain[1:-1], chain[2:]):
             before[child - 1] = p - 1
-    acc = torch.cat([swing, r]).index_select(0, torch.tensor(before, device=x.device))
-    return qmul(qinv(acc, dim=1), swing, dim=1)
+    return before
 
 
 def _features(x: torch.Tensor, skel: Skeleton) -> torch.Tensor:

@@ -1,0 +1,136 @@
+// Fused CPU kernel for the finishing step (stablemo.inference.finish), built on first use by
+// stablemo.fast.kernels.motion_kernels().
+//
+// body_columns: the feature columns after the root's rotation and velocity (root height, ric, 6D
+// rotations, local velocities, foot contacts) of a joint-major motion (J, 3, B, T), one frame at a
+// time. The PyTorch twin (stablemo.motion.extract_torch.body_columns) makes ~150 passes over the
+// batch, one per elementwise step, and was half of the step's time; here each frame's joints stay in
+// registers. Every expression is the twin's, in its order, and the build does not contract or
+// reorder floating point (-ffp-contract=off, no -ffast-math): the two agree to the last bit or two
+// (the twin's reductions may sum in another order), and the ric columns exactly.
+
+#include <torch/extension.h>
+#include <ATen/Parallel.h>
+
+#include <cmath>
+#include <vector>
+
+namespace {
+
+template <typename S>
+struct Quat {
+  S w, x, y, z;
+};
+
+// qbetween's shortest arc from direction a to b, with its half turn where they are (nearly) opposite
+template <typename S>
+Quat<S> between(const S* a, S bx, S by, S bz) {
+  const S ax = a[0], ay = a[1], az = a[2];
+  const S scale = std::sqrt((ax * ax + ay * ay + az * az) * (bx * bx + by * by + bz * bz));
+  const S w = scale + (ax * bx + ay * by + az * bz);
+  const S cx = ay * bz - az * by, cy = az * bx - ax * bz, cz = ax * by - ay * bx;
+  const S size = std::sqrt(w * w + cx * cx + cy * cy + cz * cz);
+  const S floor = scale < S(1e-30) ? S(1e-30) : scale;
+  if (!(size <= S(1e-9) * floor) && size != S(0)) return {w / size, cx / size, cy / size, cz / size};
+  // an axis perpendicular to a: a × the coordinate axis least aligned with it (the first on ties)
+  const S m[3] = {std::abs(ax), std::abs(ay), std::abs(az)};
+  const int k = m[1] < m[0] ? (m[2] < m[1] ? 2 : 1) : (m[2] < m[0] ? 2 : 0);
+  const S h[3] = {S(k == 0), S(k == 1), S(k == 2)};
+  const S px = ay * h[2] - az * h[1], py = az * h[0] - ax * h[2], pz = ax * h[1] - ay * h[0];
+  const S n = std::sqrt(px * px + py * py + pz * pz);
+  return {S(0), px / n, py / n, pz / n};
+}
+
+template <typename S>
+void frame_columns(const S* x, const S* r, const int64_t* parent, const S* raw, const int64_t* before,
+                   const int64_t* contact, int64_t contacts, S threshold, int64_t J, int64_t BT, int64_t T,
+                   int64_t row, S* out, std::vector<Quat<S>>& swing) {
+  // row: b * T + t of the frame; joint j's coordinate c at frame t + dt is x[(j * 3 + c) * BT + row + dt]
+  auto at = [&](int64_t j, int64_t c, int64_t dt) { return x[(j * 3 + c) * BT + row + dt]; };
+  const S* q = r + row * 4;
+  const S c = q[0] * q[0] - q[2] * q[2];  // yaw_rotate: the root's turn about y
+  const S s = S(2) * q[0] * q[2];
+  S* o = out;
+  *o++ = at(0, 1, 0);  // root height
+  const S rx = at(0, 0, 0), rz = at(0, 2, 0);
+  for (int64_t j = 1; j < J; ++j) {  // ric: root-relative in xz, absolute height, turned
+    const S vx = at(j, 0, 0) - rx, vy = at(j, 1, 0), vz = at(j, 2, 0) - rz;
+    *o++ = c * vx + s * vz;
+    *o++ = vy;
+    *o++ = c * vz - s * vx;
+  }
+  for (int64_t i = 0; i < J - 1; ++i) {  // bone i ends at joint i + 1
+    const int64_t j = i + 1, p = parent[j];
+    swing[i] = between(raw + j * 3, at(j, 0, 0) - at(p, 0, 0), at(j, 1, 0) - at(p, 1, 0), at(j, 2, 0) - at(p, 2, 0));
+  }
+  for (int64_t i = 0; i < J - 1; ++i) {  // local = (previous swing, or r)^-1 * swing, as 6D
+    const Quat<S> a = before[i] == J - 1 ? Quat<S>{q[0], q[1], q[2], q[3]} : swing[before[i]];
+    const S w1 = a.w, x1 = -a.x, y1 = -a.y, z1 = -a.z;
+    const Quat<S>& b = swing[i];
+    const S w = w1 * b.w - x1 * b.x - y1 * b.y - z1 * b.z;
+    const S x2 = w1 * b.x + x1 * b.w + y1 * b.z - z1 * b.y;
+    const S y2 = w1 * b.y - x1 * b.z + y1 * b.w + z1 * b.x;
+    const S z2 = w1 * b.z + x1 * b.y - y1 * b.x + z1 * b.w;
+    *o++ = S(1) - S(2) * (y2 * y2 + z2 * z2);
+    *o++ = S(2) * (x2 * y2 + w * z2);
+    *o++ = S(2) * (x2 * z2 - w * y2);
+    *o++ = S(2) * (x2 * y2 - w * z2);
+    *o++ = S(1) - S(2) * (x2 * x2 + z2 * z2);
+    *o++ = S(2) * (y2 * z2 + w * x2);
+  }
+  for (int64_t j = 0; j < J; ++j) {  // local velocities, turned
+    const S vx = at(j, 0, 1) - at(j, 0, 0), vy = at(j, 1, 1) - at(j, 1, 0), vz = at(j, 2, 1) - at(j, 2, 0);
+    *o++ = c * vx + s * vz;
+    *o++ = vy;
+    *o++ = c * vz - s * vx;
+  }
+  for (int64_t k = 0; k < contacts; ++k) {  // foot contacts: moved less than the threshold
+    const int64_t j = contact[k];
+    const S dx = at(j, 0, 1) - at(j, 0, 0), dy = at(j, 1, 1) - at(j, 1, 0), dz = at(j, 2, 1) - at(j, 2, 0);
+    *o++ = (dx * dx + dy * dy + dz * dz) < threshold ? S(1) : S(0);
+  }
+}
+
+torch::Tensor body_columns(torch::Tensor x, torch::Tensor r, torch::Tensor parent, torch::Tensor raw,
+                           torch::Tensor before, torch::Tensor contact, double threshold) {
+  TORCH_CHECK(x.dim() == 4 && x.size(1) == 3 && x.is_contiguous() && x.device().is_cpu() && x.size(3) >= 2,
+              "body_columns: x must be a contiguous (J, 3, B, T) CPU tensor, T >= 2");
+  const int64_t J = x.size(0), B = x.size(2), T = x.size(3);
+  TORCH_CHECK(r.dim() == 3 && r.size(0) == B && r.size(1) == T && r.size(2) == 4 && r.is_contiguous() &&
+                  r.scalar_type() == x.scalar_type(),
+              "body_columns: r must be a contiguous (B, T, 4) tensor of x's dtype");
+  TORCH_CHECK(parent.numel() == J && before.numel() == J - 1 && raw.numel() == J * 3 &&
+                  parent.scalar_type() == torch::kLong && before.scalar_type() == torch::kLong &&
+                  contact.scalar_type() == torch::kLong && raw.scalar_type() == x.scalar_type() &&
+                  parent.is_contiguous() && before.is_contiguous() && contact.is_contiguous() && raw.is_contiguous(),
+              "body_columns: skeleton tables of the wrong size or type");
+  const int64_t contacts = contact.numel();
+  const int64_t D = 1 + 3 * (J - 1) + 6 * (J - 1) + 3 * J + contacts;
+  auto out = torch::empty({B, T - 1, D}, x.options());
+  AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "body_columns", [&] {
+    const scalar_t* xp = x.data_ptr<scalar_t>();
+    const scalar_t* rp = r.data_ptr<scalar_t>();
+    const scalar_t* rawp = raw.data_ptr<scalar_t>();
+    const int64_t* pp = parent.data_ptr<int64_t>();
+    const int64_t* bp = before.data_ptr<int64_t>();
+    const int64_t* cp = contact.data_ptr<int64_t>();
+    scalar_t* op = out.data_ptr<scalar_t>();
+    const scalar_t thr = static_cast<scalar_t>(threshold);
+    at::parallel_for(0, B * (T - 1), 64, [&](int64_t begin, int64_t end) {
+      std::vector<Quat<scalar_t>> swing(J - 1);
+      for (int64_t i = begin; i < end; ++i) {
+        const int64_t b = i / (T - 1), t = i % (T - 1);
+        frame_columns<scalar_t>(xp, rp, pp, rawp, bp, cp, contacts, thr, J, B * T, T, b * T + t, op + i * D, swing);
+      }
+    });
+  });
+  return out;
+}
+
+}  // namespace
+
+PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  m.def("body_columns", &body_columns, "the feature columns after the root's of joint-major joints, one pass",
+        py::arg("x"), py::arg("r"), py::arg("parent"), py::arg("raw"), py::arg("before"), py::arg("contact"),
+        py::arg("threshold"));
+}
