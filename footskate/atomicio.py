@@ -239,9 +239,13 @@ def _read_manifest(path: Path) -> Optional[dict[str, int]]:
 
 
 def _drop_derived(tree: dict[str, int], derived: tuple[str, ...]) -> None:
-    """Remove from `tree` the top-level folders in `derived` (data the caller regenerates from the
-    rest, e.g. a read cache) when they hold plain files and folders only."""
+    """Remove from `tree` the top-level entries in `derived` (data the caller regenerates from the
+    rest or adds beside it later, e.g. a read cache, a file a later step adds to a bundle): a plain
+    file, or a folder that holds plain files and folders only."""
     for top in derived:
+        if tree.get(top, _OTHER) >= 0:  # a plain file (listed by its size)
+            del tree[top]
+            continue
         inside = [rel for rel in tree if rel.startswith(top + "/")]
         if tree.get(top) == _DIR and all(tree[rel] != _OTHER for rel in inside):
             for rel in [top, *inside]:
@@ -464,7 +468,7 @@ def atomic_dir(path: str | os.PathLike, *, replaceable: Optional[Callable[[Path]
     to `path` when `path` is absent or an empty folder, or swapped in with `replace_dir` when
     `replaceable(path)` says the existing folder is the caller's kind *and* `ownership_problem`
     finds nothing in it the caller did not write (its `manifest`, or else only names the new folder
-    has too; `derived`: top-level cache folders that may go with it). Anything else at `path`
+    has too; `derived`: top-level files or cache folders that may go with it). Anything else at `path`
     raises FileExistsError (its message says why) and is left untouched. On failure (an exception,
     SIGINT; SIGTERM inside `terminate_as_interrupt`) the temp folder is removed.
     """

@@ -98,6 +98,19 @@ def test_a_bundle_written_from_a_config_with_a_predictor_does_not_claim_it(toy, 
     assert Pipeline.from_bundle(out, fast=False).length_predictor is None
 
 
+def test_exporting_over_a_bundle_with_a_predictor_replaces_it_whole(toy, tiny):
+    """`stablemo export ... --overwrite` onto a bundle a later step gave a predictor: the new bundle
+    replaces it (the added file goes with the old one); a file nobody wrote there still refuses."""
+    with_predictor(tiny, toy[0])
+    bundle = load_bundle(tiny)
+    save_bundle(tiny, bundle.config, bundle.state_dict, overwrite=True)
+    assert not (tiny / FILE).exists() and ENTRY not in json.loads((tiny / "config.json").read_text())
+    (tiny / "notes.txt").write_text("mine")
+    with pytest.raises(StableMoError, match="exists|not a bundle|holds|changed"):
+        save_bundle(tiny, bundle.config, bundle.state_dict, overwrite=True)
+    assert (tiny / "notes.txt").read_text() == "mine"
+
+
 def test_a_broken_predictor_is_one_line_naming_the_file(toy, tiny):
     from safetensors.torch import load_file, save_file
 

@@ -124,15 +124,16 @@ def save_bundle(out_dir: str | os.PathLike, config: dict, state_dict: dict[str, 
     def replaceable(path: Path) -> bool:  # re-checked at the rename: the folder may have changed
         return overwrite and is_bundle(path) and not _foreign_entries(path)
 
-    return write_weights_folder(out_dir, config, tensors, replaceable, "bundle")
+    return write_weights_folder(out_dir, config, tensors, replaceable, "bundle", added=(FAMILIAR_FILE, LENGTH_FILE))
 
 
 def write_weights_folder(out_dir: Path, config: dict, tensors: dict[str, torch.Tensor],
-                         replaceable, what: str) -> Path:
+                         replaceable, what: str, added: tuple[str, ...] = ()) -> Path:
     """`config.json` + `model.safetensors` as one folder, built beside `out_dir` and renamed into
-    place (an existing folder only where `replaceable(path)` says so, checked at the rename)."""
+    place (an existing folder only where `replaceable(path)` says so, checked at the rename).
+    added: files a later step adds to such a folder, which go with the folder it replaces."""
     try:
-        with atomic_dir(out_dir, replaceable=replaceable) as tmp:
+        with atomic_dir(out_dir, replaceable=replaceable, derived=added) as tmp:
             write_bytes(tmp / WEIGHTS_NAME, safetensors_bytes(tensors))
             write_text(tmp / CONFIG_NAME, json.dumps(config, indent=2) + "\n")
     except FileExistsError:
