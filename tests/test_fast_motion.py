@@ -47,14 +47,29 @@ def motion(skel, batch: int, frames: int, dtype) -> tuple[torch.Tensor, torch.Te
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_kernel_gives_the_pytorch_twins_numbers(kernels, skel, dtype):
     x, r = motion(skel, 3, 17, dtype)
-    fast = kernels.body_columns(x, r, *fast_motion._tables(skel, dtype), skel.contact_threshold)
-    assert torch.equal(fast_motion.body_columns(x, r, skel), fast)  # the kernel's, at any batch size here
+    lead = torch.randn(3, 16, 3, dtype=dtype)
+    n = torch.tensor([16, 9, 2])
+    root = torch.randn(3, 16, 3, dtype=dtype)
+    feats, joints = fast_motion.finish_rows(x, r, lead, n, root, skel)
     twin = extract_torch.body_columns(x, r, skel)
-    assert fast.shape == twin.shape == (3, 16, skel.feature_dim - 3) and fast.dtype == dtype
-    assert torch.isfinite(twin).all()
-    assert (fast - twin).abs().max() <= (1e-6 if dtype == torch.float32 else 1e-14)
-    ric = slice(1, 1 + 3 * (skel.num_joints - 1))
-    assert torch.equal(fast[..., ric], twin[..., ric])  # what the finishing step recovers its joints from
+    assert feats.shape == (3, 16, skel.feature_dim) and joints.shape == (3, 16, skel.num_joints, 3)
+    assert feats.dtype == joints.dtype == dtype and torch.isfinite(twin).all()
+    for i, m in enumerate(n.tolist()):
+        assert torch.equal(feats[i, :m, :3], lead[i, :m])
+        assert (feats[i, :m, 3:] - twin[i, :m]).abs().max() <= (1e-6 if dtype == torch.float32 else 1e-14)
+        ric = slice(4, 4 + 3 * (skel.num_joints - 1))
+        assert torch.equal(feats[i, :m, ric], twin[i, :m, ric.start - 3:ric.stop - 3])
+        assert (feats[i, m:] == 0).all() and (joints[i, m:] == 0).all()
+    # the joints are the features' recovery to the bit, given the root rotation and path the leading
+    # columns recover to (as the finishing step gives them)
+    from stablemo.motion.features import recover_root
+
+    rows = torch.zeros(3, 16, skel.feature_dim, dtype=dtype)
+    rows[..., :3] = 0.1 * lead
+    q, path = recover_root(rows)
+    r = torch.cat([q, q[:, -1:]], 1)
+    feats, joints = fast_motion.finish_rows(x, r, rows[..., :3], torch.tensor([16, 16, 16]), path, skel)
+    assert torch.equal(features_to_joints(feats, skel), joints)
 
 
 def test_finish_with_the_kernel_is_finish_without(kernels, monkeypatch):
@@ -84,4 +99,5 @@ def test_small_batches_never_build_the_kernel(monkeypatch):
     monkeypatch.setattr(fast_motion, "motion_kernels", refuse)
     x, r = motion(HUMANML3D, 1, 196, torch.float32)  # one prompt of 196 frames (the demo's)
     assert x.shape[2] * x.shape[3] < fast_motion.MIN_FUSED_FRAMES
-    assert torch.equal(fast_motion.body_columns(x, r, HUMANML3D), extract_torch.body_columns(x, r, HUMANML3D))
+    lead, root = torch.zeros(1, 195, 3), torch.zeros(1, 195, 3)
+    assert fast_motion.finish_rows(x, r, lead, torch.tensor([195]), root, HUMANML3D) is None  # PyTorch's turn

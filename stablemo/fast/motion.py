@@ -1,9 +1,10 @@
-"""The finishing step's feature columns with the compiled kernel (motion_kernels.cpp, built on first
-use by stablemo.fast.kernels): stablemo.motion.extract_torch.body_columns in one pass per frame,
-equal to float rounding (tests/test_fast_motion.py). Batches of at least MIN_FUSED_FRAMES frames
-use it (a benchmark's or an evaluation's; a single prompt, the demo's, never builds it); the PyTorch
-twin runs for smaller ones, where the kernel cannot be built (no compiler, STABLEMO_FUSED_KERNELS=0)
-and off the CPU."""
+"""The finishing step's output rows with the compiled kernel (motion_kernels.cpp, built on first use
+by stablemo.fast.kernels): the kept leading columns, stablemo.motion.extract_torch.body_columns and
+the joints recovered from those features (features_to_joints), in one pass per frame, equal to the
+PyTorch path to float rounding and the joints to the bit (tests/test_fast_motion.py). Batches of at
+least MIN_FUSED_FRAMES frames use it (a benchmark's or an evaluation's; a single prompt, the demo's,
+never builds it); otherwise, where the kernel cannot be built (no compiler,
+STABLEMO_FUSED_KERNELS=0) and off the CPU, stablemo.inference.finish assembles them with PyTorch."""
 
 from __future__ import annotations
 
@@ -16,9 +17,8 @@ from stablemo.fast.kernels import motion_kernels
 from stablemo.motion import extract_torch
 from stablemo.motion.skeleton import Skeleton, get_skeleton
 
-
 # frames (batch x frames) from which the kernel is worth its one-off build (~30 s): on one core the
-# PyTorch twin takes ~0.4 ms per 200 frames, the kernel ~0.08 ms (32 x 197 frames: 12-20 ms, 2.5 ms)
+# PyTorch path takes ~0.5 ms per 200 frames, the kernel ~0.1 ms (32 x 197 frames: 15-20 ms, 3 ms)
 MIN_FUSED_FRAMES = 2048
 
 
@@ -32,17 +32,25 @@ def _tables(skel: Skeleton, dtype: torch.dtype) -> tuple[torch.Tensor, ...]:
     return parents, raw, before, torch.tensor(list(skel.contact_joints), dtype=torch.long)
 
 
-def body_columns(x: torch.Tensor, r: torch.Tensor, skeleton: Skeleton | str) -> torch.Tensor:
-    """extract_torch.body_columns: joint-major joints x (J, 3, B, T), root rotations r (B, T, 4)
-    -> (B, T-1, D-3)."""
+def finish_rows(x: torch.Tensor, r: torch.Tensor, lead: torch.Tensor, n: torch.Tensor, root: torch.Tensor,
+                skeleton: Skeleton | str) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """(features (B, T-1, L + D-3), joints (B, T-1, J, 3)), zero from frame n[b] on, of joint-major
+    joints x (J, 3, B, T) (frame T-1 the one after the last row, for its velocities) with root
+    rotations r (B, T, 4), kept leading columns lead (B, T-1, L) and recovered root path root
+    (B, T-1, 3) (recover_root's; the height is the body's); None where the kernel does not run."""
     skel = get_skeleton(skeleton)
-    fused = (x.device.type == "cpu" and x.dtype in (torch.float32, torch.float64) and not x.requires_grad
-             and x.shape[2] * x.shape[3] >= MIN_FUSED_FRAMES)
-    module = motion_kernels() if fused else None
+    b, t = x.shape[2:]
+    if (x.device.type != "cpu" or x.dtype not in (torch.float32, torch.float64) or x.requires_grad
+            or b * t < MIN_FUSED_FRAMES):
+        return None
+    module = motion_kernels()
     if module is None:
-        return extract_torch.body_columns(x, r, skel)
-    return module.body_columns(x.contiguous(), r.to(x.dtype).contiguous(), *_tables(skel, x.dtype),
-                               float(skel.contact_threshold))
+        return None
+    joints = x.new_empty(b, t - 1, skel.num_joints, 3)
+    feats = module.finish_rows(x.contiguous(), r.to(x.dtype).contiguous(), lead.to(x.dtype).contiguous(),
+                               n.long().contiguous(), root.to(x.dtype).contiguous(), *_tables(skel, x.dtype),
+                               float(skel.contact_threshold), joints)
+    return feats, joints
 
 
-__all__ = ["body_columns"]
+__all__ = ["MIN_FUSED_FRAMES", "finish_rows"]

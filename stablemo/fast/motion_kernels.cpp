@@ -1,10 +1,10 @@
 // Fused CPU kernel for the finishing step (stablemo.inference.finish), built on first use by
 // stablemo.fast.kernels.motion_kernels().
 //
-// body_columns: the feature columns after the root's rotation and velocity (root height, ric, 6D
-// rotations, local velocities, foot contacts) of a joint-major motion (J, 3, B, T), one frame at a
-// time. The PyTorch twin (stablemo.motion.extract_torch.body_columns) makes ~150 passes over the
-// batch, one per elementwise step, and was half of the step's time; here each frame's joints stay in
+// frame_columns: the feature columns after the root's rotation and velocity (root height, ric, 6D
+// rotations, local velocities, foot contacts) of one frame of a joint-major motion (J, 3, B, T).
+// The PyTorch twin (stablemo.motion.extract_torch.body_columns) makes ~150 passes over the batch,
+// one per elementwise step, and was half of the step's time; here each frame's joints stay in
 // registers. Every expression is the twin's, in its order, and the build does not contract or
 // reorder floating point (-ffp-contract=off, no -ffast-math): the two agree to the last bit or two
 // (the twin's reductions may sum in another order), and the ric columns exactly.
@@ -12,6 +12,7 @@
 #include <torch/extension.h>
 #include <ATen/Parallel.h>
 
+#include <algorithm>
 #include <cmath>
 #include <vector>
 
@@ -91,36 +92,79 @@ void frame_columns(const S* x, const S* r, const int64_t* parent, const S* raw, 
   }
 }
 
-torch::Tensor body_columns(torch::Tensor x, torch::Tensor r, torch::Tensor parent, torch::Tensor raw,
-                           torch::Tensor before, torch::Tensor contact, double threshold) {
+// finish_rows: the finishing step's output in one pass: per frame, the kept leading columns lead
+// (B, T-1, L) (the root's rotation and path), then body_columns, and the joints recovered from those
+// features (features_to_joints, its expressions in its order: the written joints are the features'
+// recovery) given the recovered root path root (B, T-1, 3); frames from n[b] on are zero in both.
+torch::Tensor finish_rows(torch::Tensor x, torch::Tensor r, torch::Tensor lead, torch::Tensor n, torch::Tensor root,
+                          torch::Tensor parent, torch::Tensor raw, torch::Tensor before, torch::Tensor contact,
+                          double threshold, torch::Tensor joints) {
   TORCH_CHECK(x.dim() == 4 && x.size(1) == 3 && x.is_contiguous() && x.device().is_cpu() && x.size(3) >= 2,
-              "body_columns: x must be a contiguous (J, 3, B, T) CPU tensor, T >= 2");
+              "finish_rows: x must be a contiguous (J, 3, B, T) CPU tensor, T >= 2");
   const int64_t J = x.size(0), B = x.size(2), T = x.size(3);
   TORCH_CHECK(r.dim() == 3 && r.size(0) == B && r.size(1) == T && r.size(2) == 4 && r.is_contiguous() &&
                   r.scalar_type() == x.scalar_type(),
-              "body_columns: r must be a contiguous (B, T, 4) tensor of x's dtype");
+              "finish_rows: r must be a contiguous (B, T, 4) tensor of x's dtype");
+  TORCH_CHECK(lead.dim() == 3 && lead.size(0) == B && lead.size(1) == T - 1 && lead.is_contiguous() &&
+                  lead.scalar_type() == x.scalar_type() && root.dim() == 3 && root.size(0) == B &&
+                  root.size(1) == T - 1 && root.size(2) == 3 && root.is_contiguous() &&
+                  root.scalar_type() == x.scalar_type() && n.numel() == B && n.scalar_type() == torch::kLong &&
+                  n.is_contiguous(),
+              "finish_rows: lead (B, T-1, L), root (B, T-1, 3) of x's dtype and n (B,) long expected");
+  TORCH_CHECK(joints.dim() == 4 && joints.size(0) == B && joints.size(1) == T - 1 && joints.size(2) == J &&
+                  joints.size(3) == 3 && joints.is_contiguous() && joints.scalar_type() == x.scalar_type(),
+              "finish_rows: joints must be a contiguous (B, T-1, J, 3) tensor of x's dtype");
   TORCH_CHECK(parent.numel() == J && before.numel() == J - 1 && raw.numel() == J * 3 &&
                   parent.scalar_type() == torch::kLong && before.scalar_type() == torch::kLong &&
                   contact.scalar_type() == torch::kLong && raw.scalar_type() == x.scalar_type() &&
                   parent.is_contiguous() && before.is_contiguous() && contact.is_contiguous() && raw.is_contiguous(),
-              "body_columns: skeleton tables of the wrong size or type");
-  const int64_t contacts = contact.numel();
-  const int64_t D = 1 + 3 * (J - 1) + 6 * (J - 1) + 3 * J + contacts;
+              "finish_rows: skeleton tables of the wrong size or type");
+  const int64_t contacts = contact.numel(), L = lead.size(2);
+  const int64_t D = L + 1 + 3 * (J - 1) + 6 * (J - 1) + 3 * J + contacts;
   auto out = torch::empty({B, T - 1, D}, x.options());
-  AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "body_columns", [&] {
+  AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "finish_rows", [&] {
     const scalar_t* xp = x.data_ptr<scalar_t>();
     const scalar_t* rp = r.data_ptr<scalar_t>();
+    const scalar_t* lp = lead.data_ptr<scalar_t>();
+    const scalar_t* rootp = root.data_ptr<scalar_t>();
     const scalar_t* rawp = raw.data_ptr<scalar_t>();
+    const int64_t* np_ = n.data_ptr<int64_t>();
     const int64_t* pp = parent.data_ptr<int64_t>();
     const int64_t* bp = before.data_ptr<int64_t>();
     const int64_t* cp = contact.data_ptr<int64_t>();
     scalar_t* op = out.data_ptr<scalar_t>();
+    scalar_t* jp = joints.data_ptr<scalar_t>();
     const scalar_t thr = static_cast<scalar_t>(threshold);
     at::parallel_for(0, B * (T - 1), 64, [&](int64_t begin, int64_t end) {
       std::vector<Quat<scalar_t>> swing(J - 1);
       for (int64_t i = begin; i < end; ++i) {
         const int64_t b = i / (T - 1), t = i % (T - 1);
-        frame_columns<scalar_t>(xp, rp, pp, rawp, bp, cp, contacts, thr, J, B * T, T, b * T + t, op + i * D, swing);
+        scalar_t* o = op + i * D;
+        scalar_t* jo = jp + i * J * 3;
+        if (t >= np_[b]) {  // padding
+          std::fill(o, o + D, scalar_t(0));
+          std::fill(jo, jo + J * 3, scalar_t(0));
+          continue;
+        }
+        std::copy(lp + i * L, lp + (i + 1) * L, o);
+        frame_columns<scalar_t>(xp, rp, pp, rawp, bp, cp, contacts, thr, J, B * T, T, b * T + t, o + L, swing);
+        // features_to_joints: the root where recover_root puts it (its height the features'), each
+        // other joint its ric turned back by the root's inverse rotation and moved by the root in xz
+        const scalar_t* q = rp + (b * T + t) * 4;
+        const scalar_t qy = q[2] * scalar_t(-1);
+        const scalar_t c = q[0] * q[0] - qy * qy, s = scalar_t(2) * q[0] * qy;
+        const scalar_t* pos = rootp + i * 3;
+        const scalar_t height = o[L];
+        jo[0] = pos[0];
+        jo[1] = height;
+        jo[2] = pos[2];
+        const scalar_t ox = pos[0] * scalar_t(1), oy = height * scalar_t(0), oz = pos[2] * scalar_t(1);
+        for (int64_t j = 1; j < J; ++j) {
+          const scalar_t* v = o + L + 1 + (j - 1) * 3;
+          jo[j * 3 + 0] = (c * v[0] + s * v[2]) + ox;
+          jo[j * 3 + 1] = v[1] + oy;
+          jo[j * 3 + 2] = (c * v[2] - s * v[0]) + oz;
+        }
       }
     });
   });
@@ -130,7 +174,7 @@ torch::Tensor body_columns(torch::Tensor x, torch::Tensor r, torch::Tensor paren
 }  // namespace
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
-  m.def("body_columns", &body_columns, "the feature columns after the root's of joint-major joints, one pass",
-        py::arg("x"), py::arg("r"), py::arg("parent"), py::arg("raw"), py::arg("before"), py::arg("contact"),
-        py::arg("threshold"));
+  m.def("finish_rows", &finish_rows, "lead columns, body columns and recovered joints of the finishing step, one pass",
+        py::arg("x"), py::arg("r"), py::arg("lead"), py::arg("n"), py::arg("root"), py::arg("parent"), py::arg("raw"),
+        py::arg("before"), py::arg("contact"), py::arg("threshold"), py::arg("joints"));
 }

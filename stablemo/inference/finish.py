@@ -24,6 +24,7 @@ from stablemo.control.spec import ControlTargets
 from stablemo.errors import StableMoError
 from stablemo.fast import motion as fast_motion
 from stablemo.motion.extract_torch import (
+    body_columns,
     fill_padding,
     joints_to_features_batched,
     root_relative,
@@ -192,8 +193,10 @@ class Finish:
         body = self.body(raw, n, control, contacts, given)  # (J, 3, B, T)
         ext, last = self._extended(body, n)
         r = torch.cat([q, q.gather(1, last[..., None].expand(b, 1, 4))], dim=1)  # (B, T+1, 4)
-        # the compiled kernel where it is built (stablemo.fast.motion), else the PyTorch twin
-        feats = torch.cat([features[..., :3], fast_motion.body_columns(ext, r, self.skeleton)], dim=-1)
+        rows = fast_motion.finish_rows(ext, r, features[..., :3], n, root, self.skeleton)
+        if rows is not None:  # the compiled kernel: the same rows in one pass (stablemo.fast.motion)
+            return rows
+        feats = torch.cat([features[..., :3], body_columns(ext, r, self.skeleton)], dim=-1)
         mask = torch.arange(t, device=features.device)[None, :] < n[:, None]  # (B, T)
         feats = torch.where(mask[..., None], feats, torch.zeros((), dtype=feats.dtype, device=feats.device))
         # the joints are the features' recovery, features_to_joints(feats) on the valid frames, from
