@@ -30,7 +30,12 @@ from stablemo.motion.extract_torch import (
     root_relative,
     valid_lengths,
 )
-from stablemo.motion.features import feature_slices, features_to_joints, joints_from_ric, recover_root
+from stablemo.motion.features import (
+    feature_slices,
+    features_to_joints,
+    joints_from_ric,
+    recover_root,
+)
 from stablemo.motion.floor import lowest_shift, target_pins
 from stablemo.motion.quaternion import norm
 from stablemo.motion.rigid import rigid_joint_major

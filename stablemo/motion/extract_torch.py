@@ -248,7 +248,6 @@ def body_columns(x: torch.Tensor, r: torch.Tensor, skel: Skeleton) -> torch.Tens
     Joint-major, each joint's x, y and z lie in one contiguous block, so every step below is a
     vectorised pass; on (B, T, J, 3) each one strode over the interleaved coordinates (the
     finishing step spent most of its time here)."""
-    b, t = x.shape[2:]
     rq = r.permute(2, 0, 1)[None, :, :, :-1]  # (1, 4, B, T-1), the frames that get a row
     feet = x[list(skel.contact_joints)]  # (4, 3, B, T)
     disp2 = ((feet[..., 1:] - feet[..., :-1]) ** 2).sum(1)  # (4, B, T-1)

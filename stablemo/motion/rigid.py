@@ -136,8 +136,8 @@ def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
         return rigid_joints(joints[None], skel, bone_lengths, None if lengths is None else [lengths],
                             None if hold is None else torch.as_tensor(hold)[None],
                             None if ends is None else torch.as_tensor(ends)[None])[0]
-    major = (lambda v: None if v is None else torch.as_tensor(v).to(joints).permute(2, 3, 0, 1))  # noqa: E731
-    out = rigid_joint_major(major(joints).contiguous(), skel, bone_lengths, lengths, hold, major(ends))
+    ends = None if ends is None else torch.as_tensor(ends).to(joints).permute(2, 3, 0, 1)  # joint-major
+    out = rigid_joint_major(joints.permute(2, 3, 0, 1).contiguous(), skel, bone_lengths, lengths, hold, ends)
     return out.permute(2, 3, 0, 1).contiguous()
 
 
