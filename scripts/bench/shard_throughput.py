@@ -132,22 +132,26 @@ def run_rss(args) -> None:
 
 
 def run_link(args) -> None:
+    from stablemo.io import atomic_dir, write_bytes, write_text
+
     src, out = Path(args.src), Path(args.out)
     if out.exists():
         raise SystemExit(f"--out: {out}: exists; give a new folder")
-    for sub in ("new_joint_vecs", "texts"):
-        (out / sub).mkdir(parents=True)
-    for name in ("Mean.npy", "Std.npy"):
-        shutil.copyfile(src / name, out / name)
-    for split in ("train", "val", "test"):
-        if not (src / f"{split}.txt").is_file():
-            continue
-        ids = (src / f"{split}.txt").read_text().split()
-        copies = [f"{i}_{k}" for k in range(args.copies) for i in ids]  # copy after copy: split order kept
-        for clip_id, new in zip(ids * args.copies, copies):
-            os.link(src / "new_joint_vecs" / f"{clip_id}.npy", out / "new_joint_vecs" / f"{new}.npy")
-            os.link(src / "texts" / f"{clip_id}.txt", out / "texts" / f"{new}.txt")
-        (out / f"{split}.txt").write_text("\n".join(copies) + "\n")
+    with atomic_dir(out) as tmp:  # the corpus appears whole or not at all
+        for sub in ("new_joint_vecs", "texts"):
+            (tmp / sub).mkdir(parents=True)
+        for name in ("Mean.npy", "Std.npy"):
+            write_bytes(tmp / name, (src / name).read_bytes())
+        for split in ("train", "val", "test"):
+            if not (src / f"{split}.txt").is_file():
+                continue
+            ids = (src / f"{split}.txt").read_text().split()
+            copies = [f"{i}_{k}" for k in range(args.copies) for i in ids]  # copy after copy: split order kept
+            for clip_id, new in zip(ids * args.copies, copies):
+                # hard links: a 200 000-clip corpus costs no disk beyond its source
+                os.link(src / "new_joint_vecs" / f"{clip_id}.npy", tmp / "new_joint_vecs" / f"{new}.npy")
+                os.link(src / "texts" / f"{clip_id}.txt", tmp / "texts" / f"{new}.txt")
+            write_text(tmp / f"{split}.txt", "\n".join(copies) + "\n")
     print(f"{out}: {args.copies} copies of {src}")
 
 
@@ -185,50 +189,53 @@ def same_files(a: Path, b: Path) -> bool:
 
 def run_write(args) -> None:
     repo = Path(__file__).resolve().parents[2]
-    work = Path(tempfile.mkdtemp(prefix="shard_write_"))
+    with tempfile.TemporaryDirectory(prefix="shard_write_") as scratch:
+        _run_write(args, repo, Path(scratch))
+
+
+def _run_write(args, repo: Path, work: Path) -> None:
+    from stablemo.io import write_bytes
+
     trees = {"this tree": str(repo)}
-    try:
-        if args.against:
-            base = work / "against"
-            if args.only:  # this checkout with only these files as REV has them
-                for package in ("stablemo", "footskate"):
-                    shutil.copytree(repo / package, base / package, ignore=shutil.ignore_patterns("__pycache__"))
-                for path in args.only:
-                    old = subprocess.run(["git", "-C", str(repo), "show", f"{args.against}:{path}"],
-                                         capture_output=True, check=True).stdout
-                    (base / path).write_bytes(old)
-            else:
-                base.mkdir()
-                archive = subprocess.run(["git", "-C", str(repo), "archive", args.against, "stablemo", "footskate"],
-                                         capture_output=True, check=True).stdout
-                subprocess.run(["tar", "-x", "-C", str(base)], input=archive, check=True)
-            trees = {args.against: str(base), **trees}
-        names = list(trees)
-        rates: dict[str, list[float]] = {n: [] for n in names}
-        cpus: dict[str, list[float]] = {n: [] for n in names}
-        for r in range(args.rounds):
-            outs = {}
-            for name in (names if r % 2 == 0 else names[::-1]):
-                outs[name] = work / f"out_{len(outs)}"
-                got = write_once(trees[name], args.src, str(outs[name]), args.workers)
-                rates[name].append(got["clips"] / got["seconds"])
-                cpus[name].append(got["cpu"] / got["clips"] * 1e3)
-                print(f"round {r} {name}: {got['clips']} clips in {got['seconds']:.2f} s = {rates[name][-1]:.0f} "
-                      f"clips/s, {cpus[name][-1]:.3f} CPU-ms per clip", flush=True)
-            if len(outs) == 2:
-                print(f"round {r}: outputs byte-identical: {same_files(*outs.values())}", flush=True)
-            for out in outs.values():
-                shutil.rmtree(out)
-        for name in names:
-            print(f"{name}: median {statistics.median(rates[name]):.0f} clips/s "
-                  f"({min(rates[name]):.0f}-{max(rates[name]):.0f}), median {statistics.median(cpus[name]):.3f} "
-                  f"CPU-ms per clip, --workers {args.workers}, load average {os.getloadavg()[0]:.1f} at the end")
-        if len(names) == 2:
-            ratios = [b / a for a, b in zip(rates[names[0]], rates[names[1]])]
-            print(f"speed-up (this tree / {names[0]}): median of pairs {statistics.median(ratios):.2f} "
-                  f"(min {min(ratios):.2f}, max {max(ratios):.2f})")
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
+    if args.against:
+        base = work / "against"
+        if args.only:  # this checkout with only these files as REV has them
+            for package in ("stablemo", "footskate"):
+                shutil.copytree(repo / package, base / package, ignore=shutil.ignore_patterns("__pycache__"))
+            for path in args.only:
+                old = subprocess.run(["git", "-C", str(repo), "show", f"{args.against}:{path}"],
+                                     capture_output=True, check=True).stdout
+                write_bytes(base / path, old)
+        else:
+            base.mkdir()
+            archive = subprocess.run(["git", "-C", str(repo), "archive", args.against, "stablemo", "footskate"],
+                                     capture_output=True, check=True).stdout
+            subprocess.run(["tar", "-x", "-C", str(base)], input=archive, check=True)
+        trees = {args.against: str(base), **trees}
+    names = list(trees)
+    rates: dict[str, list[float]] = {n: [] for n in names}
+    cpus: dict[str, list[float]] = {n: [] for n in names}
+    for r in range(args.rounds):
+        outs = {}
+        for name in (names if r % 2 == 0 else names[::-1]):
+            outs[name] = work / f"out_{len(outs)}"
+            got = write_once(trees[name], args.src, str(outs[name]), args.workers)
+            rates[name].append(got["clips"] / got["seconds"])
+            cpus[name].append(got["cpu"] / got["clips"] * 1e3)
+            print(f"round {r} {name}: {got['clips']} clips in {got['seconds']:.2f} s = {rates[name][-1]:.0f} "
+                  f"clips/s, {cpus[name][-1]:.3f} CPU-ms per clip", flush=True)
+        if len(outs) == 2:
+            print(f"round {r}: outputs byte-identical: {same_files(*outs.values())}", flush=True)
+        for out in outs.values():
+            shutil.rmtree(out)
+    for name in names:
+        print(f"{name}: median {statistics.median(rates[name]):.0f} clips/s "
+              f"({min(rates[name]):.0f}-{max(rates[name]):.0f}), median {statistics.median(cpus[name]):.3f} "
+              f"CPU-ms per clip, --workers {args.workers}, load average {os.getloadavg()[0]:.1f} at the end")
+    if len(names) == 2:
+        ratios = [b / a for a, b in zip(rates[names[0]], rates[names[1]])]
+        print(f"speed-up (this tree / {names[0]}): median of pairs {statistics.median(ratios):.2f} "
+              f"(min {min(ratios):.2f}, max {max(ratios):.2f})")
 
 
 def main() -> None:
