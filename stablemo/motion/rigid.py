@@ -196,21 +196,19 @@ def rigid_joint_major(x: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
         if child not in limbs and child not in beyond:
             torch.add(out[skel.parents[child]], steps[child], out=out[child])
 
-    # all limbs at once, each with its generated angles, then pulled by two-bone IK towards its
-    # end's goal as firmly as `hold` says
-    upper = out[uppers]  # (L, 3, B, T)
-    middle = upper + steps[mids]
-    kept = middle + steps[ends_at]
-    if hold is None:
-        w = torch.tensor([float(e in legs) for e in ends_at], dtype=x.dtype, device=x.device)[:, None, None, None]
-    else:
-        w = torch.as_tensor(hold).to(x)[..., ends_at].permute(2, 0, 1)[:, None]  # (L, 1, B, T)
-    goal = (x if ends is None else ends)[ends_at]
-    # knees bend forward, elbows backward, where the generated limb is straight
-    side = torch.tensor([1.0 if e in legs else -1.0 for e in ends_at], dtype=x.dtype, device=x.device)
-    bend = side[:, None, None, None] * _facing(x, skel)
-    out[mids], out[ends_at] = two_bone(upper, kept + w * (goal - kept), middle, bend, raw_dir[mids],
-                                       lengths_j[mids], lengths_j[ends_at], dim=1)
+    # each limb with its generated angles, then pulled by two-bone IK towards its end's goal as
+    # firmly as `hold` says; one limb at a time: a (3, B, T) block stays under PyTorch's size for
+    # splitting an operation across threads, whose every split waits for a second core
+    forward = _facing(x, skel)
+    for upper, mid, end in skel.ik_limbs:
+        middle = out[upper] + steps[mid]
+        kept = middle + steps[end]
+        w = float(end in legs) if hold is None else torch.as_tensor(hold)[..., end].to(x)[None]  # (1, B, T)
+        goal = (x if ends is None else ends)[end]
+        # knees bend forward, elbows backward, where the generated limb is straight
+        bend = forward if end in legs else -forward
+        out[mid], out[end] = two_bone(out[upper], kept + w * (goal - kept), middle, bend, raw_dir[mid],
+                                      lengths_j[mid], lengths_j[end], dim=0)
     for child in order:
         if child in beyond:
             torch.add(out[skel.parents[child]], steps[child], out=out[child])
