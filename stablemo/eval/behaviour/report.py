@@ -90,11 +90,15 @@ def _attribute_rows(blocks: list[dict], counted: list[dict]) -> list[list[str]]:
     `counted`, then the pass rate [interval] in each block of `blocks`."""
     picks = [(a, lambda b, a=a: b["attributes"].get(a)) for a in ATTRIBUTES if any(a in b["attributes"] for b in blocks)]
     picks += [("all checks", lambda b: b["checks"]), ("motions (every check)", lambda b: b["overall"])]
-    if any("r3" in b for b in blocks):
-        picks += [("R@3 of the motions", lambda b: b.get("r3")),
-                  ("R@3 of those failing a check", lambda b: b.get("r3_failed"))]
-    return [[name] + [str((pick(c) or {}).get("total", "–")) for c in counted] + [cell(pick(b)) for b in blocks]
+    rows = [[name] + [str((pick(c) or {}).get("total", "–")) for c in counted] + [cell(pick(b)) for b in blocks]
             for name, pick in picks]
+    if any("r3" in b for b in blocks):
+        rows.append(["R@3 of the motions"] + [str((c.get("r3") or {}).get("total", "–")) for c in counted]
+                    + [cell(b.get("r3")) for b in blocks])
+        # the motions failing a check differ from model to model: each cell says how many
+        rows.append(["R@3 of those failing a check"] + ["per model"] * len(counted)
+                    + [f"{cell(b.get('r3_failed'))} of {(b.get('r3_failed') or {}).get('total', 0)}" for b in blocks])
+    return rows
 
 
 def _per_action(result: dict) -> dict[str, dict]:
