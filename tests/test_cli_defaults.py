@@ -75,7 +75,7 @@ def test_shipped_control_configs_print_their_own_defaults(name, capsys):
 
 
 def test_names_model_class(tmp_path):
-    from stablemo.training.lightning_cli import names_model_class
+    from stablemo.cli.train import names_model_class
 
     named = write_config(tmp_path, {"class_path": CONTROLNET})
     plain = tmp_path / "plain.yaml"

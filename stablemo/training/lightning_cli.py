@@ -10,7 +10,7 @@ say otherwise. Checkpoints are written atomically and loaded with weights_only=T
 A config whose `model:` has a `class_path` trains that LightningModule instead of DiffusionModule
 (e.g. `stablemo.eval.evaluator.EvaluatorModule` in configs/evaluator_*.yaml), with that class's own
 defaults for every argument the config does not set; DiffusionModule is the default class only for
-a command line whose configs and flags name none (see `names_model_class`).
+a command line whose configs and flags name none (stablemo.cli.train decides).
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ from __future__ import annotations
 import inspect
 import re
 import signal
-import sys
 import warnings
 from pathlib import Path
 
@@ -36,29 +35,32 @@ from stablemo.training.module import DiffusionModule
 class StableMoCLI(LightningCLI):
     """LightningCLI with StableMo's defaults, through its public hooks only."""
 
-    def __init__(self, *args, **kwargs) -> None:
+    def __init__(self, *args, default_model_class: type | None = None, **kwargs) -> None:
+        """default_model_class: with subclass_mode_model, the LightningModule trained when the
+        command line names none (the caller decides; stablemo.cli.train reads its command line)."""
         # `stablemo fit ...` hands LightningCLI its own argv; sys.argv must stay intact for DDP's
         # re-launch of the same command, so the "args and sys.argv both given" warning is noise here.
         warnings.filterwarnings("ignore", message="LightningCLI's args parameter is intended")
+        self._default_model_class = default_model_class
         self._model_parsers: list = []  # filled by add_arguments_to_parser, read by parse_arguments
         super().__init__(*args, **kwargs)
 
     def parse_arguments(self, parser, args) -> None:
         """Parse as LightningCLI does, with two StableMo rules around it:
 
-        - DiffusionModule is the model class only for a command line whose configs and flags name
-          none (`names_model_class`): jsonargparse keeps a default class's init_args (filled with its
-          defaults) that the class a config switches to also accepts, so ControlNetTraining trained
-          with DiffusionModule's cond_drop_prob=0.1 and weight_decay=0.01 instead of its own 0.0 while
-          this default was always set.
+        - `default_model_class` (DiffusionModule for `stablemo fit`) is set only when the caller
+          gives it, i.e. for a command line whose configs and flags name no class: jsonargparse keeps
+          a default class's init_args (filled with its defaults) that the class a config switches to
+          also accepts, so ControlNetTraining trained with DiffusionModule's cond_drop_prob=0.1 and
+          weight_decay=0.01 instead of its own 0.0 while this default was always set.
         - A `--ckpt_path` file is read once with load_checkpoint_file before LightningCLI merges its
           hyperparameters: LightningCLI reads it with a bare torch.load before the Trainer and its
           CheckpointIO exist, where a truncated file or a pickle that weights_only refuses ends in a
           raw traceback; here it is one line naming the file.
         """
-        argv = sys.argv[1:] if args is None else args  # LightningCLI parses sys.argv when given none
-        if self.subclass_mode_model and not isinstance(argv, (dict, Namespace)) and not names_model_class(argv):
-            default = {"model": {"class_path": f"{DiffusionModule.__module__}.{DiffusionModule.__qualname__}"}}
+        if self.subclass_mode_model and self._default_model_class is not None:
+            cls = self._default_model_class
+            default = {"model": {"class_path": f"{cls.__module__}.{cls.__qualname__}"}}
             for sub in self._model_parsers:
                 sub.set_defaults(default)
         super().parse_arguments(parser, args)
@@ -125,65 +127,6 @@ class StableMoCLI(LightningCLI):
                                     "(only DiffusionModule is sharded); train it with ddp")
             kwargs.setdefault("strategy", FullShardStrategy())
         return super().instantiate_trainer(**kwargs)
-
-
-def names_model_class(argv) -> bool:
-    """Whether a command line names the model's class itself: a `--config`/`-c` file (or YAML
-    string) whose `model:` has a `class_path` (or is a class name), or a `--model.class_path` /
-    `--model` flag that gives one. Anything unreadable counts as naming none (jsonargparse then
-    reports it as before)."""
-    argv = [str(a) for a in argv or []]
-    i = 0
-    while i < len(argv):
-        arg = argv[i]
-        key, eq, value = arg.partition("=")
-        if key in ("--config", "-c", "--model", "--model.class_path"):
-            if not eq:
-                if i + 1 >= len(argv):
-                    break
-                value = argv[i + 1]
-                i += 1
-            if key == "--model.class_path":
-                return True
-            if key == "--model" and _model_value_names_class(value):
-                return True
-            if key in ("--config", "-c") and _config_names_model_class(_load_yaml(value)):
-                return True
-        i += 1
-    return False
-
-
-def _load_yaml(value: str):
-    """A config file's content, or `value` itself as YAML (jsonargparse takes both); None if neither."""
-    import yaml
-
-    try:
-        path = Path(value)
-        text = path.read_text() if path.is_file() else value
-        return yaml.safe_load(text)
-    except (OSError, ValueError, yaml.YAMLError):
-        return None
-
-
-def _model_value_names_class(value) -> bool:
-    if isinstance(value, dict):
-        return bool(value.get("class_path"))
-    if isinstance(value, str) and value.strip():
-        loaded = _load_yaml(value)
-        if isinstance(loaded, dict):
-            return bool(loaded.get("class_path"))
-        return isinstance(loaded, str)  # a class name (full or short)
-    return False
-
-
-def _config_names_model_class(config) -> bool:
-    if not isinstance(config, dict):
-        return False
-    if "model" in config and _model_value_names_class(config["model"]):
-        return True
-    # a top-level config (before the subcommand) holds each subcommand's settings under its name
-    return any(isinstance(config.get(sub), dict) and _model_value_names_class(config[sub].get("model"))
-               for sub in ("fit", "validate", "test", "predict"))
 
 
 def run_cli(model_class, argv: list[str], **kwargs) -> StableMoCLI:
