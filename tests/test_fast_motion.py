@@ -101,3 +101,28 @@ def test_small_batches_never_build_the_kernel(monkeypatch):
     assert x.shape[2] * x.shape[3] < fast_motion.MIN_FUSED_FRAMES
     lead, root = torch.zeros(1, 195, 3), torch.zeros(1, 195, 3)
     assert fast_motion.finish_rows(x, r, lead, torch.tensor([195]), root, HUMANML3D) is None  # PyTorch's turn
+
+
+@pytest.mark.parametrize("skel", [HUMANML3D, KIT], ids=["humanml3d", "kit"])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("held", [False, True])
+def test_compiled_placement_is_the_rigid_rebuilds(kernels, skel, dtype, held):
+    from stablemo.motion.rigid import rigid_joint_major
+
+    x, _ = motion(skel, 3, 17, dtype)
+    g = torch.Generator().manual_seed(2)
+    hold = torch.rand(3, 17, skel.num_joints, generator=g, dtype=dtype) if held else None
+    ends = x + 0.05 * torch.randn(x.shape, generator=g, dtype=dtype) if held else None
+    lengths = [17, 12, 5]
+    twin = rigid_joint_major(x, skel, None, lengths, hold, ends)
+    calls = []
+
+    def place(*args):
+        calls.append(1)
+        return fast_motion.place_body(*args)
+
+    fast = rigid_joint_major(x, skel, None, lengths, hold, ends, place=place)
+    assert calls and fast.shape == twin.shape and fast.dtype == dtype
+    scale = twin.abs().max()  # KIT's joints are in millimetres
+    assert (fast - twin).abs().max() <= (1e-6 if dtype == torch.float32 else 1e-14) * scale
+    assert (fast - x).abs().max() > 1e-3 * scale  # (the rebuild did move the rubbery joints)

@@ -1,6 +1,7 @@
-"""The finishing step's output rows with the compiled kernel (motion_kernels.cpp, built on first use
-by stablemo.fast.kernels): the kept leading columns, stablemo.motion.extract_torch.body_columns and
-the joints recovered from those features (features_to_joints), in one pass per frame, equal to the
+"""The finishing step's compiled passes (motion_kernels.cpp, built on first use by
+stablemo.fast.kernels): the rigid rebuild's placement of trunk, limbs and feet (place_body), and the
+output rows (finish_rows: the kept leading columns, stablemo.motion.extract_torch.body_columns and the
+joints recovered from those features, features_to_joints), one pass per frame each, equal to the
 PyTorch path to float rounding and the joints to the bit (tests/test_fast_motion.py). Batches of at
 least MIN_FUSED_FRAMES frames use it (a benchmark's or an evaluation's; a single prompt, the demo's,
 never builds it); otherwise, where the kernel cannot be built (no compiler,
@@ -53,4 +54,26 @@ def finish_rows(x: torch.Tensor, r: torch.Tensor, lead: torch.Tensor, n: torch.T
     return feats, joints
 
 
-__all__ = ["MIN_FUSED_FRAMES", "finish_rows"]
+def place_body(steps: torch.Tensor, root: torch.Tensor, forward: torch.Tensor, w: torch.Tensor, goal: torch.Tensor,
+               skel: Skeleton, trunk: list[int], beyond: list[int], side: torch.Tensor, rest: torch.Tensor,
+               lengths: torch.Tensor) -> torch.Tensor | None:
+    """The rigid rebuild's per-frame placement in one compiled pass (stablemo.motion.rigid.rigid_joint_major
+    hands it its inputs: steps (J, 3, B, T), root and forward (3, B, T), each limb's hold w (L, B, T)
+    and goal (L, 3, B, T), the trunk's and the feet's joints in order, each limb's bend side (L,),
+    rest direction (L, 3), the body's lengths (J,)) -> the body (J, 3, B, T); None where the kernel
+    does not run."""
+    b, t = steps.shape[2:]
+    if (steps.device.type != "cpu" or steps.dtype not in (torch.float32, torch.float64) or steps.requires_grad
+            or b * t < MIN_FUSED_FRAMES):
+        return None
+    module = motion_kernels()
+    if module is None:
+        return None
+    long = functools.partial(torch.tensor, dtype=torch.long)
+    parents = long([max(p, 0) for p in skel.parents])
+    return module.place_body(steps.contiguous(), root.contiguous(), forward.contiguous(), w.contiguous(),
+                             goal.contiguous(), parents, long(trunk), long([list(limb) for limb in skel.ik_limbs]),
+                             side.contiguous(), rest.contiguous(), lengths.contiguous(), long(beyond))
+
+
+__all__ = ["MIN_FUSED_FRAMES", "finish_rows", "place_body"]

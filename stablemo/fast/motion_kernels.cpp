@@ -171,9 +171,108 @@ torch::Tensor finish_rows(torch::Tensor x, torch::Tensor r, torch::Tensor lead, 
   return out;
 }
 
+// place_body: the rigid rebuild's placement (stablemo.motion.rigid.rigid_joint_major, after the
+// directions and the root's height): per frame, the trunk from its parents by the precomputed steps,
+// each two-bone limb pulled towards its goal (rigid.two_bone's expressions in its order), then the
+// joints past the limbs' ends. In PyTorch these are ~190 small operations on (3, B, T) blocks.
+template <typename S>
+void place_frame(const S* steps, const S* root, const S* forward, const S* w, const S* goal, const int64_t* parent,
+                 const int64_t* trunk, int64_t nt, const int64_t* limb, const S* side, const S* rest, const S* len,
+                 int64_t nl, const int64_t* beyond, int64_t nb, int64_t J, int64_t BT, int64_t e, S* out) {
+  const S eps = S(1e-9);
+  auto step = [&](int64_t j, int64_t c) { return steps[(j * 3 + c) * BT + e]; };
+  S P[64][3];
+  for (int c = 0; c < 3; ++c) P[0][c] = root[c * BT + e];
+  for (int64_t k = 0; k < nt; ++k) {
+    const int64_t j = trunk[k], p = parent[j];
+    for (int c = 0; c < 3; ++c) P[j][c] = P[p][c] + step(j, c);
+  }
+  for (int64_t l = 0; l < nl; ++l) {
+    const int64_t up = limb[l * 3], mid = limb[l * 3 + 1], end = limb[l * 3 + 2];
+    const S l1 = len[mid], l2 = len[end], wl = w[l * BT + e];
+    S upper[3], middle[3], target[3], fb[3];
+    for (int c = 0; c < 3; ++c) {
+      upper[c] = P[up][c];
+      middle[c] = upper[c] + step(mid, c);
+      const S kept = middle[c] + step(end, c);
+      target[c] = kept + wl * (goal[(l * 3 + c) * BT + e] - kept);
+      fb[c] = side[l] * forward[c * BT + e];
+    }
+    // two_bone
+    S v[3], aim[3];
+    for (int c = 0; c < 3; ++c) v[c] = target[c] - upper[c];
+    const S dist = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    const S dcl = dist < eps ? eps : dist;
+    for (int c = 0; c < 3; ++c) aim[c] = dist > eps ? v[c] / dcl : rest[l * 3 + c];
+    const S lo = std::abs(l1 - l2) + S(1e-6), hi = l1 + l2;
+    const S d = std::min(std::max(dist, lo), hi);
+    S tp[3], bend[3], alt[3];
+    for (int c = 0; c < 3; ++c) tp[c] = middle[c] - upper[c];
+    const S dp = tp[0] * aim[0] + tp[1] * aim[1] + tp[2] * aim[2];
+    for (int c = 0; c < 3; ++c) bend[c] = tp[c] - dp * aim[c];
+    const S across = std::sqrt(bend[0] * bend[0] + bend[1] * bend[1] + bend[2] * bend[2]);
+    const S acl = across < eps ? eps : across;
+    const S df = fb[0] * aim[0] + fb[1] * aim[1] + fb[2] * aim[2];
+    for (int c = 0; c < 3; ++c) alt[c] = fb[c] - df * aim[c];
+    const S an = std::sqrt(alt[0] * alt[0] + alt[1] * alt[1] + alt[2] * alt[2]);
+    const S ancl = an < eps ? eps : an;
+    const bool use_bend = across > S(1e-4) * l1;
+    for (int c = 0; c < 3; ++c) bend[c] = use_bend ? bend[c] / acl : alt[c] / ancl;
+    S cos_a = (l1 * l1 + d * d - l2 * l2) / (S(2) * l1 * d);
+    cos_a = std::min(std::max(cos_a, S(-1)), S(1));
+    S sin2 = S(1) - cos_a * cos_a;
+    const S sin_a = std::sqrt(sin2 < S(0) ? S(0) : sin2);
+    for (int c = 0; c < 3; ++c) {
+      P[mid][c] = upper[c] + l1 * (cos_a * aim[c] + sin_a * bend[c]);
+      P[end][c] = upper[c] + d * aim[c];
+    }
+  }
+  for (int64_t k = 0; k < nb; ++k) {
+    const int64_t j = beyond[k], p = parent[j];
+    for (int c = 0; c < 3; ++c) P[j][c] = P[p][c] + step(j, c);
+  }
+  for (int64_t j = 0; j < J; ++j)
+    for (int c = 0; c < 3; ++c) out[(j * 3 + c) * BT + e] = P[j][c];
+}
+
+torch::Tensor place_body(torch::Tensor steps, torch::Tensor root, torch::Tensor forward, torch::Tensor w,
+                         torch::Tensor goal, torch::Tensor parent, torch::Tensor trunk, torch::Tensor limb,
+                         torch::Tensor side, torch::Tensor rest, torch::Tensor len, torch::Tensor beyond) {
+  TORCH_CHECK(steps.dim() == 4 && steps.size(1) == 3 && steps.is_contiguous() && steps.device().is_cpu() &&
+                  steps.size(0) <= 64,
+              "place_body: steps must be a contiguous (J, 3, B, T) CPU tensor, J <= 64");
+  const int64_t J = steps.size(0), B = steps.size(2), T = steps.size(3), BT = B * T, L = limb.size(0);
+  for (const auto& t : {root, forward, w, goal, side, rest, len})
+    TORCH_CHECK(t.is_contiguous() && t.scalar_type() == steps.scalar_type(), "place_body: inputs of steps' dtype");
+  for (const auto& t : {parent, trunk, limb, beyond})
+    TORCH_CHECK(t.is_contiguous() && t.scalar_type() == torch::kLong, "place_body: index tables must be long");
+  TORCH_CHECK(root.numel() == 3 * BT && forward.numel() == 3 * BT && w.numel() == L * BT && goal.numel() == L * 3 * BT &&
+                  parent.numel() == J && limb.dim() == 2 && limb.size(1) == 3 && side.numel() == L &&
+                  rest.numel() == L * 3 && len.numel() == J,
+              "place_body: inputs of the wrong size");
+  auto out = torch::empty_like(steps);
+  AT_DISPATCH_FLOATING_TYPES(steps.scalar_type(), "place_body", [&] {
+    const scalar_t *sp = steps.data_ptr<scalar_t>(), *rp = root.data_ptr<scalar_t>(), *fp = forward.data_ptr<scalar_t>();
+    const scalar_t *wp = w.data_ptr<scalar_t>(), *gp = goal.data_ptr<scalar_t>(), *sidep = side.data_ptr<scalar_t>();
+    const scalar_t *restp = rest.data_ptr<scalar_t>(), *lenp = len.data_ptr<scalar_t>();
+    const int64_t *pp = parent.data_ptr<int64_t>(), *tp = trunk.data_ptr<int64_t>(), *lp = limb.data_ptr<int64_t>();
+    const int64_t* bp = beyond.data_ptr<int64_t>();
+    scalar_t* op = out.data_ptr<scalar_t>();
+    at::parallel_for(0, BT, 256, [&](int64_t begin, int64_t end) {
+      for (int64_t e = begin; e < end; ++e)
+        place_frame<scalar_t>(sp, rp, fp, wp, gp, pp, tp, trunk.numel(), lp, sidep, restp, lenp, L, bp,
+                              beyond.numel(), J, BT, e, op);
+    });
+  });
+  return out;
+}
+
 }  // namespace
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  m.def("place_body", &place_body, "the rigid rebuild's placement of trunk, limbs (two-bone IK) and feet, one pass",
+        py::arg("steps"), py::arg("root"), py::arg("forward"), py::arg("w"), py::arg("goal"), py::arg("parent"),
+        py::arg("trunk"), py::arg("limb"), py::arg("side"), py::arg("rest"), py::arg("len"), py::arg("beyond"));
   m.def("finish_rows", &finish_rows, "lead columns, body columns and recovered joints of the finishing step, one pass",
         py::arg("x"), py::arg("r"), py::arg("lead"), py::arg("n"), py::arg("root"), py::arg("parent"), py::arg("raw"),
         py::arg("before"), py::arg("contact"), py::arg("threshold"), py::arg("joints"));

@@ -101,7 +101,8 @@ class Finish:
         hold = self.hold(joints, held, contacts)
         given = None if given is None else fill_padding(given.to(joints.device), n)
         x = joints.permute(2, 3, 0, 1).contiguous()  # (J, 3, B, T)
-        body = rigid_joint_major(x, self.skeleton, self.bone_lengths, n, hold, self.anchored(x, hold, n, given))
+        body = rigid_joint_major(x, self.skeleton, self.bone_lengths, n, hold, self.anchored(x, hold, n, given),
+                                 place=fast_motion.place_body)
         heights = body[:, 1]  # (J, B, T)
         pins = pinned = None
         if control is not None:

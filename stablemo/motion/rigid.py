@@ -142,9 +142,12 @@ def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
 
 
 def rigid_joint_major(x: torch.Tensor, skeleton: Skeleton | str, bone_lengths=None, lengths=None,
-                      hold: torch.Tensor | None = None, ends: torch.Tensor | None = None) -> torch.Tensor:
+                      hold: torch.Tensor | None = None, ends: torch.Tensor | None = None,
+                      place=None) -> torch.Tensor:
     """rigid_joints on joint-major joints x (J, 3, B, T) -> the body (J, 3, B, T); ends (J, 3, B, T)
-    joint-major too, hold (B, T, J) as there.
+    joint-major too, hold (B, T, J) as there. place: a compiled twin of the per-frame placement below
+    (trunk, limbs, feet; stablemo.fast.motion.place_body, which the finishing step hands in), called
+    with its inputs and returning the body or None (then PyTorch places it).
 
     Joint-major, each joint's x, y and z are one contiguous block, so the many small steps of the
     rebuild (a few per bone) are vectorised passes; on (B, T, J, 3) every one strode over the
@@ -192,26 +195,34 @@ def rigid_joint_major(x: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
             if parent in ends_at or parent in beyond:
                 beyond.add(child)
     order = [c for chain in skel.kinematic_chains for c in chain[1:]]
-    for child in order:  # the trunk: its generated directions at the body's lengths
-        if child not in limbs and child not in beyond:
-            torch.add(out[skel.parents[child]], steps[child], out=out[child])
+    trunk = [c for c in order if c not in limbs and c not in beyond]
+    beyond = [c for c in order if c in beyond]
+    forward = _facing(x, skel)
+    # knees bend forward, elbows backward, where the generated limb is straight
+    side = torch.tensor([1.0 if e in legs else -1.0 for e in ends_at], dtype=x.dtype, device=x.device)
+    if hold is None:
+        w = torch.tensor([float(e in legs) for e in ends_at], dtype=x.dtype, device=x.device)[:, None, None]
+        w = w.expand(len(ends_at), b, t)
+    else:
+        w = torch.as_tensor(hold).to(x)[..., ends_at].permute(2, 0, 1)  # (L, B, T)
+    goal = (x if ends is None else ends)[ends_at]  # (L, 3, B, T)
+    placed = None if place is None else place(steps, out[0], forward, w, goal, skel, trunk, beyond, side,
+                                              raw_dir[mids, :, 0, 0], lengths_j[:, 0, 0, 0])
+    if placed is not None:
+        return placed
 
+    for child in trunk:  # the trunk: its generated directions at the body's lengths
+        torch.add(out[skel.parents[child]], steps[child], out=out[child])
     # each limb with its generated angles, then pulled by two-bone IK towards its end's goal as
     # firmly as `hold` says; one limb at a time: a (3, B, T) block stays under PyTorch's size for
     # splitting an operation across threads, whose every split waits for a second core
-    forward = _facing(x, skel)
-    for upper, mid, end in skel.ik_limbs:
+    for i, (upper, mid, end) in enumerate(skel.ik_limbs):
         middle = out[upper] + steps[mid]
         kept = middle + steps[end]
-        w = float(end in legs) if hold is None else torch.as_tensor(hold)[..., end].to(x)[None]  # (1, B, T)
-        goal = (x if ends is None else ends)[end]
-        # knees bend forward, elbows backward, where the generated limb is straight
-        bend = forward if end in legs else -forward
-        out[mid], out[end] = two_bone(out[upper], kept + w * (goal - kept), middle, bend, raw_dir[mid],
-                                      lengths_j[mid], lengths_j[end], dim=0)
-    for child in order:
-        if child in beyond:
-            torch.add(out[skel.parents[child]], steps[child], out=out[child])
+        out[mid], out[end] = two_bone(out[upper], kept + w[i, None] * (goal[i] - kept), middle, side[i] * forward,
+                                      raw_dir[mid], lengths_j[mid], lengths_j[end], dim=0)
+    for child in beyond:
+        torch.add(out[skel.parents[child]], steps[child], out=out[child])
     return out
 
 
