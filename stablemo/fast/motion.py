@@ -54,26 +54,32 @@ def finish_rows(x: torch.Tensor, r: torch.Tensor, lead: torch.Tensor, n: torch.T
     return feats, joints
 
 
-def place_body(steps: torch.Tensor, root: torch.Tensor, forward: torch.Tensor, w: torch.Tensor, goal: torch.Tensor,
-               skel: Skeleton, trunk: list[int], beyond: list[int], side: torch.Tensor, rest: torch.Tensor,
-               lengths: torch.Tensor) -> torch.Tensor | None:
-    """The rigid rebuild's per-frame placement in one compiled pass (stablemo.motion.rigid.rigid_joint_major
-    hands it its inputs: steps (J, 3, B, T), root and forward (3, B, T), each limb's hold w (L, B, T)
-    and goal (L, 3, B, T), the trunk's and the feet's joints in order, each limb's bend side (L,),
-    rest direction (L, 3), the body's lengths (J,)) -> the body (J, 3, B, T); None where the kernel
-    does not run."""
-    b, t = steps.shape[2:]
-    if (steps.device.type != "cpu" or steps.dtype not in (torch.float32, torch.float64) or steps.requires_grad
+def place_body(x: torch.Tensor, turned: dict[int, torch.Tensor], root: torch.Tensor, forward: torch.Tensor,
+               w: torch.Tensor, goal: torch.Tensor, skel: Skeleton, trunk: list[int], beyond: list[int],
+               side: torch.Tensor, raw: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor | None:
+    """The rigid rebuild's per-frame steps in one compiled pass (stablemo.motion.rigid.rigid_joint_major
+    hands it its inputs: joints x (J, 3, B, T), the branching joints' children's turned directions
+    {joint: (3, B, T)}, root and forward (3, B, T), each limb's hold w (L, B, T) and goal
+    (L, 3, B, T), the trunk's and the feet's joints in order, each limb's bend side (L,), the rest
+    directions (J, 3), the body's lengths (J,)) -> the body (J, 3, B, T); None where the kernel does
+    not run."""
+    j, _, b, t = x.shape
+    if (x.device.type != "cpu" or x.dtype not in (torch.float32, torch.float64) or x.requires_grad
             or b * t < MIN_FUSED_FRAMES):
         return None
     module = motion_kernels()
     if module is None:
         return None
     long = functools.partial(torch.tensor, dtype=torch.long)
-    parents = long([max(p, 0) for p in skel.parents])
-    return module.place_body(steps.contiguous(), root.contiguous(), forward.contiguous(), w.contiguous(),
-                             goal.contiguous(), parents, long(trunk), long([list(limb) for limb in skel.ik_limbs]),
-                             side.contiguous(), rest.contiguous(), lengths.contiguous(), long(beyond))
+    kids = sorted(turned)
+    turned_of = long([kids.index(c) if c in turned else -1 for c in range(j)])
+    stacked = torch.stack([turned[c] for c in kids]) if kids else x.new_zeros(0, 3, b, t)
+    mids = [mid for _, mid, _ in skel.ik_limbs]
+    return module.place_body(x.contiguous(), stacked.contiguous(), turned_of, raw.contiguous(), root.contiguous(),
+                             forward.contiguous(), w.contiguous(), goal.contiguous(),
+                             long([max(p, 0) for p in skel.parents]), long(trunk),
+                             long([list(limb) for limb in skel.ik_limbs]), side.contiguous(),
+                             raw[mids].contiguous(), lengths.contiguous(), long(beyond))
 
 
 __all__ = ["MIN_FUSED_FRAMES", "finish_rows", "place_body"]

@@ -172,15 +172,32 @@ torch::Tensor finish_rows(torch::Tensor x, torch::Tensor r, torch::Tensor lead, 
 }
 
 // place_body: the rigid rebuild's placement (stablemo.motion.rigid.rigid_joint_major, after the
-// directions and the root's height): per frame, the trunk from its parents by the precomputed steps,
+// branching joints' shapes and the root's height): per frame, every bone's step (the body's length
+// along its generated direction, or a branching joint's turned shape), the trunk from its parents,
 // each two-bone limb pulled towards its goal (rigid.two_bone's expressions in its order), then the
-// joints past the limbs' ends. In PyTorch these are ~190 small operations on (3, B, T) blocks.
+// joints past the limbs' ends. In PyTorch these are ~200 operations, a few on all joints at once.
 template <typename S>
-void place_frame(const S* steps, const S* root, const S* forward, const S* w, const S* goal, const int64_t* parent,
-                 const int64_t* trunk, int64_t nt, const int64_t* limb, const S* side, const S* rest, const S* len,
-                 int64_t nl, const int64_t* beyond, int64_t nb, int64_t J, int64_t BT, int64_t e, S* out) {
+void place_frame(const S* x, const S* turned, const int64_t* turned_of, const S* raw, const S* root, const S* forward,
+                 const S* w, const S* goal, const int64_t* parent, const int64_t* trunk, int64_t nt,
+                 const int64_t* limb, const S* side, const S* rest, const S* len, int64_t nl, const int64_t* beyond,
+                 int64_t nb, int64_t J, int64_t BT, int64_t e, S* out) {
   const S eps = S(1e-9);
-  auto step = [&](int64_t j, int64_t c) { return steps[(j * 3 + c) * BT + e]; };
+  S ST[64][3];
+  for (int64_t j = 1; j < J; ++j) {  // rigid._unit of the bone, its rest direction where it has none
+    S d[3];
+    if (turned_of[j] >= 0) {
+      for (int c = 0; c < 3; ++c) d[c] = turned[(turned_of[j] * 3 + c) * BT + e];
+    } else {
+      const int64_t p = parent[j];
+      S v[3];
+      for (int c = 0; c < 3; ++c) v[c] = x[(j * 3 + c) * BT + e] - x[(p * 3 + c) * BT + e];
+      const S size = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+      const S sc = size < eps ? eps : size;
+      for (int c = 0; c < 3; ++c) d[c] = size > eps ? v[c] / sc : raw[j * 3 + c];
+    }
+    for (int c = 0; c < 3; ++c) ST[j][c] = len[j] * d[c];
+  }
+  auto step = [&](int64_t j, int64_t c) { return ST[j][c]; };
   S P[64][3];
   for (int c = 0; c < 3; ++c) P[0][c] = root[c * BT + e];
   for (int64_t k = 0; k < nt; ++k) {
@@ -235,24 +252,29 @@ void place_frame(const S* steps, const S* root, const S* forward, const S* w, co
     for (int c = 0; c < 3; ++c) out[(j * 3 + c) * BT + e] = P[j][c];
 }
 
-torch::Tensor place_body(torch::Tensor steps, torch::Tensor root, torch::Tensor forward, torch::Tensor w,
-                         torch::Tensor goal, torch::Tensor parent, torch::Tensor trunk, torch::Tensor limb,
-                         torch::Tensor side, torch::Tensor rest, torch::Tensor len, torch::Tensor beyond) {
-  TORCH_CHECK(steps.dim() == 4 && steps.size(1) == 3 && steps.is_contiguous() && steps.device().is_cpu() &&
-                  steps.size(0) <= 64,
-              "place_body: steps must be a contiguous (J, 3, B, T) CPU tensor, J <= 64");
-  const int64_t J = steps.size(0), B = steps.size(2), T = steps.size(3), BT = B * T, L = limb.size(0);
-  for (const auto& t : {root, forward, w, goal, side, rest, len})
-    TORCH_CHECK(t.is_contiguous() && t.scalar_type() == steps.scalar_type(), "place_body: inputs of steps' dtype");
-  for (const auto& t : {parent, trunk, limb, beyond})
+torch::Tensor place_body(torch::Tensor x, torch::Tensor turned, torch::Tensor turned_of, torch::Tensor raw,
+                         torch::Tensor root, torch::Tensor forward, torch::Tensor w, torch::Tensor goal,
+                         torch::Tensor parent, torch::Tensor trunk, torch::Tensor limb, torch::Tensor side,
+                         torch::Tensor rest, torch::Tensor len, torch::Tensor beyond) {
+  TORCH_CHECK(x.dim() == 4 && x.size(1) == 3 && x.is_contiguous() && x.device().is_cpu() && x.size(0) <= 64,
+              "place_body: x must be a contiguous (J, 3, B, T) CPU tensor, J <= 64");
+  const int64_t J = x.size(0), B = x.size(2), T = x.size(3), BT = B * T, L = limb.size(0);
+  for (const auto& t : {turned, raw, root, forward, w, goal, side, rest, len})
+    TORCH_CHECK(t.is_contiguous() && t.scalar_type() == x.scalar_type(), "place_body: inputs of x's dtype");
+  for (const auto& t : {turned_of, parent, trunk, limb, beyond})
     TORCH_CHECK(t.is_contiguous() && t.scalar_type() == torch::kLong, "place_body: index tables must be long");
   TORCH_CHECK(root.numel() == 3 * BT && forward.numel() == 3 * BT && w.numel() == L * BT && goal.numel() == L * 3 * BT &&
-                  parent.numel() == J && limb.dim() == 2 && limb.size(1) == 3 && side.numel() == L &&
-                  rest.numel() == L * 3 && len.numel() == J,
+                  parent.numel() == J && turned_of.numel() == J && raw.numel() == J * 3 && limb.dim() == 2 &&
+                  limb.size(1) == 3 && side.numel() == L && rest.numel() == L * 3 && len.numel() == J &&
+                  turned.numel() % (3 * BT) == 0,
               "place_body: inputs of the wrong size");
-  auto out = torch::empty_like(steps);
-  AT_DISPATCH_FLOATING_TYPES(steps.scalar_type(), "place_body", [&] {
-    const scalar_t *sp = steps.data_ptr<scalar_t>(), *rp = root.data_ptr<scalar_t>(), *fp = forward.data_ptr<scalar_t>();
+  const int64_t* to = turned_of.data_ptr<int64_t>();
+  for (int64_t j = 0; j < J; ++j)
+    TORCH_CHECK(to[j] < turned.numel() / (3 * BT), "place_body: turned_of points past turned");
+  auto out = torch::empty_like(x);
+  AT_DISPATCH_FLOATING_TYPES(x.scalar_type(), "place_body", [&] {
+    const scalar_t *xp = x.data_ptr<scalar_t>(), *tdp = turned.data_ptr<scalar_t>(), *rawp = raw.data_ptr<scalar_t>();
+    const scalar_t *rp = root.data_ptr<scalar_t>(), *fp = forward.data_ptr<scalar_t>();
     const scalar_t *wp = w.data_ptr<scalar_t>(), *gp = goal.data_ptr<scalar_t>(), *sidep = side.data_ptr<scalar_t>();
     const scalar_t *restp = rest.data_ptr<scalar_t>(), *lenp = len.data_ptr<scalar_t>();
     const int64_t *pp = parent.data_ptr<int64_t>(), *tp = trunk.data_ptr<int64_t>(), *lp = limb.data_ptr<int64_t>();
@@ -260,7 +282,7 @@ torch::Tensor place_body(torch::Tensor steps, torch::Tensor root, torch::Tensor 
     scalar_t* op = out.data_ptr<scalar_t>();
     at::parallel_for(0, BT, 256, [&](int64_t begin, int64_t end) {
       for (int64_t e = begin; e < end; ++e)
-        place_frame<scalar_t>(sp, rp, fp, wp, gp, pp, tp, trunk.numel(), lp, sidep, restp, lenp, L, bp,
+        place_frame<scalar_t>(xp, tdp, to, rawp, rp, fp, wp, gp, pp, tp, trunk.numel(), lp, sidep, restp, lenp, L, bp,
                               beyond.numel(), J, BT, e, op);
     });
   });
@@ -271,8 +293,9 @@ torch::Tensor place_body(torch::Tensor steps, torch::Tensor root, torch::Tensor 
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("place_body", &place_body, "the rigid rebuild's placement of trunk, limbs (two-bone IK) and feet, one pass",
-        py::arg("steps"), py::arg("root"), py::arg("forward"), py::arg("w"), py::arg("goal"), py::arg("parent"),
-        py::arg("trunk"), py::arg("limb"), py::arg("side"), py::arg("rest"), py::arg("len"), py::arg("beyond"));
+        py::arg("x"), py::arg("turned"), py::arg("turned_of"), py::arg("raw"), py::arg("root"), py::arg("forward"),
+        py::arg("w"), py::arg("goal"), py::arg("parent"), py::arg("trunk"), py::arg("limb"), py::arg("side"),
+        py::arg("rest"), py::arg("len"), py::arg("beyond"));
   m.def("finish_rows", &finish_rows, "lead columns, body columns and recovered joints of the finishing step, one pass",
         py::arg("x"), py::arg("r"), py::arg("lead"), py::arg("n"), py::arg("root"), py::arg("parent"), py::arg("raw"),
         py::arg("before"), py::arg("contact"), py::arg("threshold"), py::arg("joints"));

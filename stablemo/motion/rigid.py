@@ -145,9 +145,9 @@ def rigid_joint_major(x: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
                       hold: torch.Tensor | None = None, ends: torch.Tensor | None = None,
                       place=None) -> torch.Tensor:
     """rigid_joints on joint-major joints x (J, 3, B, T) -> the body (J, 3, B, T); ends (J, 3, B, T)
-    joint-major too, hold (B, T, J) as there. place: a compiled twin of the per-frame placement below
-    (trunk, limbs, feet; stablemo.fast.motion.place_body, which the finishing step hands in), called
-    with its inputs and returning the body or None (then PyTorch places it).
+    joint-major too, hold (B, T, J) as there. place: a compiled twin of the per-frame steps below
+    (every bone's step, then trunk, limbs, feet; stablemo.fast.motion.place_body, which the finishing
+    step hands in), called with its inputs and returning the body or None (then PyTorch places it).
 
     Joint-major, each joint's x, y and z are one contiguous block, so the many small steps of the
     rebuild (a few per bone) are vectorised passes; on (B, T, J, 3) every one strode over the
@@ -166,27 +166,37 @@ def rigid_joint_major(x: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
     raw_dir = torch.tensor(np.array(skel.raw_offsets), dtype=x.dtype, device=x.device)[..., None, None]  # (J, 3, 1, 1)
     lengths_j = torch.tensor(body, dtype=x.dtype, device=x.device)[:, None, None, None]  # (J, 1, 1, 1)
 
-    # every bone's generated direction, a branching joint's children its fixed shape turned with its
-    # frame; times the body's lengths, the step (J, 3, B, T) from each joint's parent (row 0 unused)
-    direction, size = _unit(x - x[[0, *skel.parents[1:]]], 1)
-    if x.is_cuda or bool((size[1:] <= _EPS).any()):  # a zero bone takes its rest direction (a CPU check is free)
-        direction = torch.where(size > _EPS, direction, raw_dir)
-    for child, turned in _branch_directions(x, skel, valid).items():
-        direction[child] = turned
-    steps = lengths_j * direction
+    turned = _branch_directions(x, skel, valid)  # a branching joint's children: its shape, turned
 
-    # the hips from the generated root first (the leg's reach sets the root's height)
-    hips: list[torch.Tensor | None] = [None] * j
-    hips[0] = x[0]
+    def directions(joints: list[int]) -> torch.Tensor:
+        """Each joint's bone direction (K, 3, B, T): its generated one (its rest direction where the bone
+        has none; a CPU check is free), or its branching parent's turned shape."""
+        direction, size = _unit(x[joints] - x[[skel.parents[c] for c in joints]], 1)
+        if x.is_cuda or bool((size <= _EPS).any()):
+            direction = torch.where(size > _EPS, direction, raw_dir[joints])
+        for k, c in enumerate(joints):
+            if c in turned:
+                direction[k] = turned[c]
+        return direction
+
+    # the hips from the generated root first (the leg's reach sets the root's height), with the legs'
+    # own bone directions
+    paths = []
     for upper in (u for u, _, e in skel.ik_limbs if e in legs):
         path = [upper]
         while skel.parents[path[-1]] != 0:
             path.append(skel.parents[path[-1]])
-        for joint in reversed(path):
-            hips[joint] = hips[skel.parents[joint]] + steps[joint]
+        paths.append(path[::-1])
+    few = sorted({c for path in paths for c in path} | {c for _, m, e in skel.legs.values() for c in (m, e)})
+    some = dict(zip(few, directions(few).unbind(0)))
+    hips: list[torch.Tensor | None] = [None] * j
+    hips[0] = x[0]
+    for path in paths:
+        for joint in path:
+            hips[joint] = hips[skel.parents[joint]] + lengths_j[joint] * some[joint]
     out = torch.empty_like(x)  # (J, 3, B, T), filled parents before children
     out[0] = x[0]
-    out[0, 1] += _leg_drop(hips, x, direction, skel, body, valid)  # the root moves vertically only
+    out[0, 1] += _leg_drop(hips, x, some, skel, body, valid)  # the root moves vertically only
 
     limbs = set(mids) | set(ends_at)
     beyond = set()  # joints past a limb's end (the feet), placed from the end the IK gives
@@ -206,10 +216,13 @@ def rigid_joint_major(x: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
     else:
         w = torch.as_tensor(hold).to(x)[..., ends_at].permute(2, 0, 1)  # (L, B, T)
     goal = (x if ends is None else ends)[ends_at]  # (L, 3, B, T)
-    placed = None if place is None else place(steps, out[0], forward, w, goal, skel, trunk, beyond, side,
-                                              raw_dir[mids, :, 0, 0], lengths_j[:, 0, 0, 0])
+    placed = None if place is None else place(x, turned, out[0], forward, w, goal, skel, trunk, beyond, side,
+                                              raw_dir[:, :, 0, 0], lengths_j[:, 0, 0, 0])
     if placed is not None:
         return placed
+
+    # every joint's step from its parent (J, 3, B, T), the body's length along its direction (row 0 unused)
+    steps = lengths_j * torch.cat([torch.zeros_like(x[:1]), directions(list(range(1, j)))])
 
     for child in trunk:  # the trunk: its generated directions at the body's lengths
         torch.add(out[skel.parents[child]], steps[child], out=out[child])
@@ -238,8 +251,8 @@ def _facing(x: torch.Tensor, skel: Skeleton) -> torch.Tensor:
 def _leg_drop(placed: list, x: torch.Tensor, directions: list, skel: Skeleton, body: np.ndarray,
               valid: torch.Tensor) -> torch.Tensor:
     """How far (B, T) to move the root up or down so that the supporting leg reaches its foot with
-    the knee bent as generated; x (J, 3, B, T), placed per joint (3, B, T), directions (J, 3, B, T)
-    the generated bones'.
+    the knee bent as generated; x (J, 3, B, T), placed per joint (3, B, T), directions {joint: (3, B, T)}
+    the legs' generated bones'.
 
     A denoiser changes leg lengths (shins of 0.37 to 0.62 m instead of 0.43), so a leg of the body's
     length that reached the generated ankle from the generated hip height would bend its knee more or
