@@ -101,6 +101,11 @@ def test_small_batches_never_build_the_kernel(monkeypatch):
     assert x.shape[2] * x.shape[3] < fast_motion.MIN_FUSED_FRAMES
     lead, root = torch.zeros(1, 195, 3), torch.zeros(1, 195, 3)
     assert fast_motion.finish_rows(x, r, lead, torch.tensor([195]), root, HUMANML3D) is None  # PyTorch's turn
+    # the whole step on one prompt: neither compiled pass is asked for
+    feats = torch.from_numpy(joints_to_features(x[..., 0, :].permute(2, 0, 1).double().numpy(), "humanml3d",
+                                                refit=False)).float()[None]
+    out_f, out_j = Finish.from_config({}, "humanml3d", 20.0)(feats, [feats.shape[1]])
+    assert torch.isfinite(out_f).all() and torch.isfinite(out_j).all()
 
 
 @pytest.mark.parametrize("skel", [HUMANML3D, KIT], ids=["humanml3d", "kit"])
