@@ -33,6 +33,16 @@ def _tables(skel: Skeleton, dtype: torch.dtype) -> tuple[torch.Tensor, ...]:
     return parents, raw, before, torch.tensor(list(skel.contact_joints), dtype=torch.long)
 
 
+def _kernels_for(x: torch.Tensor, frames: int):
+    """The compiled motion passes for joints x, or None where they do not run: off the CPU, another
+    dtype, recording autograd, fewer than MIN_FUSED_FRAMES frames (a single prompt never builds
+    them), or no compiler."""
+    if (x.device.type != "cpu" or x.dtype not in (torch.float32, torch.float64) or x.requires_grad
+            or frames < MIN_FUSED_FRAMES):
+        return None
+    return motion_kernels()
+
+
 def finish_rows(x: torch.Tensor, r: torch.Tensor, lead: torch.Tensor, n: torch.Tensor, root: torch.Tensor,
                 skeleton: Skeleton | str) -> tuple[torch.Tensor, torch.Tensor] | None:
     """(features (B, T-1, L + D-3), joints (B, T-1, J, 3)), zero from frame n[b] on, of joint-major
@@ -41,10 +51,7 @@ def finish_rows(x: torch.Tensor, r: torch.Tensor, lead: torch.Tensor, n: torch.T
     (B, T-1, 3) (recover_root's; the height is the body's); None where the kernel does not run."""
     skel = get_skeleton(skeleton)
     b, t = x.shape[2:]
-    if (x.device.type != "cpu" or x.dtype not in (torch.float32, torch.float64) or x.requires_grad
-            or b * t < MIN_FUSED_FRAMES):
-        return None
-    module = motion_kernels()
+    module = _kernels_for(x, b * t)
     if module is None:
         return None
     joints = x.new_empty(b, t - 1, skel.num_joints, 3)
@@ -64,10 +71,7 @@ def place_body(x: torch.Tensor, turned: dict[int, torch.Tensor], root: torch.Ten
     directions (J, 3), the body's lengths (J,)) -> the body (J, 3, B, T); None where the kernel does
     not run."""
     j, _, b, t = x.shape
-    if (x.device.type != "cpu" or x.dtype not in (torch.float32, torch.float64) or x.requires_grad
-            or b * t < MIN_FUSED_FRAMES):
-        return None
-    module = motion_kernels()
+    module = _kernels_for(x, b * t)
     if module is None:
         return None
     long = functools.partial(torch.tensor, dtype=torch.long)
