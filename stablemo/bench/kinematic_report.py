@@ -28,7 +28,7 @@ from stablemo.eval.evaluate import embed_motions, embed_texts, generation_output
 # docs/results.md's section on these measures (scripts/results/make_results.py renders it before the
 # joint-control sections); the table of this report joins it once the finishing step has landed
 RESULTS_SECTION = """
-## Kinematic measures (issue #39)
+## Kinematic measures: a rigid body on the floor
 
 FID and R-precision do not see whether a generated motion keeps one rigid body standing on the floor.
 `stablemo evaluate` reports beside them, for the real motions, for the network's raw output (rows
@@ -38,7 +38,7 @@ of frames more than 1 cm below the floor, the stance foot's median height (cm) a
 (cm/s, skating), foot acceleration (m/s²) and the share of airborne frames. Definitions, the contact
 rule and the values measured on ground-truth motions: docs/evaluation.md ("Kinematic measures").
 `python scripts/results/kinematic_report.py --summary docs/data/results/kinematics.json` measures
-issue #39's targets on the demo teacher and the 1-step student (72 prompts x 4 seeds, 120 and 196
+the kinematic targets on the demo teacher and the 1-step student (72 prompts x 4 seeds, 120 and 196
 frames, raw against final) and keeps the table below.
 """
 SUMMARY_FILE = Path(__file__).resolve().parents[2] / "docs" / "data" / "results" / "kinematics.json"

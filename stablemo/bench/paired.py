@@ -1,4 +1,4 @@
-"""Paired training-step benchmark (`stablemo bench train --paired`, issue #28).
+"""Paired training-step benchmark (`stablemo bench train --paired`).
 
 One process builds the config's denoiser several ways with the same weights and runs their
 training steps in rounds, one step of each row per round (the order rotating), so that a machine

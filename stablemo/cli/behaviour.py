@@ -1,4 +1,4 @@
-"""`stablemo behaviour`: does each motion do what its prompt says? (issue #40)
+"""`stablemo behaviour`: does each motion do what its prompt says?
 
     stablemo behaviour [--bundle DIR] [--seeds 4] [--lengths default natural 9.8] [--out results.json]
     stablemo behaviour --ground-truth            # the checks on the synthetic generator's own motions

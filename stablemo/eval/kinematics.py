@@ -1,4 +1,4 @@
-"""Kinematic measures of motions: what the eye sees and FID does not (issue #39).
+"""Kinematic measures of motions: what the eye sees and FID does not.
 
 Every measure takes global joint positions `joints` (B, T, J, 3) in the skeleton's units (y up, floor
 at y = 0; HumanML3D metres, KIT-ML millimetres), `lengths` (B,) valid frames per motion (padding is

@@ -1,4 +1,4 @@
-"""Training speed-ups that change no gradient beyond float rounding (issue #28).
+"""Training speed-ups that change no gradient beyond float rounding.
 
 Profiled on the paper UNet (batch 8 x 196, one CPU thread, docs/training.md), the stock training
 step spends ~48 % of its time in oneDNN's convolution backward (3.2x its forward for the same

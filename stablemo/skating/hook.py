@@ -17,7 +17,7 @@ import torch
 from stablemo.diffusion.hooks import AtSteps, StepState
 
 # Correct x0 at the last step only. Demo model, 8 prompts x 120 frames, 10 SDE steps, gated vGRF
-# contacts (issue #22): skating ratio 0.267 plain -> 0.025 (last step) / 0.026 (last two) / 0.022
+# contacts: skating ratio 0.267 plain -> 0.025 (last step) / 0.026 (last two) / 0.022
 # (last four), feet's mean acceleration 7.17 -> 5.07 / 6.50 / 8.46 m/s². After every hooked step
 # but the last, the model's next x0 reacts to the edit with jitter (7.3 -> 9.7 -> 10.7 -> 12.1 m/s²
 # before each of four hooks) that the cleanup does not fully take out (docs/footskate.md).

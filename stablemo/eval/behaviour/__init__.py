@@ -1,4 +1,4 @@
-"""The behaviour suite (issue #40): does a generated motion do what its prompt says?
+"""The behaviour suite: does a generated motion do what its prompt says?
 
 R-precision asks whether a motion is nearer its own text than 31 others; it cannot see the right
 hand, the count, the turn angle or the order of a composite. Here each prompt of a table (table.py,
