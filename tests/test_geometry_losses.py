@@ -236,12 +236,12 @@ def test_without_geometry_the_loss_is_bit_identical_to_the_plain_objective(walks
     assert torch.equal(module.objective(terms), before)
 
 
-@pytest.mark.parametrize("prediction_type", ["sample", "epsilon"])
+@pytest.mark.parametrize("prediction_type", ["sample", "epsilon", "v_prediction"])
 def test_geometry_reads_the_clean_motion_estimate_of_either_parameterisation(walks, prediction_type, monkeypatch):
     module = with_data_info(make_module(geometry=ALL_ON, prediction_type=prediction_type), walks)
     x0, mask, texts, t, noise = step_inputs(module, walks)
     t = torch.tensor([10, 200, 600])  # where 1/sqrt(abar) stays moderate for the epsilon estimate
-    exact = x0 if prediction_type == "sample" else noise
+    exact = module.schedule.target(x0, noise, t, prediction_type)
 
     monkeypatch.setattr(module.model, "forward", lambda *args, **kwargs: exact)
     terms = module.loss_terms(x0, mask, texts, t, noise)
@@ -254,7 +254,8 @@ def test_geometry_reads_the_clean_motion_estimate_of_either_parameterisation(wal
     monkeypatch.setattr(module.model, "forward", lambda *args, **kwargs: wrong)
     terms = module.loss_terms(x0, mask, texts, t, noise)
     assert all((terms[name] > 0).all() for name in ("positions", "velocities", "bone_lengths"))
-    # epsilon: the terms of x̂0 = (x_t - sqrt(1 - abar) eps) / sqrt(abar), not of the output itself
+    # epsilon: the terms of x̂0 = (x_t - sqrt(1 - abar) eps) / sqrt(abar), not of the output itself;
+    # v: those of x̂0 = sqrt(abar) x_t - sqrt(1 - abar) v
     x0_hat = module.schedule.predict_x0(wrong.detach(), module.schedule.q_sample(x0, t, noise), t, prediction_type)
     direct = module.geometric_loss().terms(x0_hat, x0, mask)
     for name in GEOMETRY_TERMS:

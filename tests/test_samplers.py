@@ -28,6 +28,8 @@ def toy_model(prediction_type: str):
         denom = a * DATA_VAR + 1 - a
         if prediction_type == "sample":
             return a.sqrt() * DATA_VAR * x / denom + 0.05 * torch.sin(x)
+        if prediction_type == "v_prediction":  # v = sqrt(a) eps - sqrt(1 - a) x0 of the two estimates
+            return (a * (1 - a)).sqrt() * (1 - DATA_VAR) * x / denom + 0.05 * torch.sin(x)
         return (1 - a).sqrt() * x / denom + 0.05 * torch.sin(x)
 
     return model
@@ -64,7 +66,7 @@ def assert_close_1e5(actual, expected, tol=1e-5):
 
 
 @pytest.mark.parametrize("steps", [1, 2, 10, 25, 1000])
-@pytest.mark.parametrize("prediction_type", ["sample", "epsilon"])
+@pytest.mark.parametrize("prediction_type", ["sample", "epsilon", "v_prediction"])
 def test_dpmpp_2m_ode_matches_diffusers(prediction_type, steps):
     model = toy_model(prediction_type)
     ref = run_diffusers(dpm_scheduler("dpmsolver++", prediction_type), model, x_T(), steps)
@@ -92,7 +94,7 @@ def test_float64_coefficients_beat_float32_tables():
 
 
 @pytest.mark.parametrize("steps", [1, 2, 10, 25, 1000])
-@pytest.mark.parametrize("prediction_type", ["sample", "epsilon"])
+@pytest.mark.parametrize("prediction_type", ["sample", "epsilon", "v_prediction"])
 def test_dpmpp_2m_sde_matches_diffusers_with_matched_noise(prediction_type, steps):
     model = toy_model(prediction_type)
     ref = run_diffusers(dpm_scheduler("sde-dpmsolver++", prediction_type), model, x_T(), steps, seed=7)
@@ -101,7 +103,7 @@ def test_dpmpp_2m_sde_matches_diffusers_with_matched_noise(prediction_type, step
 
 
 @pytest.mark.parametrize("steps", [1, 2, 10, 1000])
-@pytest.mark.parametrize("prediction_type", ["sample", "epsilon"])
+@pytest.mark.parametrize("prediction_type", ["sample", "epsilon", "v_prediction"])
 def test_ddim_matches_diffusers(prediction_type, steps):
     diffusers = pytest.importorskip("diffusers")
     ref_sched = diffusers.DDIMScheduler(
@@ -125,7 +127,7 @@ def test_ddim_eta_one_matches_diffusers_with_matched_noise():
 
 
 @pytest.mark.parametrize("steps", [1, 2, 10, 1000])
-@pytest.mark.parametrize("prediction_type", ["sample", "epsilon"])
+@pytest.mark.parametrize("prediction_type", ["sample", "epsilon", "v_prediction"])
 def test_ddpm_matches_diffusers_with_matched_noise(prediction_type, steps):
     diffusers = pytest.importorskip("diffusers")
     ref_sched = diffusers.DDPMScheduler(

@@ -3,6 +3,7 @@
 import pytest
 import torch
 
+from stablemo.diffusion.guidance import to_x0
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.errors import StableMoError
 
@@ -59,7 +60,16 @@ def test_q_sample_predict_x0_and_target_roundtrip():
     # an exact eps prediction recovers x0; an exact x0 prediction is returned unchanged
     torch.testing.assert_close(s.predict_x0(noise, xt, t, "epsilon"), x0, rtol=1e-3, atol=2e-3)
     assert s.predict_x0(x0, xt, t, "sample") is x0
-    assert s.target(x0, noise, "sample") is x0 and s.target(x0, noise, "epsilon") is noise
+    assert s.target(x0, noise, t, "sample") is x0 and s.target(x0, noise, t, "epsilon") is noise
+    # v = alpha eps - sigma x0; an exact v prediction recovers x0 at every noise level, and the
+    # sampler-side conversion (to_x0 with scalar alpha, sigma) agrees with the schedule's
+    v = s.target(x0, noise, t, "v_prediction")
+    manual_v = abar.sqrt()[:, None, None] * noise.double() - (1 - abar).sqrt()[:, None, None] * x0.double()
+    torch.testing.assert_close(v.double(), manual_v, rtol=1e-6, atol=1e-6)
+    torch.testing.assert_close(s.predict_x0(v, xt, t, "v_prediction"), x0, rtol=1e-5, atol=1e-5)
+    for i in range(4):
+        a, sg = float(abar[i].sqrt()), float((1 - abar[i]).sqrt())
+        torch.testing.assert_close(to_x0(v[i], xt[i], a, sg, "v_prediction"), x0[i], rtol=1e-5, atol=1e-5)
 
 
 def test_bad_arguments_raise_clear_errors():
@@ -69,7 +79,7 @@ def test_bad_arguments_raise_clear_errors():
     with pytest.raises(StableMoError, match="steps"):
         s.leading_timesteps(1001)
     with pytest.raises(StableMoError, match="prediction_type"):
-        s.target(torch.zeros(1), torch.zeros(1), "v_prediction")
+        s.target(torch.zeros(1), torch.zeros(1), torch.zeros(1, dtype=torch.long), "v")
     with pytest.raises(StableMoError, match="beta_schedule"):
         NoiseSchedule(beta_schedule="quadratic")
     with pytest.raises(StableMoError, match="t:"):

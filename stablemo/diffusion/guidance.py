@@ -29,6 +29,8 @@ def to_x0(output: torch.Tensor, x: torch.Tensor, alpha: float, sigma: float, pre
     check_prediction_type(prediction_type)
     if prediction_type == "sample":
         return output
+    if prediction_type == "v_prediction":  # x0 = alpha x - sigma v (Salimans & Ho 2022)
+        return alpha * x - sigma * output
     return (x - sigma * output) / alpha
 
 

@@ -4,7 +4,8 @@
             prediction_type="sample", progress=False) -> x0
 
 - `denoise(x_t (B,T,D) float32, t (B,) long) -> (B,T,D)`: the (guided) network output, an x0
-  estimate for prediction_type "sample" or an eps estimate for "epsilon". The sampler converts it
+  estimate for prediction_type "sample", an eps estimate for "epsilon", a v estimate for
+  "v_prediction". The sampler converts it
   to x0 with the noise level of the state it actually holds (the Karras sigma for the DPM-Solver
   family), which is what makes eps-models agree with diffusers.
 - `noise(x) -> N(0, I)` tensor like x, drawn once per stochastic step after the x0 conversion;

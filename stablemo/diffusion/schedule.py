@@ -15,7 +15,7 @@ import torch
 from stablemo.errors import StableMoError
 
 BETA_SCHEDULES = ("linear", "scaled_linear", "squaredcos_cap_v2")
-PREDICTION_TYPES = ("sample", "epsilon")
+PREDICTION_TYPES = ("sample", "epsilon", "v_prediction")
 
 
 def _betas(num_train_timesteps: int, beta_start: float, beta_end: float, beta_schedule: str) -> torch.Tensor:
@@ -109,13 +109,20 @@ class NoiseSchedule:
         if prediction_type == "sample":
             return model_output
         a, s = self._coef(t, x_t)
+        if prediction_type == "v_prediction":
+            return a * x_t - s * model_output
         return (x_t - s * model_output) / a
 
-    @staticmethod
-    def target(x0: torch.Tensor, noise: torch.Tensor, prediction_type: str) -> torch.Tensor:
-        """What the network regresses onto for a given parameterisation."""
+    def target(self, x0: torch.Tensor, noise: torch.Tensor, t: torch.Tensor, prediction_type: str) -> torch.Tensor:
+        """What the network regresses onto for a given parameterisation at timesteps t (B,): x0, the
+        noise, or v = sqrt(abar) noise - sqrt(1 - abar) x0 (Salimans & Ho 2022, §4)."""
         check_prediction_type(prediction_type)
-        return x0 if prediction_type == "sample" else noise
+        if prediction_type == "sample":
+            return x0
+        if prediction_type == "epsilon":
+            return noise
+        a, s = self._coef(t, x0)
+        return a * noise - s * x0
 
     # ---- sampling grids ---------------------------------------------------------------------
 

@@ -17,12 +17,12 @@ from typing import Any, Sequence
 import torch
 from lightning.pytorch import LightningModule
 
+from stablemo.diffusion.schedule import PREDICTION_TYPES
 from stablemo.errors import StableMoError
 from stablemo.motion.skeleton import MAX_FRAMES
 from stablemo.training.ema import EMA
 from stablemo.training.geometry import GEOMETRY_TERMS, GeometricLoss, geometry_weights
 
-PREDICTION_TYPES = ("sample", "epsilon")
 # Minimum clip length per dataset (frames), used when the data module does not say.
 MIN_LENGTH = {"humanml3d": 40, "kit": 24}
 # Validation noise is drawn per sample with this many frames and cropped, so the noise a clip
@@ -50,7 +50,8 @@ class DiffusionModule(LightningModule):
     Args:
         model: MotionDiffusionModel kwargs: {"denoiser": {"name": ..., "input_dim": D, ...}, "text": {...}}.
         schedule: NoiseSchedule kwargs (T = 1000, linear β 1e-4 → 0.02 by default).
-        prediction_type: "sample" (x0, the paper's choice) or "epsilon".
+        prediction_type: "sample" (x0, the paper's choice), "epsilon" or "v_prediction" (v = sqrt(abar) eps -
+            sqrt(1 - abar) x0: the x0 estimate alpha x_t - sigma v keeps x_t's detail at low noise).
         cond_drop_prob: fraction of captions replaced by the null condition "" (CFG training).
         ema_decay, ema_warmup: EMA of the weights, see stablemo.training.ema.EMA.
         lr, weight_decay: AdamW.
@@ -211,11 +212,12 @@ class DiffusionModule(LightningModule):
     def loss_terms(self, x0, mask, texts, t, noise) -> dict[str, torch.Tensor]:
         """Per-sample unweighted terms {name: (B,)}: "simple", the masked MSE between the network
         output and its target, and each configured geometric term on the clean-motion estimate x̂0
-        (the output itself for "sample", (x_t - sqrt(1 - abar) eps) / sqrt(abar) for "epsilon")."""
+        (the output itself for "sample", (x_t - sqrt(1 - abar) eps) / sqrt(abar) for "epsilon",
+        sqrt(abar) x_t - sqrt(1 - abar) v for "v_prediction")."""
         x_t = self.schedule.q_sample(x0, t, noise)
         text, text_mask = self.model.encode_text(texts)
         pred = self.model(x_t, t, text, text_mask, mask)
-        target = self.schedule.target(x0, noise, self.hparams.prediction_type)
+        target = self.schedule.target(x0, noise, t, self.hparams.prediction_type)
         terms = {"simple": masked_mse(pred, target, mask)}
         if self.geometry_weights:
             pred_x0 = self.schedule.predict_x0(pred, x_t, t, self.hparams.prediction_type)
@@ -290,7 +292,7 @@ class DiffusionModule(LightningModule):
             t = torch.full((bsz,), int(step), device=x0.device, dtype=torch.long)
             x_t = self.schedule.q_sample(x0, t, noise)
             pred = self.model(x_t, t, text, text_mask, mask)
-            target = self.schedule.target(x0, noise, self.hparams.prediction_type)
+            target = self.schedule.target(x0, noise, t, self.hparams.prediction_type)
             columns.append(masked_mse(pred, target, mask))
         return torch.stack(columns, dim=1)
 
