@@ -207,6 +207,24 @@ def test_validation_loss_is_fixed_and_independent_of_batching(tiny_data):
     torch.testing.assert_close(module.fixed_noise_losses(alone)[0], both[0], rtol=1e-4, atol=1e-6)
 
 
+
+@pytest.mark.parametrize("prediction_type", ["sample", "v_prediction"])
+def test_validation_reports_the_clean_motion_error_of_any_parameterisation(tiny_data, prediction_type):
+    """val/loss_x0 makes runs of different prediction types comparable: for x0 prediction it is the
+    loss itself; for v, x0 - x̂0 = sqrt(1 - abar) (v̂ - v) on every element, so it is (1 - abar) times it."""
+    module = make_module(prediction_type=prediction_type).eval()
+    dm = make_datamodule(tiny_data, batch_size=4)
+    dm.setup("validate")
+    batch = next(iter(dm.val_dataloader()))
+    losses, x0_errors = module.fixed_noise_errors(batch)
+    assert torch.equal(losses, module.fixed_noise_losses(batch))
+    if prediction_type == "sample":
+        assert torch.equal(losses, x0_errors)
+    else:
+        abar = module.schedule.alphas_cumprod[torch.tensor(module.hparams.val_timesteps)].float()
+        torch.testing.assert_close(x0_errors, losses * (1 - abar), rtol=1e-4, atol=1e-7)
+        assert (x0_errors < losses).all()
+
 def test_tiny_model_overfits_a_tiny_batch(tiny_data, tmp_path):
     from lightning.pytorch.loggers import CSVLogger
 

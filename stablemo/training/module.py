@@ -278,11 +278,18 @@ class DiffusionModule(LightningModule):
 
         Deterministic and independent of batch composition, padding, order and world size.
         """
+        return self.fixed_noise_errors(batch)[0]
+
+    @torch.no_grad()
+    def fixed_noise_errors(self, batch: dict) -> tuple[torch.Tensor, torch.Tensor]:
+        """(loss on the parameterisation's target, MSE of the clean-motion estimate x̂0), each
+        (B, K): the second compares runs trained with different prediction types."""
         x0, mask = batch["motion"], batch["mask"]
         self._check_length(x0)
         bsz, frames, dim = x0.shape
         text, text_mask = self.model.encode_text(list(batch["text"]))
-        columns = []
+        columns, x0_columns = [], []
+        kind = self.hparams.prediction_type
         for step in self.hparams.val_timesteps:
             noise = torch.stack([
                 torch.randn(max(frames, VAL_NOISE_FRAMES), dim, generator=torch.Generator().manual_seed(
@@ -292,16 +299,18 @@ class DiffusionModule(LightningModule):
             t = torch.full((bsz,), int(step), device=x0.device, dtype=torch.long)
             x_t = self.schedule.q_sample(x0, t, noise)
             pred = self.model(x_t, t, text, text_mask, mask)
-            target = self.schedule.target(x0, noise, t, self.hparams.prediction_type)
-            columns.append(masked_mse(pred, target, mask))
-        return torch.stack(columns, dim=1)
+            columns.append(masked_mse(pred, self.schedule.target(x0, noise, t, kind), mask))
+            x0_columns.append(masked_mse(self.schedule.predict_x0(pred, x_t, t, kind), x0, mask))
+        return torch.stack(columns, dim=1), torch.stack(x0_columns, dim=1)
 
     def _evaluate(self, batch: dict, split: str) -> torch.Tensor:
         with self.ema.swapped_into(self.model):
-            losses = self.fixed_noise_losses(batch)  # (B, K)
+            losses, x0_errors = self.fixed_noise_errors(batch)  # (B, K) each
         bsz = losses.shape[0]
         for step, column in zip(self.hparams.val_timesteps, losses.unbind(1)):
             self.log(f"{split}/loss_t{int(step)}", column.mean(), sync_dist=True, batch_size=bsz)
+        if self.hparams.prediction_type != "sample":  # for "sample" it is val/loss itself
+            self.log(f"{split}/loss_x0", x0_errors.mean(), sync_dist=True, batch_size=bsz)
         loss = losses.mean()
         self.log(f"{split}/loss", loss, prog_bar=True, sync_dist=True, batch_size=bsz)
         return loss
