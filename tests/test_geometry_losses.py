@@ -266,6 +266,28 @@ def test_geometry_reads_the_clean_motion_estimate_of_either_parameterisation(wal
     assert torch.isfinite(wrong.grad).all() and wrong.grad.abs().sum() > 0
 
 
+
+@pytest.mark.parametrize("prediction_type", ["sample", "v_prediction"])
+def test_loss_on_x0_scores_the_clean_motion_estimate(walks, prediction_type, monkeypatch):
+    """loss_on: x0 trains any output parameterisation on the paper's x0 objective: for v,
+    x0 - x̂0 = sqrt(1 - abar) (v̂ - v), so the loss is the v loss times 1 - abar per sample."""
+    on_target = make_module(prediction_type=prediction_type)
+    on_x0 = make_module(prediction_type=prediction_type, loss_on="x0")
+    x0, mask, texts, t, noise = step_inputs(on_x0, walks)
+    t = torch.tensor([10, 400, 990])
+    out = torch.randn(x0.shape, generator=torch.Generator().manual_seed(5))
+    for module in (on_target, on_x0):
+        monkeypatch.setattr(module.model, "forward", lambda *args, **kwargs: out)
+    target_loss = on_target.loss_terms(x0, mask, texts, t, noise)["simple"]
+    x0_loss = on_x0.loss_terms(x0, mask, texts, t, noise)["simple"]
+    if prediction_type == "sample":
+        assert torch.equal(target_loss, x0_loss)
+    else:
+        abar = on_x0.schedule.alphas_cumprod[t].float()
+        torch.testing.assert_close(x0_loss, target_loss * (1 - abar), rtol=1e-4, atol=1e-7)
+    with pytest.raises(StableMoError, match="loss_on: expected one of"):
+        make_module(loss_on="eps")
+
 def test_geometry_without_dataset_facts_is_a_clear_error(walks):
     module = make_module(geometry={"positions": 1.0})
     x0, mask, texts, t, noise = step_inputs(module, walks)

@@ -44,6 +44,9 @@ def masked_mse(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> 
     return (sq * valid).sum(dim=1) / valid.sum(dim=1).clamp(min=1.0)
 
 
+LOSS_ON = ("target", "x0")
+
+
 class DiffusionModule(LightningModule):
     """DDPM training of a MotionDiffusionModel.
 
@@ -68,6 +71,10 @@ class DiffusionModule(LightningModule):
         geometry: weights of MDM's geometric losses on the joints of the clean-motion estimate
             ({positions, velocities, foot_contact, bone_lengths}: see stablemo.training.geometry),
             added to the per-sample loss; absent or all zero: none is computed.
+        loss_on: "target" (the MSE on the prediction type's own target: x0, the noise or v) or "x0"
+            (the MSE of the clean-motion estimate x̂0 whatever the output: the paper's x0 objective,
+            with, under v_prediction, x̂0 = sqrt(abar) x_t - sqrt(1 - abar) v̂ carrying x_t's detail
+            at low noise; for "sample" both are the same loss).
     """
 
     def __init__(
@@ -87,11 +94,14 @@ class DiffusionModule(LightningModule):
         fast_training: bool = True,
         gemm_conv: bool = True,
         geometry: dict[str, float] | None = None,
+        loss_on: str = "target",
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
         if prediction_type not in PREDICTION_TYPES:
             raise StableMoError(f"prediction_type: expected one of {PREDICTION_TYPES}, got {prediction_type!r}")
+        if loss_on not in LOSS_ON:
+            raise StableMoError(f"loss_on: expected one of {LOSS_ON}, got {loss_on!r}")
         if not 0.0 <= cond_drop_prob <= 1.0:
             raise StableMoError(f"cond_drop_prob: must be in [0, 1], got {cond_drop_prob}")
         if lr_step < 1:
@@ -217,10 +227,15 @@ class DiffusionModule(LightningModule):
         x_t = self.schedule.q_sample(x0, t, noise)
         text, text_mask = self.model.encode_text(texts)
         pred = self.model(x_t, t, text, text_mask, mask)
-        target = self.schedule.target(x0, noise, t, self.hparams.prediction_type)
-        terms = {"simple": masked_mse(pred, target, mask)}
+        kind = self.hparams.prediction_type
+        pred_x0 = None
+        if self.geometry_weights or self.hparams.loss_on == "x0":
+            pred_x0 = self.schedule.predict_x0(pred, x_t, t, kind)
+        if self.hparams.loss_on == "x0":
+            terms = {"simple": masked_mse(pred_x0, x0, mask)}
+        else:
+            terms = {"simple": masked_mse(pred, self.schedule.target(x0, noise, t, kind), mask)}
         if self.geometry_weights:
-            pred_x0 = self.schedule.predict_x0(pred, x_t, t, self.hparams.prediction_type)
             terms.update(self.geometric_loss().terms(pred_x0, x0, mask))
         return terms
 
