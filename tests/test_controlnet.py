@@ -21,9 +21,12 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def tiny_model(variant: str = "stablemo") -> dict:
+    """variant: a CondUNet1D layout, or "input_head" (the default layout with an input head)."""
+    head = {"input_head": 8} if variant == "input_head" else {}
     return {
         "denoiser": {"name": "unet", "input_dim": D, "base_channels": 16, "channel_mults": [1, 2], "time_dim": 32,
-                     "num_groups": 4, "num_heads": 2, "dropout": 0.0, "variant": variant},
+                     "num_groups": 4, "num_heads": 2, "dropout": 0.0,
+                     "variant": "stablemo" if head else variant, **head},
         "text": {"encoder": "minilm", "latent_dim": 32, "num_layers": 1, "num_heads": 2, "ff_dim": 64, "dropout": 0.0},
     }
 
@@ -32,6 +35,9 @@ def tiny_base(variant: str = "stablemo", seed: int = 0) -> MotionDiffusionModel:
     torch.manual_seed(seed)
     model = MotionDiffusionModel(**tiny_model(variant))
     torch.nn.init.normal_(model.denoiser.out.weight, std=0.05)  # zero-initialised; make its output vary
+    if model.denoiser.input_stage is not None:  # and the input head's
+        for p in model.denoiser.input_stage.parameters():
+            torch.nn.init.normal_(p, std=0.05)
     return model.eval()
 
 
@@ -115,7 +121,8 @@ def check_zero_start_and_padding_invariance(base, model) -> tuple:
     return x, t, text, text_mask, mask, hint
 
 
-@pytest.mark.parametrize("variant,output", [("stablemo", False), ("official", False), ("stablemo", True)])
+@pytest.mark.parametrize("variant,output", [("stablemo", False), ("official", False), ("stablemo", True),
+                                            ("input_head", False)])
 def test_controlnet_starts_as_its_base_and_is_exactly_padding_invariant(variant, output):
     base = tiny_base(variant)
     model = ControlledModel(base, "diffusion", J, {"channels": 16, "layers": 2, "output": output}).eval()

@@ -24,6 +24,9 @@ TINY = {
                                 num_heads=2, cross_attention=True, norm="group")),
     "unet_tweak": ("unet", dict(base_channels=16, channel_mults=[1, 2, 2, 2], time_dim=32, num_groups=2,
                                 num_heads=2, cross_attention=True, norm="frame")),
+    # the input head: per-frame blocks over [last features | x_t] before the output convolution
+    "unet_input_head": ("unet", dict(base_channels=16, channel_mults=[1, 2, 2, 2], time_dim=32, num_groups=2,
+                                     num_heads=2, cross_attention=True, norm="frame", input_head=8)),
     # the published T2MUnet's layout (stablemo.official imports its checkpoints into it)
     "unet_official": ("unet", dict(base_channels=16, channel_mults=[1, 2, 2, 2], time_dim=32, num_groups=2,
                                    num_heads=2, cross_attention=True, norm="frame", variant="official")),

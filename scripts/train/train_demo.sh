@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Recipe of the bundled demo model (stablemo/assets/demo_bundle): synthetic data, training with
 # configs/demo.yaml, export, and a copy of the training log into docs/. Resumable: re-running it
-# continues from runs/demo/checkpoints/last.ckpt.
+# continues from runs/demo/checkpoints/last.ckpt. Then: scripts/train/distill_demo.sh lcm (the student)
+# and scripts/train/ship_demo.sh (the student into the package; the length predictor and captions).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 STABLEMO=${STABLEMO:-.venv/bin/stablemo}

@@ -200,7 +200,7 @@ class UNetControlNet(_ControlNetBase):
             h = stage(unet.merge_skip(h, skips.pop()), adagn[n + 1 + j], ctx.text_contexts[n + 1 + j], ctx.masks[level])
             if not unet.upsample_first and j < len(unet.upsample):
                 h = unet.resample(unet.upsample[j], h, ctx.masks[level - 1])
-        return residuals.apply_output(unet.head(h, ctx.masks[0]).transpose(1, 2))  # (B, T, D)
+        return residuals.apply_output(unet.output(h, x, adagn, ctx))  # (B, T, D)
 
 
 def _block_copy(net: nn.Module, blocks: int) -> nn.Module:

@@ -93,6 +93,7 @@ def adopt_unet(fast: CondUNet1D, stock: CondUNet1D) -> None:
     fast.input_dim, fast.text_dim, fast.length_multiple = stock.input_dim, stock.text_dim, stock.length_multiple
     fast.variant, fast.upsample_first = stock.variant, stock.upsample_first
     fast.text_embed, fast.final_conv, fast.final_norm = stock.text_embed, stock.final_conv, stock.final_norm
+    fast.input_stage = stock.input_stage
 
 
 def norm_mish(norm: MaskedGroupNorm, x: torch.Tensor, mask: torch.Tensor, fused_ok: bool,
@@ -171,10 +172,13 @@ class FastCondUNet1D(CondUNet1D):
         adopt_unet(self, stock)
         self.fused_ok = self.final_norm is not None and self.final_norm.weight.numel() >= MIN_FUSED_CHANNELS
 
-    def head(self, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    def features_head(self, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         if self.final_conv is not None:  # the official layout's head is the 1x1 convolution alone
             h = norm_mish(self.final_norm, self.final_conv(h), mask, self.fused_ok)
-        return zero_pad_bct_(self.out(h), mask)
+        return h
+
+    def head(self, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        return zero_pad_bct_(self.out(self.features_head(h, mask)), mask)
 
     def resample(self, conv: nn.Module, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         return zero_pad_bct_(conv(h), mask)

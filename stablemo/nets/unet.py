@@ -146,12 +146,15 @@ class CondUNet1D(nn.Module):
         cross_attention: bool = True,
         norm: str = "frame",
         variant: str = "stablemo",
+        input_head: int = 0,
     ):
         super().__init__()
         if len(channel_mults) < 1:
             raise StableMoError("channel_mults: need at least one stage")
         if kernel_size % 2 == 0:
             raise StableMoError(f"kernel_size: must be odd to keep the length, got {kernel_size}")
+        if input_head < 0 or (input_head and variant == "official"):
+            raise StableMoError(f"input_head: a width >= 0, and 0 in the official layout, got {input_head}")
         if variant not in ("stablemo", "official"):
             raise StableMoError(f"variant: expected 'stablemo' or 'official' (the published T2MUnet's layout), got {variant!r}")
         official = variant == "official"
@@ -187,13 +190,21 @@ class CondUNet1D(nn.Module):
         # the official head is the 1x1 convolution alone
         self.final_conv = None if official else nn.Conv1d(ch, ch, kernel_size, padding=kernel_size // 2)
         self.final_norm = None if official else MaskedGroupNorm(num_groups, ch, norm)
+        # the input head: per-frame residual blocks over [last features | x_t], so the output is not
+        # confined to the span of the top stage's few channels (which the input reaches only through
+        # one convolution) and x_t's every dimension reaches it
+        self.input_stage = None
+        if input_head:
+            self.input_stage = Stage(ch + input_dim, input_head, time_dim, text_dim,
+                                     **dict(common, kernel_size=1, cross_attention=False))
+            ch = input_head
         self.out = nn.Conv1d(ch, input_dim, 1)
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
 
     def stages(self) -> list[Stage]:
-        """The stages in the order forward runs them (down, middle, up)."""
-        return [*self.down, self.mid, *self.up]
+        """The stages in the order forward runs them (down, middle, up, then the input head's)."""
+        return [*self.down, self.mid, *self.up, *([self.input_stage] if self.input_stage is not None else [])]
 
     def prepare(self, text, text_mask, motion_mask, time_cond=None, timesteps=()) -> UNetConditioning:
         """Per-request work: masks per resolution, pooled text, attention contexts and, for planned
@@ -248,7 +259,16 @@ class CondUNet1D(nn.Module):
                       ctx.masks[level])
             if not self.upsample_first and j < len(self.upsample):
                 h = self.resample(self.upsample[j], h, ctx.masks[level - 1])
-        return self.head(h, ctx.masks[0]).transpose(1, 2)
+        return self.output(h, x, adagn, ctx)
+
+    def output(self, h: torch.Tensor, x: torch.Tensor, adagn, ctx: UNetConditioning) -> torch.Tensor:
+        """The last features h (B, C, T) and the input x (B, T, D) -> the output (B, T, D)."""
+        if self.input_stage is None:
+            return self.head(h, ctx.masks[0]).transpose(1, 2)
+        mask = ctx.masks[0]
+        z = torch.cat([self.features_head(h, mask), zero_pad_bct(x.transpose(1, 2), mask)], dim=1)
+        z = self.input_stage(z, adagn[-1], ctx.text_contexts[-1], mask)
+        return zero_pad_bct(self.out(z), mask).transpose(1, 2)
 
     def resample(self, conv: nn.Module, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """A down- or up-sampling convolution, its padded frames zeroed at the new resolution (mask)."""
@@ -258,9 +278,13 @@ class CondUNet1D(nn.Module):
         """The up path's input: (B, C1, T), (B, C2, T) -> (B, C1 + C2, T)."""
         return torch.cat([h, skip], dim=1)
 
-    def head(self, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        """The output head: conv -> norm -> Mish -> zero-initialised 1x1 conv (the official layout:
-        the 1x1 conv alone). (B, C, T) -> (B, D, T)."""
+    def features_head(self, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """conv -> norm -> Mish on the last features (the official layout: none). (B, C, T) -> (B, C, T)."""
         if self.final_conv is not None:
             h = zero_pad_bct(F.mish(self.final_norm(self.final_conv(h), mask)), mask)
-        return zero_pad_bct(self.out(h), mask)
+        return h
+
+    def head(self, h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """The output head without an input head: `features_head`, then the zero-initialised 1x1
+        conv. (B, C, T) -> (B, D, T)."""
+        return zero_pad_bct(self.out(self.features_head(h, mask)), mask)

@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# Last step of the demo models' recipe, after
+#   bash scripts/train/train_demo.sh           # the teacher -> stablemo/assets/demo_bundle
+#   bash scripts/train/distill_demo.sh lcm     # its 1-step LCM student -> runs/distill_lcm_synth, bundles/demo_lcm
+# this exports the student into the package (stablemo/assets/demo_student, the page's default model)
+# and gives both bundles what generation reads beside the network: the length predictor (a motion
+# asked for without a length takes its text's, scripts/text/length_predictor.py) and their training
+# captions (a prompt unlike all of them gets a warning, scripts/text/familiarity.py). Both are
+# trained from the data and the frozen text encoder alone, so the two bundles share them.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+STABLEMO=${STABLEMO:-.venv/bin/stablemo}
+PYTHON=${PYTHON:-.venv/bin/python}
+student=runs/distill_lcm_synth/checkpoints/last.ckpt
+[ -f "$student" ] || { echo "ship_demo.sh: $student is missing: run scripts/train/distill_demo.sh lcm first" >&2; exit 2; }
+"$STABLEMO" export "$student" --out stablemo/assets/demo_student --overwrite
+"$PYTHON" scripts/text/length_predictor.py --data data/synth stablemo/assets/demo_bundle stablemo/assets/demo_student
+"$PYTHON" scripts/text/familiarity.py --data data/synth --threshold 0.65 stablemo/assets/demo_bundle stablemo/assets/demo_student
