@@ -23,6 +23,8 @@ from stablemo.motion.skeleton import MAX_FRAMES
 from stablemo.training.ema import EMA
 from stablemo.training.geometry import GEOMETRY_TERMS, GeometricLoss, geometry_weights
 
+# What the MSE is taken on: the prediction type's own target, or the clean-motion estimate x̂0.
+LOSS_ON = ("target", "x0")
 # Minimum clip length per dataset (frames), used when the data module does not say.
 MIN_LENGTH = {"humanml3d": 40, "kit": 24}
 # Validation noise is drawn per sample with this many frames and cropped, so the noise a clip
@@ -42,9 +44,6 @@ def masked_mse(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> 
     sq = (pred.float() - target.float()).square().mean(dim=-1)  # (B, T)
     valid = mask.float()
     return (sq * valid).sum(dim=1) / valid.sum(dim=1).clamp(min=1.0)
-
-
-LOSS_ON = ("target", "x0")
 
 
 class DiffusionModule(LightningModule):
