@@ -147,6 +147,7 @@ class CondUNet1D(nn.Module):
         norm: str = "frame",
         variant: str = "stablemo",
         input_head: int = 0,
+        input_head_kernel: int = 1,
     ):
         super().__init__()
         if len(channel_mults) < 1:
@@ -155,6 +156,8 @@ class CondUNet1D(nn.Module):
             raise StableMoError(f"kernel_size: must be odd to keep the length, got {kernel_size}")
         if input_head < 0 or (input_head and variant == "official"):
             raise StableMoError(f"input_head: a width >= 0, and 0 in the official layout, got {input_head}")
+        if input_head_kernel < 1 or input_head_kernel % 2 == 0:
+            raise StableMoError(f"input_head_kernel: must be odd and >= 1, got {input_head_kernel}")
         if variant not in ("stablemo", "official"):
             raise StableMoError(f"variant: expected 'stablemo' or 'official' (the published T2MUnet's layout), got {variant!r}")
         official = variant == "official"
@@ -190,13 +193,14 @@ class CondUNet1D(nn.Module):
         # the official head is the 1x1 convolution alone
         self.final_conv = None if official else nn.Conv1d(ch, ch, kernel_size, padding=kernel_size // 2)
         self.final_norm = None if official else MaskedGroupNorm(num_groups, ch, norm)
-        # the input head: per-frame residual blocks over [last features | x_t], so the output is not
-        # confined to the span of the top stage's few channels (which the input reaches only through
-        # one convolution) and x_t's every dimension reaches it
+        # the input head: residual blocks over [last features | x_t], so the output is not confined
+        # to the span of the top stage's few channels (which the input reaches only through one
+        # convolution) and x_t's every dimension reaches it; kernel 1 maps each frame on its own
+        # (its errors then differ from frame to frame: jitter), wider kernels see the neighbours
         self.input_stage = None
         if input_head:
             self.input_stage = Stage(ch + input_dim, input_head, time_dim, text_dim,
-                                     **dict(common, kernel_size=1, cross_attention=False))
+                                     **dict(common, kernel_size=input_head_kernel, cross_attention=False))
             ch = input_head
         self.out = nn.Conv1d(ch, input_dim, 1)
         nn.init.zeros_(self.out.weight)
