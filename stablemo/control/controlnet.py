@@ -185,7 +185,7 @@ class UNetControlNet(_ControlNetBase):
         inner = residuals.inner
         adagn = unet.step_adagn(t, ctx)
         n = len(unet.down)
-        h = zero_pad_bct(x.transpose(1, 2), ctx.masks[0])
+        x_in = h = zero_pad_bct(x.transpose(1, 2), ctx.masks[0])
         skips = []
         for i, stage in enumerate(unet.down):
             h = stage(h, adagn[i], ctx.text_contexts[i], ctx.masks[i])
@@ -200,7 +200,7 @@ class UNetControlNet(_ControlNetBase):
             h = stage(unet.merge_skip(h, skips.pop()), adagn[n + 1 + j], ctx.text_contexts[n + 1 + j], ctx.masks[level])
             if not unet.upsample_first and j < len(unet.upsample):
                 h = unet.resample(unet.upsample[j], h, ctx.masks[level - 1])
-        return residuals.apply_output(unet.output(h, x, adagn, ctx))  # (B, T, D)
+        return residuals.apply_output(unet.output(h, x_in, adagn, ctx))  # (B, T, D)
 
 
 def _block_copy(net: nn.Module, blocks: int) -> nn.Module:

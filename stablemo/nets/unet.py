@@ -247,7 +247,7 @@ class CondUNet1D(nn.Module):
         check_step(x, t, ctx, self.input_dim, self.length_multiple)
         adagn = self.step_adagn(t, ctx)
         n = len(self.down)
-        h = zero_pad_bct(x.transpose(1, 2), ctx.masks[0])  # (B, D, T)
+        x_in = h = zero_pad_bct(x.transpose(1, 2), ctx.masks[0])  # (B, D, T)
         skips = []
         for i, stage in enumerate(self.down):
             h = stage(h, adagn[i], ctx.text_contexts[i], ctx.masks[i])
@@ -263,14 +263,15 @@ class CondUNet1D(nn.Module):
                       ctx.masks[level])
             if not self.upsample_first and j < len(self.upsample):
                 h = self.resample(self.upsample[j], h, ctx.masks[level - 1])
-        return self.output(h, x, adagn, ctx)
+        return self.output(h, x_in, adagn, ctx)
 
-    def output(self, h: torch.Tensor, x: torch.Tensor, adagn, ctx: UNetConditioning) -> torch.Tensor:
-        """The last features h (B, C, T) and the input x (B, T, D) -> the output (B, T, D)."""
+    def output(self, h: torch.Tensor, x_in: torch.Tensor, adagn, ctx: UNetConditioning) -> torch.Tensor:
+        """The last features h (B, C, T) and the input as the first stage read it, x_in (B, D, T)
+        with padded frames zero -> the output (B, T, D)."""
         if self.input_stage is None:
             return self.head(h, ctx.masks[0]).transpose(1, 2)
         mask = ctx.masks[0]
-        z = torch.cat([self.features_head(h, mask), zero_pad_bct(x.transpose(1, 2), mask)], dim=1)
+        z = torch.cat([self.features_head(h, mask), x_in], dim=1)
         z = self.input_stage(z, adagn[-1], ctx.text_contexts[-1], mask)
         return zero_pad_bct(self.out(z), mask).transpose(1, 2)
 
