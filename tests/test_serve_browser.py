@@ -60,7 +60,10 @@ def wait_for(driver, script: str, timeout: float = 60.0):
         if value:
             return value
         time.sleep(0.05)
-    raise AssertionError(f"timed out waiting for: {script}")
+    state = driver.execute_script("const s = window.stablemo; return {error: s.error, status:"
+                                  " (document.getElementById('status') || {}).textContent,"
+                                  " requests: s.requests, frame: s.frame, playing: s.playing}")
+    raise AssertionError(f"timed out waiting for: {script} (page: {state})")
 
 
 @pytest.fixture(scope="module")

@@ -574,6 +574,22 @@ function showControlInfo() {
   $('control-note').textContent = control && control.note ? control.note : '';
 }
 
+// The joint the user pressed on: the one drawn nearest the pointer, within PICK_PX of its centre.
+// Screen distance, not the first sphere a ray meets: a wrist drawn over the hip is picked at its
+// centre, and a joint drawn a few pixels wide (a far figure) is still easy to grab.
+const PICK_PX = 14;
+function jointUnderPointer(e) {
+  const r = canvas.getBoundingClientRect();
+  const px = e.clientX - r.left, py = e.clientY - r.top;
+  let best = -1, bestDistance = PICK_PX;
+  figure.joints.forEach((j, i) => {
+    const [x, y] = S.toScreen(j.position.toArray());
+    const d = Math.hypot(x - px, y - py);
+    if (d < bestDistance) { best = i; bestDistance = d; }
+  });
+  return best;
+}
+
 canvas.addEventListener('pointerdown', (e) => {
   if (e.button !== 0 || mode === null) return;
   setPointer(e);
@@ -585,11 +601,10 @@ canvas.addEventListener('pointerdown', (e) => {
     draft = [[0, 0]];
     if (Math.hypot(p.x, p.z) > 0.03) draft.push([p.x, p.z]);
   } else if (mode === 'pose' && figure && S.motion) {
-    const hit = raycaster.intersectObjects(figure.joints, false)[0];
-    if (!hit) return;
-    const joint = figure.joints.indexOf(hit.object);
+    const joint = jointUnderPointer(e);
+    if (joint < 0) return;
     const normal = camera.getWorldDirection(new THREE.Vector3()).negate();
-    dragging = { joint, plane: new THREE.Plane().setFromNormalAndCoplanarPoint(normal, hit.object.position.clone()) };
+    dragging = { joint, plane: new THREE.Plane().setFromNormalAndCoplanarPoint(normal, figure.joints[joint].position.clone()) };
   } else {
     return;
   }
