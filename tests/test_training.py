@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -409,7 +410,8 @@ def test_ddp_smoke_two_cpu_processes(tiny_data, tmp_path):
 
 ABLATION = ["unet_base", "unet_xattn", "unet_xattn_gn", "dit_base", "dit_xattn", "retnet_base", "retnet_xattn"]
 CONFIG_SETS = [["synth_small.yaml"], ["humanml3d.yaml"], ["kit.yaml"]] + [
-    ["ablation/common.yaml", f"ablation/{v}.yaml"] for v in ABLATION]
+    ["ablation/common.yaml", f"ablation/{v}.yaml"] for v in ABLATION] + [
+    ["demo.yaml"], ["demo.yaml", "demo_variants/input_head_k1.yaml"], ["demo.yaml", "demo_variants/no_input_head.yaml"]]
 
 
 @pytest.mark.parametrize("files", CONFIG_SETS, ids=lambda f: f[-1])
@@ -436,6 +438,28 @@ def test_shipped_configs_parse(files, capsys):
         assert model["model"]["text"]["encoder"] == "openai/clip-vit-base-patch32"
         # the paper configs train the published network (293.7 M), padded as its layout needs
         assert model["model"]["denoiser"]["variant"] == "official" and printed["data"]["pad_multiple"] == 16
+
+
+@pytest.mark.parametrize("variant, head, kernel", [(None, 128, 3), ("input_head_k1", 128, 1), ("no_input_head", 0, 1)])
+def test_demo_recipe_is_the_packaged_teachers_network_and_its_variants_change_only_the_head(variant, head, kernel):
+    from stablemo.inference.bundle import DEMO_BUNDLE
+    from stablemo.training.module import DiffusionModule
+
+    recipe = yaml.safe_load((REPO / "configs/demo.yaml").read_text())["model"]
+    if variant is None:  # what the recipe trains is what the package ships
+        assert json.loads((DEMO_BUNDLE / "config.json").read_text())["model"] == recipe["model"]
+    else:
+        overlay = yaml.safe_load((REPO / f"configs/demo_variants/{variant}.yaml").read_text())["model"]["model"]
+        assert overlay["text"] == recipe["model"]["text"]
+        assert {k: v for k, v in overlay["denoiser"].items() if not k.startswith("input_head")} == \
+            {k: v for k, v in recipe["model"]["denoiser"].items() if not k.startswith("input_head")}
+        recipe = {**recipe, "model": overlay}
+    module = DiffusionModule(**recipe)
+    stage = module.model.denoiser.input_stage
+    assert (stage is None) == (head == 0)
+    if head:
+        convs = [conv for block in stage.blocks for conv in (block.conv1, block.conv2)]
+        assert [(c.out_channels, c.kernel_size) for c in convs] == [(head, (kernel,))] * 4
 
 
 @pytest.mark.parametrize("variant", ABLATION)

@@ -310,9 +310,20 @@ def paired(low: dict, ref: dict, key: str, op) -> metrics.Interval:
     return metrics.replication_interval([op(a, b) for a, b in zip(low[key]["values"], ref[key]["values"])])
 
 
+def _parameters(bundle: str) -> str:
+    """"2.0 M parameters": the bundle's weights counted from its file (what was scored, not a constant)."""
+    from safetensors import safe_open
+
+    from stablemo.inference.bundle import WEIGHTS_NAME
+
+    with safe_open(str(Path(bundle) / WEIGHTS_NAME), "pt") as weights:
+        n = sum(int(np.prod(weights.get_slice(k).get_shape())) for k in weights.keys())
+    return f"{n / 1e6:.1f} M parameters"
+
+
 def render_precision(raw: dict, pairs: list[tuple[Run, Run]], args) -> str:
     aits = raw.get("aits", {})
-    lines = []
+    lines, mets = [], []
     for ref_run, low_run in pairs:
         ref, low = _row(raw, ref_run.label), _row(raw, low_run.label)
         if ref is None or low is None:
@@ -320,6 +331,7 @@ def render_precision(raw: dict, pairs: list[tuple[Run, Run]], args) -> str:
         ratio = paired(low, ref, "fid", lambda a, b: a / b)
         d_r3 = paired(low, ref, "r3", lambda a, b: a - b)
         met = ratio.mean <= FID_RATIO_TARGET and abs(d_r3.mean) <= R3_TARGET
+        mets.append(met)
         t_ref, t_low = aits.get(ref_run.label), aits.get(low_run.label)
         speed = f"{t_low / t_ref:.2f}" if t_ref and t_low else "–"
         lines.append(f"| {ref_run.name} | fp32 | {cell(ref, 'r3')} | {cell(ref, 'fid')} | {_seconds(t_ref)} | | | | |")
@@ -333,9 +345,9 @@ def render_precision(raw: dict, pairs: list[tuple[Run, Run]], args) -> str:
              f"{args.replications} replications). {low}: the network under autocast (matrix products and "
              "convolutions in low precision, Linear weights cast once and cached; stablemo.fast); the solver, "
              f"guidance, x0 conversion and the evaluator stay float32. Target: FID ratio ≤ {FID_RATIO_TARGET:g} "
-             f"and |ΔR@3| ≤ {R3_TARGET:g} (met: both means within). The demo network is small (1.6 M parameters, "
-             f"32–64 channels): its AITS column shows the cost of casting, not the speed of {low} on a "
-             "paper-sized network, which the next note gives.")]
+             f"and |ΔR@3| ≤ {R3_TARGET:g} (both means within: {sum(mets)} of {len(mets)} rows). The demo network "
+             f"is small ({_parameters(args.bundle)}, 32–128 channels): its AITS column shows the cost of casting, "
+             f"not the speed of {low} on a paper-sized network, which the next note gives.")]
     paper = raw.get("paper_aits")
     if paper and "fp32" in paper["rows"] and low in paper["rows"]:
         a32, alow = paper["rows"]["fp32"]["aits"], paper["rows"][low]["aits"]

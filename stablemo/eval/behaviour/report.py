@@ -51,8 +51,11 @@ fail a check.
 
 
 # docs/data/results/: the runs the docs show (label -> file), and the picture drawn from them
-FILES = {"ground truth": "behaviour_ground_truth.json", "teacher": "behaviour_teacher.json",
-         "1-step student": "behaviour_student.json"}
+# the previous demo models (the network without its input head, docs/training.md) stay beside the
+# shipped ones, so the section shows what the change did on the same prompts, lengths and seeds
+FILES = {"ground truth": "behaviour_ground_truth.json",
+         "previous teacher": "behaviour_previous_teacher.json", "previous 1-step student": "behaviour_previous_student.json",
+         "teacher": "behaviour_teacher.json", "1-step student": "behaviour_student.json"}
 PICTURE = "behaviour.png"
 
 
@@ -208,7 +211,7 @@ def chart(results: dict[str, dict], path: str | Path) -> None:
     attrs = [a for a in ATTRIBUTES if any(a in results[n]["summary"]["attributes"] for n in names)]
     retrieval = all("r3" in results[n]["summary"] for n in names)
     labels = attrs + ["all checks", "motions"] + (["R@3"] if retrieval else [])
-    fig, ax = plt.subplots(figsize=(11, 4.4))
+    fig, ax = plt.subplots(figsize=(max(11.0, 3.4 * len(names)), 4.4))  # room for each bar's number
     width = 0.8 / len(names)
     x = np.arange(len(labels))
     colours = {"ground truth": "#9e9e9e"}
@@ -221,7 +224,8 @@ def chart(results: dict[str, dict], path: str | Path) -> None:
         bars = ax.bar(x + (k - (len(names) - 1) / 2) * width, mid, width, yerr=err, capsize=2, label=n,
                       color=colours.get(n, f"C{k}"), error_kw={"elinewidth": 0.8})
         for bar, v in zip(bars, mid):
-            ax.text(bar.get_x() + bar.get_width() / 2, 1.5, f"{v:.0f}", ha="center", va="bottom", fontsize=7)
+            ax.text(bar.get_x() + bar.get_width() / 2, 1.5, f"{v:.0f}", ha="center", va="bottom", fontsize=7,
+                    rotation=90 if len(names) > 3 else 0)
     for level, text, style in ((95, "95 %: target, teacher", "--"), (85, "85 %: every attribute", ":")):
         ax.axhline(level, color="black", lw=0.7, ls=style)
         ax.text(1.005, level, text, transform=ax.get_yaxis_transform(), va="center", fontsize=7)
