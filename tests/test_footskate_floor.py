@@ -74,9 +74,10 @@ def test_planted_feet_come_down_to_the_floor(kind):
 
 def test_a_generated_jump_lands_on_the_floor():
     """The demo model's "a person jumps forward twice" (seed 3), through the features path the
-    hook and `stablemo footskate` use: the dataset's placement lifted its stances 3-6 cm
-    (its floor at a landing frame 4.6 cm through it); after the cleanup they stand on the floor and
-    the jumps still leave it."""
+    hook and `stablemo footskate` use: the dataset's placement (its floor at the lowest point of the
+    clip, a landing frame) lifts its stances, by 1.5 cm on average with the shipped teacher (3-6 cm
+    with the network before its input head); after the cleanup they stand on the floor and the
+    jumps still leave it."""
     from footskate.cleanup import detect_contacts
     from stablemo.inference.bundle import DEMO_BUNDLE
     from stablemo.inference.pipeline import Pipeline
@@ -94,7 +95,7 @@ def test_a_generated_jump_lands_on_the_floor():
     contacts = detect_contacts(placed, n, FEET, 20.0, 1, vgrf, gate=True)[0][0]  # (T, 4), as the cleanup finds them
     flat = contacts[:, 0::2] & contacts[:, 1::2]                                # (T, 2) ankle and toe down
     assert flat.sum() > 40
-    assert lowest_foot(placed[0])[flat].mean() > 0.03                          # lifted before
+    assert lowest_foot(placed[0])[flat].mean() > 0.01                          # lifted before
 
     cleaned, _, _ = clean_features(feats, n, "humanml3d", vgrf)
     out = features_to_joints(cleaned)[0]                                        # what the user's file holds
