@@ -237,6 +237,10 @@ def render_control(out_dir: Path) -> str:
         if path.is_file():
             report = reports[name] = json.loads(path.read_text())
             settings = report.get("settings", {})
+            # a table measured on models that have since been replaced says which (scripts/control/report.py
+            # does not write this: a new run's table is of the models it names)
+            if settings.get("models"):
+                how = f"{how} **Measured on {settings['models']}.**"
             parts.append(f"\n## {heading}\n\n{how} Synthetic test split, hints from the scored motions "
                          f"(OmniControl / MotionLCM protocol), mean ± 95% interval over "
                          f"{settings.get('replications', 3)} replications of {settings.get('max_items', 96)} "
