@@ -163,6 +163,8 @@ def test_precision_table_pairs_replications_and_checks_the_target():
     lcm_line = next(line for line in text.splitlines() if line.startswith("| LCM student, 1 step | bf16"))
     assert "1.100 ± 0.000" in lcm_line and lcm_line.endswith("| no |") and "| 2.00 |" in lcm_line
     assert "fp32 3.000 s, bf16 1.500 s per sentence (0.50× the fp32 time)" in text
+    # the note counts what the table found, and the network's size is read from the bundle scored
+    assert "(both means within: 1 of 2 rows)" in text and "(2.0 M parameters, " in text
 
 
 def test_control_tables_rewrite_only_the_control_sections(tmp_path):
@@ -178,6 +180,11 @@ def test_control_tables_rewrite_only_the_control_sections(tmp_path):
     text = out.read_text()
     assert text.startswith(before) and text.endswith(after) and "stale numbers" not in text
     assert "| model | control | FID |" in text  # the tables, rendered by scripts/control/report.py --render
+    # a table of models since replaced says which (its settings' "models"); a table of today's does not
+    import json
+    settings = [json.loads(p.read_text()).get("settings") for p in (REPO / "docs/data/results").glob("*.json")]
+    replaced = [s["models"] for s in settings if isinstance(s, dict) and isinstance(s.get("models"), str)]
+    assert text.count("**Measured on") == len(replaced) and all(f"**Measured on {m}.**" in text for m in replaced)
     summary = text[text.index("## Dense pelvis control"):]
     assert "| guidance only, teacher (10 steps) |" in summary and "| ControlNet, 1-step student |" in summary
     bare = tmp_path / "bare.md"
