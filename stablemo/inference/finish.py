@@ -66,7 +66,7 @@ ANCHOR_REACH_M = 0.08  # a planted ankle moves at most this far to its stance's 
 # input-head student's channels do: 0.47 m from a stance's mean at the 90th percentile, against 0.19
 # before). Between a sliding stance (the generated walks: ~0.35 m/s) and a swing's peak (2-4 m/s);
 # 0.9 m/s (the low-and-slow contact rule's) also cut the slow ends of swings, and the skating ratio
-# rose (the 1-step student, tight benchmark: 0.215 against 0.180 unsplit and 0.170 at 1.5).
+# rose (the 1-step student, tight benchmark: 0.215 against 0.180 unsplit and 0.173 at 1.5).
 SWING_SPEED_M_S = 1.5
 HOLD_S = 0.25  # a hand's hold on its joint target fades in and out over this many seconds
 
@@ -154,7 +154,7 @@ class Finish:
         drift. Over each stretch where the foot is planted (hold above one half), the ankle goes to
         one anchor, the stretch's hold-weighted mean place, blended in from the stretch's edges
         (weight 2 hold - 1), so the foot lands, stays and lifts off without a jump; an ankle moves at
-        most ANCHOR_REACH_M. n (B,): valid
+        most ANCHOR_REACH_M; a stance ends where the ankle moves faster than SWING_SPEED_M_S. n (B,): valid
         frames (padding takes no part in an anchor, so a motion is finished alike alone or batched);
         given (B, T) bool: frames whose feet the user gave stay as given and pin their stance's anchor."""
         out = x.clone()
