@@ -6,8 +6,9 @@ One command from a clean clone (after `bash scripts/setup.sh`) regenerates every
     OMP_NUM_THREADS=1 .venv/bin/python scripts/results/make_results.py --quick       # CI-sized check, minutes
 
 What it needs it makes, by seed: the synthetic data (`stablemo data synth --num 2000 --seed 0 --rest tight`
-when `--data`, default data/synth_tight, is absent) and the LCM/PCM students (`scripts/train/distill_demo.sh lcm|pcm` when their
-bundles are absent; not in `--quick`, which scores the students it finds). The evaluator is the
+when `--data`, default data/synth_tight, is absent) and the LCM/PCM students
+(`scripts/train/distill_demo.sh lcm|pcm` when their bundles are absent; not in `--quick`, which scores
+the students it finds). The evaluator is the
 packaged `stablemo/assets/evaluator_synth` (scripts/train/make_evaluator_asset.sh made it). Checksums of
 the data, bundles and evaluator, and the environment (versions, CPU, threads, git commit), are
 printed and recorded in the report.

@@ -574,16 +574,15 @@ function showControlInfo() {
   $('control-note').textContent = control && control.note ? control.note : '';
 }
 
-// The joint the user pressed on: the one drawn nearest the pointer, within PICK_PX of its centre.
-// Screen distance, not the first sphere a ray meets: a wrist drawn over the hip is picked at its
-// centre, and a joint drawn a few pixels wide (a far figure) is still easy to grab.
+// The joint the user pressed on: the one drawn nearest the pointer (S.screenPose, recorded at each
+// render), within PICK_PX of its centre. Screen distance, not the first sphere a ray meets: a wrist
+// drawn over the hip is picked at its centre, and a joint drawn a few pixels wide is still easy to grab.
 const PICK_PX = 14;
 function jointUnderPointer(e) {
   const r = canvas.getBoundingClientRect();
   const px = e.clientX - r.left, py = e.clientY - r.top;
   let best = -1, bestDistance = PICK_PX;
-  figure.joints.forEach((j, i) => {
-    const [x, y] = S.toScreen(j.position.toArray());
+  (S.screenPose || []).forEach(([x, y], i) => {
     const d = Math.hypot(x - px, y - py);
     if (d < bestDistance) { best = i; bestDistance = d; }
   });
