@@ -87,6 +87,38 @@ def test_path_families_are_walked_at_the_asked_speed_from_the_origin(family):
     assert xz.shape == (120, 2) and np.allclose(xz[0], 0) and np.allclose(steps, 1.0, atol=0.02)
 
 
+def _on_polyline(points: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """(N,) distance of each point to a polyline (M, 2)."""
+    a, b = line[:-1], line[1:]
+    ab = b - a
+    u = np.clip(((points[:, None] - a[None]) * ab[None]).sum(-1) / np.maximum((ab**2).sum(-1), 1e-12), 0, 1)
+    return np.linalg.norm(a[None] + u[..., None] * ab[None] - points[:, None], axis=-1).min(1)
+
+
+def test_a_drawn_path_is_walked_where_the_reference_walks_and_waits_where_it_stands():
+    from stablemo.control.pace import timed_path
+
+    fps, T = 20.0, 100
+    drawn = family_path("arc", np.random.default_rng(3), 40, fps, 1.0)  # a 2 m arc, as drawn
+    # the reference stands 1 s, walks 3 s at 0.8 m/s along +x, stands 1 s
+    speed = np.r_[np.zeros(20), np.full(60, 0.8), np.zeros(19)] / fps
+    ref = np.stack([np.r_[0, np.cumsum(speed)], np.zeros(T)], -1)
+    out = timed_path(drawn, ref, T)
+    along = np.r_[0, np.cumsum(np.linalg.norm(np.diff(out, axis=0), axis=1))]
+    assert out.shape == (T, 2) and np.allclose(out[0], drawn[0]) and np.allclose(out[-1], drawn[-1])
+    assert _on_polyline(out, drawn).max() < 1e-9  # the drawn shape, only re-timed
+    assert np.all(np.diff(along) >= 0)
+    step = np.linalg.norm(np.diff(out, axis=0), axis=1) * fps  # (T-1,) m/s
+    length = along[-1]
+    assert step[:16].max() < 1e-9 and step[84:].max() < 1e-9  # waits while the reference stands
+    assert np.allclose(step[24:76], length / 3.0, rtol=1e-3)  # at the reference's pace, scaled (chords of the arc: 1e-3)
+    # a reference that stands: one constant speed from frame 0; another length: the same shares of time
+    still = timed_path(drawn, np.zeros((T, 2)), T)
+    assert np.allclose(np.linalg.norm(np.diff(still, axis=0), axis=1) * fps, length / ((T - 1) / fps), rtol=1e-3)
+    half = timed_path(drawn, ref, 50)
+    assert np.allclose(half, out[::2][:50], atol=0.05)
+
+
 @pytest.fixture(scope="module")
 def student():
     from stablemo.inference.bundle import DEMO_STUDENT

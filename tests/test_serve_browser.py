@@ -32,6 +32,7 @@ if missing():
 from selenium.webdriver.common.by import By
 from selenium.webdriver.common.keys import Keys
 
+from stablemo.control.pace import timed_path
 from stablemo.serve.api import create_app
 from stablemo.serve.local import serving
 from stablemo.serve.models import ModelSet
@@ -244,6 +245,13 @@ def assert_control_panel(page, control: dict) -> None:
         assert note.is_displayed() and note.text == control["note"] and "reached" not in info
 
 
+def pelvis_path(page) -> np.ndarray:
+    """(T, 2) the horizontal pelvis path of the motion on the page."""
+    return np.array(page.execute_script("const m = window.stablemo.motion; const out = [];"
+                                        "for (let f = 0; f < m.frames; f++) { const o = f * m.J * 3;"
+                                        "out.push([m.joints[o], m.joints[o + 2]]); } return out"))
+
+
 def max_turn_degrees(p: np.ndarray) -> float:
     """The sharpest change of direction between consecutive steps of a polyline (N, 2)."""
     steps = np.diff(p, axis=0)
@@ -256,8 +264,8 @@ def test_a_path_drawn_with_the_pages_defaults_is_what_was_drawn_and_is_followed(
     box.send_keys(Keys.CONTROL, "a")
     box.send_keys("a person walks forward")
     wait_for(page, "const s = window.stablemo; return s.motion && s.motion.text === 'a person walks forward' && !s.error")
-    free_end = np.array(page.execute_script("const m = window.stablemo.motion; const o = ((m.frames - 1) * m.J) * 3;"
-                                            "return [m.joints[o], m.joints[o + 2]]"))
+    free = pelvis_path(page)  # (T, 2) the motion on screen: the drawn path is walked at its pace
+    free_end = free[-1]
     if not page.execute_script("return window.stablemo.playing"):  # the test before paused it
         page.find_element(By.ID, "play").click()
     # the page's defaults: the camera follows the figure and the motion plays (nothing turned off here)
@@ -288,9 +296,7 @@ def test_a_path_drawn_with_the_pages_defaults_is_what_was_drawn_and_is_followed(
     assert to_stroke.max() < 0.1
     # the motion plays (it was playing before the stroke), and the pelvis walks the path
     assert page.execute_script("return window.stablemo.playing")
-    pelvis = np.array(page.execute_script("const m = window.stablemo.motion; const out = [];"
-                                          "for (let f = 0; f < m.frames; f++) { const o = f * m.J * 3;"
-                                          "out.push([m.joints[o], m.joints[o + 2]]); } return out"))  # (T, 2)
+    pelvis = pelvis_path(page)  # (T, 2)
     assert np.linalg.norm(pelvis[-1] - path[-1]) < 0.05
     assert np.linalg.norm(free_end - path[-1]) > 0.3
     nearest = np.linalg.norm(path[:, None] - pelvis[None], axis=-1).min(1)  # (N,)
@@ -299,8 +305,16 @@ def test_a_path_drawn_with_the_pages_defaults_is_what_was_drawn_and_is_followed(
     control, frames = page.execute_script("return [window.stablemo.motion.control, window.stablemo.motion.frames]")
     # with no seconds given, the path takes the length of the motion it was drawn on (the text's)
     assert frames == text_frames("a person walks forward")
-    assert control["pace_m_s"] == pytest.approx(polyline_length(path) / (frames / 20), rel=0.02)
-    assert control["pace_m_s"] < 1
+    # walked as the motion it was drawn on walks its own path (stablemo.control.pace, the same numbers):
+    # standing where it stood, not at one speed from frame 0
+    timed = timed_path(path, free, frames)
+    assert np.linalg.norm(pelvis - timed, axis=-1).max() < 0.02
+    steps = np.linalg.norm(np.diff(pelvis, axis=0), axis=-1) * 20  # (T-1,) m/s
+    still = np.linalg.norm(np.diff(free, axis=0), axis=-1) * 20 < 0.05
+    if still.any():  # where the motion on screen stood, the path waits
+        assert steps[still].mean() < 0.3 * steps.mean()
+    assert control["pace_m_s"] == pytest.approx(steps.max(), rel=0.05)
+    assert control["pace_m_s"] < 3
     assert_control_panel(page, control)
 
     # a stroke far faster than a body walks (about 10 m in 2 s): a visible note, not "reached"

@@ -5,8 +5,8 @@
 
 For each text and path family (stablemo.eval.paths: straight, arc, s_curve, out_and_back; random
 parameters from --rng, never the same draws as the ones the steering was tuned on), it generates
-the text freely (its pelvis heights and stance-foot speed are the reference, as the page takes the
-heights of the motion on screen), then along the path with the pelvis a target at every frame, with
+the text freely (its pelvis heights, pace and stance-foot speed are the reference, as the page takes
+the motion on screen's), then along the path with the pelvis a target at every frame, with
 the body steered toward the path (Request.face_travel) and, with --ab, also without. Reports per
 family: the median over motions of the median facing-vs-travel angle (stablemo.eval.heading), the
 worst motion's, the pelvis path error (cm, mean and max over frames), the stance-foot speed against
@@ -22,11 +22,13 @@ import sys
 import numpy as np
 import torch
 
+from stablemo.control.pace import timed_path
 from stablemo.eval.heading import heading_measures
 from stablemo.eval.kinematics import stance_speed
 from stablemo.eval.paths import FAMILIES, family_path, path_control
 from stablemo.inference.bundle import DEMO_BUNDLE, DEMO_CONTROLNET, DEMO_STUDENT
 from stablemo.inference.pipeline import Pipeline, Request
+from stablemo.motion.skeleton import get_skeleton
 
 MODELS = {"student": DEMO_STUDENT, "teacher": DEMO_BUNDLE, "controlnet": DEMO_CONTROLNET}
 
@@ -45,13 +47,16 @@ def run(pipe, text, family, args, seeds, face_travel):
     rng = np.random.default_rng(args.rng)
     rows = []
     for p in range(args.paths):
-        xz = family_path(family, rng, T, fps, speed)
-        controls = [path_control(xz, free.joints[i, :, 0, 1].numpy(), free.joints.shape[2]) for i in range(len(seeds))]
+        drawn = family_path(family, rng, T, fps, speed)
+        paths = [drawn if args.timing == "constant" else
+                 timed_path(drawn, free.joints[i, :, 0][:, [0, 2]].numpy(), T, get_skeleton(pipe.skeleton).per_metre)
+                 for i in range(len(seeds))]
+        controls = [path_control(paths[i], free.joints[i, :, 0, 1].numpy(), free.joints.shape[2]) for i in range(len(seeds))]
         out = pipe.generate(Request([text] * len(seeds), T, seed=seeds, control=controls,
                                     control_guidance=args.guidance, face_travel=face_travel))
         lengths = torch.tensor([T] * len(seeds))
         m = heading_measures(out.joints, lengths, pipe.skeleton)
-        err = (out.joints[:, :, 0][..., [0, 2]] - torch.tensor(xz, dtype=out.joints.dtype)).norm(dim=-1)  # (B, T)
+        err = (out.joints[:, :, 0][..., [0, 2]] - torch.tensor(np.stack(paths), dtype=out.joints.dtype)).norm(dim=-1)  # (B, T)
         stance = stance_speed(out.joints, lengths, pipe.skeleton)
         for i in range(len(seeds)):
             rows.append({"path": p, "seed": seeds[i], "facing": float(m["facing_deg"][i]), "backward": float(m["backward"][i]),
@@ -80,6 +85,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", default="0,1")
     ap.add_argument("--frames", type=int, default=120)
     ap.add_argument("--speed", type=float, default=None, help="path speed (m/s); default the free motion's")
+    ap.add_argument("--timing", choices=["motion", "constant"], default="motion",
+                    help="walk each path at the free motion's own pace (the page's way) or at one speed")
     ap.add_argument("--no-guidance", dest="guidance", action="store_false")
     ap.add_argument("--ab", action="store_true", help="also without steering (face_travel=False)")
     ap.add_argument("--json", default=None)
@@ -88,7 +95,7 @@ def main(argv=None) -> int:
     pipe = Pipeline.from_bundle(MODELS[args.model])
     seeds = [int(s) for s in args.seeds.split(",")]
     out = {}
-    print(f"{args.model} guidance={args.guidance} frames={args.frames} rng={args.rng} seeds={seeds}")
+    print(f"{args.model} guidance={args.guidance} timing={args.timing} frames={args.frames} rng={args.rng} seeds={seeds}")
     print("| text | path | steered | facing median (deg) | worst | path err mean / max (cm) | stance speed / free | backward | sideways |")
     print("|---|---|---|---|---|---|---|---|---|")
     for text in [t.strip() for t in args.texts.split("|")]:

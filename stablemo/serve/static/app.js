@@ -524,17 +524,48 @@ function showKeyframes() {
   dirtyView = true;
 }
 
-// The path as T pelvis targets: resampled by arc length (constant speed over the motion), at the
-// pelvis heights of the motion on screen (the root's height is a target too; this keeps its jumps).
+// The motion on screen's progress along its own pelvis path at each of `frames` frames spread over
+// its duration (0 -> 1, never decreasing; a constant ramp when it stands): a drawn path has no timing
+// of its own, and walked at one speed from frame 0 it drags a body whose text starts and ends
+// standing, its stance feet sliding (stablemo/control/pace.py does the same; docs/control.md).
+const PACE_SMOOTH = 5;    // frames the pelvis steps are averaged over (pace.py's SMOOTH_FRAMES)
+const PACE_STILL_M = 0.2; // a motion moving less than this stands (pace.py's STILL_M)
+function motionProgress(frames) {
+  const ramp = Array.from({ length: frames }, (_, f) => (frames > 1 ? f / (frames - 1) : 0));
+  const m = S.motion;
+  if (!m || m.frames < 2) return ramp;
+  const step = [];
+  for (let f = 1; f < m.frames; f++) {
+    const a = (f - 1) * m.J * 3, b = f * m.J * 3;
+    step.push(Math.hypot(m.joints[b] - m.joints[a], m.joints[b + 2] - m.joints[a + 2]) * m.scale);
+  }
+  const k = Math.min(PACE_SMOOTH, step.length), lo = Math.floor(k / 2);
+  const walked = [0];
+  for (let i = 0; i < step.length; i++) {  // a moving average of the steps, edges repeated
+    let sum = 0;
+    for (let d = -lo; d < k - lo; d++) sum += step[Math.min(Math.max(i + d, 0), step.length - 1)];
+    walked.push(walked[i] + sum / k);
+  }
+  const total = walked.at(-1);
+  if (total < PACE_STILL_M) return ramp;
+  return ramp.map((u) => {
+    const at = u * (m.frames - 1), i = Math.min(Math.floor(at), m.frames - 2), w = at - i;
+    return (walked[i] + w * (walked[i + 1] - walked[i])) / total;
+  });
+}
+
+// The path as T pelvis targets: walked as the motion on screen walks its own (motionProgress), by
+// arc length, at that motion's pelvis heights (the root's height is a target too; this keeps its jumps).
 function pathTargets(frames) {
   const pts = S.path;
   const cum = [0];
   for (let i = 1; i < pts.length; i++) cum.push(cum[i - 1] + Math.hypot(pts[i][0] - pts[i - 1][0], pts[i][1] - pts[i - 1][1]));
   const total = cum.at(-1);
+  const share = motionProgress(frames);
   const out = [];
   let seg = 1;
   for (let f = 0; f < frames; f++) {
-    const s = frames > 1 ? (total * f) / (frames - 1) : 0;
+    const s = total * share[f];
     while (seg < pts.length - 1 && cum[seg] < s) seg++;
     const a = pts[seg - 1], b = pts[seg];
     const u = cum[seg] > cum[seg - 1] ? Math.min(Math.max((s - cum[seg - 1]) / (cum[seg] - cum[seg - 1]), 0), 1) : 0;
