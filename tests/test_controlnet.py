@@ -21,8 +21,9 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def tiny_model(variant: str = "stablemo") -> dict:
-    """variant: a CondUNet1D layout, or "input_head" (the default layout with an input head)."""
-    head = {"input_head": 8} if variant == "input_head" else {}
+    """variant: a CondUNet1D layout, "input_head" (the default layout with an input head) or
+    "mid_attention" (and a temporal self-attention in the middle)."""
+    head = {"input_head": {"input_head": 8}, "mid_attention": {"input_head": 8, "mid_attention": 2}}.get(variant, {})
     return {
         "denoiser": {"name": "unet", "input_dim": D, "base_channels": 16, "channel_mults": [1, 2], "time_dim": 32,
                      "num_groups": 4, "num_heads": 2, "dropout": 0.0,
@@ -38,6 +39,8 @@ def tiny_base(variant: str = "stablemo", seed: int = 0) -> MotionDiffusionModel:
     if model.denoiser.input_stage is not None:  # and the input head's
         for p in model.denoiser.input_stage.parameters():
             torch.nn.init.normal_(p, std=0.05)
+    if getattr(model.denoiser, "mid", None) is not None and model.denoiser.mid.self_attn is not None:
+        torch.nn.init.normal_(model.denoiser.mid.self_attn.attn.out.weight, std=0.05)  # and the self-attention's
     return model.eval()
 
 
@@ -122,7 +125,7 @@ def check_zero_start_and_padding_invariance(base, model) -> tuple:
 
 
 @pytest.mark.parametrize("variant,output", [("stablemo", False), ("official", False), ("stablemo", True),
-                                            ("input_head", False)])
+                                            ("input_head", False), ("mid_attention", False)])
 def test_controlnet_starts_as_its_base_and_is_exactly_padding_invariant(variant, output):
     base = tiny_base(variant)
     model = ControlledModel(base, "diffusion", J, {"channels": 16, "layers": 2, "output": output}).eval()

@@ -30,6 +30,10 @@ TINY = {
     "unet_input_head_k3": ("unet", dict(base_channels=16, channel_mults=[1, 2, 2, 2], time_dim=32, num_groups=2,
                                         num_heads=2, cross_attention=True, norm="frame", input_head=8,
                                         input_head_kernel=3)),
+    # temporal self-attention at the coarsest resolution
+    "unet_mid_attention": ("unet", dict(base_channels=16, channel_mults=[1, 2, 2, 2], time_dim=32, num_groups=2,
+                                        num_heads=2, cross_attention=True, norm="frame", input_head=8,
+                                        input_head_kernel=3, mid_attention=4)),
     # the published T2MUnet's layout (stablemo.official imports its checkpoints into it)
     "unet_official": ("unet", dict(base_channels=16, channel_mults=[1, 2, 2, 2], time_dim=32, num_groups=2,
                                    num_heads=2, cross_attention=True, norm="frame", variant="official")),

@@ -411,7 +411,8 @@ def test_ddp_smoke_two_cpu_processes(tiny_data, tmp_path):
 ABLATION = ["unet_base", "unet_xattn", "unet_xattn_gn", "dit_base", "dit_xattn", "retnet_base", "retnet_xattn"]
 CONFIG_SETS = [["synth_small.yaml"], ["humanml3d.yaml"], ["kit.yaml"]] + [
     ["ablation/common.yaml", f"ablation/{v}.yaml"] for v in ABLATION] + [
-    ["demo.yaml"], ["demo.yaml", "demo_variants/input_head_k1.yaml"], ["demo.yaml", "demo_variants/no_input_head.yaml"]]
+    ["demo.yaml"], ["demo.yaml", "demo_variants/input_head_k1.yaml"], ["demo.yaml", "demo_variants/no_input_head.yaml"],
+    ["demo.yaml", "demo_variants/mid_attention.yaml"]]
 
 
 @pytest.mark.parametrize("files", CONFIG_SETS, ids=lambda f: f[-1])
@@ -440,8 +441,9 @@ def test_shipped_configs_parse(files, capsys):
         assert model["model"]["denoiser"]["variant"] == "official" and printed["data"]["pad_multiple"] == 16
 
 
-@pytest.mark.parametrize("variant, head, kernel", [(None, 128, 3), ("input_head_k1", 128, 1), ("no_input_head", 0, 1)])
-def test_demo_recipe_is_the_packaged_teachers_network_and_its_variants_change_only_the_head(variant, head, kernel):
+@pytest.mark.parametrize("variant, head, kernel, heads", [(None, 128, 3, 0), ("input_head_k1", 128, 1, 0),
+                                                          ("no_input_head", 0, 1, 0), ("mid_attention", 128, 3, 4)])
+def test_demo_recipe_is_the_packaged_teachers_network_and_its_variants_change_only_their_part(variant, head, kernel, heads):
     from stablemo.inference.bundle import DEMO_BUNDLE
     from stablemo.training.module import DiffusionModule
 
@@ -451,8 +453,9 @@ def test_demo_recipe_is_the_packaged_teachers_network_and_its_variants_change_on
     else:
         overlay = yaml.safe_load((REPO / f"configs/demo_variants/{variant}.yaml").read_text())["model"]["model"]
         assert overlay["text"] == recipe["model"]["text"]
-        assert {k: v for k, v in overlay["denoiser"].items() if not k.startswith("input_head")} == \
-            {k: v for k, v in recipe["model"]["denoiser"].items() if not k.startswith("input_head")}
+        own = ("input_head", "input_head_kernel", "mid_attention")  # what a variant may change
+        assert {k: v for k, v in overlay["denoiser"].items() if k not in own} == \
+            {k: v for k, v in recipe["model"]["denoiser"].items() if k not in own}
         recipe = {**recipe, "model": overlay}
     module = DiffusionModule(**recipe)
     stage = module.model.denoiser.input_stage
@@ -460,6 +463,10 @@ def test_demo_recipe_is_the_packaged_teachers_network_and_its_variants_change_on
     if head:
         convs = [conv for block in stage.blocks for conv in (block.conv1, block.conv2)]
         assert [(c.out_channels, c.kernel_size) for c in convs] == [(head, (kernel,))] * 4
+    attention = module.model.denoiser.mid.self_attn
+    assert (attention is None) == (heads == 0)
+    if heads:
+        assert attention.attn.num_heads == heads
 
 
 @pytest.mark.parametrize("variant", ABLATION)

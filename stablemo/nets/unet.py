@@ -12,6 +12,9 @@ Ablation switches (paper Table 4):
   residual block ("+ cross-attention"); without it the text enters only through AdaGN (baseline).
 - ``norm``: ``"group"`` = GroupNorm over channel groups and time (baseline), ``"frame"`` = the
   GroupNorm tweak (each frame over its channel groups).
+Ours, off by default: ``input_head`` (residual blocks over [last features | x_t] before the output)
+and ``mid_attention`` (temporal self-attention at the coarsest resolution, so distant frames can
+agree: TemporalSelfAttention1D).
 
 Both norms are exactly padding invariant here: the "group" norm takes its statistics over valid
 frames only (the published baseline does not, which is the leak the tweak fixes there).
@@ -42,9 +45,11 @@ from stablemo.nets.conditioning import Conditioning, check_conditioning, check_s
 from stablemo.nets.layers import (
     LinearCrossAttention,
     MaskedGroupNorm,
+    SelfAttention,
     TimestepEmbedder,
     downsample_mask,
     masked_mean,
+    sinusoidal_embedding,
     zero_pad_bct,
 )
 
@@ -91,11 +96,37 @@ class CrossAttention1D(nn.Module):
         return zero_pad_bct(self.attn(x.transpose(1, 2), context).transpose(1, 2), mask)
 
 
+class TemporalSelfAttention1D(nn.Module):
+    """Residual multi-head self-attention over the valid frames of a (B, C, T) feature map, with
+    sinusoidal frame positions added to its queries and keys (not to the residual).
+
+    The convolutions see a window of frames and the cross-attention reads the text per frame, so
+    nothing else lets distant frames agree on, e.g., how many jumps there are: trained without it
+    the demo teacher gets counts right at an action's own length and repeats the action to fill a
+    longer one. The output projection starts at zero (the block starts as the identity); padded
+    keys get no weight and padded frames stay zero, so the network stays padding invariant."""
+
+    def __init__(self, channels: int, num_heads: int, dropout: float):
+        super().__init__()
+        self.norm = nn.LayerNorm(channels)
+        self.attn = SelfAttention(channels, num_heads, dropout)
+        nn.init.zeros_(self.attn.out.weight)
+        nn.init.zeros_(self.attn.out.bias)
+
+    def forward(self, x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """x: (B, C, T) zero on padding; mask: (B, T) -> (B, C, T)."""
+        h = x.transpose(1, 2)  # (B, T, C)
+        frames = torch.arange(h.shape[1], device=h.device)
+        h = self.norm(h) + sinusoidal_embedding(frames, h.shape[2]).to(h.dtype)[None]
+        return zero_pad_bct(x + self.attn(h, mask).transpose(1, 2), mask)
+
+
 class Stage(nn.Module):
-    """Two residual blocks, each optionally followed by cross-attention."""
+    """Two residual blocks, each optionally followed by cross-attention; optionally a temporal
+    self-attention after them (`self_attention` heads, 0 = none)."""
 
     def __init__(self, in_ch, out_ch, emb_dim, text_dim, *, kernel_size, num_groups, norm, dropout,
-                 cross_attention, num_heads, out_proj=True):
+                 cross_attention, num_heads, out_proj=True, self_attention: int = 0):
         super().__init__()
         self.blocks = nn.ModuleList([
             ResBlock1D(in_ch, out_ch, emb_dim, kernel_size, num_groups, norm, dropout),
@@ -105,6 +136,7 @@ class Stage(nn.Module):
             [CrossAttention1D(out_ch, text_dim, num_heads, dropout, out_proj) for _ in range(2)]
             if cross_attention else []
         )
+        self.self_attn = TemporalSelfAttention1D(out_ch, self_attention, dropout) if self_attention else None
 
     def forward(self, x, adagn: Sequence[torch.Tensor], contexts: Sequence[torch.Tensor], mask):
         """adagn: each block's (B, 2 C_out); contexts: each attention's (B, H, d, d)."""
@@ -112,6 +144,8 @@ class Stage(nn.Module):
             x = block(x, adagn[i], mask)
             if self.attns:
                 x = self.attns[i](x, contexts[i], mask)
+        if self.self_attn is not None:
+            x = self.self_attn(x, mask)
         return x
 
 
@@ -148,6 +182,7 @@ class CondUNet1D(nn.Module):
         variant: str = "stablemo",
         input_head: int = 0,
         input_head_kernel: int = 1,
+        mid_attention: int = 0,
     ):
         super().__init__()
         if len(channel_mults) < 1:
@@ -158,6 +193,11 @@ class CondUNet1D(nn.Module):
             raise StableMoError(f"input_head: a width >= 0, and 0 in the official layout, got {input_head}")
         if input_head_kernel < 1 or input_head_kernel % 2 == 0:
             raise StableMoError(f"input_head_kernel: must be odd and >= 1, got {input_head_kernel}")
+        if mid_attention < 0 or (mid_attention and variant == "official"):
+            raise StableMoError(f"mid_attention: a number of heads >= 0, and 0 in the official layout, got {mid_attention}")
+        if mid_attention and (base_channels * channel_mults[-1]) % mid_attention:
+            raise StableMoError(f"mid_attention: {base_channels * channel_mults[-1]} middle channels are not "
+                                f"divisible by {mid_attention} heads")
         if variant not in ("stablemo", "official"):
             raise StableMoError(f"variant: expected 'stablemo' or 'official' (the published T2MUnet's layout), got {variant!r}")
         official = variant == "official"
@@ -175,7 +215,8 @@ class CondUNet1D(nn.Module):
 
         self.down = nn.ModuleList(Stage(dims[i], dims[i + 1], time_dim, text_dim, **common) for i in range(n))
         self.downsample = nn.ModuleList(nn.Conv1d(dims[i + 1], dims[i + 1], 3, stride=2, padding=1) for i in range(n_down))
-        self.mid = Stage(dims[-1], dims[-1], time_dim, text_dim, **common)
+        # mid_attention: temporal self-attention at the coarsest resolution (T / length_multiple frames)
+        self.mid = Stage(dims[-1], dims[-1], time_dim, text_dim, **common, self_attention=mid_attention)
         # up stage i (run from i = n-1 down to 0) concatenates the skip of down stage i; the
         # default up-samples after a stage (same width), the official layout before it (new width)
         up, upsample, ch = [], [], dims[-1]
