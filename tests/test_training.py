@@ -412,7 +412,7 @@ ABLATION = ["unet_base", "unet_xattn", "unet_xattn_gn", "dit_base", "dit_xattn",
 CONFIG_SETS = [["synth_small.yaml"], ["humanml3d.yaml"], ["kit.yaml"]] + [
     ["ablation/common.yaml", f"ablation/{v}.yaml"] for v in ABLATION] + [
     ["demo.yaml"], ["demo.yaml", "demo_variants/input_head_k1.yaml"], ["demo.yaml", "demo_variants/no_input_head.yaml"],
-    ["demo.yaml", "demo_variants/mid_attention.yaml"]]
+    ["demo.yaml", "demo_variants/no_mid_attention.yaml"]]
 
 
 @pytest.mark.parametrize("files", CONFIG_SETS, ids=lambda f: f[-1])
@@ -441,8 +441,8 @@ def test_shipped_configs_parse(files, capsys):
         assert model["model"]["denoiser"]["variant"] == "official" and printed["data"]["pad_multiple"] == 16
 
 
-@pytest.mark.parametrize("variant, head, kernel, heads", [(None, 128, 3, 0), ("input_head_k1", 128, 1, 0),
-                                                          ("no_input_head", 0, 1, 0), ("mid_attention", 128, 3, 4)])
+@pytest.mark.parametrize("variant, head, kernel, heads", [(None, 128, 3, 4), ("no_mid_attention", 128, 3, 0),
+                                                          ("input_head_k1", 128, 1, 0), ("no_input_head", 0, 1, 0)])
 def test_demo_recipe_is_the_packaged_teachers_network_and_its_variants_change_only_their_part(variant, head, kernel, heads):
     from stablemo.inference.bundle import DEMO_BUNDLE
     from stablemo.training.module import DiffusionModule
