@@ -114,6 +114,10 @@ class Finish:
         pins = pinned = None
         if control is not None:
             pins, pinned = target_pins(heights.permute(1, 2, 0), control.targets[:, :t].to(body), mask)
+        if given is not None:  # frames whose feet were given keep their heights (no shift), so the kept
+            # part of an edit stays where it was; the shift of the new part fades in beside them
+            pins = torch.zeros_like(given, dtype=body.dtype) if pins is None else torch.where(given, 0.0, pins)
+            pinned = given if pinned is None else pinned | given
         body[:, 1] += lowest_shift(heights.amin(0), n, self.skeleton, self.fps, pins, pinned)  # onto the floor
         return body
 
