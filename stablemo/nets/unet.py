@@ -98,7 +98,7 @@ class CrossAttention1D(nn.Module):
 
 class TemporalSelfAttention1D(nn.Module):
     """Residual multi-head self-attention over the valid frames of a (B, C, T) feature map, with
-    sinusoidal frame positions added to its queries and keys (not to the residual).
+    sinusoidal frame positions added to the attention's input (not to the residual).
 
     The convolutions see a window of frames and the cross-attention reads the text per frame, so
     nothing else lets distant frames agree on, e.g., how many jumps there are: trained without it
