@@ -39,7 +39,7 @@ def tiny_base(variant: str = "stablemo", seed: int = 0) -> MotionDiffusionModel:
     if model.denoiser.input_stage is not None:  # and the input head's
         for p in model.denoiser.input_stage.parameters():
             torch.nn.init.normal_(p, std=0.05)
-    if getattr(model.denoiser, "mid", None) is not None and model.denoiser.mid.self_attn is not None:
+    if model.denoiser.mid.self_attn is not None:
         torch.nn.init.normal_(model.denoiser.mid.self_attn.attn.out.weight, std=0.05)  # and the self-attention's
     return model.eval()
 

@@ -44,12 +44,13 @@ def run(pipe, text, family, args, seeds, face_travel):
     free = pipe.generate(Request([text] * len(seeds), T, seed=seeds))
     free_stance = stance_speed(free.joints, torch.tensor([T] * len(seeds)), pipe.skeleton)
     speed = args.speed or float(np.median([_speed(j, T, fps) for j in free.joints]))
+    per_metre = get_skeleton(pipe.skeleton).per_metre
     rng = np.random.default_rng(args.rng)
     rows = []
     for p in range(args.paths):
         drawn = family_path(family, rng, T, fps, speed)
         paths = [drawn if args.timing == "constant" else
-                 timed_path(drawn, free.joints[i, :, 0][:, [0, 2]].numpy(), T, get_skeleton(pipe.skeleton).per_metre)
+                 timed_path(drawn, free.joints[i, :, 0][:, [0, 2]].numpy(), T, per_metre)
                  for i in range(len(seeds))]
         controls = [path_control(paths[i], free.joints[i, :, 0, 1].numpy(), free.joints.shape[2]) for i in range(len(seeds))]
         out = pipe.generate(Request([text] * len(seeds), T, seed=seeds, control=controls,
