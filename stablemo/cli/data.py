@@ -1,4 +1,4 @@
-"""`stablemo data check DIR [--dataset humanml3d|kit]`, `stablemo data synth --out DIR [--num N] [--seed S] [--rest varied|tight]`,
+"""`stablemo data check DIR [--dataset humanml3d|kit]`, `stablemo data synth --out DIR [--num N] [--seed S] [--rest varied|tight] [--path-walks SHARE]`,
 `stablemo data preview OUT.png`, `stablemo data glove-words GLOVE_DIR`, `stablemo data shard SRC [SRC ...] --out DIR` (stablemo/data/shards.py) and `stablemo data import-bvh DIR --out DATASET [--texts CSV] [--map YAML]` (stablemo/data/bvh_import.py)."""
 
 from __future__ import annotations
@@ -31,6 +31,10 @@ def _parser() -> argparse.ArgumentParser:
     synth.add_argument("--rest", default=None, choices=list(REST_MODES),
                        help="idle rest around each action: " + "; ".join(f"{k}: {v}" for k, v in REST_MODES.items())
                             + f" (default: the generator's, {DEFAULT_REST})")
+    synth.add_argument("--path-walks", type=float, default=0.0, metavar="SHARE",
+                       help="share of the motions, 0 to 1, that walk forward along random curved paths in any "
+                            "direction (for path-control training; default 0: none). The others are the dataset's "
+                            "without them, file for file")
     imp = sub.add_parser("import-bvh", help="turn a folder of BVH mocap into a HumanML3D-layout dataset")
     imp.add_argument("dir", help="folder searched recursively for .bvh files")
     imp.add_argument("--out", required=True, help="new dataset folder")
@@ -119,7 +123,10 @@ def main(argv: list[str]) -> int:
         check_num(args.num, "--num")  # the cap and the minimum, before anything else
     if args.seed < 0:
         raise StableMoError(f"--seed={args.seed}: must be >= 0")
+    if not 0.0 <= args.path_walks <= 1.0:
+        raise StableMoError(f"--path-walks={args.path_walks}: must be a share in [0, 1]")
     rest = {} if args.rest is None else {"rest": args.rest}
+    rest["path_walks"] = args.path_walks
     if args.num is None:
         write_dataset(args.out, seed=args.seed, flag="--out", **rest)
     else:

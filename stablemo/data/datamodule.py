@@ -64,6 +64,9 @@ class MotionDataModule(L.LightningDataModule):
         eval_crop: crop rule of val/test items: "eval" (the evaluator's unit-length rule), "train" or "none".
         cache, cache_dir: memory-mapped split cache (default: <data_dir>/.stablemo_cache or ~/.cache/stablemo).
         drop_last: drop the last incomplete training batch.
+        stats_dir: normalise with this dataset folder's Mean.npy/Std.npy instead of the data's own: a
+            frozen network trained on that folder (a ControlNet's base, a fine-tune's start) must see
+            new clips in the units it learned.
     """
 
     def __init__(
@@ -85,6 +88,7 @@ class MotionDataModule(L.LightningDataModule):
         cache_dir: str | None = None,
         drop_last: bool = False,
         shards: str | None = None,
+        stats_dir: str | None = None,
     ):
         super().__init__()
         self.spec = get_spec(dataset)
@@ -109,7 +113,7 @@ class MotionDataModule(L.LightningDataModule):
         self.seed, self.skip_bad = seed, skip_bad
         self.splits = {"train": train_split, "val": val_split, "test": test_split}
         self.eval_crop, self.cache, self.cache_dir, self.drop_last = eval_crop, cache, cache_dir, drop_last
-        self.shards = shards
+        self.shards, self.stats_dir = shards, stats_dir
         self._manifest = None
         self.datasets: dict[str, MotionDataset | ShardDataset] = {}
         self._splits: dict[str, SplitData] = {}  # by split name: read (and warned about) once
@@ -148,10 +152,10 @@ class MotionDataModule(L.LightningDataModule):
         return self._manifest
 
     def _load_stats(self) -> tuple[np.ndarray, np.ndarray]:
-        if self._stats is None and self.shards is not None:
+        if self._stats is None and self.shards is not None and self.stats_dir is None:
             self._stats = self.manifest.mean, apply_feat_bias(self.manifest.std, self.feat_bias)
         if self._stats is None:
-            root = check_root(self.data_dir)
+            root = check_root(self.stats_dir or self.data_dir)
             stats = load_model_stats(root, self.spec, self.feat_bias)
             problems = stats_problems(root, self.spec)  # finite but absurd: training would diverge
             if problems:

@@ -136,7 +136,7 @@ class ControlNetTraining(LightningModule):
                 ours = getattr(self, name).cpu()
                 if ours.shape != theirs.shape or not torch.allclose(ours, theirs, rtol=1e-4, atol=1e-6):
                     raise StableMoError(f"data: the dataset's {name} differs from the base bundle's; "
-                                        "train the ControlNet on the base's dataset")
+                                        "train the ControlNet on the base's dataset, or give --data.stats_dir the folder the base was trained on")
 
     def on_train_start(self) -> None:
         # a resumed run trains at the lr it was given, also when it changed: a constant one holds as

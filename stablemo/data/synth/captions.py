@@ -11,6 +11,8 @@ import re
 
 import numpy as np
 
+from stablemo.data.synth import path_walks
+
 NUMBER_WORDS = {1: "one", 2: "two", 3: "three", 4: "four", 5: "five"}
 TIMES_WORDS = {1: "once", 2: "twice", 3: "three times", 4: "four times", 5: "five times"}
 SUBJECTS = (("a person", "their"), ("a man", "his"), ("a woman", "her"), ("someone", "their"),
@@ -43,6 +45,8 @@ def phrases(action: str, p: dict, pron: str) -> list[str]:
                                                                     f"waves {hands2} while walking forward"
                                                                     + (" slowly" if p["speed_label"] == "slow" else "")]
         return out
+    if action == "walk_path":
+        return path_walks.phrases(p)
     if action == "walk_backward":
         if p["speed_label"] == "slow":
             return ["walks backward slowly", "slowly walks backwards", "steps backward slowly",

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stablemo.data.synth import actions, captions, idle
+from stablemo.data.synth import actions, captions, idle, path_walks
 from stablemo.data.synth.idle import DEFAULT_REST, REST_MODES
 from stablemo.data.synth.timeline import FPS, Built, Timeline
 from stablemo.motion.skeleton import MAX_FRAMES as HUMANML3D_MAX_FRAMES
@@ -14,6 +14,11 @@ from stablemo.motion.skeleton import MAX_FRAMES as HUMANML3D_MAX_FRAMES
 MIN_FRAMES = 40  # feature frames (HumanML3D's minimum clip length)
 MAX_FRAMES = HUMANML3D_MAX_FRAMES  # feature frames (HumanML3D's maximum motion length)
 PART_WEIGHTS = (0.45, 0.35, 0.20)  # P(1 action), P(2), P(3)
+
+
+# Every builder a plan may name: the regular actions, and the path walk (path_walks.py), drawn only
+# into datasets that ask for path walks (writer.write_dataset's path_walks share).
+BUILDERS = {**actions.BUILDERS, "walk_path": path_walks.build_walk_path}
 
 
 @dataclass
@@ -35,7 +40,7 @@ def build(plan: list[tuple[str, dict]], lead_in: float = 0.2, lead_out: float = 
     actions.build_stand(tl, dict(duration=lead_in, phase=0.0))
     tl.parts.clear()
     for name, params in plan:
-        actions.BUILDERS[name](tl, params)
+        BUILDERS[name](tl, params)
     actions.build_stand(tl, dict(duration=lead_out, phase=0.0))
     tl.parts.pop()
     return tl.build(tl.t)
@@ -65,7 +70,7 @@ def build_rested(plan: list[tuple[str, dict]], lead_in: int, lead_out: int, styl
     tl = Timeline()
     idle.build_idle(tl, lead_in, styles[0], "in")
     for name, params in plan:
-        actions.BUILDERS[name](tl, params)
+        BUILDERS[name](tl, params)
     idle.build_idle(tl, lead_out, styles[1], "out")
     return tl.build(tl.t)
 
@@ -75,12 +80,29 @@ def generate_motion(rng: np.random.Generator, rest: str = DEFAULT_REST, max_trie
     plan fits, so long actions are not crowded out of composites. rest: idle.REST_MODES; both
     modes draw the same actions, parameters and captions from `rng`, "varied" then draws the total
     length and the idling."""
+    names: list[str] = []
+
+    def draw(attempt: int) -> list[tuple[str, dict]]:
+        nonlocal names
+        if attempt % 8 == 0:
+            names = sample_names(rng)
+        return [(n, actions.sample_params(n, rng)) for n in names]
+
+    return generate_plan(draw, rng, rest, max_tries)
+
+
+def generate_path_walk(rng: np.random.Generator, rest: str = DEFAULT_REST, max_tries: int = 40) -> SynthMotion:
+    """One path walk (path_walks.py) of 40..196 feature frames, with rest as in generate_motion."""
+    return generate_plan(lambda attempt: [("walk_path", path_walks.sample_params(rng))], rng, rest, max_tries)
+
+
+def generate_plan(draw, rng: np.random.Generator, rest: str = DEFAULT_REST, max_tries: int = 40) -> SynthMotion:
+    """The first plan from draw(attempt) -> [(action, params)] that fits 40..196 frames, built with
+    its rest and captioned (all draws from `rng`, in a fixed order)."""
     if rest not in REST_MODES:
         raise ValueError(f"rest={rest!r}: one of {', '.join(REST_MODES)}")
     for attempt in range(max_tries):
-        if attempt % 8 == 0:
-            names = sample_names(rng)
-        plan = [(n, actions.sample_params(n, rng)) for n in names]
+        plan = draw(attempt)
         lead_in, lead_out = float(rng.uniform(0.1, 0.4)), float(rng.uniform(0.2, 0.5))
         try:
             built = build(plan, lead_in, lead_out)

@@ -3,6 +3,8 @@ builders for stand, walk (forward, backward, sideways), jog, run, circle and tur
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from stablemo.data.synth import body
@@ -71,9 +73,11 @@ GAITS = {
 
 
 def _locomote(tl: Timeline, params: dict, gait_name: str, direction: float, curvature: float = 0.0,
-              distance: float | None = None) -> None:
+              distance: float | None = None, turning: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
     """Move the pelvis at speed v in `direction` (radians from the heading; + = left) for
-    params['duration'] seconds of travel (or `distance` metres), stepping all the way."""
+    params['duration'] seconds of travel (or `distance` metres), stepping all the way.
+    curvature: a constant turning rate (rad/m); turning: instead, the heading change (rad) after s
+    metres of travel, s (n,) -> (n,) (a path of any shape)."""
     g = GAITS[gait_name]
     v = params["speed"]
     t_acc = t_dec = (0.8 if v < 2 else 1.0) * FPS
@@ -88,7 +92,7 @@ def _locomote(tl: Timeline, params: dict, gait_name: str, direction: float, curv
     tt = np.arange(int(np.ceil(moving * sub)) + 1) / sub
     vel = v / FPS * smoothstep(tt / t_acc) * smoothstep((moving - tt) / t_dec)  # m/frame
     s = np.concatenate([[0.0], np.cumsum(0.5 * (vel[1:] + vel[:-1]) / sub)])
-    heading = tl.heading + curvature * s
+    heading = tl.heading + (curvature * s if turning is None else turning(s))
     ds = 0.5 * (vel[1:] + vel[:-1]) / sub  # metres per sub-step
     step_xz = dir2(0.5 * (heading[1:] + heading[:-1]) + direction) * ds[:, None]
     xz = tl.pos + np.concatenate([[[0.0, 0.0]], np.cumsum(step_xz, 0)])
@@ -122,6 +126,10 @@ def _locomote(tl: Timeline, params: dict, gait_name: str, direction: float, curv
     if curvature:
         # Lean into the curve.
         tl.torso_roll[sl] += -np.sign(curvature) * min(0.12, v * v * abs(curvature) / G) * ramp
+    elif turning is not None:
+        # Lean into each bend, as far as its own curvature asks.
+        bend = np.interp(f, tt, (turning(s + 0.01) - turning(s - 0.01)) / 0.02)  # rad/m
+        tl.torso_roll[sl] += -np.sign(bend) * np.minimum(0.12, v * v * np.abs(bend) / G) * ramp
 
     half_width = body.STANCE_HALF_WIDTH + abs(np.sin(direction)) * v * (cycle / FPS) / 4
     gp = {k: g[k] for k in ("off_pitch", "land_pitch", "clearance")}

@@ -42,7 +42,7 @@ from tqdm import tqdm
 
 from stablemo.data.cache import CACHE_DIRNAME
 from stablemo.data.stats import feature_groups
-from stablemo.data.synth.compose import generate_motion, text_file
+from stablemo.data.synth.compose import generate_motion, generate_path_walk, text_file
 from stablemo.data.synth.idle import DEFAULT_REST, REST_MODES
 from stablemo.errors import StableMoError
 from stablemo.io import (
@@ -76,12 +76,18 @@ def motion_rng(seed: int, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([seed, index, VERSION]))
 
 
+def is_path_walk(seed: int, index: int, share: float) -> bool:
+    """Whether motion `index` is a path walk (compose.generate_path_walk), from its own stream, so
+    that the other motions are those of the dataset without path walks, file for file."""
+    return share > 0 and np.random.default_rng(np.random.SeedSequence([seed, index, VERSION, 1])).uniform() < share
+
+
 def clip_id(index: int) -> str:
     return f"{index:06d}"
 
 
 def _write_chunk(args) -> tuple[np.ndarray, np.ndarray, int, list[str]]:
-    root, seed, indices, rest = args
+    root, seed, indices, rest, path_walks = args
     from stablemo.motion import joints_to_features
 
     root = Path(root)
@@ -90,7 +96,8 @@ def _write_chunk(args) -> tuple[np.ndarray, np.ndarray, int, list[str]]:
     count = 0
     names: list[str] = []
     for i in indices:
-        m = generate_motion(motion_rng(seed, i), rest)
+        make = generate_path_walk if is_path_walk(seed, i, path_walks) else generate_motion
+        m = make(motion_rng(seed, i), rest)
         feats = joints_to_features(m.joints, "humanml3d")  # (T, 263)
         T = len(feats)
         cid = clip_id(i)
@@ -188,9 +195,9 @@ class _Progress:
             self.bar.close()
 
 
-def _generate(tmp: Path, num: int, seed: int, workers: int, rest: str) -> list[tuple]:
+def _generate(tmp: Path, num: int, seed: int, workers: int, rest: str, path_walks: float) -> list[tuple]:
     """Write the clips into `tmp` in chunks; returns each chunk's statistics and action names."""
-    jobs = [(str(tmp), seed, range(a, min(a + CHUNK, num)), rest) for a in range(0, num, CHUNK)]
+    jobs = [(str(tmp), seed, range(a, min(a + CHUNK, num)), rest, path_walks) for a in range(0, num, CHUNK)]
     bar = _Progress(num)
     results = []
     if workers == 1 or len(jobs) == 1:
@@ -207,7 +214,7 @@ def _generate(tmp: Path, num: int, seed: int, workers: int, rest: str) -> list[t
     return results
 
 
-def _write_summary(tmp: Path, results: list[tuple], num: int, seed: int, rest: str) -> None:
+def _write_summary(tmp: Path, results: list[tuple], num: int, seed: int, rest: str, path_walks: float) -> None:
     """Mean/Std, the split lists and the marker file, from the chunks' statistics."""
     total = sum(r[0] for r in results)
     total_sq = sum(r[1] for r in results)
@@ -223,22 +230,27 @@ def _write_summary(tmp: Path, results: list[tuple], num: int, seed: int, rest: s
         write_text(tmp / f"{name}.txt", "\n".join(ids) + "\n")
     kinds = Counter(a for r in results for names in r[3] for a in names.split("+"))
     meta = dict(generator="stablemo.data.synth", version=VERSION, seed=seed, rest=rest, num=num, fps=20,
+                **({"path_walks": path_walks} if path_walks else {}),
                 skeleton="humanml3d", frames=int(count), action_counts=dict(sorted(kinds.items())),
                 parts=dict(sorted(Counter(len(n.split("+")) for r in results for n in r[3]).items())))
     write_text(tmp / MARKER, json.dumps(meta, indent=2) + "\n")
 
 
 def write_dataset(out_dir, num: int = 2000, seed: int = 0, workers: int | None = None,
-                  flag: str | None = None, rest: str = DEFAULT_REST) -> Path:
+                  flag: str | None = None, rest: str = DEFAULT_REST, path_walks: float = 0.0) -> Path:
     """Generate `num` motions with `seed` into `out_dir` (HumanML3D layout); returns the folder.
     flag: the option that named `out_dir` (e.g. "--out"), to start its error lines.
-    rest: the idle rest around each action (idle.REST_MODES)."""
+    rest: the idle rest around each action (idle.REST_MODES).
+    path_walks: the share of motions that are path walks (synth/path_walks.py: walks along curved
+    paths in any direction, for training path control); the others are the dataset's without them."""
     num = check_num(num)
     if int(seed) < 0:
         raise StableMoError(f"seed={seed}: must be >= 0")
     if rest not in REST_MODES:
         raise StableMoError(f"rest={rest!r}: must be one of {', '.join(REST_MODES)}")
-    seed = int(seed)
+    if not 0.0 <= float(path_walks) <= 1.0:
+        raise StableMoError(f"path_walks={path_walks}: must be a share in [0, 1]")
+    seed, path_walks = int(seed), float(path_walks)
     out_dir = Path(out_dir)
     workers = min(os.cpu_count() or 1, 2) if workers is None else int(workers)
     if workers < 1:
@@ -252,7 +264,7 @@ def write_dataset(out_dir, num: int = 2000, seed: int = 0, workers: int | None =
                                                   manifest=MANIFEST, derived=(CACHE_DIRNAME,)) as tmp:
             for sub in ("new_joint_vecs", "new_joints", "contacts", "texts"):
                 (tmp / sub).mkdir()
-            _write_summary(tmp, _generate(tmp, num, seed, workers, rest), num, seed, rest)
+            _write_summary(tmp, _generate(tmp, num, seed, workers, rest, path_walks), num, seed, rest, path_walks)
     except FileExistsError as err:
         raise StableMoError(f"{prefix}{out_dir}: changed while the dataset was written ({err.strerror}); "
                             "nothing replaced") from None
