@@ -79,6 +79,7 @@ def summary(rows):
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", choices=sorted(MODELS), default="student")
+    ap.add_argument("--bundle", default=None, help="a bundle folder instead of --model's shipped one (e.g. a new ControlNet)")
     ap.add_argument("--texts", default="a person walks forward")
     ap.add_argument("--families", default=",".join(FAMILIES))
     ap.add_argument("--paths", type=int, default=3, help="paths per family")
@@ -93,10 +94,10 @@ def main(argv=None) -> int:
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     torch.manual_seed(0)
-    pipe = Pipeline.from_bundle(MODELS[args.model])
+    pipe = Pipeline.from_bundle(args.bundle or MODELS[args.model])
     seeds = [int(s) for s in args.seeds.split(",")]
     out = {}
-    print(f"{args.model} guidance={args.guidance} timing={args.timing} frames={args.frames} rng={args.rng} seeds={seeds}")
+    print(f"{args.bundle or args.model} guidance={args.guidance} timing={args.timing} frames={args.frames} rng={args.rng} seeds={seeds}")
     print("| text | path | steered | facing median (deg) | worst | path err mean / max (cm) | stance speed / free | backward | sideways |")
     print("|---|---|---|---|---|---|---|---|---|")
     for text in [t.strip() for t in args.texts.split("|")]:

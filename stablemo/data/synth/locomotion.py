@@ -72,7 +72,7 @@ GAITS = {
 }
 
 
-def _locomote(tl: Timeline, params: dict, gait_name: str, direction: float, curvature: float = 0.0,
+def locomote(tl: Timeline, params: dict, gait_name: str, direction: float, curvature: float = 0.0,
               distance: float | None = None, turning: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
     """Move the pelvis at speed v in `direction` (radians from the heading; + = left) for
     params['duration'] seconds of travel (or `distance` metres), stepping all the way.
@@ -146,7 +146,7 @@ def _locomote(tl: Timeline, params: dict, gait_name: str, direction: float, curv
 
 def build_walk(tl: Timeline, p: dict) -> None:
     start = tl.t
-    _locomote(tl, p, "walk", 0.0)
+    locomote(tl, p, "walk", 0.0)
     if p.get("waving"):  # "walks forward while waving": the gesture replaces that arm's swing
         sl = slice(start, tl.t)
         env = envelope(tl.t - start, 0.5 * FPS, 0.5 * FPS)
@@ -158,26 +158,26 @@ def build_walk(tl: Timeline, p: dict) -> None:
 
 def build_walk_backward(tl: Timeline, p: dict) -> None:
     start = tl.t
-    _locomote(tl, p, "walk_backward", np.pi)
+    locomote(tl, p, "walk_backward", np.pi)
     tl.add_part("walk_backward", p, start)
 
 
 def build_walk_sideways(tl: Timeline, p: dict) -> None:
     start = tl.t
     side = LEFT if p["direction"] == "left" else RIGHT
-    _locomote(tl, dict(p, first_foot=side), "walk_sideways", SIDE_SIGN[side] * np.pi / 2)
+    locomote(tl, dict(p, first_foot=side), "walk_sideways", SIDE_SIGN[side] * np.pi / 2)
     tl.add_part("walk_sideways", p, start)
 
 
 def build_jog(tl: Timeline, p: dict) -> None:
     start = tl.t
-    _locomote(tl, p, "jog", 0.0)
+    locomote(tl, p, "jog", 0.0)
     tl.add_part("jog", p, start)
 
 
 def build_run(tl: Timeline, p: dict) -> None:
     start = tl.t
-    _locomote(tl, p, "run", 0.0)
+    locomote(tl, p, "run", 0.0)
     tl.add_part("run", p, start)
 
 
@@ -185,7 +185,7 @@ def build_circle(tl: Timeline, p: dict) -> None:
     start = tl.t
     sign = 1.0 if p["direction"] == "counterclockwise" else -1.0
     first = LEFT if sign > 0 else RIGHT
-    _locomote(tl, dict(p, first_foot=first), "circle", 0.0, curvature=sign / p["radius"],
+    locomote(tl, dict(p, first_foot=first), "circle", 0.0, curvature=sign / p["radius"],
               distance=2 * np.pi * p["radius"])
     tl.add_part("circle", p, start)
 

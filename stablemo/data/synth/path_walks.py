@@ -8,7 +8,7 @@ back, and so cannot learn to turn the body onto a path. A path walk is one actio
    turns on the spot toward it (the turn of locomotion.build_turn, any angle);
 2. then walks forward along a chain of 1-4 segments, each straight, a bend (20-120 degrees, radius
    >= 0.6 m) or a U-turn (150-200 degrees, radius 0.45-0.7 m), stepping all the way
-   (locomotion._locomote with a `turning` profile). A smaller start angle is a first bend.
+   (locomotion.locomote with a `turning` profile). A smaller start angle is a first bend.
 
 The shapes are drawn from this generic chain, not from the families the heading check measures
 (stablemo.eval.paths), so that check stays held out. Captions say a forward walk and, where the path
@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from stablemo.data.synth.actions import WALK_SPEEDS
-from stablemo.data.synth.locomotion import _locomote, build_turn
+from stablemo.data.synth.locomotion import locomote, build_turn
 from stablemo.data.synth.timeline import FPS, Timeline
 
 SPOT_TURN = np.deg2rad(50.0)  # a start this far from the heading is turned on the spot first
@@ -81,7 +81,7 @@ def build_walk_path(tl: Timeline, p: dict) -> None:
                             rate=p["turn_rate"]))
         tl.parts.pop()  # one action: the turn is part of the path walk
     distance = sum(length for length, _ in p["segments"])
-    _locomote(tl, p, "walk", 0.0, distance=distance, turning=heading_profile(p["segments"]))
+    locomote(tl, p, "walk", 0.0, distance=distance, turning=heading_profile(p["segments"]))
     tl.add_part("walk_path", p, start)
 
 
