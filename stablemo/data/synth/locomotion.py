@@ -3,7 +3,7 @@ builders for stand, walk (forward, backward, sideways), jog, run, circle and tur
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

@@ -21,8 +21,8 @@ from __future__ import annotations
 import numpy as np
 
 from stablemo.data.synth.actions import WALK_SPEEDS
-from stablemo.data.synth.locomotion import locomote, build_turn
-from stablemo.data.synth.timeline import FPS, Timeline
+from stablemo.data.synth.locomotion import build_turn, locomote
+from stablemo.data.synth.timeline import Timeline
 
 SPOT_TURN = np.deg2rad(50.0)  # a start this far from the heading is turned on the spot first
 MAX_WALK_S = 6.5  # seconds of walking at most (the clip's other frames: the turn and the rest)
