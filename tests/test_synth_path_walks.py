@@ -139,5 +139,6 @@ def test_datamodule_normalises_with_another_folders_stats(tmp_path):
     x = batch["motion"][0, :n].numpy() * theirs.std + theirs.mean
     hits = [s for s in range(len(raw) - n + 1) if np.allclose(raw[s:s + n], x, atol=1e-4)]
     assert hits
+    missing = MotionDataModule(data_dir=str(new), batch_size=2, cache=False, stats_dir=str(tmp_path / "nowhere"))
     with pytest.raises(StableMoError, match="nowhere"):
-        MotionDataModule(data_dir=str(new), batch_size=2, cache=False, stats_dir=str(tmp_path / "nowhere")).mean
+        _ = missing.mean
