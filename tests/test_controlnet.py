@@ -457,6 +457,8 @@ def test_shipped_control_configs_parse(name, capsys):
     # MotionLCM's lambda = 1, except the shipped student's pelvis recipe (docs/control.md)
     assert printed["model"]["init_args"]["joint_weight"] == (10.0 if name == "controlnet_lcm_pelvis_synth.yaml" else 1.0)
     assert printed["model"]["init_args"]["hint_joints"] == ([0] if "pelvis" in name else list(TRAIN_JOINTS))
+    if name == "controlnet_lcm_pelvis_synth.yaml":  # trained on path walks, in the frozen student's units
+        assert printed["data"]["data_dir"] == "data/synth_paths" and printed["data"]["stats_dir"] == "data/synth"
 
 
 @pytest.mark.slow
