@@ -176,6 +176,38 @@ def test_guidance_lowers_the_error_on_a_toy_problem(skeleton, wrist, scale):
     assert after < 0.01 * before
 
 
+def test_a_far_wrist_target_moves_the_body_within_the_arms_reach():
+    """A wrist target 0.9 m in front of a body (the benchmark's targets sit that far from a generated
+    body): the pose step moves only the wrist, so the root must come close enough for the rigid arm
+    of the finishing step to reach it (guidance.REACH_SHARE of the arm from the shoulder)."""
+    from stablemo.control.guidance import REACH_SHARE
+    from stablemo.motion.skeleton import get_skeleton
+
+    skel = get_skeleton("humanml3d")
+    from stablemo.data.synth import actions
+    from stablemo.data.synth.compose import build
+    from stablemo.motion import joints_to_features
+
+    params = actions.sample_params("walk", np.random.default_rng(0))
+    clip = joints_to_features(build([("walk", params)]).joints, "humanml3d")[:40]
+    mean, std = torch.zeros(skel.feature_dim), torch.ones(skel.feature_dim)
+    x0 = torch.from_numpy(clip).float()[None]
+    joints = features_to_joints(x0, skel)
+    targets = joints.clone()
+    left = 20  # the left wrist
+    targets[0, 20:, left] = joints[0, 20:, 0] + torch.tensor([0.0, 0.1, 0.9])  # 0.9 m ahead of the pelvis
+    mask = torch.zeros(1, 40, skel.num_joints, dtype=torch.bool)
+    mask[0, 20:, left] = True
+    hook = JointGuidance(targets, mask, mean, std, skel, follow=0.5)
+    out = features_to_joints(hook(StepState(9, 10, 0, x0, torch.ones(1, 40, dtype=torch.bool), [40])), skel)
+    arm = float(skel.bone_lengths[18] + skel.bone_lengths[left])
+    reach = (targets[0, 20:, left] - out[0, 20:, 16]).norm(dim=-1)  # from the left shoulder
+    before = (targets[0, 20:, left] - joints[0, 20:, 16]).norm(dim=-1)
+    assert before.min() > arm  # out of reach as generated
+    assert reach.max() < REACH_SHARE * arm + 0.05, reach.max()
+    assert (out[0, 20:, left] - targets[0, 20:, left]).norm(dim=-1).max() < 0.02  # and met (the step is smoothed over time)
+
+
 def _control_from(joints: np.ndarray, frames, joint_ids) -> JointControl:
     mask = np.zeros(joints.shape[:2], bool)
     mask[np.ix_(np.asarray(frames), np.asarray(joint_ids))] = True

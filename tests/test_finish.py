@@ -228,6 +228,45 @@ def test_joint_targets_keep_their_height():
     np.testing.assert_allclose(joints[0, 30, 0, [0, 2]].numpy(), targets[0, 30, 0, [0, 2]].numpy(), atol=1e-4)
 
 
+def test_a_hand_target_is_reached_with_the_feet_on_the_floor():
+    """A wrist target (a limb end) is reached by the arm after the body is put on the floor; it does
+    not pin the frame's height (a generated body 4 cm in the floor stayed there, and a wrist the rigid
+    arm could not reach shifted the whole body down to it: feet 36 cm under the floor)."""
+    from stablemo.control.spec import ControlTargets
+
+    finish = Finish.from_config({}, "humanml3d", 20.0)
+    clip = synth("wave")[:60]
+    clip[..., 1] -= 0.04  # sunk into the floor, as generated bodies are
+    feats, lengths = make_features([clip])
+    raw = features_to_joints(feats)
+    targets, mask = torch.zeros(1, 59, 22, 3), torch.zeros(1, 59, 22, dtype=torch.bool)
+    targets[0, 25:35, 21] = raw[0, 25:35, 21] + torch.tensor([0.0, -0.04, 0.03])  # the right wrist, 5 cm off, within reach
+    mask[0, 25:35, 21] = True
+    _, joints = finish(feats, lengths, ControlTargets(targets, mask))
+    j = joints[0].double().numpy()
+    assert (np.linalg.norm(j[25:35, 21] - targets[0, 25:35, 21].numpy(), axis=-1) < 0.005).all()
+    assert lowest_foot(j).min() > -0.005  # the whole motion on the floor, the targeted frames too
+    assert spread(j) < 1e-3
+
+
+def test_a_pinned_pelvis_lifts_sunk_feet_out_of_the_floor():
+    """A pelvis target lower than the generated legs stand (a path's heights from another motion)
+    keeps the pelvis there, and the legs bend so that the feet stay out of the floor."""
+    from stablemo.control.spec import ControlTargets
+
+    finish = Finish.from_config({}, "humanml3d", 20.0)
+    feats, lengths = make_features([synth("walk")[:60]])
+    raw = features_to_joints(feats)
+    targets, mask = torch.zeros(1, 59, 22, 3), torch.zeros(1, 59, 22, dtype=torch.bool)
+    targets[0, :, 0] = raw[0, :59, 0] - torch.tensor([0.0, 0.08, 0.0])  # the pelvis 8 cm lower all along
+    mask[0, :, 0] = True
+    _, joints = finish(feats, lengths, ControlTargets(targets, mask))
+    j = joints[0].double().numpy()
+    np.testing.assert_allclose(j[:, 0], targets[0, :, 0].numpy(), atol=1e-4)
+    assert lowest_foot(j).min() > -0.005, lowest_foot(j).min()
+    assert spread(j) < 1e-3
+
+
 def test_the_bundle_body_is_read_and_checked(tmp_path):
     np.testing.assert_array_equal(body_lengths({}, "humanml3d"), HUMANML3D.bone_lengths)
     custom = (HUMANML3D.bone_lengths * 1.1).tolist()

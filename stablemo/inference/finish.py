@@ -108,17 +108,49 @@ class Finish:
         hold = self.hold(joints, held, contacts)
         given = None if given is None else fill_padding(given.to(joints.device), n)
         x = joints.permute(2, 3, 0, 1).contiguous()  # (J, 3, B, T)
-        body = rigid_joint_major(x, self.skeleton, self.bone_lengths, n, hold, self.anchored(x, hold, n, given),
-                                 place=fast_motion.place_body)
+        ends = self.anchored(x, hold, n, given)
+        body = rigid_joint_major(x, self.skeleton, self.bone_lengths, n, hold, ends, place=fast_motion.place_body)
         heights = body[:, 1]  # (J, B, T)
-        pins = pinned = None
+        pins = pinned = held_up = None
+        limb_ends = [end for _, _, end in self.skeleton.ik_limbs]
         if control is not None:
-            pins, pinned = target_pins(heights.permute(1, 2, 0), control.targets[:, :t].to(body), mask)
+            # a limb end's target is reached by the limb (below), whatever the floor does; the other
+            # targets (the pelvis, the head) can only be met by the frame's height: they pin it
+            trunk = mask.clone()
+            trunk[..., limb_ends] = False
+            pins, pinned = target_pins(heights.permute(1, 2, 0), control.targets[:, :t].to(body), trunk)
+            held_up = pinned.clone()  # frames whose feet are lifted out of the floor if it pins them below
         if given is not None:  # frames whose feet were given keep their heights (no shift), so the kept
             # part of an edit stays where it was; the shift of the new part fades in beside them
             pins = torch.zeros_like(given, dtype=body.dtype) if pins is None else torch.where(given, 0.0, pins)
             pinned = given if pinned is None else pinned | given
-        body[:, 1] += lowest_shift(heights.amin(0), n, self.skeleton, self.fps, pins, pinned)  # onto the floor
+        lowest = heights.amin(0)  # (B, T)
+        shift = lowest_shift(lowest, n, self.skeleton, self.fps, pins, pinned)  # (B, T): onto the floor
+        # a frame a target pins keeps its height, so a foot generated below the floor there would stay
+        # below it (an edit's given frames are left as given)
+        sunk = None if held_up is None else ((-(lowest + shift)).clamp(min=0) * held_up)  # (B, T)
+        targeted = mask is not None and bool(mask[..., limb_ends].any())
+        if targeted or (sunk is not None and bool(sunk.any())):
+            # the limbs again: each targeted end aimed at its target less the frame's shift, so that it
+            # lands on the target once the body is on the floor, and the feet of a pinned frame lifted
+            # out of the floor (the knees bend). Only limbs move, so the lowest joint, and the shift,
+            # stay as they were unless a targeted hand is the lowest.
+            ends = ends.clone()
+            if sunk is not None:
+                for _, _, ankle in self.skeleton.legs.values():
+                    ends[ankle, 1] += sunk
+                hold = hold.clone()
+                lift = (sunk > 0).to(hold.dtype)  # a lifted foot is held where it is lifted to
+                for _, _, ankle in self.skeleton.legs.values():
+                    hold[..., ankle] = torch.maximum(hold[..., ankle], lift)
+            if targeted:
+                goal = control.targets[:, :t].to(body).permute(2, 3, 0, 1).clone()  # (J, 3, B, T)
+                goal[:, 1] -= shift
+                aimed = fill_padding(mask, n).permute(2, 0, 1)[:, None].clone()  # (J, 1, B, T)
+                aimed[[j for j in range(aimed.shape[0]) if j not in limb_ends]] = False
+                ends = torch.where(aimed, goal, ends)
+            body = rigid_joint_major(x, self.skeleton, self.bone_lengths, n, hold, ends, place=fast_motion.place_body)
+        body[:, 1] += shift
         return body
 
     def hold(self, joints: torch.Tensor, mask: torch.Tensor | None, contacts: torch.Tensor | None) -> torch.Tensor:
