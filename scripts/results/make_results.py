@@ -191,11 +191,11 @@ def run_paper_aits(args, raw: dict, save, ctx_out_of_time: bool = False) -> None
 RESULTS_DATA = REPO / "docs" / "data" / "results"  # the JSON of the measured tables
 CONTROL_TABLES = [  # (JSON in docs/data/results/, heading, how it was made)
     ("results_control.json", "Joint control by guidance (teacher and 1-step student)",
-     "`python scripts/control/report.py --student LCM=bundles/demo_lcm --replications 3 --max-items 96`; the "
-     "`+ --footskate` rows: `stablemo evaluate --bundle B --data data/synth --replications 3 --max-items 96 "
-     "--control pelvis --density 100% --footskate`. Method and reading: docs/control.md. The AITS lines are that "
-     "run's, with 100 pose iterations at the last step; with the 40 used since, measured side by side the same "
-     "way: 1.72x (teacher) and 2.39x (student)."),
+     "`python scripts/control/report.py --replications 3 --max-items 96` (the teacher) and `... --no-teacher "
+     "--student LCM=stablemo/assets/demo_student` (the student); the `+ --footskate` rows: `stablemo evaluate "
+     "--bundle B --data data/synth --replications 3 --max-items 96 --control pelvis --density 100% --footskate`. "
+     "Method and reading: docs/control.md. AITS of dense pelvis control against free generation, alternating "
+     "runs of one process: teacher 1.27x, student 1.29x."),
     ("controlnet_results.json", "Motion ControlNet on the 1-step student",
      "`python scripts/control/report.py --no-teacher --student LCM=stablemo/assets/demo_student --controlnet "
      "\"LCM 1-step=stablemo/assets/demo_controlnet\" --rows none:100%,pelvis:100%,pelvis:25%,pelvis:5,pelvis:1 "

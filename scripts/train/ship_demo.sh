@@ -2,8 +2,13 @@
 # Last step of the demo models' recipe, after
 #   bash scripts/train/train_demo.sh           # the teacher -> stablemo/assets/demo_bundle
 #   bash scripts/train/distill_demo.sh lcm     # its 1-step LCM student -> runs/distill_lcm_synth, bundles/demo_lcm
-# this exports the student into the package (stablemo/assets/demo_student, the page's default model)
-# and gives both bundles what generation reads beside the network: the length predictor (a motion
+#   stablemo data synth --out data/synth_paths --path-walks 0.4      # path walks for the ControlNet
+#   stablemo fit --config configs/control/controlnet_lcm_pelvis_synth.yaml --trainer.max_steps=7500
+#                                                # its pelvis ControlNet on the shipped student (optional)
+# this exports the student into the package (stablemo/assets/demo_student, the page's default model),
+# the ControlNet when its run is there (stablemo/assets/demo_controlnet; run this script once before
+# training it, so that it trains on the student shipped here, and once after), and gives the bundles
+# what generation reads beside the network: the length predictor (a motion
 # asked for without a length takes its text's, scripts/text/length_predictor.py) and their training
 # captions (a prompt unlike all of them gets a warning, scripts/text/familiarity.py). Both are
 # trained from the data and the frozen text encoder alone, so every shipped bundle shares them (the
@@ -15,6 +20,12 @@ PYTHON=${PYTHON:-.venv/bin/python}
 student=runs/distill_lcm_synth/checkpoints/last.ckpt
 [ -f "$student" ] || { echo "ship_demo.sh: $student is missing: run scripts/train/distill_demo.sh lcm first" >&2; exit 2; }
 "$STABLEMO" export "$student" --out stablemo/assets/demo_student --overwrite
+controlnet=runs/controlnet_lcm_pelvis_synth/checkpoints/last.ckpt
+if [ -f "$controlnet" ]; then
+    "$STABLEMO" export "$controlnet" --out stablemo/assets/demo_controlnet --overwrite
+else
+    echo "ship_demo.sh: no $controlnet: stablemo/assets/demo_controlnet is left as it is" >&2
+fi
 # The length predictor learns an action's own length from clips with tight rest: in the varied data a
 # clip's idle rest is drawn at random, which no text predicts (it measured 32 % of test lengths within
 # one bin there against 48 % on tight clips). The models fill any longer length with rest themselves.
