@@ -144,8 +144,8 @@ class Finish:
                 for _, _, ankle in self.skeleton.legs.values():
                     hold[..., ankle] = torch.maximum(hold[..., ankle], lift)
             if targeted:
-                goal = control.targets[:, :t].to(body).permute(2, 3, 0, 1).clone()  # (J, 3, B, T)
-                goal[:, 1] -= shift
+                goal = fill_padding(control.targets[:, :t].to(body), n).permute(2, 3, 0, 1).clone()  # (J, 3, B, T)
+                goal[:, 1] -= fill_padding(shift, n)
                 aimed = fill_padding(mask, n).permute(2, 0, 1)[:, None].clone()  # (J, 1, B, T)
                 aimed[[j for j in range(aimed.shape[0]) if j not in limb_ends]] = False
                 ends = torch.where(aimed, goal, ends)
