@@ -274,6 +274,8 @@ def render_control_summary(reports: dict) -> str:
         aits = reports[name].get("aits", {}).get(key.split(" | ")[0])
         timing = "-" if aits is None else f"{aits['free_s' if 'uncontrolled' in key else 'control_s']:.3f}"
         settings = reports[name].get("settings", {})
+        if settings.get("models"):  # measured on models since replaced: say so here as in its table
+            label = f"{label} (on {settings['models'].split(' (')[0]})"
         lines.append(f"| {label} | " + " | ".join(cells) + f" | {timing} | "
                      f"{settings.get('replications', 3)} x {settings.get('max_items', 96)} |")
     if not lines:
