@@ -116,6 +116,7 @@ def main(argv: list[str]) -> int:
         return 0
     from stablemo.data.synth.writer import (  # owned by the synthetic-dataset module
         check_num,
+        check_share,
         write_dataset,
     )
 
@@ -123,8 +124,7 @@ def main(argv: list[str]) -> int:
         check_num(args.num, "--num")  # the cap and the minimum, before anything else
     if args.seed < 0:
         raise StableMoError(f"--seed={args.seed}: must be >= 0")
-    if not 0.0 <= args.path_walks <= 1.0:
-        raise StableMoError(f"--path-walks={args.path_walks}: must be a share in [0, 1]")
+    check_share(args.path_walks, "--path-walks")
     rest = {} if args.rest is None else {"rest": args.rest}
     rest["path_walks"] = args.path_walks
     if args.num is None:

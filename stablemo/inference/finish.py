@@ -137,18 +137,16 @@ class Finish:
             # stay as they were unless a targeted hand is the lowest.
             ends = ends.clone()
             if sunk is not None:
-                for _, _, ankle in self.skeleton.legs.values():
-                    ends[ankle, 1] += sunk
                 hold = hold.clone()
                 lift = (sunk > 0).to(hold.dtype)  # a lifted foot is held where it is lifted to
                 for _, _, ankle in self.skeleton.legs.values():
+                    ends[ankle, 1] += sunk
                     hold[..., ankle] = torch.maximum(hold[..., ankle], lift)
             if targeted:
-                goal = fill_padding(control.targets[:, :t].to(body), n).permute(2, 3, 0, 1).clone()  # (J, 3, B, T)
+                goal = fill_padding(control.targets[:, :t].to(body), n).permute(2, 3, 0, 1)[limb_ends]  # (L, 3, B, T), a copy
                 goal[:, 1] -= fill_padding(shift, n)
-                aimed = fill_padding(mask, n).permute(2, 0, 1)[:, None].clone()  # (J, 1, B, T)
-                aimed[[j for j in range(aimed.shape[0]) if j not in limb_ends]] = False
-                ends = torch.where(aimed, goal, ends)
+                aimed = fill_padding(mask, n).permute(2, 0, 1)[limb_ends, None]  # (L, 1, B, T)
+                ends[limb_ends] = torch.where(aimed, goal, ends[limb_ends])
             body = rigid_joint_major(x, self.skeleton, self.bone_lengths, n, hold, ends, place=fast_motion.place_body)
         body[:, 1] += shift
         return body

@@ -139,6 +139,13 @@ def check_num(num, flag: str = "num") -> int:
     return int(num)
 
 
+def check_share(share, flag: str = "path_walks") -> float:
+    """The share of path walks: a number in [0, 1]."""
+    if isinstance(share, bool) or not isinstance(share, (int, float, np.floating)) or not 0.0 <= float(share) <= 1.0:
+        raise StableMoError(f"{flag}={share}: must be a share in [0, 1]")
+    return float(share)
+
+
 def _replace_problem(out_dir: Path) -> str | None:
     """Why the existing non-empty folder `out_dir` is not ours to replace, or None."""
     if not _is_synth(out_dir):
@@ -248,9 +255,7 @@ def write_dataset(out_dir, num: int = 2000, seed: int = 0, workers: int | None =
         raise StableMoError(f"seed={seed}: must be >= 0")
     if rest not in REST_MODES:
         raise StableMoError(f"rest={rest!r}: must be one of {', '.join(REST_MODES)}")
-    if not 0.0 <= float(path_walks) <= 1.0:
-        raise StableMoError(f"path_walks={path_walks}: must be a share in [0, 1]")
-    seed, path_walks = int(seed), float(path_walks)
+    seed, path_walks = int(seed), check_share(path_walks)
     out_dir = Path(out_dir)
     workers = min(os.cpu_count() or 1, 2) if workers is None else int(workers)
     if workers < 1:
