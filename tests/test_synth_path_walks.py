@@ -7,11 +7,14 @@ import json
 
 import numpy as np
 import pytest
+import torch
 
 from stablemo.data.synth import compose, write_dataset
 from stablemo.data.synth.body import BONE_LENGTHS, bone_lengths
 from stablemo.data.synth.writer import is_path_walk, motion_rng
 from stablemo.errors import StableMoError
+from stablemo.eval.heading import facing_vs_travel
+from stablemo.motion.heading import travel
 from stablemo.skating.metrics import foot_skating_ratio
 
 FPS = 20
@@ -22,19 +25,14 @@ def walks():
     return [compose.generate_path_walk(motion_rng(3, i)) for i in range(40)]
 
 
-def _facing(j: np.ndarray) -> np.ndarray:
-    """(T,) yaw of the body (0 = +z, + toward +x) from the hips and shoulders."""
-    across = (j[:, 2] - j[:, 1]) + (j[:, 17] - j[:, 16])  # right minus left
-    fwd = np.cross([0.0, 1.0, 0.0], across)
-    return np.arctan2(fwd[:, 0], fwd[:, 2])
-
-
-def _travel(j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(T-1,) pelvis speed (m/s) and yaw of travel, over 2-frame steps smoothed by a 5-frame mean."""
-    step = np.diff(j[:, 0, [0, 2]], axis=0)
-    kernel = np.ones(5) / 5
-    step = np.stack([np.convolve(step[:, i], kernel, mode="same") for i in (0, 1)], -1)
-    return np.linalg.norm(step, axis=-1) * FPS, np.arctan2(step[:, 0], step[:, 1])
+def _walking(j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Over the moving frames of joints j (T, 22, 3) (stablemo.eval.heading): the angle between facing
+    and travel (degrees) and the direction of travel (radians) over 5 frames, so that a U-turn's
+    span is not averaged away."""
+    ft = facing_vs_travel(torch.from_numpy(j)[None], [len(j)], "humanml3d")
+    way, _ = travel(torch.from_numpy(j[None, :, 0][..., [0, 2]]), torch.tensor([len(j)]), FPS, window_s=5 / FPS)
+    moving = ft["moving"][0]
+    return ft["angle"][0][moving].numpy(), way[0][moving].numpy()
 
 
 def test_path_walks_are_one_rigid_body_on_the_floor_without_skating(walks):
@@ -49,15 +47,7 @@ def test_path_walks_are_one_rigid_body_on_the_floor_without_skating(walks):
 
 
 def test_path_walks_face_where_they_walk(walks):
-    angles = []
-    for m in walks:
-        j = m.joints.astype(np.float64)
-        speed, travel = _travel(j)
-        facing = _facing(j)[:-1]
-        walking = speed > 0.5
-        diff = np.abs((facing - travel + np.pi) % (2 * np.pi) - np.pi)
-        angles.append(diff[walking])
-    every = np.degrees(np.concatenate(angles))
+    every = np.concatenate([_walking(m.joints.astype(np.float64))[0] for m in walks])
     assert np.median(every) < 10.0, np.median(every)
     assert np.percentile(every, 95) < 30.0, np.percentile(every, 95)
 
@@ -70,9 +60,7 @@ def test_path_walks_start_in_every_direction_and_bend(walks):
         far = np.nonzero(np.linalg.norm(xz - xz[0], axis=-1) > 1.0)[0]
         d = xz[far[0]] - xz[0]
         quadrants.add((bool(d[0] > 0), bool(d[1] > 0)))
-        speed, travel = _travel(j)
-        walking = travel[speed > 0.5]
-        turned += np.ptp(np.unwrap(walking)) > np.radians(45)
+        turned += np.ptp(np.unwrap(_walking(j)[1])) > np.radians(45)
     assert len(quadrants) == 4  # ahead, behind, left and right of the body's first heading
     assert turned >= 10  # many paths bend while walking, not only at the start
 
@@ -88,8 +76,7 @@ def test_captions_say_the_turn_and_the_way_back(walks):
         if any(abs(a) >= np.radians(150) for _, a in p["segments"]):
             assert any("back" in c for c in m.captions)
             # it does come back: the walking directions span more than 140 degrees
-            speed, travel = _travel(m.joints.astype(np.float64))
-            assert np.ptp(np.unwrap(travel[speed > 0.5])) > np.radians(140)
+            assert np.ptp(np.unwrap(_walking(m.joints.astype(np.float64))[1])) > np.radians(140)
 
 
 def test_a_dataset_with_path_walks_keeps_the_other_motions_file_for_file(tmp_path):
