@@ -22,9 +22,9 @@ from stablemo.data.synth.timeline import FPS
 from stablemo.data.synth.writer import motion_rng
 from stablemo.errors import run_script
 from stablemo.eval.heading import heading_measures
+from stablemo.io import check_output_file
 from stablemo.motion.heading import facing_yaw
 from stablemo.motion.skeleton import get_skeleton
-from stablemo.io import check_output_file
 from stablemo.outputs.render import save_png
 
 FEET = ((7, 0, "tab:blue"), (10, 1, "tab:blue"), (8, 2, "tab:red"), (11, 3, "tab:red"))  # joint, contact channel
