@@ -47,9 +47,10 @@ def client(models):
         yield c
 
 
-def offline(models, text, frames, seed, **kw):
+def offline(models, text, frames, seed, plan=True, **kw):
+    """What the server answers: the pipeline with the server's default of planning prompts in parts."""
     pipe = models.models["teacher"].pipeline
-    g = pipe.generate(Request([text], frames, seed=seed, **kw))
+    g = pipe.generate(Request([text], frames, seed=seed, plan=plan, **kw))
     return g.joint_list()[0], g.feature_list()[0]
 
 
@@ -214,11 +215,27 @@ def test_the_demo_student_is_served_by_default_and_equals_offline(tmp_path):
         data = c.post("/api/generate", json={"text": "a person jumps, then turns left", "seed": 11}).json()
         info = c.get("/api/info").json()["models"][0]
     pipe = student.models["student"].pipeline
-    frames = pipe.text_lengths(["a person jumps, then turns left"])[0]  # no length asked: the text's own
+    # no length asked: the text's own, here its two parts' (tests/test_plan.py)
+    frames = sum(pipe.text_lengths(["a person jumps", "a person turns left"]))
     assert (data["steps"], data["sampler"], data["frames"], data["length_from"]) == (1, "lcm", frames, "text")
+    assert [p["text"] for p in data["plan"]] == ["a person jumps", "a person turns left"]
     assert info["kind"] == "consistency" and info["label"] == "student (consistency, 1 step)"
-    ref = pipe.generate(Request(["a person jumps, then turns left"], seed=11)).joint_list()[0]
+    ref = pipe.generate(Request(["a person jumps, then turns left"], seed=11, plan=True)).joint_list()[0]
     assert np.array_equal(np.asarray(data["joints"], dtype=np.float32), ref)
+
+
+def test_plan_false_gives_the_network_the_prompt_whole(client, models):
+    body = {"text": "a person jumps, then turns left", "frames": 60, "seed": 3, "steps": 2, "plan": False}
+    data = client.post("/api/generate", json=body).json()
+    joints, _ = offline(models, body["text"], 60, 3, plan=False, steps=2)
+    assert data["plan"] is None and data["frames"] == 60
+    assert np.array_equal(np.asarray(data["joints"], dtype=np.float32), joints)
+    planned = client.post("/api/generate", json={**body, "plan": True}).json()
+    assert [p["text"] for p in planned["plan"]] == ["a person jumps", "a person turns left"]
+    assert planned["frames"] == 60 and planned["plan"][-1]["end"] == 60
+    res = client.post("/api/generate", json={**body, "plan": "yes"})
+    assert res.status_code == 400 and res.json()["error"] == "plan: expected true or false, got 'yes'"
+
 
 
 def test_info_describes_the_model(client):

@@ -195,7 +195,7 @@ def load(args) -> dict:
     for a in answers:
         if a["status"] != 200:
             continue
-        ref = pipe.generate(Request([text], frames, seed=a["seed"]))
+        ref = pipe.generate(Request([text], frames, seed=a["seed"], plan=True))  # as the server does
         joints, feats = (decode(a["data"][k]) for k in ("joints", "features"))
         if a["data"]["seed"] != a["seed"] or not (np.array_equal(joints, ref.joint_list()[0])
                                                   and np.array_equal(feats, ref.feature_list()[0])):

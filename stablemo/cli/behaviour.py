@@ -44,6 +44,9 @@ def _parser() -> argparse.ArgumentParser:
                                         "(default: the packaged synthetic one, stablemo/assets/evaluator_synth)")
     p.add_argument("--no-retrieval", dest="retrieval", action="store_false",
                    help="leave out R@3 (which shows what retrieval misses: motions failing a check that it ranks top 3)")
+    p.add_argument("--whole", action="store_true",
+                   help="give the network each prompt whole at each length (default: as `stablemo generate` does, "
+                        "prompts that say an order in parts, and lengths longer than the text asks for ending standing)")
     p.add_argument("--batch-size", type=int, default=64, help="motions per network batch")
     p.add_argument("--device", default=None)
     p.add_argument("--dtype", choices=["fp32", "bf16", "fp16"], default=None)
@@ -110,11 +113,12 @@ def main(argv: list[str]) -> int:
             raise StableMoError(f"--bundle: {bundle}: the behaviour checks read HumanML3D joints, this model makes "
                                 f"{pipe.skeleton}")
         request = {k: v for k, v in (("steps", args.steps), ("sampler", args.sampler), ("cfg", args.cfg)) if v is not None}
-        generate = runner.pipeline_generator(pipe, args.batch_size, **request)
+        generate = runner.pipeline_generator(pipe, args.batch_size, plan=not args.whole, **request)
         fps, low, high = pipe.fps, pipe.min_length, pipe.max_length
         inference = pipe.inference
         settings.update(model=str(bundle), sampler=args.sampler or inference.sampler,
                         steps=args.steps or inference.steps, cfg=inference.cfg if args.cfg is None else args.cfg,
+                        planned=not args.whole,
                         device=str(pipe.device),
                         default_length="the bundle's length predictor" if pipe.length_predictor is not None
                         else f"{inference.default_frames} frames",

@@ -57,6 +57,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="output format, may repeat: gif (default), mp4 (needs ffmpeg), bvh (for Blender and game engines, "
                         "docs/bvh.md), glb (the motion on a skinned mannequin, docs/gltf.md), fbx (the same, needs Blender)")
     p.add_argument("--no-render", action="store_true", help="write the .npy files only")
+    p.add_argument("--whole", action="store_true",
+                   help="give the network each prompt whole at the length asked for; by default a prompt that says an "
+                        "order (\"X, then Y\") is generated part by part, and a length longer than the text asks for "
+                        "ends standing (docs/inference.md, \"Prompts in parts\")")
     p.add_argument("--footskate", action="store_true",
                    help="remove foot skating at the last denoising step (StableMoFusion*, vGRF-guided)")
     p.add_argument("--footskate-weights", default=None,
@@ -135,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     hooks = make_hooks(pipe, footskate=args.footskate, footskate_weights=args.footskate_weights)
     request = Request(prompts, frames, seed=args.seed, sampler=args.sampler, steps=args.steps, cfg=args.cfg,
                       hooks=hooks, progress=True, control=[control] * len(prompts) if control else None,
-                      control_guidance=args.control_guidance, finish=not args.raw)
+                      control_guidance=args.control_guidance, finish=not args.raw, plan=not args.whole)
     # generate() checks every setting before its first network call, and raises, writing nothing,
     # if any motion is not finite
     result = pipe.generate(request)
@@ -144,10 +148,13 @@ def main(argv: list[str] | None = None) -> int:
     for unfamiliar in result.info.get("unfamiliar", []):
         print(f"warning: {Unfamiliar(**unfamiliar).message()}", file=sys.stderr)
     sources = result.info["lengths_from"]
-    for text, slug, feats, joints, source in zip(prompts, slugs, result.feature_list(), result.joint_list(), sources):
+    for text, slug, feats, joints, source, plan in zip(prompts, slugs, result.feature_list(), result.joint_list(), sources,
+                                                       result.info["plans"]):
         written = write_motion(out, slug, feats, joints, pipe, formats, text, targets,
                                warn=lambda line: print(line, file=sys.stderr))
         said = {"text": ", length from the text", "default": ", default length"}.get(source, "")
+        if plan:
+            said += "; in parts: " + ", ".join(f"{p['text']!r} {(p['end'] - p['start']) / pipe.fps:g} s" for p in plan)
         print(f"{text!r}: {len(feats)} frames ({len(feats) / pipe.fps:g} s{said}) -> {out}/{{{', '.join(written)}}}")
     return 0
 

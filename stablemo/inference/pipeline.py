@@ -66,7 +66,12 @@ class Request:
     guidance hook, or its own hook for a ControlNet without guidance), the gait the text asks for
     (backwards, side steps) kept; finish: put the
     result on the bundle's rigid body and the floor (stablemo.inference.finish; False: features and
-    joints are the network's raw output, for code that post-processes it itself)."""
+    joints are the network's raw output, for code that post-processes it itself); plan: read each
+    prompt as a sequence of parts ("X, then Y", stablemo.text.plan) and generate it part by part, and
+    a length longer than the text asks for as its parts then a body standing
+    (stablemo.timeline.planned). Off here, so the network reads each prompt whole at the length
+    given (benchmarks, evaluation); `stablemo generate`, the server and the behaviour suite turn it
+    on. Prompts with in-painting or joint control are never planned."""
 
     texts: Sequence[str]
     lengths: int | Sequence[int | None] | None = None
@@ -83,6 +88,7 @@ class Request:
     control_guidance: bool = True
     face_travel: bool = True
     finish: bool = True
+    plan: bool = False
 
 
 @dataclass
@@ -309,6 +315,18 @@ class Pipeline:
         frames = self.length_predictor.predict(self._frozen_encoders[0], list(texts))
         return [self.inference.nearest_length(n, self.length_multiple) for n in frames]
 
+    def text_length_range(self, texts: Sequence[str], quantile: float) -> tuple[list[int], list[int]]:
+        """Per text, the length in frames it asks for (`text_lengths`) and the `quantile` of the
+        predictor's lengths for it (how long such motions are at most, as a rule, in the training
+        data); without a predictor both are the default length."""
+        if self.length_predictor is None:
+            return self.text_lengths(texts), self.text_lengths(texts)
+        from stablemo.text.familiar import sentence_embeddings
+
+        emb = sentence_embeddings(self._frozen_encoders[0], list(texts))
+        modes = [self.inference.nearest_length(int(n), self.length_multiple) for n in self.length_predictor.mode_frames(emb)]
+        return modes, [int(n) for n in self.length_predictor.quantile_frames(emb, quantile)]
+
     def resolve(self, request: Request) -> Request:
         """The request with every default filled in from the inference config, checked: one clear
         error naming the field for anything a sampler could not run or would turn into NaN."""
@@ -348,7 +366,7 @@ class Pipeline:
             if not (callable(hook) and callable(getattr(hook, "active", None))):
                 raise StableMoError(f"hooks[{i}]: {type(hook).__name__} is not a sample hook "
                                     "(it needs active(step, steps) and __call__(state); see stablemo.diffusion.hooks)")
-        for name in ("control_guidance", "face_travel", "finish"):
+        for name in ("control_guidance", "face_travel", "finish", "plan"):
             if not isinstance(getattr(request, name), bool):
                 raise StableMoError(f"{name}: expected True or False, got {getattr(request, name)!r}")
         dtype = self.dtype if request.dtype is None else resolve_dtype(request.dtype, self.device)
@@ -400,15 +418,30 @@ class Pipeline:
         predicted = "text" if self.length_predictor is not None else "default"
         lengths_from = [predicted if n is None else "given" for n in asked]
         factory = denoiser or Pipeline.make_denoiser
-        chunk = req.batch_size or len(req.texts)
-        parts = []
-        for start in range(0, len(req.texts), chunk):
-            sl = slice(start, start + chunk)
-            parts.append(self._generate_batch(req.texts[sl], req.lengths[sl], req.seed[sl], req, factory,
-                                              req.inpaint[sl] if req.inpaint else None,
-                                              req.control[sl] if req.control else None))
-        T = max(p.shape[1] for p in parts)
-        normalized = torch.cat([torch.nn.functional.pad(p, (0, 0, 0, T - p.shape[1])) for p in parts])
+        plans = None
+        if req.plan and req.inpaint is None and req.control is None:
+            from stablemo.timeline.planned import generate_planned, plan_prompts
+
+            plans = plan_prompts(self, req.texts, asked, req.lengths)
+            if all(p is None for p in plans):
+                plans = None
+        if plans is None:
+            chunk = req.batch_size or len(req.texts)
+            parts = []
+            for start in range(0, len(req.texts), chunk):
+                sl = slice(start, start + chunk)
+                parts.append(self._generate_batch(req.texts[sl], req.lengths[sl], req.seed[sl], req, factory,
+                                                  req.inpaint[sl] if req.inpaint else None,
+                                                  req.control[sl] if req.control else None))
+            T = max(p.shape[1] for p in parts)
+            normalized = torch.cat([torch.nn.functional.pad(p, (0, 0, 0, T - p.shape[1])) for p in parts])
+        else:  # part by part; a planned prompt's length is its plan's
+            req = replace(req, lengths=[n if p is None else p.total for n, p in zip(req.lengths, plans)])
+            motions = generate_planned(self, req, plans, req.lengths, denoiser)
+            T = -(-max(req.lengths) // self.length_multiple) * self.length_multiple
+            normalized = torch.zeros(len(motions), T, self.mean.shape[0])
+            for i, m in enumerate(motions):
+                normalized[i, :len(m)] = self.normalize(torch.from_numpy(m))
         mask = torch.arange(T)[None, :] < torch.tensor(req.lengths)[:, None]
         raw_features = torch.where(mask[..., None], self.denormalize(normalized), torch.zeros(()))
         raw_joints = self.to_joints(raw_features, mask)
@@ -426,6 +459,8 @@ class Pipeline:
         info = {"steps": req.steps, "cfg": req.cfg, "sampler": req.sampler,
                 "dtype": str(req.dtype).replace("torch.", ""), "finished": req.finish,
                 "lengths_from": lengths_from,  # per prompt: "given", "text" (the predictor) or "default"
+                # per prompt: its parts [{text, start, end, rest}] when it was generated part by part, else None
+                "plans": [None if p is None else p.to_dict() for p in plans] if plans else [None] * len(req.texts),
                 "unfamiliar": [asdict(u) for u in self.unfamiliar(req.texts)]}
         return Generation(req.texts, req.lengths, req.seed, features, joints, normalized, mask, info,
                           raw_features, raw_joints)

@@ -53,6 +53,8 @@ class Spec:
     # where `frames` came from: "given" (seconds or frames), "text" (the bundle's length predictor) or
     # "default" (a bundle without one), as the answer says it
     length_from: str = "given"
+    # a prompt that says an order is generated part by part (Request.plan); false: the network reads it whole
+    plan: bool = True
 
 
 @dataclass
@@ -157,7 +159,7 @@ class ModelSet:
     def parse(self, body: Any) -> tuple[Spec, dict]:
         """A JSON request body -> (Spec, transport options). Every error names the field, one line."""
         name, pipe = self._model_of(body, {"text", "seconds", "frames", "seed", "model", "sampler", "steps", "cfg",
-                                            "footskate", "control", "encoding", "features", "format"})
+                                            "footskate", "control", "encoding", "features", "format", "plan"})
         text = body.get("text")
         if not isinstance(text, str):
             raise StableMoError(f"text: expected a string, got {_json_type(text)}")
@@ -181,6 +183,9 @@ class ModelSet:
         footskate = body.get("footskate", False)
         if not isinstance(footskate, bool):
             raise StableMoError(f"footskate: expected true or false, got {json_short(footskate)}")
+        plan = body.get("plan", True)
+        if not isinstance(plan, bool):
+            raise StableMoError(f"plan: expected true or false, got {json_short(plan)}")
         control = _control(body.get("control"), frames, pipe.skeleton)
         encoding = body.get("encoding", "lists")
         if encoding not in ENCODINGS:
@@ -188,7 +193,7 @@ class ModelSet:
         features = body.get("features", True)
         if not isinstance(features, bool):
             raise StableMoError(f"features: expected true or false, got {json_short(features)}")
-        spec = Spec(name, text.strip(), frames, seed, sampler, steps, cfg, footskate, control, length_from)
+        spec = Spec(name, text.strip(), frames, seed, sampler, steps, cfg, footskate, control, length_from, plan)
         # the pipeline's own checks (steps the sampler can run, targets against the motion, ...)
         # before the job is queued
         try:
@@ -202,8 +207,10 @@ class ModelSet:
         control = None
         if spec.control:
             control = [control_from_targets(spec.control, spec.frames, self.models[spec.model].pipeline.skeleton)]
-        return Request([spec.text], spec.frames, seed=spec.seed, sampler=spec.sampler, steps=spec.steps,
-                       cfg=spec.cfg, hooks=hooks, control=control)
+        # a length the text chose is asked for as none, so a prompt in parts takes its parts' lengths
+        frames = None if spec.length_from == "text" and not spec.control else spec.frames
+        return Request([spec.text], frames, seed=spec.seed, sampler=spec.sampler, steps=spec.steps,
+                       cfg=spec.cfg, hooks=hooks, control=control, plan=spec.plan)
 
     def warm_up(self, name: str) -> None:
         """One generation at the default length, uncached: first-call costs are paid at start-up."""
@@ -373,13 +380,15 @@ def encode_array(arr: np.ndarray, encoding: str) -> Any:
 def motion_json(motion: Motion, encoding: str, features: bool) -> dict:
     spec = motion.spec
     out = {
-        "model": spec.model, "text": spec.text, "seed": spec.seed, "frames": spec.frames,
+        "model": spec.model, "text": spec.text, "seed": spec.seed, "frames": len(motion.joints),
         "length_from": spec.length_from, "fps": motion.fps,
         "sampler": motion.info["sampler"], "steps": motion.info["steps"], "cfg": motion.info["cfg"],
         "footskate": spec.footskate, "joints": encode_array(motion.joints, encoding),
     }
     if "control" in motion.info:
         out["control"] = motion.info["control"]
+    # its parts [{text, start, end, rest}] when the prompt was generated part by part, else null
+    out["plan"] = (motion.info.get("plans") or [None])[0]
     out["warnings"] = motion.warnings()
     if features:
         out["features"] = encode_array(motion.features, encoding)

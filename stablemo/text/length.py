@@ -114,6 +114,13 @@ class LengthPredictor:
         """(N, D) -> (N,) the mode's length in frames (the middle of its bin; long)."""
         return self.bins.frames(self.mode_bins(embeddings))
 
+    def quantile_frames(self, embeddings: torch.Tensor, q: float) -> torch.Tensor:
+        """(N, D) -> (N,) the end of the first bin where the predicted lengths' distribution reaches
+        `q` (long, within max_frames): how long such a text's motion is at most, as a rule."""
+        cdf = self.probabilities(embeddings).cumsum(-1)  # (N, K)
+        bins = (cdf < q).sum(-1).clamp(max=self.bins.count - 1)
+        return (self.bins.min_frames + (bins + 1) * self.bins.width).clamp(max=self.bins.max_frames)
+
     def predict(self, encoder, texts: list[str]) -> list[int]:
         """One length in frames per text (the mode), from `encoder`'s sentence embeddings."""
         return [int(n) for n in self.mode_frames(sentence_embeddings(encoder, list(texts)))]

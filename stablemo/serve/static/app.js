@@ -378,6 +378,10 @@ function setMotion(data, spec, rec) {
                scale: model.skeleton.units === 'mm' ? 0.001 : 1 };
   // an empty seconds field says the length the text got
   if (data.length_from !== 'given') $('seconds').placeholder = `auto (${(T / data.fps).toFixed(1)} s)`;
+  // a prompt that says an order was made part by part: say the parts and their seconds
+  $('plan-note').textContent = data.plan
+    ? 'in parts: ' + data.plan.map((p) => `${p.text} ${((p.end - p.start) / data.fps).toFixed(1)} s`).join(' → ')
+    : '';
   buildPath(S.motion);
   // a new prompt plays from the start; an edit made while paused stays at the frame being edited;
   // the motion of a path just drawn plays from the start if the page was playing before the stroke
