@@ -129,5 +129,6 @@ def test_compiled_placement_is_the_rigid_rebuilds(kernels, skel, dtype, held):
     fast = rigid_joint_major(x, skel, None, lengths, hold, ends, place=place)
     assert calls and fast.shape == twin.shape and fast.dtype == dtype
     scale = twin.abs().max()  # KIT's joints are in millimetres
-    assert (fast - twin).abs().max() <= (1e-6 if dtype == torch.float32 else 1e-14) * scale
+    # float32: a few ulps of the scale (2.2e-6 on an AMD EPYC box, whose vector units round otherwise)
+    assert (fast - twin).abs().max() <= (4e-6 if dtype == torch.float32 else 1e-14) * scale
     assert (fast - x).abs().max() > 1e-3 * scale  # (the rebuild did move the rubbery joints)

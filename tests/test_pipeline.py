@@ -73,17 +73,20 @@ PROMPTS = ["a person walks forward", "jumps", "someone waves with the left hand"
 LENGTHS = [20, 13, 40]
 
 
+# Batched and single runs differ by float rounding only: BLAS picks kernels by shape, and 4 sampler
+# steps carry it on (an AMD EPYC box: up to 2.5e-4 in 11 of 31560 features; Intel: under 1e-5). A
+# sample mixed up with its neighbour would be off by O(1).
 @pytest.mark.parametrize("sampler", ["dpmpp_2m_sde", "ddim"])
 def test_batched_equals_per_sample(sampler):
     pipe = make_pipeline()
     batch = pipe.generate(PROMPTS, LENGTHS, steps=4, sampler=sampler, seed=[5, 6, 7])
     for i, (text, n, s) in enumerate(zip(PROMPTS, LENGTHS, [5, 6, 7])):
         single = pipe.generate([text], [n], steps=4, sampler=sampler, seed=s)
-        torch.testing.assert_close(batch.features[i, :n], single.features[0, :n], rtol=1e-5, atol=1e-5)
-        torch.testing.assert_close(batch.joints[i, :n], single.joints[0, :n], rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(batch.features[i, :n], single.features[0, :n], rtol=1e-4, atol=1e-4)
+        torch.testing.assert_close(batch.joints[i, :n], single.joints[0, :n], rtol=1e-4, atol=1e-4)
     # chunking the request does not change anything either
     chunked = pipe.generate(PROMPTS, LENGTHS, steps=4, sampler=sampler, seed=[5, 6, 7], batch_size=2)
-    torch.testing.assert_close(chunked.features, batch.features, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(chunked.features, batch.features, rtol=1e-4, atol=1e-4)
 
 
 def test_outputs_are_trimmed_denormalised_and_padded_with_zeros():
@@ -118,7 +121,8 @@ def test_parallel_cfg_equals_two_separate_passes():
     serial = baseline_denoiser(text_cache=True, parallel_cfg=False)  # the paper's baseline, as the bench runs it
     split = pipe.generate(PROMPTS, LENGTHS, steps=4, cfg=2.5, seed=0, denoiser=serial)
     assert pipe.model.forward_batches == [3] * 8
-    torch.testing.assert_close(fused.features, split.features, rtol=1e-5, atol=1e-5)
+    # one forward of 2B against two of B: rounding only (as above; AMD EPYC: 2.5e-4 in 2 of 31560)
+    torch.testing.assert_close(fused.features, split.features, rtol=1e-4, atol=5e-4)
     # guidance changes the result; cfg = 1 runs the conditional half only
     pipe.model.forward_batches.clear()
     plain = pipe.generate(PROMPTS, LENGTHS, steps=4, cfg=1.0, seed=0)
@@ -253,7 +257,7 @@ def test_from_bundle_generates_with_the_real_model(tiny_bundle):
     out = pipe.generate(["a person walks forward", "a person jumps"], [24, 11], steps=3, seed=[0, 1])
     assert out.features.shape == (2, 24, D) and torch.isfinite(out.joints).all()
     single = pipe.generate(["a person jumps"], [11], steps=3, seed=1)
-    torch.testing.assert_close(out.features[1, :11], single.features[0, :11], rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(out.features[1, :11], single.features[0, :11], rtol=1e-4, atol=1e-4)
 
 
 def test_from_bundle_errors(tmp_path, tiny_bundle):

@@ -2,6 +2,8 @@
 
     stablemo behaviour --bundle stablemo/assets/demo_bundle  --out docs/data/results/behaviour_teacher.json
     stablemo behaviour --bundle stablemo/assets/demo_student --out docs/data/results/behaviour_student.json
+    stablemo behaviour --bundle stablemo/assets/demo_bundle  --whole --out docs/data/results/behaviour_teacher_whole.json
+    stablemo behaviour --bundle stablemo/assets/demo_student --whole --out docs/data/results/behaviour_student_whole.json
     stablemo behaviour --ground-truth                        --out docs/data/results/behaviour_ground_truth.json
     python scripts/results/behaviour_report.py [--results docs/results.md]
 
