@@ -81,7 +81,18 @@ def denoiser_flops(pipe, frames: int, batch: int) -> float:
     mask = (torch.arange(T, device=pipe.device)[None] < frames).expand(batch, T)
     counter = FlopCounterMode(display=False, custom_mapping=fast_flops.counter_formulas())
     with torch.inference_mode():
-        if pipe.config.get("kind") == "consistency":  # a student's condition: its embedded guidance w (B,)
+        kind = pipe.config.get("kind")
+        if kind == "controlnet":  # counted following a dense pelvis path (without targets the base runs alone)
+            from stablemo.control.hints import hint_input
+
+            model = pipe.model
+            targets = torch.zeros(batch, T, model.joints, 3, device=pipe.device)
+            hinted = torch.zeros(batch, T, model.joints, dtype=torch.bool, device=pipe.device)
+            hinted[:, :frames, 0] = True
+            hint = hint_input(targets, hinted, 1.0, path=model.control.path)
+            cond = torch.zeros(batch, device=pipe.device) if model.base_kind == "consistency" else None
+            ctx = model.prepare(text, text_mask, mask, cond, (), hint=hint)
+        elif kind == "consistency":  # a student's condition: its embedded guidance w (B,)
             ctx = pipe.model.prepare(text, text_mask, mask, torch.zeros(batch, device=pipe.device))
         else:
             ctx = pipe.model.prepare(text, text_mask, mask)

@@ -105,8 +105,8 @@ class ControlConditioning(Conditioning):
     (B, 1, 1): 1 where the sample has at least one target, else 0 (no injection)."""
 
     base: Conditioning
-    copy: Conditioning
-    hint: torch.Tensor
+    copy: Conditioning | None  # None (and hint None): no sample has a target, the base runs alone
+    hint: torch.Tensor | None
     gate: torch.Tensor
 
 
@@ -125,12 +125,15 @@ class _ControlNetBase(nn.Module):
     def prepare(self, text, text_mask, motion_mask, time_cond, timesteps,
                 hint) -> tuple[Conditioning, torch.Tensor, torch.Tensor]:
         """(the copy's context, the encoded hint (B, C, T), the gate (B, 1, 1)); hint: (B, T, 4 J) or
-        (B, T, 12 J) with the path channels."""
+        (B, T, 12 J) with the path channels. At inference, a batch without any target gets (None,
+        None, zeros): the base runs alone (the gate would multiply every injection by 0)."""
         if hint.shape != (*motion_mask.shape, self.hint_width):
             raise StableMoError(f"hint: expected shape {(*motion_mask.shape, self.hint_width)}, got {tuple(hint.shape)}")
-        ctx = self.encoder.prepare(text, text_mask, motion_mask, time_cond, timesteps)
         targets = hint[..., 3 * self.joints:] * motion_mask[..., None]  # (B, T, J): the mask channels on valid frames
         gate = (targets.flatten(1) > 0).any(1).to(text.dtype)[:, None, None]  # (B, 1, 1)
+        if not self.training and not bool(gate.any()):
+            return None, None, gate  # no sample has a target: nothing to inject, the copy need not run
+        ctx = self.encoder.prepare(text, text_mask, motion_mask, time_cond, timesteps)
         return ctx, self.hint_encoder(hint.to(text.dtype), motion_mask), gate
 
 
@@ -340,6 +343,8 @@ class ControlledModel(nn.Module):
         return ControlConditioning(motion_mask, time_cond, base.timesteps, base, copy_ctx, encoded, gate)
 
     def denoise(self, x, t, ctx: ControlConditioning) -> torch.Tensor:
+        if ctx.copy is None:  # no targets in the batch (a free prompt): the base alone, at its cost
+            return self.net.denoise(x, t, ctx.base)
         residuals = self.control.residuals(x, t, ctx.copy, ctx.hint, ctx.gate)
         return self.control.run_base(self.denoiser, x, t, ctx.base, residuals)
 
