@@ -26,6 +26,8 @@ from stablemo.timeline.planned import plan_prompt, share
     ("a boy waves with the right hand before walking forward.", ["a boy waves with the right hand", "a boy walking forward"]),
     ("The man jumps after walking forward", ["The man walking forward", "The man jumps"]),  # "Y after X": X first
     ("a person walks forward. Then he sits down", ["a person walks forward", "he sits down"]),
+    ("a person walked forward and then turned around", ["a person walked forward", "a person turned around"]),
+    ("the kid turns to his left, followed by a walk forward.", ["the kid turns to his left", "a walk forward"]),
 ])
 def test_an_order_in_words_splits_the_prompt_into_its_parts(text, parts):
     assert split_parts(text) == parts
@@ -38,6 +40,9 @@ def test_an_order_in_words_splits_the_prompt_into_its_parts(text, parts):
     "a person walks forward and waves",  # no order said: may be meant at once
     "a person walks in a circle counterclockwise",
     "someone walks while waving",
+    "the man kicks with his left leg, then his right",  # no action of its own after "then": one action
+    "a person walks forward then back",
+    "he jumps after 2 seconds",
     "",
 ])
 def test_a_prompt_that_says_no_order_stays_whole(text):

@@ -34,6 +34,7 @@ class PlanWords:
 
     then: tuple[str, ...]
     after: tuple[str, ...]
+    noun_after: tuple[str, ...]
     first: tuple[str, ...]
     not_verbs: frozenset[str]
     before_verb: frozenset[str]
@@ -48,7 +49,7 @@ class PlanWords:
 def plan_words() -> PlanWords:
     """plan.yaml, shipped with the package."""
     raw = yaml.safe_load(resources.files("stablemo.text").joinpath(PACKAGED).read_text(encoding="utf-8"))
-    return PlanWords(tuple(raw["then"]), tuple(raw["after"]), tuple(raw["first"]), frozenset(raw["not_verbs"]),
+    return PlanWords(tuple(raw["then"]), tuple(raw["after"]), tuple(raw["noun_after"]), tuple(raw["first"]), frozenset(raw["not_verbs"]),
                      frozenset(raw["before_verb"]),                     tuple(raw["pronouns"]), int(raw["max_subject_words"]), str(raw["rest_text"]),
                      float(raw["rest_quantile"]), float(raw["min_rest_s"]))
 
@@ -73,19 +74,45 @@ def _clean(piece: str) -> str:
     return re.sub(r"\s+", " ", piece).strip(" ,;.")
 
 
+def _verbish(word: str, words: PlanWords) -> bool:
+    """A third-person verb, a gerund or a past tense, as far as a word alone tells."""
+    w = word.lower().strip(",.;!")
+    return _is_verb(w, words) or _gerund(w) or (len(w) > 4 and w.endswith("ed") and w.isalpha())
+
+
+def _has_verb(piece: str, words: PlanWords) -> bool:
+    """Whether a piece says an action of its own."""
+    return any(_verbish(w, words) for w in piece.split())
+
+
 def split_parts(text: str, words: PlanWords | None = None) -> list[str]:
-    """The parts of `text` in the order they happen (one part, the text itself, when it says no order)."""
+    """The parts of `text` in the order they happen (one part, the text itself, when it says no order).
+    Every part after an order word must say an action of its own (a verb), except after words like
+    "followed by" that take a noun ("followed by a walk"); else the prompt stays whole ("kicks with the
+    left leg, then the right" is one action)."""
     words = words or plan_words()
-    then = re.compile(rf"(?:,\s*|\s+)(?:and\s+)?\b(?:{_words(words.then)})\b\s*,?", re.IGNORECASE)
+    then = re.compile(rf"((?:,\s*|\s+)(?:and\s+)?\b(?:{_words(words.then)})\b\s*,?)", re.IGNORECASE)
     after = re.compile(rf"(?:,\s*|\s+)\b(?:{_words(words.after)})\b\s+", re.IGNORECASE)
-    pieces = [p for p in then.split(text) if _clean(p)]
+    noun_after = re.compile(rf"\b(?:{_words(words.noun_after)})\b", re.IGNORECASE)
+    whole = [_clean(text)] if _clean(text) else [text]
+    split = then.split(text)  # [piece, separator, piece, ...]
+    pieces, separators = split[0::2], split[1::2]
     if len(pieces) == 1:  # "Y after X": X first; only where no other order word is said
         pieces = [p for p in after.split(text) if _clean(p)]
-        if len(pieces) != 2:
-            return [_clean(text)] if _clean(text) else [text]
+        if len(pieces) != 2 or not all(_has_verb(p, words) for p in pieces):
+            return whole
         pieces = pieces[::-1]
+    else:
+        kept = [pieces[0]]
+        for sep, piece in zip(separators, pieces[1:]):
+            if not _clean(piece):
+                continue
+            if not (_has_verb(piece, words) or noun_after.search(sep)):
+                return whole
+            kept.append(piece)
+        pieces = [p for p in kept if _clean(p)]
     if len(pieces) == 1:
-        return [_clean(text)]
+        return whole
     parts: list[str] = []
     for piece in pieces:  # "jumps once, claps twice" / "turns left and squats twice"
         parts.extend(_split_joined(piece, words))
@@ -95,7 +122,7 @@ def split_parts(text: str, words: PlanWords | None = None) -> list[str]:
         part = _clean(part)
         if part:
             out.append(part)
-    return out if len(out) > 1 else [_clean(text)]
+    return out if len(out) > 1 else whole
 
 
 def _split_joined(piece: str, words: PlanWords) -> list[str]:
@@ -114,7 +141,7 @@ def _subject(part: str, words: PlanWords) -> str:
     tokens = _clean(part).split()
     for i, token in enumerate(tokens):
         lower = token.lower()
-        if i and (_is_verb(token, words) or lower in words.before_verb or lower in words.first):
+        if i and (_verbish(token, words) or lower in words.before_verb or lower in words.first):
             subject = tokens[:i]
             return " ".join(subject) if 0 < len(subject) <= words.max_subject_words else ""
     return ""
@@ -133,7 +160,7 @@ def _with_subject(part: str, subject: str, words: PlanWords) -> str:
     lower = part.lower()
     if any(lower == p or lower.startswith(p + " ") for p in words.pronouns):
         return part
-    if _is_verb(head, words) or _gerund(head):
+    if _verbish(head, words):
         return f"{subject} {part}"
     return part
 
