@@ -134,3 +134,14 @@ def test_generate_says_the_parts_and_whole_turns_planning_off(tmp_path, capsys):
     assert main(["generate", text, "--bundle", str(DEMO_STUDENT), "--out", str(tmp_path / "b"), "--no-render",
                  "--whole"]) == 0
     assert "in parts" not in capsys.readouterr().out
+
+
+def test_every_behaviour_prompt_splits_into_as_many_parts_as_it_names_actions():
+    """The suite's 111 prompts (30 held out: paraphrases and subjects no caption uses): single
+    actions stay whole, composites of 2 and 3 split into 2 and 3."""
+    from stablemo.eval.behaviour.table import load_prompts
+
+    prompts = load_prompts()
+    assert len(prompts) >= 100 and sum(len(p.parts) > 1 for p in prompts) >= 20
+    for p in prompts:
+        assert len(split_parts(p.text)) == len(p.parts), p.text
