@@ -516,3 +516,15 @@ def test_footskate_never_reads_or_writes_a_non_finite_motion(capsys, tmp_path, m
     rc, err = footskate(capsys, tmp_path / "walk.npy", out, "--joints-out", tmp_path / "j.npy")
     assert rc == 2 and not out.exists() and not (tmp_path / "j.npy").exists()
     one_error_line(err, "NaN/Inf", "nothing written")
+
+
+def test_export_cfg_sets_the_bundles_guidance_and_a_bad_one_is_one_line(capsys, ckpt, tmp_path):
+    out = tmp_path / "bundle"
+    assert export(capsys, ckpt, out, "--cfg", "1.5")[0] == 0
+    assert json.loads((out / "config.json").read_text())["inference"]["cfg"] == 1.5
+    assert export(capsys, ckpt, tmp_path / "plain")[0] == 0  # without: the paper's
+    assert json.loads((tmp_path / "plain" / "config.json").read_text())["inference"]["cfg"] == 2.5
+    for bad in ("nan", "-1", "101"):
+        rc, err = export(capsys, ckpt, tmp_path / f"bad{bad}", "--cfg", bad)
+        assert rc == 2 and not (tmp_path / f"bad{bad}").exists()
+        one_error_line(err, "--cfg")

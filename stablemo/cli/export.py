@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from stablemo.checks import check_finite
 from stablemo.inference.bundle import check_bundle_target
 from stablemo.training.export import WEIGHTS, export
 
@@ -16,8 +17,14 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--overwrite", action="store_true",
                         help="replace an existing bundle at --out (never anything that is not a bundle)")
     parser.add_argument("--weights", choices=WEIGHTS, default="ema", help="EMA weights (default) or the raw weights")
+    parser.add_argument("--cfg", type=float, default=None,
+                        help="the bundle's default classifier-free guidance scale (its inference config; default: the "
+                             "paper's 2.5 for a diffusion model, a student's absorbed one); choose it on the val split, "
+                             "e.g. scripts/results/cfg_sweep.sh")
     args = parser.parse_args(argv)
+    if args.cfg is not None:
+        check_finite("--cfg", args.cfg, low=0.0, high=100.0)
     check_bundle_target(args.out, args.overwrite, flag="--out")  # before the checkpoint is even read
-    path = export(args.ckpt, args.out, weights=args.weights, overwrite=args.overwrite)
+    path = export(args.ckpt, args.out, weights=args.weights, overwrite=args.overwrite, cfg=args.cfg)
     print(f"wrote {path}")
     return 0

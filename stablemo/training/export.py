@@ -11,6 +11,8 @@ instant, and leftovers of a killed export beside it are removed by the next one.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import inspect
 from pathlib import Path
 
@@ -108,9 +110,11 @@ def _precomputed_bundle(checkpoint: dict, extra: dict, source: str) -> tuple[dic
     return config, state
 
 
-def export(ckpt: str | Path, out: str | Path, weights: str = "ema", overwrite: bool = False) -> Path:
+def export(ckpt: str | Path, out: str | Path, weights: str = "ema", overwrite: bool = False,
+           cfg: float | None = None) -> Path:
     """Write the bundle of checkpoint `ckpt` to folder `out`; an existing bundle there is replaced
-    only with `overwrite`, anything else at `out` is refused (checked before the checkpoint loads)."""
+    only with `overwrite`, anything else at `out` is refused (checked before the checkpoint loads).
+    cfg: the bundle's default guidance scale (None: the inference config's own)."""
     check_bundle_target(out, overwrite)
     checkpoint = load_checkpoint_file(ckpt)
     config, state = bundle_from_checkpoint(checkpoint, source=str(ckpt), weights=weights)
@@ -118,6 +122,8 @@ def export(ckpt: str | Path, out: str | Path, weights: str = "ema", overwrite: b
     config.setdefault("inference", InferenceConfig.from_bundle(config, str(ckpt)).to_dict())
     if config.get("kind") == "consistency":  # its own sampler (older checkpoints carry the teacher's)
         config["inference"] = student_inference(config, str(ckpt)).to_dict()
+    if cfg is not None:
+        config["inference"] = replace(InferenceConfig(**config["inference"]), cfg=float(cfg)).to_dict()
     return save_bundle(out, config, state, overwrite=overwrite)
 
 
