@@ -31,7 +31,7 @@ def main(argv: list[str]) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from stablemo.io import write_bytes
+    from stablemo.outputs.render import save_png
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", default=str(DOCS / "data" / "results" / "readme_prompt.png"))
@@ -68,11 +68,7 @@ def main(argv: list[str]) -> int:
             ax.set_title("ten frames seen from the side (forward to the right); right arm red, left blue", fontsize=9)
     fig.suptitle(f'"{TEXT}" (stablemo generate\'s defaults)')
     fig.tight_layout()
-    import io
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=70)
-    write_bytes(args.out, buf.getvalue())
+    save_png(fig, args.out, dpi=70)
     print(f"wrote {args.out}")
     return 0
 
