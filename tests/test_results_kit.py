@@ -77,8 +77,8 @@ def test_evaluate_runs_out_of_the_box_and_in_bf16(synth, tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "stablemo evaluator (evaluator_synth)" in printed
     assert results["bf16"]["settings"]["dtype"] == "bf16" and results["fp32"]["settings"]["dtype"] == "fp32"
-    row32 = results["fp32"]["rows"]["demo_bundle (ddim, 1 steps, cfg 2.5)"]
-    row16 = results["bf16"]["rows"]["demo_bundle (ddim, 1 steps, cfg 2.5, bf16)"]
+    row32 = results["fp32"]["rows"]["demo_bundle (ddim, 1 steps, cfg 1.5)"]
+    row16 = results["bf16"]["rows"]["demo_bundle (ddim, 1 steps, cfg 1.5, bf16)"]
     assert row16["fid"]["mean"] != row32["fid"]["mean"]
     assert abs(row16["fid"]["mean"] / row32["fid"]["mean"] - 1) < 0.2
     assert results["bf16"]["rows"]["Real motion"] == results["fp32"]["rows"]["Real motion"]  # same items and seeds

@@ -64,7 +64,7 @@ def test_generate_equals_offline_generation(client, models):
     assert res.status_code == 200, res.text
     data = res.json()
     joints, feats = offline(models, body["text"], 44, 7, steps=2)
-    assert (data["frames"], data["fps"], data["seed"], data["steps"], data["cfg"]) == (44, 20.0, 7, 2, 2.5)
+    assert (data["frames"], data["fps"], data["seed"], data["steps"], data["cfg"]) == (44, 20.0, 7, 2, 1.5)
     assert np.array_equal(np.asarray(data["joints"], dtype=np.float32), joints)  # lists: every float32 exact
     assert np.array_equal(np.asarray(data["features"], dtype=np.float32), feats)
     res = client.post("/api/generate", json={**body, "encoding": "base64", "features": False})
@@ -242,7 +242,7 @@ def test_info_describes_the_model(client):
     info = client.get("/api/info").json()
     assert info["default"] == "teacher"
     (model,) = info["models"]
-    assert model["defaults"] == {"sampler": "dpmpp_2m_sde", "steps": 10, "cfg": 2.5}
+    assert model["defaults"] == {"sampler": "dpmpp_2m_sde", "steps": 10, "cfg": 1.5}
     assert (model["min_frames"], model["max_frames"], model["fps"]) == (40, 196, 20.0)
     assert len(model["skeleton"]["parents"]) == 22 and model["skeleton"]["sides"].count("center") == 1
 
