@@ -20,7 +20,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--cfg", type=float, default=None,
                         help="the bundle's default classifier-free guidance scale (its inference config; default: the "
                              "paper's 2.5 for a diffusion model, a student's absorbed one); choose it on the val split, "
-                             "e.g. scripts/results/cfg_sweep.sh")
+                             "e.g. scripts/results/cfg_sweep.py")
     args = parser.parse_args(argv)
     if args.cfg is not None:
         check_finite("--cfg", args.cfg, low=0.0, high=100.0)

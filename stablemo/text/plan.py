@@ -2,7 +2,7 @@
 ["a person walks forward", "a person waves their right hand"].
 
 A denoiser reads a whole prompt at once, and a small one does its parts at the same time: the demo
-models waved while they walked, or walked after the wave, in 60-75 % of "X, then Y" motions
+models waved while they walked, or walked after the wave, in about 70 % of "X, then Y" motions
 (docs/results.md, "order"). Said in words, the order is plain English: the words of plan.yaml
 ("then", "afterwards", "followed by", "before", "Y after X") end one part and start the next. A
 split prompt is generated part by part, each window continuing the motion so far
@@ -49,9 +49,10 @@ class PlanWords:
 def plan_words() -> PlanWords:
     """plan.yaml, shipped with the package."""
     raw = yaml.safe_load(resources.files("stablemo.text").joinpath(PACKAGED).read_text(encoding="utf-8"))
-    return PlanWords(tuple(raw["then"]), tuple(raw["after"]), tuple(raw["noun_after"]), tuple(raw["first"]), frozenset(raw["not_verbs"]),
-                     frozenset(raw["before_verb"]),                     tuple(raw["pronouns"]), int(raw["max_subject_words"]), str(raw["rest_text"]),
-                     float(raw["rest_quantile"]), float(raw["min_rest_s"]))
+    return PlanWords(tuple(raw["then"]), tuple(raw["after"]), tuple(raw["noun_after"]), tuple(raw["first"]),
+                     frozenset(raw["not_verbs"]), frozenset(raw["before_verb"]), tuple(raw["pronouns"]),
+                     int(raw["max_subject_words"]), str(raw["rest_text"]), float(raw["rest_quantile"]),
+                     float(raw["min_rest_s"]))
 
 
 def _words(options) -> str:

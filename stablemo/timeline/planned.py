@@ -93,10 +93,15 @@ def plan_prompts(pipe, texts: Sequence[str], asked: Sequence[int | None],
     if pipe.length_predictor is None:
         asked = [r if a is None else a for a, r in zip(asked, resolved)]
     split = [split_parts(t, words) for t in texts]
-    flat = [p for parts in split for p in parts]
-    modes, highs = pipe.text_length_range(flat, words.rest_quantile)
+    # a prompt of one part asked for no length is generated whole: its lengths need not be predicted
+    needed = [len(parts) > 1 or n is not None for parts, n in zip(split, asked)]
+    flat = [p for parts, need in zip(split, needed) if need for p in parts]
+    modes, highs = pipe.text_length_range(flat, words.rest_quantile) if flat else ([], [])
     plans, k = [], 0
-    for parts, n in zip(split, asked):
+    for parts, n, need in zip(split, asked, needed):
+        if not need:
+            plans.append(None)
+            continue
         plans.append(plan_prompt(parts, modes[k:k + len(parts)], highs[k:k + len(parts)], n, pipe.fps, words))
         k += len(parts)
     return plans
