@@ -91,10 +91,15 @@ def page(downloads):
 
 @functools.cache
 def text_frames(text: str) -> int:
-    """The length the served student gives a text when the page asks for none."""
+    """The length the served student gives a text when the page asks for none (a prompt in parts:
+    its parts' lengths together, stablemo.timeline.planned)."""
     from stablemo.inference.pipeline import Pipeline
+    from stablemo.timeline.planned import plan_prompts
 
-    return Pipeline.from_bundle(ASSETS / "demo_student").text_lengths([text])[0]
+    pipe = Pipeline.from_bundle(ASSETS / "demo_student")
+    (own,) = pipe.text_lengths([text])
+    (plan,) = plan_prompts(pipe, [text], [None], [own])
+    return own if plan is None else plan.total
 
 
 def limb_coloured(rgb: np.ndarray) -> np.ndarray:
@@ -158,6 +163,9 @@ def test_typed_prompt_is_drawn_and_moves_then_empty_prompt_shows_the_error(page,
     frames = text_frames(PROMPT)
     assert state == {"frames": frames, "error": None, "fps": 20, "model": "student", "from": "text",
                      "said": f"auto ({frames / 20:.1f} s)"}
+    # the prompt says an order: it was made in parts, and the page says which
+    note = page.find_element(By.ID, "plan-note").text
+    assert note.startswith("in parts: a person jumps") and "→ a person turns left" in note
 
     # the figure moves: two poses drawn 0.5 s apart differ by more than a few centimetres
     first = page.execute_script("return [window.stablemo.frame, window.stablemo.worldPose]")
