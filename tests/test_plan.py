@@ -28,6 +28,7 @@ from stablemo.timeline.planned import plan_prompt, share
     ("a person walks forward. Then he sits down", ["a person walks forward", "he sits down"]),
     ("a person walked forward and then turned around", ["a person walked forward", "a person turned around"]),
     ("the kid turns to his left, followed by a walk forward.", ["the kid turns to his left", "a walk forward"]),
+    ("a person walks forward and then finally sits down", ["a person walks forward", "a person sits down"]),
 ])
 def test_an_order_in_words_splits_the_prompt_into_its_parts(text, parts):
     assert split_parts(text) == parts
@@ -43,6 +44,8 @@ def test_an_order_in_words_splits_the_prompt_into_its_parts(text, parts):
     "the man kicks with his left leg, then his right",  # no action of its own after "then": one action
     "a person walks forward then back",
     "he jumps after 2 seconds",
+    "a person then jumps",  # an order word, but one action
+    "a man finally sits down",
     "",
 ])
 def test_a_prompt_that_says_no_order_stays_whole(text):

@@ -95,9 +95,13 @@ def split_parts(text: str, words: PlanWords | None = None) -> list[str]:
     then = re.compile(rf"((?:,\s*|\s+)(?:and\s+)?\b(?:{_words(words.then)})\b\s*,?)", re.IGNORECASE)
     after = re.compile(rf"(?:,\s*|\s+)\b(?:{_words(words.after)})\b\s+", re.IGNORECASE)
     noun_after = re.compile(rf"\b(?:{_words(words.noun_after)})\b", re.IGNORECASE)
+    leading = re.compile(rf"^\s*(?:(?:and\s+)?\b(?:{_words(words.then)})\b\s*,?\s*)+", re.IGNORECASE)
     whole = [_clean(text)] if _clean(text) else [text]
     split = then.split(text)  # [piece, separator, piece, ...]
-    pieces, separators = split[0::2], split[1::2]
+    # "..., and then finally sits down": an order word left at a piece's start goes with the separator
+    pieces, separators = [split[0]] + [leading.sub("", p) for p in split[2::2]], split[1::2]
+    if len(pieces) > 1 and not _has_verb(pieces[0], words):  # "a person then jumps": one action
+        return whole
     if len(pieces) == 1:  # "Y after X": X first; only where no other order word is said
         pieces = [p for p in after.split(text) if _clean(p)]
         if len(pieces) != 2 or not all(_has_verb(p, words) for p in pieces):
