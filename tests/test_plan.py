@@ -148,3 +148,21 @@ def test_every_behaviour_prompt_splits_into_as_many_parts_as_it_names_actions():
     assert len(prompts) >= 100 and sum(len(p.parts) > 1 for p in prompts) >= 20
     for p in prompts:
         assert len(split_parts(p.text)) == len(p.parts), p.text
+
+
+def test_a_timeline_plans_each_segment_as_generate_plans_a_prompt(student):
+    from stablemo.timeline.compose import plan_timeline
+
+    segs = [(0, 4, "a person turns left, then walks forward"), (4, 6, "a person bows")]
+    made = plan_timeline(student, segs, 0)
+    assert made.frames == [(0, 80), (80, 120)]  # the segments stay as given
+    texts = [w.text for w in made.windows]
+    assert texts == ["a person turns left", "a person walks forward", "a person bows"]
+    turn, walk = made.windows[:2]
+    assert turn.new_start == 0 and turn.new_end == walk.new_start and walk.new_end == 80
+    whole = plan_timeline(student, segs, 0, plan=False)
+    assert [w.text for w in whole.windows] == [s[2] for s in segs]
+    # the stream and the composer agree on it (one plan)
+    from stablemo.timeline import stream_timeline
+
+    assert [w.text for w in stream_timeline(student, segs).plan.windows] == texts

@@ -38,7 +38,7 @@ def run_timeline(args, bundle: Path, out: Path) -> int:
     pipe = Pipeline.from_bundle(bundle, device=args.device, dtype=args.dtype)
     hooks = make_hooks(pipe, footskate=args.footskate, footskate_weights=args.footskate_weights)
     motion = generate_timeline(pipe, segments, seed=args.seed, steps=args.steps, sampler=args.sampler, cfg=args.cfg,
-                               hooks=hooks, source=str(args.timeline), progress=True)
+                               hooks=hooks, source=str(args.timeline), progress=True, plan=not args.whole)
     title = " | ".join(s.text for s in segments)
     written = write_motion(out, slug, motion.features, motion.joints, pipe, formats, title[:120],
                            warn=lambda line: print(line, file=sys.stderr))

@@ -25,27 +25,18 @@ from stablemo.checks import check_seed
 from stablemo.errors import StableMoError
 from stablemo.motion.features import features_to_joints
 from stablemo.timeline.spec import Segment, check_segments, segment_frames
-from stablemo.timeline.windows import Sampling, crossfade, generate_window, settle
-
-DEFAULT_OVERLAP_S = 0.5  # the three chosen on held-apart prompts by scripts/long_motion/report.py (docs/long_motion.md)
-DEFAULT_BLEND_S = 0.0
-DEFAULT_SETTLE_S = 1.0
-
-
-@dataclass(frozen=True)
-class Window:
-    """One generated window: its text, the global frame of its first row, its generated length, how
-    many rows were copied from the motion (prefix), of which the last `blend` were cross-faded, and
-    the global frames [new_start, new_end) it added."""
-
-    text: str
-    start: int
-    length: int
-    prefix: int
-    blend: int
-    new_start: int
-    new_end: int
-
+from stablemo.timeline.planned import plan_prompts
+from stablemo.timeline.windows import (
+    DEFAULT_BLEND_S,
+    DEFAULT_OVERLAP_S,
+    DEFAULT_SETTLE_S,
+    Sampling,
+    Window,
+    crossfade,
+    generate_window,
+    plan_windows,
+    settle,
+)
 
 @dataclass
 class TimelineMotion:
@@ -81,23 +72,6 @@ def _frames(pipe, seconds: float, name: str) -> int:
     return round(seconds * pipe.fps)
 
 
-def plan_windows(frames: Sequence[tuple[int, int]], texts: Sequence[str], min_length: int, max_length: int,
-                 overlap: int, blend: int) -> list[Window]:
-    """Windows covering the segments' frames in order (see the module docstring)."""
-    windows: list[Window] = []
-    produced = 0
-    for (a, b), text in zip(frames, texts):
-        while produced < b:
-            prefix = min(overlap, produced)
-            cap = max_length - prefix
-            remaining = b - produced
-            # split what is left of the segment evenly over the windows it needs (no 3-frame tail window)
-            pieces = math.ceil(remaining / cap)
-            new = math.ceil(remaining / pieces)
-            length = max(min_length, prefix + new)
-            windows.append(Window(text, produced - prefix, length, prefix, min(blend, prefix), produced, produced + new))
-            produced += new
-    return windows
 
 
 @dataclass(frozen=True)
@@ -113,8 +87,11 @@ class Plan:
 
 def plan_timeline(pipe, segments: Sequence[Segment | tuple], seed: int = 0, overlap: float = DEFAULT_OVERLAP_S,
                   blend: float = DEFAULT_BLEND_S, settle_s: float = DEFAULT_SETTLE_S,
-                  source: str = "segments") -> Plan:
-    """Every argument of a timeline checked against the model, before anything is generated."""
+                  source: str = "segments", plan: bool = True) -> Plan:
+    """Every argument of a timeline checked against the model, before anything is generated. plan:
+    each segment is planned as `stablemo generate` plans a prompt at the segment's length
+    (stablemo.timeline.planned: a prompt that says an order in its parts, a segment longer than its
+    text asks for ending standing), its windows made over the parts; the segments stay as given."""
     segments = check_segments(segments, source)
     k, r = _frames(pipe, overlap, "overlap"), _frames(pipe, blend, "blend")
     h = _frames(pipe, settle_s, "settle_s")
@@ -124,7 +101,18 @@ def plan_timeline(pipe, segments: Sequence[Segment | tuple], seed: int = 0, over
         raise StableMoError(f"overlap: {overlap:g} s ({k} frames) leaves no new frames in a window of at most "
                             f"{pipe.max_length} frames")
     frames = segment_frames(segments, pipe.fps, source)
-    windows = plan_windows(frames, [s.text for s in segments], pipe.min_length, pipe.max_length, k, r)
+    spans, texts = list(frames), [s.text for s in segments]  # what the windows are made over
+    if plan:
+        asked = [b - a for a, b in frames]
+        spans, texts = [], []
+        for (a, b), seg, part_plan in zip(frames, segments, plan_prompts(pipe, [s.text for s in segments], asked, asked)):
+            if part_plan is None:
+                spans.append((a, b))
+                texts.append(seg.text)
+            else:
+                spans.extend((a + x, a + y) for x, y in part_plan.spans)
+                texts.extend(part_plan.texts)
+    windows = plan_windows(spans, texts, pipe.min_length, pipe.max_length, k, r)
     check_seed("seed", seed, count=len(windows))  # window i uses seed + i
     return Plan(segments, frames, windows, h)
 
@@ -148,22 +136,23 @@ def compose_windows(pipe, plan: Plan, seed: int, sampling: Sampling, progress: b
 def generate_timeline(pipe, segments: Sequence[Segment | tuple], seed: int = 0, overlap: float = DEFAULT_OVERLAP_S,
                       blend: float = DEFAULT_BLEND_S, settle_s: float = DEFAULT_SETTLE_S, steps: int | None = None, sampler: str | None = None,
                       cfg: float | None = None, dtype=None, hooks: Sequence = (), source: str = "segments",
-                      progress: bool = False) -> TimelineMotion:
+                      progress: bool = False, plan: bool = True) -> TimelineMotion:
     """One motion for a timeline. overlap, blend: seconds of each window copied from the motion so
     far, and of those the last seconds cross-faded instead of in-painted (blend <= overlap); settle_s:
     seconds over which the jump where a window's new rows begin is faded out (`settle`); window i
-    uses seed + i; the sampler settings default to the bundle's."""
+    uses seed + i; the sampler settings default to the bundle's; plan: each segment planned as a
+    prompt of its length (`plan_timeline`; False: its text whole over its span)."""
     check_seed("seed", seed)
-    plan = plan_timeline(pipe, segments, seed, overlap, blend, settle_s, source)
+    made = plan_timeline(pipe, segments, seed, overlap, blend, settle_s, source, plan)
     sampling = Sampling(steps, sampler, cfg, dtype, tuple(hooks))
-    for _, motion in compose_windows(pipe, plan, seed, sampling, progress):
+    for _, motion in compose_windows(pipe, made, seed, sampling, progress):
         pass
     raw = torch.from_numpy(motion)[None]  # (1, N, D): windows are joined raw, finished once as a whole
     if not torch.isfinite(features_to_joints(raw.double(), pipe.skeleton)).all():
         raise StableMoError("timeline: the recovered joints are not finite; nothing was written")
     feats, joints = pipe.finish(raw, [raw.shape[1]])
-    return TimelineMotion(plan.segments, plan.frames, feats[0].numpy(), joints[0].float().numpy(), pipe.fps,
-                          plan.windows, motion)
+    return TimelineMotion(made.segments, made.frames, feats[0].numpy(), joints[0].float().numpy(), pipe.fps,
+                          made.windows, motion)
 
 
 __all__ = ["Plan", "TimelineMotion", "Window", "compose_windows", "generate_timeline", "plan_timeline", "plan_windows"]

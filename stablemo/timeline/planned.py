@@ -10,7 +10,7 @@ as often as the length allowed. Any other length is shared out over the parts.
 
 `generate_planned` makes the motions of a batch of plans together: window k of every prompt that has
 one is one batched request, continuing that prompt's motion so far by in-painting its last frames
-(stablemo.timeline.compose, whose window plan and hand-over it uses), so a batch of plans costs one
+(the timeline's window plan and hand-over, stablemo.timeline.windows), so a batch of plans costs one
 request per window of its longest plan.
 """
 
@@ -23,8 +23,7 @@ import numpy as np
 
 from stablemo.checks import MAX_SEED
 from stablemo.text.plan import PlanWords, plan_words, split_parts
-from stablemo.timeline.compose import DEFAULT_OVERLAP_S, DEFAULT_SETTLE_S, plan_windows
-from stablemo.timeline.windows import settle
+from stablemo.timeline.windows import DEFAULT_OVERLAP_S, DEFAULT_SETTLE_S, plan_windows, settle
 
 WINDOW_SEED_STRIDE = 1_000_003  # window k of a prompt with seed s draws from (s * stride + k): no other prompt's seed
 

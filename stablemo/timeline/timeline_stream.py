@@ -71,17 +71,18 @@ class TimelineStream:
 def stream_timeline(pipe, segments: Sequence[Segment | tuple], chunk_seconds: float = 2.0, seed: int = 0,
                     overlap: float = DEFAULT_OVERLAP_S, settle_s: float = DEFAULT_SETTLE_S, steps: int | None = None,
                     sampler: str | None = None, cfg: float | None = None, dtype=None, hooks: Sequence = (),
-                    source: str = "segments") -> TimelineStream:
+                    source: str = "segments", plan: bool = True) -> TimelineStream:
     """The timeline's chunks (see the module docstring), computed when pulled; window i uses seed + i
-    as in generate_timeline. Every argument is checked here, before the first window."""
+    as in generate_timeline, each segment planned as there (`plan`). Every argument is checked here,
+    before the first window."""
     check_seed("seed", seed)
-    plan = plan_timeline(pipe, segments, seed, overlap, 0.0, settle_s, source)
-    spans = chunk_spans(plan.frames, chunk_length(pipe, chunk_seconds))
+    made = plan_timeline(pipe, segments, seed, overlap, 0.0, settle_s, source, plan)
+    spans = chunk_spans(made.frames, chunk_length(pipe, chunk_seconds))
     # rows before a window's new ones that its finishing step sees: the overlap, and at least one,
     # since features_of reads a row's turn against the row before it
     keep = max(1, round(overlap * pipe.fps))
     sampling = Sampling(steps, sampler, cfg, dtype, tuple(hooks))
-    return TimelineStream(plan, spans, _chunks(pipe, plan, spans, seed, sampling, keep))
+    return TimelineStream(made, spans, _chunks(pipe, made, spans, seed, sampling, keep))
 
 
 def _chunks(pipe, plan: Plan, spans: list[Span], seed: int, sampling: Sampling, keep: int) -> Iterator[Chunk]:

@@ -10,6 +10,7 @@ the copied rows continue the motion exactly once the root is integrated over the
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -18,6 +19,47 @@ import torch
 
 from stablemo.motion.features import features_to_joints
 from stablemo.motion.quaternion import qinv, qrot
+
+DEFAULT_OVERLAP_S = 0.5  # the three chosen on held-apart prompts by scripts/long_motion/report.py (docs/long_motion.md)
+DEFAULT_BLEND_S = 0.0
+DEFAULT_SETTLE_S = 1.0
+
+
+@dataclass(frozen=True)
+class Window:
+    """One generated window: its text, the global frame of its first row, its generated length, how
+    many rows were copied from the motion (prefix), of which the last `blend` were cross-faded, and
+    the global frames [new_start, new_end) it added."""
+
+    text: str
+    start: int
+    length: int
+    prefix: int
+    blend: int
+    new_start: int
+    new_end: int
+
+
+def plan_windows(frames: Sequence[tuple[int, int]], texts: Sequence[str], min_length: int, max_length: int,
+                 overlap: int, blend: int) -> list[Window]:
+    """Windows covering the segments' frames [a, b) in order. Each after the first starts with the
+    last `overlap` frames made (its prefix, the last `blend` of them cross-faded); a segment longer
+    than a window is split evenly over the windows it needs; a window shorter than `min_length` is
+    generated at `min_length` and cut (stablemo.timeline.compose)."""
+    windows: list[Window] = []
+    produced = 0
+    for (a, b), text in zip(frames, texts):
+        while produced < b:
+            prefix = min(overlap, produced)
+            cap = max_length - prefix
+            remaining = b - produced
+            # split what is left of the segment evenly over the windows it needs (no 3-frame tail window)
+            pieces = math.ceil(remaining / cap)
+            new = math.ceil(remaining / pieces)
+            length = max(min_length, prefix + new)
+            windows.append(Window(text, produced - prefix, length, prefix, min(blend, prefix), produced, produced + new))
+            produced += new
+    return windows
 
 
 @dataclass(frozen=True)
@@ -122,4 +164,5 @@ class RootFrame:
         self.xz = joints[frame, 0, [0, 2]].astype(np.float64)
 
 
-__all__ = ["RootFrame", "Sampling", "crossfade", "generate_window", "settle", "yaw_angles"]
+__all__ = ["DEFAULT_BLEND_S", "DEFAULT_OVERLAP_S", "DEFAULT_SETTLE_S", "RootFrame", "Sampling", "Window", "crossfade",
+           "generate_window", "plan_windows", "settle", "yaw_angles"]
