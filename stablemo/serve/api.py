@@ -5,7 +5,8 @@
     GET  /api/rest.glb     ?model=NAME: the model's body standing at ease (GLB), the page's figure
                            before its first motion; the glb download is the same body in motion
     POST /api/generate     {"text", "seconds"|"frames", "seed", "model", "sampler", "steps", "cfg",
-                            "footskate", "encoding", "features"} -> joints, features, fps, ..., warnings
+                            "footskate", "plan", "encoding", "features"} -> joints, features, fps, plan, ...,
+                           warnings (plan: a prompt that says an order is made part by part; the parts)
                            (no seconds or frames, or "auto": the text's own length, "length_from": "text")
                            (one line per download that would be more than 3 cm from the motion)
     POST /api/download     the same body + "format": joints.npy | features.npy | bvh | gif | glb | fbx -> the file;
