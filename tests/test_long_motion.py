@@ -319,11 +319,11 @@ def test_a_streamed_timeline_is_the_composers_motion_cut_into_chunks_within_prom
     # every prompt's span is generated whole (its windows, as composed): the raw rows to the bit
     raw = np.concatenate([c.raw_features for c in chunks])
     assert np.array_equal(raw, composed.raw_features)
-    # the last prompt is planned as `generate` plans it: its two parts in order, then standing for the
-    # 5.5 s its text does not ask for (stablemo.timeline.planned)
+    # the last prompt says an order: its two parts in order, sharing its 10.9 s in proportion to their
+    # predicted lengths (stablemo.timeline.planned; a timeline adds no standing rest)
     assert [(w.text, w.new_start, w.new_end) for w in composed.windows] == [
-        ("a person walks forward", 0, 50), ("a person jumps", 50, 62), ("a person turns left", 62, 110),
-        ("a person walks", 110, 190), ("a person stands still.", 190, 280)]
+        ("a person walks forward", 0, 50), ("a person jumps", 50, 62), ("a person turns left", 62, 144),
+        ("a person walks", 144, 280)]
     # chunks of at most 2 s, each inside one prompt, in order, covering the motion once
     assert [(c.start, len(c.joints), c.text[:14]) for c in chunks] == [
         (0, 40, "a person walks"), (40, 10, "a person walks"), (50, 12, "a person jumps"),

@@ -166,3 +166,10 @@ def test_a_timeline_plans_each_segment_as_generate_plans_a_prompt(student):
     from stablemo.timeline import stream_timeline
 
     assert [w.text for w in stream_timeline(student, segs).plan.windows] == texts
+
+
+def test_without_rest_a_long_length_is_shared_over_the_parts():
+    words = plan_words()
+    assert plan_prompt(["a", "b"], [64, 80], [72, 100], 196, 20.0, words, rest=False).frames == (87, 109)
+    assert plan_prompt(["a"], [64], [72], 196, 20.0, words, rest=False) is None
+    assert plan_prompt(["a"], [64], [72], 196, 20.0, words).rest  # (rest on by default)

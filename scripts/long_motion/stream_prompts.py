@@ -71,22 +71,25 @@ def old_stream(pipe, segments, seed: int, steps=None):
     return np.concatenate([c.joints for c in chunks])
 
 
-def run(pipe, seeds, steps=None) -> dict:
+def run(pipe, seeds, steps=None, plan: bool = True) -> dict:
     rows, seams = [], []
     for t, segments in enumerate(TIMELINES):
         frames = segment_frames(check_segments(segments), pipe.fps)
         per = [{"timeline": t + 1, "text": s[2], "seconds": s[1] - s[0], "streamed": [], "alone": [], "old": []}
                for s in segments]
         for seed in seeds:
-            stream = stream_timeline(pipe, segments, chunk_seconds=CHUNK_S, seed=seed, steps=steps)
+            stream = stream_timeline(pipe, segments, chunk_seconds=CHUNK_S, seed=seed, steps=steps, plan=plan)
             chunks = list(stream.chunks)
             joints = np.concatenate([c.joints for c in chunks])
             old_j = old_stream(pipe, segments, seed, steps)
             for i, (a, b) in enumerate(frames):
-                alone = pipe.generate([segments[i][2]], b - a, seed=seed * 100 + i, steps=steps)
+                # alone: a timeline of that one prompt at the same length (a prompt that says an order is
+                # made in its parts there too, stablemo.timeline.compose.plan_timeline)
+                alone = pipe.generate_timeline([(0.0, (b - a) / pipe.fps, segments[i][2])], seed=seed * 100 + i,
+                                               steps=steps, plan=plan)
                 per[i]["streamed"].append(measures(joints[a:b], pipe.skeleton))
                 per[i]["old"].append(measures(old_j[a:b], pipe.skeleton))
-                per[i]["alone"].append(measures(alone.joint_list()[0], pipe.skeleton))
+                per[i]["alone"].append(measures(alone.joints, pipe.skeleton))
             window_joins = [w.new_start for w in stream.plan.windows if w.new_start > 0]
             chunk_joins = [c.start for c in chunks if c.start > 0 and c.start not in window_joins]
             rep = seam_report(joints, window_joins + chunk_joins, pipe.fps, pipe.skeleton)
@@ -126,11 +129,12 @@ def main(argv=None) -> None:
     p.add_argument("--bundle", default=str(DEMO_STUDENT))
     p.add_argument("--seeds", type=int, default=8)
     p.add_argument("--steps", type=int, default=None, help="sampler steps (default: the bundle's)")
+    p.add_argument("--whole", action="store_true", help="segments whole (plan=False), as before segments were planned")
     p.add_argument("--out", required=True)
     args = p.parse_args(argv)
     pipe = Pipeline.from_bundle(args.bundle)
     result = {"bundle": Path(args.bundle).name, "steps": args.steps, "seeds": list(range(args.seeds)),
-              **run(pipe, range(args.seeds), args.steps)}
+              "planned": not args.whole, **run(pipe, range(args.seeds), args.steps, not args.whole)}
     out = Path(args.out)
     write_text(out / "report.json", json.dumps(result, indent=1) + "\n")
     write_text(out / "report.md", to_markdown(result))

@@ -89,9 +89,9 @@ def plan_timeline(pipe, segments: Sequence[Segment | tuple], seed: int = 0, over
                   blend: float = DEFAULT_BLEND_S, settle_s: float = DEFAULT_SETTLE_S,
                   source: str = "segments", plan: bool = True) -> Plan:
     """Every argument of a timeline checked against the model, before anything is generated. plan:
-    each segment is planned as `stablemo generate` plans a prompt at the segment's length
-    (stablemo.timeline.planned: a prompt that says an order in its parts, a segment longer than its
-    text asks for ending standing), its windows made over the parts; the segments stay as given."""
+    a segment that says an order is made in its parts, which share the segment's span in proportion
+    to their predicted lengths (stablemo.timeline.planned; no standing rest is added: the user set
+    the segment's length), its windows made over the parts; the segments stay as given."""
     segments = check_segments(segments, source)
     k, r = _frames(pipe, overlap, "overlap"), _frames(pipe, blend, "blend")
     h = _frames(pipe, settle_s, "settle_s")
@@ -105,7 +105,9 @@ def plan_timeline(pipe, segments: Sequence[Segment | tuple], seed: int = 0, over
     if plan:
         asked = [b - a for a, b in frames]
         spans, texts = [], []
-        for (a, b), seg, part_plan in zip(frames, segments, plan_prompts(pipe, [s.text for s in segments], asked, asked)):
+        # the segment's length is the user's: its parts share it (no standing rest is added)
+        for (a, b), seg, part_plan in zip(frames, segments,
+                                          plan_prompts(pipe, [s.text for s in segments], asked, asked, rest=False)):
             if part_plan is None:
                 spans.append((a, b))
                 texts.append(seg.text)

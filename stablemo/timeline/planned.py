@@ -64,36 +64,38 @@ def share(total: int, weights: Sequence[int]) -> list[int]:
 
 
 def plan_prompt(parts: Sequence[str], modes: Sequence[int], highs: Sequence[int], asked: int | None, fps: float,
-                words: PlanWords | None = None) -> PromptPlan | None:
+                words: PlanWords | None = None, rest: bool = True) -> PromptPlan | None:
     """A prompt's plan: parts with their predicted lengths (`modes`, frames; `highs`: their
     `rest_quantile` lengths); asked: the length asked for (None: the parts' own). None when the
-    prompt is one part filling its length (the network reads it whole, as without a plan)."""
+    prompt is one part filling its length (the network reads it whole, as without a plan). rest:
+    False shares any length over the parts (a timeline's segment, whose length the user set)."""
     words = words or plan_words()
-    texts, frames, rest = list(parts), [int(n) for n in modes], False
+    texts, frames, standing = list(parts), [int(n) for n in modes], False
     if asked is not None:
         spare = asked - sum(frames)
-        if asked > sum(highs) and spare >= round(words.min_rest_s * fps):
+        if rest and asked > sum(highs) and spare >= round(words.min_rest_s * fps):
             texts.append(words.rest_text)
             frames.append(spare)
-            rest = True
+            standing = True
         else:
             frames = share(asked, frames)
     if len(texts) == 1:
         return None
-    return PromptPlan(tuple(texts), tuple(frames), rest)
+    return PromptPlan(tuple(texts), tuple(frames), standing)
 
 
 def plan_prompts(pipe, texts: Sequence[str], asked: Sequence[int | None],
-                 resolved: Sequence[int]) -> list[PromptPlan | None]:
+                 resolved: Sequence[int], rest: bool = True) -> list[PromptPlan | None]:
     """The plan of each prompt (None: generate it whole), from its parts and the pipeline's lengths.
     asked: the lengths asked for (None: the text's own); resolved: the lengths the pipeline gave
-    them (without a length predictor, a prompt asked for none shares the default length among its parts)."""
+    them (without a length predictor, a prompt asked for none shares the default length among its
+    parts); rest: as in `plan_prompt`."""
     words = plan_words()
     if pipe.length_predictor is None:
         asked = [r if a is None else a for a, r in zip(asked, resolved)]
     split = [split_parts(t, words) for t in texts]
     # a prompt of one part asked for no length is generated whole: its lengths need not be predicted
-    needed = [len(parts) > 1 or n is not None for parts, n in zip(split, asked)]
+    needed = [len(parts) > 1 or (rest and n is not None) for parts, n in zip(split, asked)]
     flat = [p for parts, need in zip(split, needed) if need for p in parts]
     modes, highs = pipe.text_length_range(flat, words.rest_quantile) if flat else ([], [])
     plans, k = [], 0
@@ -101,7 +103,7 @@ def plan_prompts(pipe, texts: Sequence[str], asked: Sequence[int | None],
         if not need:
             plans.append(None)
             continue
-        plans.append(plan_prompt(parts, modes[k:k + len(parts)], highs[k:k + len(parts)], n, pipe.fps, words))
+        plans.append(plan_prompt(parts, modes[k:k + len(parts)], highs[k:k + len(parts)], n, pipe.fps, words, rest))
         k += len(parts)
     return plans
 
