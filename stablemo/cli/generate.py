@@ -58,9 +58,9 @@ def _parser() -> argparse.ArgumentParser:
                         "docs/bvh.md), glb (the motion on a skinned mannequin, docs/gltf.md), fbx (the same, needs Blender)")
     p.add_argument("--no-render", action="store_true", help="write the .npy files only")
     p.add_argument("--whole", action="store_true",
-                   help="give the network each prompt whole at the length asked for; by default a prompt that says an "
-                        "order (\"X, then Y\") is generated part by part, and a length longer than the text asks for "
-                        "ends standing (docs/inference.md, \"Prompts in parts\")")
+                   help="give the network each prompt (or --timeline segment) whole at the length asked for; by "
+                        "default a prompt that says an order (\"X, then Y\") is generated part by part, and a length "
+                        "longer than the text asks for ends standing (docs/inference.md, \"Prompts in parts\")")
     p.add_argument("--footskate", action="store_true",
                    help="remove foot skating at the last denoising step (StableMoFusion*, vGRF-guided)")
     p.add_argument("--footskate-weights", default=None,
