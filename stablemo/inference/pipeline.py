@@ -312,20 +312,28 @@ class Pipeline:
         multiple; without a predictor the inference config's default (DEFAULT_SECONDS)."""
         if self.length_predictor is None:
             return [self.inference.default_frames] * len(texts)
-        frames = self.length_predictor.predict(self._frozen_encoders[0], list(texts))
-        return [self.inference.nearest_length(n, self.length_multiple) for n in frames]
+        return self._mode_lengths(self._sentence_embeddings(texts))
 
     def text_length_range(self, texts: Sequence[str], quantile: float) -> tuple[list[int], list[int]]:
         """Per text, the length in frames it asks for (`text_lengths`) and the `quantile` of the
         predictor's lengths for it (how long such motions are at most, as a rule, in the training
         data); without a predictor both are the default length."""
         if self.length_predictor is None:
-            return self.text_lengths(texts), self.text_lengths(texts)
+            default = self.text_lengths(texts)
+            return default, list(default)
+        emb = self._sentence_embeddings(texts)
+        return self._mode_lengths(emb), [int(n) for n in self.length_predictor.quantile_frames(emb, quantile)]
+
+    def _sentence_embeddings(self, texts: Sequence[str]) -> torch.Tensor:
         from stablemo.text.familiar import sentence_embeddings
 
-        emb = sentence_embeddings(self._frozen_encoders[0], list(texts))
-        modes = [self.inference.nearest_length(int(n), self.length_multiple) for n in self.length_predictor.mode_frames(emb)]
-        return modes, [int(n) for n in self.length_predictor.quantile_frames(emb, quantile)]
+        return sentence_embeddings(self._frozen_encoders[0], list(texts))
+
+    def _mode_lengths(self, embeddings: torch.Tensor) -> list[int]:
+        """(N, D) sentence embeddings -> the predictor's mode of each, within the model's range at the
+        network's length multiple."""
+        frames = self.length_predictor.mode_frames(embeddings)
+        return [self.inference.nearest_length(int(n), self.length_multiple) for n in frames]
 
     def resolve(self, request: Request) -> Request:
         """The request with every default filled in from the inference config, checked: one clear

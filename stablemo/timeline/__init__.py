@@ -2,12 +2,7 @@
 timeline streamed by whole prompts (timeline_stream), and chunked streaming conditioned on what was
 produced, its text free to change between chunks (stream). docs/long_motion.md."""
 
-from stablemo.timeline.compose import (
-           TimelineMotion,
-           Window,
-           generate_timeline,
-           plan_windows,
-)
+from stablemo.timeline.compose import TimelineMotion, generate_timeline
 from stablemo.timeline.spec import (
            Segment,
            canonical_timeline,
@@ -19,6 +14,7 @@ from stablemo.timeline.spec import (
 )
 from stablemo.timeline.stream import Chunk, stream
 from stablemo.timeline.timeline_stream import TimelineStream, stream_timeline
+from stablemo.timeline.windows import Window, plan_windows
 
 __all__ = ["Chunk", "Segment", "TimelineMotion", "TimelineStream", "Window", "canonical_timeline", "check_segments",
            "format_timeline", "generate_timeline", "parse_timeline", "plan_windows", "read_timeline", "segment_frames",

@@ -24,19 +24,19 @@ import torch
 from stablemo.checks import check_seed
 from stablemo.errors import StableMoError
 from stablemo.motion.features import features_to_joints
-from stablemo.timeline.spec import Segment, check_segments, segment_frames
 from stablemo.timeline.planned import plan_prompts
+from stablemo.timeline.spec import Segment, check_segments, segment_frames
 from stablemo.timeline.windows import (
     DEFAULT_BLEND_S,
     DEFAULT_OVERLAP_S,
     DEFAULT_SETTLE_S,
     Sampling,
     Window,
-    crossfade,
     generate_window,
+    hand_over,
     plan_windows,
-    settle,
 )
+
 
 @dataclass
 class TimelineMotion:
@@ -70,8 +70,6 @@ def _frames(pipe, seconds: float, name: str) -> int:
     if not isinstance(seconds, (int, float)) or isinstance(seconds, bool) or not math.isfinite(seconds) or seconds < 0:
         raise StableMoError(f"{name}: must be a finite number of seconds >= 0, got {seconds!r}")
     return round(seconds * pipe.fps)
-
-
 
 
 @dataclass(frozen=True)
@@ -126,10 +124,7 @@ def compose_windows(pipe, plan: Plan, seed: int, sampling: Sampling, progress: b
     for i, w in enumerate(plan.windows):
         context = motion[w.start:w.new_start] if w.prefix else None
         feats = generate_window(pipe, w.text, w.length, seed + i, context, w.prefix - w.blend, sampling)
-        if w.blend:
-            motion[w.new_start - w.blend:w.new_start] = crossfade(context[-w.blend:], feats[w.prefix - w.blend:w.prefix])
-        new = feats[w.prefix:w.prefix + w.new_end - w.new_start]
-        motion[w.new_start:w.new_end] = settle(motion[:w.new_start], new, plan.settle, pipe.skeleton) if w.prefix else new
+        hand_over(motion, w, feats, plan.settle, pipe.skeleton)
         if progress:
             print(f"  window {i + 1}/{len(plan.windows)}: frames {w.new_start}-{w.new_end} {w.text!r}", flush=True)
         yield w, motion
@@ -157,4 +152,4 @@ def generate_timeline(pipe, segments: Sequence[Segment | tuple], seed: int = 0, 
                           made.windows, motion)
 
 
-__all__ = ["Plan", "TimelineMotion", "Window", "compose_windows", "generate_timeline", "plan_timeline", "plan_windows"]
+__all__ = ["Plan", "TimelineMotion", "compose_windows", "generate_timeline", "plan_timeline"]

@@ -23,7 +23,7 @@ import numpy as np
 
 from stablemo.checks import MAX_SEED
 from stablemo.text.plan import PlanWords, plan_words, split_parts
-from stablemo.timeline.windows import DEFAULT_OVERLAP_S, DEFAULT_SETTLE_S, plan_windows, settle
+from stablemo.timeline.windows import DEFAULT_OVERLAP_S, DEFAULT_SETTLE_S, hand_over, plan_windows
 
 WINDOW_SEED_STRIDE = 1_000_003  # window k of a prompt with seed s draws from (s * stride + k): no other prompt's seed
 
@@ -138,9 +138,7 @@ def generate_planned(pipe, req, plans: Sequence[PromptPlan | None], lengths: Seq
                        control=None, finish=False, plan=False, progress=False)
         out = pipe.generate(step, denoiser=denoiser).feature_list()
         for i, feats in zip(items, out):
-            w = windows[i][k]
-            new = feats[w.prefix:w.prefix + w.new_end - w.new_start]
-            motions[i][w.new_start:w.new_end] = settle(motions[i][:w.new_start], new, hold, pipe.skeleton) if w.prefix else new
+            hand_over(motions[i], windows[i][k], feats, hold, pipe.skeleton)
     return motions
 
 

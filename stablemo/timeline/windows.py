@@ -90,6 +90,17 @@ def generate_window(pipe, text: str, length: int, seed: int, context: np.ndarray
     return result.feature_list()[0]
 
 
+def hand_over(motion: np.ndarray, w: Window, feats: np.ndarray, settle_frames: int, skeleton: str) -> None:
+    """Write window w's generated features (w.length, D) into the motion so far (N, D), in place: its
+    last `blend` prefix rows cross-faded from the old rows, its new rows [new_start, new_end) with the
+    jump at their start settled over `settle_frames` (`settle`; a first window is copied as made)."""
+    if w.blend:
+        old = motion[w.new_start - w.blend:w.new_start]
+        motion[w.new_start - w.blend:w.new_start] = crossfade(old, feats[w.prefix - w.blend:w.prefix])
+    new = feats[w.prefix:w.prefix + w.new_end - w.new_start]
+    motion[w.new_start:w.new_end] = settle(motion[:w.new_start], new, settle_frames, skeleton) if w.prefix else new
+
+
 def crossfade(old: np.ndarray, new: np.ndarray) -> np.ndarray:
     """(r, D) rows going from `old` to `new`: weight of new = (i + 1) / (r + 1), so the rows before
     (all old) and after (all new) continue with equal steps."""
@@ -165,4 +176,4 @@ class RootFrame:
 
 
 __all__ = ["DEFAULT_BLEND_S", "DEFAULT_OVERLAP_S", "DEFAULT_SETTLE_S", "RootFrame", "Sampling", "Window", "crossfade",
-           "generate_window", "plan_windows", "settle", "yaw_angles"]
+           "generate_window", "hand_over", "plan_windows", "settle", "yaw_angles"]
