@@ -371,3 +371,32 @@ def test_planted_feet_stay_where_they_land():
     ankles = [7, 8]
     moved = (out.joints[:, :, ankles][..., [0, 2]] - out.raw_joints[:, :, ankles][..., [0, 2]]).norm(dim=-1)
     assert moved.max() < ANCHOR_REACH_M + 0.02  # the anchor's reach, plus the rigid legs' own few centimetres
+
+
+def test_a_planted_foot_that_turns_keeps_its_toe_on_its_anchor():
+    """A foot generated turning about its planted ankle (the toe sweeping 40 degrees over the floor
+    in a second, as the demo teacher's feet do along a turning path) keeps its toe where it was put
+    down once finished: the toe turns about the vertical towards its stance's anchor, with the
+    foot's pitch and the bone's length as placed; a swinging foot (contacts off) keeps its turn."""
+    clip = synth("squat")  # both feet planted throughout
+    t = len(clip)
+    raw = clip.copy()
+    ankle, toe = HUMANML3D.feet_left
+    yaw = np.radians(np.linspace(0.0, 40.0, t))  # the left toe swept about the ankle
+    rel = clip[:, toe] - clip[:, ankle]
+    c, s = np.cos(yaw), np.sin(yaw)
+    raw[:, toe, 0] = clip[:, ankle, 0] + c * rel[:, 0] + s * rel[:, 2]
+    raw[:, toe, 2] = clip[:, ankle, 2] - s * rel[:, 0] + c * rel[:, 2]
+    finish = Finish.from_config({}, HUMANML3D, 20.0)
+    joints = torch.from_numpy(raw)[None]
+
+    def toe_speed(j, contacts):
+        out = finish.joints(j, [t], contacts=contacts)[0].numpy()
+        xz = out[:, toe][:, [0, 2]]
+        return np.linalg.norm(np.diff(xz, axis=0), axis=-1).sum(), out
+
+    raw_sweep = np.linalg.norm(np.diff(raw[:, toe][:, [0, 2]], axis=0), axis=-1).sum()
+    planted, out = toe_speed(joints, torch.ones(1, t, 4, dtype=joints.dtype))
+    swinging, _ = toe_speed(joints, torch.zeros(1, t, 4, dtype=joints.dtype))
+    assert raw_sweep > 0.08 and planted < 0.25 * raw_sweep and swinging > 0.8 * raw_sweep, (raw_sweep, planted, swinging)
+    np.testing.assert_allclose(np.linalg.norm(out[:, toe] - out[:, ankle], axis=-1), HUMANML3D.bone_lengths[toe], rtol=1e-9)

@@ -118,6 +118,7 @@ class Finish:
         x = joints.permute(2, 3, 0, 1).contiguous()  # (J, 3, B, T)
         ends = self.anchored(x, hold, n, given)
         body = rigid_joint_major(x, self.skeleton, self.bone_lengths, n, hold, ends, place=fast_motion.place_body)
+        body = self.planted_toes(body, ends, hold)
         heights = body[:, 1]  # (J, B, T)
         pins = pinned = held_up = None
         limb_ends = [end for _, _, end in self.skeleton.ik_limbs]
@@ -147,15 +148,17 @@ class Finish:
             if sunk is not None:
                 hold = hold.clone()
                 lift = (sunk > 0).to(hold.dtype)  # a lifted foot is held where it is lifted to
-                for _, _, ankle in self.skeleton.legs.values():
+                for side, (_, _, ankle) in self.skeleton.legs.items():
                     ends[ankle, 1] += sunk
+                    ends[self._toe_of(side), 1] += sunk  # the toe's aim rises with its ankle
                     hold[..., ankle] = torch.maximum(hold[..., ankle], lift)
             if targeted:
                 goal = fill_padding(control.targets[:, :t].to(body), n).permute(2, 3, 0, 1)[limb_ends]  # (L, 3, B, T), a copy
                 goal[:, 1] -= fill_padding(shift, n)
                 aimed = fill_padding(mask, n).permute(2, 0, 1)[limb_ends, None]  # (L, 1, B, T)
                 ends[limb_ends] = torch.where(aimed, goal, ends[limb_ends])
-            body = rigid_joint_major(x, self.skeleton, self.bone_lengths, n, hold, ends, place=fast_motion.place_body)
+            body = self.planted_toes(rigid_joint_major(x, self.skeleton, self.bone_lengths, n, hold, ends,
+                                                       place=fast_motion.place_body), ends, hold)
         body[:, 1] += shift
         return body
 
@@ -181,18 +184,48 @@ class Finish:
         hands = [end for _, _, end in skel.ik_limbs if end not in ankles]
         hold[..., hands] = hold[..., hands].clamp(min=HAND_HOLD)
         for side, (_, _, ankle) in skel.legs.items():
+            toe = self._toe_of(side)
             if contacts is None:
-                planted = torch.ones(b, t, dtype=joints.dtype, device=joints.device)
+                planted = torch.ones(b, t, 2, dtype=joints.dtype, device=joints.device)
             else:
                 c = contacts[..., :2] if side == "left" else contacts[..., 2:]  # [L_a, L_b, R_a, R_b]
-                planted = ((c.amax(-1).to(joints.dtype) - 0.3) / 0.4).clamp(0.0, 1.0)  # (B, T)
-                planted = torch.nn.functional.avg_pool1d(planted[:, None], 5, 1, 2, count_include_pad=False)[:, 0]
-            hold[..., ankle] = torch.maximum(hold[..., ankle], planted)
+                planted = torch.stack([c.amax(-1), c[..., 1]], -1)  # (B, T, 2): the foot, its toe
+                planted = ((planted.to(joints.dtype) - 0.3) / 0.4).clamp(0.0, 1.0)
+                planted = torch.nn.functional.avg_pool1d(planted.transpose(1, 2), 5, 1, 2,
+                                                         count_include_pad=False).transpose(1, 2)
+            hold[..., ankle] = torch.maximum(hold[..., ankle], planted[..., 0])
+            hold[..., toe] = planted[..., 1]  # the toe's own channel: a heel-off keeps the toe down
         return hold
+
+    def _toe_of(self, side: str) -> int:
+        """The joint past the ankle that the side's second contact channel labels (HumanML3D: the foot)."""
+        return (self.skeleton.feet_left if side == "left" else self.skeleton.feet_right)[1]
+
+    def planted_toes(self, body: torch.Tensor, ends: torch.Tensor, hold: torch.Tensor) -> torch.Tensor:
+        """The body (J, 3, B, T), in place, with each toe turned about its placed ankle towards its
+        anchor (ends (J, 3, B, T)) as firmly as its hold (B, T, J) says; returns body.
+
+        The rigid rebuild places a toe along its generated ankle->toe direction, so a foot that turns
+        while planted sweeps its toe over the floor even with the ankle anchored: the demo teacher
+        walking an out-and-back path with guidance, stance toes 18-20 cm/s against its ankles' 8-11
+        (scripts/control/heading_check.py's measure per joint). Aimed at its stance's anchor, the
+        toe stays where the foot was put down; the bone keeps the body's length."""
+        for side, (_, _, ankle) in self.skeleton.legs.items():
+            toe = self._toe_of(side)
+            w = hold[..., toe][None]  # (1, B, T)
+            own = body[toe] - body[ankle]  # (3, B, T), the body's length
+            flat = norm(own[0::2], 0, keepdim=True)  # (1, B, T): the foot's length on the floor
+            own_xz = own[0::2] / flat.clamp(min=1e-9)
+            aim = ends[toe, 0::2] - body[ankle, 0::2]
+            aim = aim / norm(aim, 0, keepdim=True).clamp(min=1e-9)
+            turn = own_xz + w * (aim - own_xz)  # about the vertical only: the foot's pitch as placed
+            body[toe, 0::2] = body[ankle, 0::2] + flat * turn / norm(turn, 0, keepdim=True).clamp(min=1e-9)
+        return body
 
     def anchored(self, x: torch.Tensor, hold: torch.Tensor, n: torch.Tensor,
                  given: torch.Tensor | None = None) -> torch.Tensor:
-        """Joint-major joints x (J, 3, B, T) with each planted ankle's horizontal place fixed over its stance.
+        """Joint-major joints x (J, 3, B, T) with each planted ankle's (and toe's: its own channel and
+        stances, for planted_toes) horizontal place fixed over its stance.
 
         A generated stance foot drifts (the demo student's free walks: ~30 cm/s; more where a path
         or guidance moves the pelvis under it), and holding it where it was generated keeps the
@@ -211,9 +244,9 @@ class Finish:
             near = torch.nn.functional.max_pool1d(given.to(x.dtype)[:, None], 2 * r + 1, 1, r)
             away = 1 - torch.nn.functional.avg_pool1d(near, 2 * r + 1, 1, r, count_include_pad=False)[:, 0]
             away = torch.where(given, torch.zeros_like(away), away)
-        for _, _, ankle in self.skeleton.legs.values():
-            h = hold[..., ankle]  # (B, T)
-            xz = x[ankle, 0::2]  # (2, B, T)
+        for foot in self.skeleton.contact_joints:  # the ankles, and the toes past them
+            h = hold[..., foot]  # (B, T)
+            xz = x[foot, 0::2]  # (2, B, T)
             step = norm(xz[..., 1:] - xz[..., :-1], 0) * self.fps / self.skeleton.per_metre  # (B, T-1) m/s
             step = step * valid[:, 1:]  # no step into the padding: a motion is finished alike alone or batched
             # frame t's speed: the larger of its two steps (a stance ends on both sides of a swing)
@@ -237,7 +270,7 @@ class Finish:
             reach = norm(shift, 0, keepdim=True)
             # a "stance" whose foot travels far is a pivot or a mislabelled step: move it a little only
             shift = shift * (ANCHOR_REACH_M * self.skeleton.per_metre / reach.clamp(min=1e-9)).clamp(max=1.0)
-            out[ankle, 0::2] = xz + lock * shift
+            out[foot, 0::2] = xz + lock * shift
         return out
 
     @torch.no_grad()  # an output step, never differentiated: autograd's bookkeeping cost ~2 % of its time
