@@ -337,3 +337,11 @@ def test_report_section_chart_and_its_place_in_the_results(tmp_path, prompts):
     assert body.count(TITLE) == 1 and body.index("## Kinematic") < body.index(TITLE) < body.index("## Joint control")
     chart(runs, tmp_path / "b.png")
     assert (tmp_path / "b.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_report_names_the_demo_bundle_relative_to_the_checkout(tmp_path):
+    from stablemo.cli.behaviour import shown_path
+    from stablemo.inference.bundle import DEMO_BUNDLE
+
+    assert shown_path(DEMO_BUNDLE) == "stablemo/assets/demo_bundle"  # not the machine's own folder
+    assert shown_path(tmp_path / "b") == str(tmp_path / "b")

@@ -21,6 +21,20 @@ from stablemo.checks import check_finite, check_positive_int, check_seed
 from stablemo.errors import StableMoError
 
 
+def shown_path(path) -> str:
+    """A path as a report names it: relative to the checkout when it lies inside it (the demo's
+    bundles, wherever the repository was cloned), else as given."""
+    from pathlib import Path
+
+    import stablemo
+
+    root = Path(stablemo.__file__).resolve().parent.parent
+    try:
+        return Path(path).resolve().relative_to(root).as_posix()
+    except ValueError:
+        return str(path)
+
+
 def _parser() -> argparse.ArgumentParser:
     from stablemo.eval.behaviour.runner import DEFAULT_LENGTHS, DEFAULT_SEEDS
 
@@ -116,7 +130,7 @@ def main(argv: list[str]) -> int:
         generate = runner.pipeline_generator(pipe, args.batch_size, plan=not args.whole, **request)
         fps, low, high = pipe.fps, pipe.min_length, pipe.max_length
         inference = pipe.inference
-        settings.update(model=str(bundle), sampler=args.sampler or inference.sampler,
+        settings.update(model=shown_path(bundle), sampler=args.sampler or inference.sampler,
                         steps=args.steps or inference.steps, cfg=inference.cfg if args.cfg is None else args.cfg,
                         planned=not args.whole,
                         device=str(pipe.device),
