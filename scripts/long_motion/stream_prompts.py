@@ -135,10 +135,14 @@ def main(argv=None) -> None:
     pipe = Pipeline.from_bundle(args.bundle)
     result = {"bundle": Path(args.bundle).name, "steps": args.steps, "seeds": list(range(args.seeds)),
               "planned": not args.whole, **run(pipe, range(args.seeds), args.steps, not args.whole)}
-    out = Path(args.out)
+    write_report(Path(args.out), result, to_markdown(result))
+
+
+def write_report(out: Path, result: dict, markdown: str) -> None:
+    """A long-motion script's report: out/report.json (every number), out/report.md, printed."""
     write_text(out / "report.json", json.dumps(result, indent=1) + "\n")
-    write_text(out / "report.md", to_markdown(result))
-    print(to_markdown(result))
+    write_text(out / "report.md", markdown)
+    print(markdown)
 
 
 if __name__ == "__main__":

@@ -15,7 +15,6 @@ frames, the part of the turn a continuation cannot make there. Writes report.jso
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -27,12 +26,11 @@ from stablemo.checks import check_positive_int
 from stablemo.errors import run_script
 from stablemo.inference.bundle import DEMO_BUNDLE
 from stablemo.inference.pipeline import Pipeline
-from stablemo.io import write_text
 from stablemo.motion.features import features_to_joints
 from stablemo.timeline.windows import DEFAULT_SETTLE_S, Sampling, generate_window, settle
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from stream_prompts import facing_turn  # noqa: E402  (the streamed-prompt report's turn measure)
+from stream_prompts import facing_turn, write_report  # noqa: E402  (the streamed-prompt report's turn measure)
 
 CONTEXTS = ("a person stands still", "a person walks forward", "a person jumps in place")
 
@@ -93,10 +91,7 @@ def main(argv=None) -> None:
     pipe = Pipeline.from_bundle(args.bundle)
     result = {"bundle": Path(args.bundle).name, "seeds": args.seeds, "new": args.new, "prefix": args.prefix,
               "texts": {t: measure(pipe, t, range(args.seeds), args.new, args.prefix) for t in args.texts}}
-    out = Path(args.out)
-    write_text(out / "report.json", json.dumps(result, indent=1) + "\n")
-    write_text(out / "report.md", to_markdown(result))
-    print(to_markdown(result))
+    write_report(Path(args.out), result, to_markdown(result))
 
 
 if __name__ == "__main__":

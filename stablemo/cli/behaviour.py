@@ -26,9 +26,7 @@ def shown_path(path) -> str:
     bundles, wherever the repository was cloned), else as given."""
     from pathlib import Path
 
-    import stablemo
-
-    root = Path(stablemo.__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]  # the checkout: stablemo/cli/behaviour.py's grandparent
     try:
         return Path(path).resolve().relative_to(root).as_posix()
     except ValueError:
