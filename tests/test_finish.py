@@ -400,3 +400,27 @@ def test_a_planted_foot_that_turns_keeps_its_toe_on_its_anchor():
     swinging, _ = toe_speed(joints, torch.zeros(1, t, 4, dtype=joints.dtype))
     assert raw_sweep > 0.08 and planted < 0.25 * raw_sweep and swinging > 0.8 * raw_sweep, (raw_sweep, planted, swinging)
     np.testing.assert_allclose(np.linalg.norm(out[:, toe] - out[:, ankle], axis=-1), HUMANML3D.bone_lengths[toe], rtol=1e-9)
+
+
+def test_a_kit_foot_turns_as_one_piece_about_its_ankle():
+    """KIT's foot is two bones past the ankle (ankle -> foot -> toe, the contact joints): a planted
+    foot generated turning keeps its toe near its anchor, and both foot bones keep the body's length."""
+    pose = np.zeros((21, 3))
+    for chain in KIT.kinematic_chains:
+        for p, c in zip(chain[:-1], chain[1:]):
+            pose[c] = pose[p] + KIT.target_offsets[c]
+    pose[:, 1] -= pose[:, 1].min()
+    t = 40
+    raw = np.repeat(pose[None], t, axis=0)
+    ankle, (foot, toe) = KIT.legs["left"][2], KIT.feet_left
+    yaw = np.radians(np.linspace(0.0, 40.0, t))
+    for j in (foot, toe):  # the left foot swept about its ankle
+        rel = pose[j] - pose[ankle]
+        raw[:, j, 0] = pose[ankle, 0] + np.cos(yaw) * rel[0] + np.sin(yaw) * rel[2]
+        raw[:, j, 2] = pose[ankle, 2] - np.sin(yaw) * rel[0] + np.cos(yaw) * rel[2]
+    out = Finish.from_config({}, KIT, 12.5).joints(torch.from_numpy(raw)[None], [t],
+                                                    contacts=torch.ones(1, t, 4, dtype=torch.float64))[0].numpy()
+    sweep = lambda j: np.linalg.norm(np.diff(j[:, toe][:, [0, 2]], axis=0), axis=-1).sum()  # noqa: E731
+    assert sweep(raw) > 50.0 and sweep(out) < 0.25 * sweep(raw), (sweep(raw), sweep(out))
+    lengths = bone_lengths_of(torch.from_numpy(out), KIT).numpy()
+    np.testing.assert_allclose(lengths[:, 1:], np.broadcast_to(KIT.bone_lengths[1:], lengths[:, 1:].shape), rtol=1e-9)

@@ -153,9 +153,8 @@ class Finish:
             if sunk is not None:
                 hold = hold.clone()
                 lift = (sunk > 0).to(hold.dtype)  # a lifted foot is held where it is lifted to
-                for side, (_, _, ankle) in self.skeleton.legs.items():
+                for _, _, ankle in self.skeleton.legs.values():
                     ends[ankle, 1] += sunk
-                    ends[self._toe_of(side), 1] += sunk  # the toe's aim rises with its ankle
                     hold[..., ankle] = torch.maximum(hold[..., ankle], lift)
             if targeted:
                 goal = fill_padding(control.targets[:, :t].to(body), n).permute(2, 3, 0, 1)[limb_ends]  # (L, 3, B, T), a copy
@@ -189,7 +188,6 @@ class Finish:
         hands = [end for _, _, end in skel.ik_limbs if end not in ankles]
         hold[..., hands] = hold[..., hands].clamp(min=HAND_HOLD)
         for side, (_, _, ankle) in skel.legs.items():
-            toe = self._toe_of(side)
             if contacts is None:
                 planted = torch.ones(b, t, 2, dtype=joints.dtype, device=joints.device)
             else:
@@ -199,32 +197,47 @@ class Finish:
                 planted = torch.nn.functional.avg_pool1d(planted.transpose(1, 2), 5, 1, 2,
                                                          count_include_pad=False).transpose(1, 2)
             hold[..., ankle] = torch.maximum(hold[..., ankle], planted[..., 0])
-            hold[..., toe] = planted[..., 1]  # the toe's own channel: a heel-off keeps the toe down
+            hold[..., self._toe_of(side)] = planted[..., 1]  # its own channel: a heel-off keeps the toe down
         return hold
 
     def _toe_of(self, side: str) -> int:
-        """The joint past the ankle that the side's second contact channel labels (HumanML3D: the foot)."""
+        """The foot's tip: the joint the side's second contact channel labels (HumanML3D's foot joint,
+        KIT's toe), past the ankle."""
         return (self.skeleton.feet_left if side == "left" else self.skeleton.feet_right)[1]
 
-    def planted_toes(self, body: torch.Tensor, ends: torch.Tensor, hold: torch.Tensor) -> torch.Tensor:
-        """The body (J, 3, B, T), in place, with each toe turned about its placed ankle towards its
-        anchor (ends (J, 3, B, T)) as firmly as its hold (B, T, J) says; returns body.
+    def _past(self, joint: int) -> list[int]:
+        """Every joint below `joint` in the skeleton (a foot past its ankle: HumanML3D one, KIT two)."""
+        below = [joint]
+        for j in range(self.skeleton.num_joints):  # parents come before their children
+            if self.skeleton.parents[j] in below:
+                below.append(j)
+        return below[1:]
 
-        The rigid rebuild places a toe along its generated ankle->toe direction, so a foot that turns
+    def planted_toes(self, body: torch.Tensor, ends: torch.Tensor, hold: torch.Tensor) -> torch.Tensor:
+        """The body (J, 3, B, T), in place, with each foot past its ankle turned about the vertical
+        through the ankle, so that its toe points at the toe's anchor (ends (J, 3, B, T)) as firmly as
+        the toe's hold (B, T, J) says; returns body.
+
+        The rigid rebuild places a foot along its generated bone directions, so a foot that turns
         while planted sweeps its toe over the floor even with the ankle anchored: the demo teacher
         walking an out-and-back path with guidance, stance toes 18-20 cm/s against its ankles' 8-11
-        (scripts/control/heading_check.py's measure per joint). Aimed at its stance's anchor, the
-        toe stays where the foot was put down; the bone keeps the body's length."""
+        (scripts/control/heading_check.py's measure per joint). Turned towards the toe's stance
+        anchor, the toe stays where the foot was put down; a turn about the vertical keeps the
+        foot's pitch and its bones' lengths."""
         for side, (_, _, ankle) in self.skeleton.legs.items():
-            toe = self._toe_of(side)
+            toe, foot = self._toe_of(side), self._past(ankle)
             w = hold[..., toe][None]  # (1, B, T)
-            own = body[toe] - body[ankle]  # (3, B, T), the body's length
-            flat = norm(own[0::2], 0, keepdim=True)  # (1, B, T): the foot's length on the floor
-            own_xz = own[0::2] / flat.clamp(min=1e-9)
+            own = body[toe, 0::2] - body[ankle, 0::2]  # (2, B, T) on the floor
+            own = own / norm(own, 0, keepdim=True).clamp(min=1e-9)
             aim = ends[toe, 0::2] - body[ankle, 0::2]
             aim = aim / norm(aim, 0, keepdim=True).clamp(min=1e-9)
-            turn = own_xz + w * (aim - own_xz)  # about the vertical only: the foot's pitch as placed
-            body[toe, 0::2] = body[ankle, 0::2] + flat * turn / norm(turn, 0, keepdim=True).clamp(min=1e-9)
+            turn = own + w * (aim - own)
+            turn = turn / norm(turn, 0, keepdim=True).clamp(min=1e-9)
+            cos = (own * turn).sum(0)  # (B, T): the turn from own to turn, on the (x, z) floor
+            sin = own[0] * turn[1] - own[1] * turn[0]
+            rel = body[foot][:, 0::2] - body[ankle, 0::2]  # (F, 2, B, T)
+            body[foot, 0] = body[ankle, 0] + cos * rel[:, 0] - sin * rel[:, 1]
+            body[foot, 2] = body[ankle, 2] + sin * rel[:, 0] + cos * rel[:, 1]
         return body
 
     def anchored(self, x: torch.Tensor, hold: torch.Tensor, n: torch.Tensor,
@@ -249,7 +262,8 @@ class Finish:
             near = torch.nn.functional.max_pool1d(given.to(x.dtype)[:, None], 2 * r + 1, 1, r)
             away = 1 - torch.nn.functional.avg_pool1d(near, 2 * r + 1, 1, r, count_include_pad=False)[:, 0]
             away = torch.where(given, torch.zeros_like(away), away)
-        for foot in self.skeleton.contact_joints:  # the ankles, and the toes past them
+        toes = [self._toe_of(side) for side in self.skeleton.legs]
+        for foot in [ankle for _, _, ankle in self.skeleton.legs.values()] + toes:  # the ankles, then the toes
             h = hold[..., foot]  # (B, T)
             xz = x[foot, 0::2]  # (2, B, T)
             step = norm(xz[..., 1:] - xz[..., :-1], 0) * self.fps / self.skeleton.per_metre  # (B, T-1) m/s
