@@ -195,12 +195,15 @@ CONTROL_TABLES = [  # (JSON in docs/data/results/, heading, how it was made)
      "--student LCM=stablemo/assets/demo_student` (the student); the `+ --footskate` rows: `stablemo evaluate "
      "--bundle B --data data/synth --replications 3 --max-items 96 --control pelvis --density 100% --footskate`. "
      "Method and reading: docs/control.md. AITS of dense pelvis control against free generation, alternating "
-     "runs of one process: teacher 1.27x, student 1.29x."),
+     "runs of one process: teacher 1.27x, student 1.29x. Measured 2026-12-05, before the finishing step planted "
+     "the toes and let a planted foot reach 12 cm to its anchor (2026-12-06, docs/inference.md): the stance feet "
+     "of today's outputs slide less (the uncontrolled student 13.0 -> 9.5 cm/s, the next table)."),
     ("controlnet_results.json", "Motion ControlNet on the 1-step student",
      "`python scripts/control/report.py --no-teacher --student LCM=stablemo/assets/demo_student --controlnet "
      "\"LCM 1-step=stablemo/assets/demo_controlnet\" --rows none:100%,pelvis:100%,pelvis:25%,pelvis:5,pelvis:1 "
      "--replications 3 --max-items 96 --out docs/data/results/controlnet_results.json` (the shipped pelvis ControlNet, "
-     "`configs/control/controlnet_lcm_pelvis_synth.yaml`). Training and reading: docs/control.md."),
+     "`configs/control/controlnet_lcm_pelvis_synth.yaml`). Training and reading: docs/control.md. Measured "
+     "2026-12-06, with the finishing step of that day."),
     ("controlnet_teacher_results.json", "Motion ControlNet on the teacher (10 steps)",
      "`python scripts/control/report.py --no-teacher --controlnet \"teacher 10-step=bundles/demo_pelvis_control\" "
      "--rows pelvis:100%,pelvis:5 --replications 2 --max-items 64 --out docs/data/results/controlnet_teacher_results.json` "
@@ -209,7 +212,7 @@ CONTROL_TABLES = [  # (JSON in docs/data/results/, heading, how it was made)
     ("control_facing.json", "Facing along hinted paths, 1-step student and its ControlNet (body steered)",
      "`python scripts/control/report.py --no-teacher --student LCM=stablemo/assets/demo_student --controlnet "
      "\"LCM 1-step=stablemo/assets/demo_controlnet\" --rows none:100%,pelvis:100%,pelvis:5 --replications 2 "
-     "--max-items 64 --out docs/data/results/control_facing.json`, after the foot anchors of the finishing step. "
+     "--max-items 64 --out docs/data/results/control_facing.json`, measured 2026-12-06 with that day's finishing step. "
      "Facing err: the median over moving frames of the difference between the generated and the hinted motion's "
      "facing-against-travel angles (degrees); Backward / Sideways: shares of moving frames walked so where the "
      "hinted motion walks forward (stablemo.eval.heading). Paths of test motions start facing +z: drawn paths, "
