@@ -82,7 +82,9 @@ def denoiser_flops(pipe, frames: int, batch: int) -> float:
     counter = FlopCounterMode(display=False, custom_mapping=fast_flops.counter_formulas())
     with torch.inference_mode():
         kind = pipe.config.get("kind")
-        if hasattr(pipe.model, "base_kind"):  # a ControlNet: counted following a dense pelvis path (without
+        from stablemo.control.controlnet import ControlledModel
+
+        if isinstance(pipe.model, ControlledModel):  # counted following a dense pelvis path (without
             # targets the base runs alone)
             from stablemo.control.hints import hint_input
 

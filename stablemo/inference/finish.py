@@ -16,6 +16,8 @@ training clip to.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -82,6 +84,16 @@ HOLD_S = 0.25  # a hand's hold on its joint target fades in and out over this ma
 # --seeds 12 --seed 1) hands 3.01 / 2.30 / 2.13 cm at 0 / 0.5 / 1, FID 0.157 / 0.167 / 0.190 against
 # the raw output's 0.182; the teacher's hands 1.01 / 0.64 / 0.60 cm at FID 0.128 / 0.127 / 0.130.
 HAND_HOLD = 0.5
+
+
+class Foot(NamedTuple):
+    """One leg's foot as the finishing step plants it: its ankle (the leg's IK end), its tip (the joint
+    the side's second contact channel labels: HumanML3D's foot joint, KIT's toe) and every joint
+    past the ankle (HumanML3D one, KIT two), parents first."""
+
+    ankle: int
+    toe: int
+    past: tuple[int, ...]
 
 
 @dataclass(frozen=True)
@@ -184,7 +196,7 @@ class Finish:
             near = torch.nn.functional.max_pool1d(m, 2 * r + 1, 1, r)  # within r frames of a target
             ramp = torch.nn.functional.avg_pool1d(near, 2 * r + 1, 1, r, count_include_pad=False)
             hold = torch.maximum(m, ramp).transpose(1, 2).clone()
-        ankles = [ankle for _, _, ankle in skel.legs.values()]
+        ankles = [foot.ankle for foot in self.feet.values()]
         hands = [end for _, _, end in skel.ik_limbs if end not in ankles]
         hold[..., hands] = hold[..., hands].clamp(min=HAND_HOLD)
         for side, (_, _, ankle) in skel.legs.items():
@@ -197,21 +209,22 @@ class Finish:
                 planted = torch.nn.functional.avg_pool1d(planted.transpose(1, 2), 5, 1, 2,
                                                          count_include_pad=False).transpose(1, 2)
             hold[..., ankle] = torch.maximum(hold[..., ankle], planted[..., 0])
-            hold[..., self._toe_of(side)] = planted[..., 1]  # its own channel: a heel-off keeps the toe down
+            hold[..., self.feet[side].toe] = planted[..., 1]  # its own channel: a heel-off keeps the toe down
         return hold
 
-    def _toe_of(self, side: str) -> int:
-        """The foot's tip: the joint the side's second contact channel labels (HumanML3D's foot joint,
-        KIT's toe), past the ankle."""
-        return (self.skeleton.feet_left if side == "left" else self.skeleton.feet_right)[1]
-
-    def _past(self, joint: int) -> list[int]:
-        """Every joint below `joint` in the skeleton (a foot past its ankle: HumanML3D one, KIT two)."""
-        below = [joint]
-        for j in range(self.skeleton.num_joints):  # parents come before their children
-            if self.skeleton.parents[j] in below:
-                below.append(j)
-        return below[1:]
+    @cached_property
+    def feet(self) -> dict[str, Foot]:
+        """Each side's foot (Foot), read from the skeleton once."""
+        skel = self.skeleton
+        out = {}
+        for side, (_, _, ankle) in skel.legs.items():
+            below = [ankle]
+            for j in range(skel.num_joints):  # parents come before their children
+                if skel.parents[j] in below:
+                    below.append(j)
+            toe = (skel.feet_left if side == "left" else skel.feet_right)[1]
+            out[side] = Foot(ankle, toe, tuple(below[1:]))
+        return out
 
     def planted_toes(self, body: torch.Tensor, ends: torch.Tensor, hold: torch.Tensor) -> torch.Tensor:
         """The body (J, 3, B, T), in place, with each foot past its ankle turned about the vertical
@@ -224,8 +237,8 @@ class Finish:
         (scripts/control/heading_check.py's measure per joint). Turned towards the toe's stance
         anchor, the toe stays where the foot was put down; a turn about the vertical keeps the
         foot's pitch and its bones' lengths."""
-        for side, (_, _, ankle) in self.skeleton.legs.items():
-            toe, foot = self._toe_of(side), self._past(ankle)
+        for ankle, toe, past in self.feet.values():
+            foot = list(past)
             w = hold[..., toe][None]  # (1, B, T)
             own = body[toe, 0::2] - body[ankle, 0::2]  # (2, B, T) on the floor
             own = own / norm(own, 0, keepdim=True).clamp(min=1e-9)
@@ -262,8 +275,8 @@ class Finish:
             near = torch.nn.functional.max_pool1d(given.to(x.dtype)[:, None], 2 * r + 1, 1, r)
             away = 1 - torch.nn.functional.avg_pool1d(near, 2 * r + 1, 1, r, count_include_pad=False)[:, 0]
             away = torch.where(given, torch.zeros_like(away), away)
-        toes = [self._toe_of(side) for side in self.skeleton.legs]
-        for foot in [ankle for _, _, ankle in self.skeleton.legs.values()] + toes:  # the ankles, then the toes
+        feet = self.feet.values()
+        for foot in [f.ankle for f in feet] + [f.toe for f in feet]:  # the ankles, then the toes
             h = hold[..., foot]  # (B, T)
             xz = x[foot, 0::2]  # (2, B, T)
             step = norm(xz[..., 1:] - xz[..., :-1], 0) * self.fps / self.skeleton.per_metre  # (B, T-1) m/s
@@ -351,4 +364,4 @@ class Finish:
         return torch.where(mask[..., None], feats, torch.zeros((), dtype=feats.dtype, device=feats.device))
 
 
-__all__ = ["Finish", "body_lengths"]
+__all__ = ["Finish", "Foot", "body_lengths"]
