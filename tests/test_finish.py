@@ -424,3 +424,29 @@ def test_a_kit_foot_turns_as_one_piece_about_its_ankle():
     assert sweep(raw) > 50.0 and sweep(out) < 0.25 * sweep(raw), (sweep(raw), sweep(out))
     lengths = bone_lengths_of(torch.from_numpy(out), KIT).numpy()
     np.testing.assert_allclose(lengths[:, 1:], np.broadcast_to(KIT.bone_lengths[1:], lengths[:, 1:].shape), rtol=1e-9)
+
+
+def test_a_wave_on_short_arms_keeps_its_swing():
+    """A denoiser's arms come out short (the demo student's forearms ~4 cm short) and its wrists
+    swing less than the arm's angles carry them. The finishing step keeps each untargeted arm's
+    generated angles at the body's lengths, so a wave keeps its side-to-side swing, scaled up with
+    the arm, instead of being pulled in towards the short arm's wrist (which a half-way hold on the
+    generated wrist did: the student's waves fell below the behaviour suite's 3-cm swing)."""
+    from stablemo.eval.behaviour import measures
+
+    clip = synth("wave")
+    t = len(clip)
+    short = clip.copy()
+    for shoulder, elbow, wrist in HUMANML3D.ik_limbs[2:]:
+        short[:, elbow] = clip[:, shoulder] + 0.8 * (clip[:, elbow] - clip[:, shoulder])
+        short[:, wrist] = short[:, elbow] + 0.8 * (clip[:, wrist] - clip[:, elbow])
+    out = Finish.from_config({}, HUMANML3D, 20.0).joints(torch.from_numpy(short)[None], [t])[0].numpy()
+    for shoulder, elbow, wrist in HUMANML3D.ik_limbs[2:]:
+        for a, b in ((shoulder, elbow), (elbow, wrist)):  # each arm bone along its generated direction
+            got, want = out[:, b] - out[:, a], short[:, b] - short[:, a]
+            cos = np.einsum("ti,ti->t", got, want) / np.linalg.norm(got, axis=-1) / np.linalg.norm(want, axis=-1)
+            assert cos.min() > 1 - 1e-9
+    waves = {side: (measures.wave_spans(clip, side, 20.0), measures.wave_spans(out, side, 20.0)) for side in measures.SIDES}
+    assert any(spans for spans, _ in waves.values())  # the clip waves
+    for side, (truth, finished) in waves.items():
+        assert len(finished) == len(truth), (side, waves)

@@ -76,14 +76,15 @@ ANCHOR_REACH_M = 0.12
 # rose (the 1-step student, tight benchmark: 0.215 against 0.180 unsplit and 0.173 at 1.5).
 SWING_SPEED_M_S = 1.5
 HOLD_S = 0.25  # a hand's hold on its joint target fades in and out over this many seconds
-# How firmly a hand without a target keeps its generated place (0: the arm keeps its generated angles
-# and the wrist moves with the body's arm length; 1: the arm reaches the generated wrist). The demo
-# 1-step student generates arms longer than the body's (69 % of its frames put the wrist beyond the
-# straight rigid arm, by 1.6 cm on average), so keeping angles moved its hands 3.0 cm and reaching
-# folds elbows: over 72 prompts x 12 seeds at 120 frames (scripts/results/kinematic_report.py
-# --seeds 12 --seed 1) hands 3.01 / 2.30 / 2.13 cm at 0 / 0.5 / 1, FID 0.157 / 0.167 / 0.190 against
-# the raw output's 0.182; the teacher's hands 1.01 / 0.64 / 0.60 cm at FID 0.128 / 0.127 / 0.130.
-HAND_HOLD = 0.5
+# A hand without a joint target keeps its arm's generated angles (each bone along its generated
+# direction at the body's length), so its wrist moves with the body's arm length. Holding it towards
+# its generated wrist instead (half way, shipped on 2026-12-06 and withdrawn the same day) moved the
+# 1-step student's hands less (2.30 against 3.01 cm over 72 prompts x 12 seeds at 120 frames) but
+# damped what the arm does: the student's raw wrists swing less than its arm's angles carry them
+# (a left-hand wave, seed 1: 2.0 cm against 2.8 at the 95th percentile about the running mean), and
+# its waves fell below the behaviour suite's 3-cm swing, 73.9 -> 68.8 % of the suite's motions
+# passing (a hand's body part 71.2 -> 61.0 %, composites' order 70.3 -> 56.6 %), at FID 0.167
+# against 0.157 (raw 0.182); the teacher's hands 1.01 against 0.64 cm, FID 0.128 against 0.127.
 
 
 class Foot(NamedTuple):
@@ -186,7 +187,7 @@ class Finish:
         angle: holding swinging feet too costs FID (the 196-frame teacher: 0.212 raw, 0.239 held
         always, 0.223 held when planted). A hand on the frames where it has a joint target and,
         fading out, HOLD_S before and after them (so the arm turns from its own angles to the target
-        smoothly), and every hand HAND_HOLD at least."""
+        smoothly); other hands keep their arms' angles (the note beside HOLD_S)."""
         skel = self.skeleton
         b, t = joints.shape[:2]
         hold = torch.zeros(b, t, skel.num_joints, dtype=joints.dtype, device=joints.device)
@@ -196,9 +197,6 @@ class Finish:
             near = torch.nn.functional.max_pool1d(m, 2 * r + 1, 1, r)  # within r frames of a target
             ramp = torch.nn.functional.avg_pool1d(near, 2 * r + 1, 1, r, count_include_pad=False)
             hold = torch.maximum(m, ramp).transpose(1, 2).clone()
-        ankles = [foot.ankle for foot in self.feet.values()]
-        hands = [end for _, _, end in skel.ik_limbs if end not in ankles]
-        hold[..., hands] = hold[..., hands].clamp(min=HAND_HOLD)
         for side, (_, _, ankle) in skel.legs.items():
             if contacts is None:
                 planted = torch.ones(b, t, 2, dtype=joints.dtype, device=joints.device)

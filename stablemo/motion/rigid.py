@@ -13,8 +13,8 @@ root outwards:
 - each two-bone limb of the skeleton (`Skeleton.ik_limbs`: hip-knee-ankle, shoulder-elbow-wrist)
   with its generated angles (each bone along its generated direction), pulled by analytic
   two-bone IK towards the end's generated position as firmly as `hold` says (default: feet fully,
-  hands not; stablemo.inference.finish holds a foot while it is planted, a hand with a joint
-  target fully and every hand half way). The IK reaches the end where the limb can, else as close as the straight limb reaches
+  hands not; stablemo.inference.finish holds a foot while it is planted and a hand on the frames
+  of its joint target). The IK reaches the end where the limb can, else as close as the straight limb reaches
   along the same line; the middle joint (knee, elbow) bends in the plane the limb's own angles give,
   so a knee never flips backwards.
 
@@ -123,8 +123,7 @@ def rigid_joints(joints: torch.Tensor, skeleton: Skeleton | str, bone_lengths=No
     are a third short, and reaching the generated wrists with arms of the body's length folds the
     elbows; on the synthetic benchmark that costs FID 0.15 -> 0.23 and R@3 0.77 -> 0.66, keeping
     the angles costs nothing (0.16, 0.77), for hands 4.7 cm further out on average (measured on the
-    models of that time; the finishing step now holds every hand half way, a wrist with a joint
-    target fully: stablemo.inference.finish.HAND_HOLD). ends (B, T, J, 3): where a held end goes
+    models of that time; stablemo.inference.finish, beside HOLD_S, has today's). ends (B, T, J, 3): where a held end goes
     (default: where it was generated; the finishing step gives planted feet their anchors).
 
     The work runs joint-major, (J, 3, B, T) (rigid_joint_major)."""
