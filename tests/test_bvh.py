@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 from test_generate_cli import bundle  # noqa: F401  (the generate tests' tiny random-weight bundle)
 
+from stablemo.bench.motions import bvh_fk, crawl, flip, heading, synth_joints
 from stablemo.bvh import (
     bvh_text,
     forward_kinematics,
@@ -23,55 +23,6 @@ from stablemo.errors import StableMoError
 from stablemo.motion import features_to_joints, joints_to_features
 
 SAMPLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "humanml3d-sample"
-
-
-def synth_joints(action: str, seed: int = 0, rigid: bool = True, **params) -> np.ndarray:
-    """(T, 22, 3) joints of one synthetic action (stablemo.data.synth). The generator's trunk is not
-    quite rigid (its hip and chest triangles deform by ~1 mm); rigid=True gives the same motion
-    on fixed bones, as mocap and HumanML3D have, by one pass through a rig."""
-    from stablemo.data.synth import actions
-    from stablemo.data.synth.compose import build
-
-    p = actions.sample_params(action, np.random.default_rng(seed))
-    p.update(params)
-    joints = build([(action, p)], 0.2, 0.3).joints.astype(np.float64)
-    return forward_kinematics(motion_to_animation(joints)) if rigid else joints
-
-
-def rotate(joints: np.ndarray, rotvec) -> np.ndarray:
-    """Rotate every frame about the frame-0 root by axis-angle rotvec (3,) or per frame (T, 3)."""
-    r = Rotation.from_rotvec(np.array(np.broadcast_to(np.asarray(rotvec, float), (len(joints), 3))))
-    pivot = joints[:1, :1]
-    return np.einsum("tij,tkj->tki", r.as_matrix(), joints - pivot) + pivot
-
-
-def heading(joints: np.ndarray, degrees: float) -> np.ndarray:
-    return rotate(joints, [0.0, np.deg2rad(degrees), 0.0])
-
-
-def crawl(seed: int = 0) -> np.ndarray:
-    """A walk with the body pitched forward to lying (90° about x), moving along the floor."""
-    j = rotate(synth_joints("walk", seed), [np.pi / 2, 0.0, 0.0])
-    j[..., 1] -= j[..., 1].min() - 0.1
-    return j
-
-
-def flip(seed: int = 0) -> np.ndarray:
-    """A jump during which the body turns one full somersault (every pitch, upside down included)."""
-    j = synth_joints("jump", seed)
-    angles = np.linspace(0.0, 2 * np.pi, len(j))
-    centre = j[:, :1].copy()
-    r = Rotation.from_rotvec(np.stack([angles, 0 * angles, 0 * angles], 1)).as_matrix()
-    return np.einsum("tij,tkj->tki", r, j - centre) + centre
-
-
-def bvh_fk(text: str, tmp_path: Path, name: str = "m.bvh") -> tuple[np.ndarray, object]:
-    """Joints (T, 22, 3) in skeleton order from the BVH text, by the reader's forward kinematics."""
-    path = tmp_path / name
-    path.write_text(text)
-    anim = read_bvh(path)
-    order = [anim.rig.names.index(n) for n in bvh_names("humanml3d")]
-    return forward_kinematics(anim)[:, order], anim
 
 
 def errors(a: np.ndarray, b: np.ndarray) -> np.ndarray:

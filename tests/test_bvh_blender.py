@@ -12,6 +12,8 @@ import subprocess
 import numpy as np
 import pytest
 
+from stablemo.bench.blender import SCENE_AT_FILE_RATE, blender_heads, blender_import
+from stablemo.bench.motions import flip, heading, synth_joints, walk_on_the_standard_body
 from stablemo.bvh import write_bvh
 from stablemo.bvh.names import bvh_names
 from stablemo.gltf.fbx import NUMPY_FALLBACK
@@ -19,59 +21,8 @@ from stablemo.motion.skeleton import HUMANML3D
 
 pytestmark = pytest.mark.skipif(shutil.which("blender") is None, reason="blender is not installed")
 
-# Runs inside Blender: import with no axis conversion and the given importer options, then every
-# pose bone's head in world space at every whole scene frame of the action.
-READ_BONES = """
-import bpy, json, sys
-src, dst, options = sys.argv[sys.argv.index("--") + 1:]
-bpy.ops.wm.read_factory_settings(use_empty=True)
-# Debian's Blender 3.4 runs on Python 3.11, where its BVH importer's open(path, "rU") is an error
-# ("invalid mode: 'rU'"); Blender's own builds bundle Python 3.10. Drop the obsolete "U".
-import builtins, io_anim_bvh.import_bvh as importer
-importer.open = lambda file, mode="r", *a, **k: builtins.open(file, mode.replace("U", ""), *a, **k)
-bpy.ops.import_anim.bvh(filepath=src, axis_forward="-Z", axis_up="Y", global_scale=1.0, rotate_mode="NATIVE",
-                        **json.loads(options))
-scene = bpy.context.scene
-arm = next(o for o in scene.objects if o.type == "ARMATURE")
-first, last = arm.animation_data.action.frame_range
-out = {"fps": scene.render.fps / scene.render.fps_base, "first": first, "last": last, "frames": []}
-for frame in range(int(round(first)), int(last + 1e-6) + 1):
-    scene.frame_set(frame)
-    out["frames"].append({b.name: list(arm.matrix_world @ b.head) for b in arm.pose.bones})
-with open(dst, "w") as f:
-    json.dump(out, f)
-"""
-# the importer's "Update Scene FPS": the scene takes the file's rate, one BVH frame per scene frame
-SCENE_AT_FILE_RATE = {"update_scene_fps": True, "update_scene_duration": True}
-
-
-def blender_import(bvh_path, tmp_path, options: dict) -> dict:
-    """Blender's reading of the file: {"fps": the scene's, "first"/"last": the action's frame range,
-    "heads": (N, 22, 3) bone heads at the whole scene frames first..last in BVH coordinates (y up),
-    our joint order}."""
-    script, dst = tmp_path / "read_bones.py", tmp_path / "heads.json"
-    script.write_text(READ_BONES)
-    run = subprocess.run(["blender", "-b", "--factory-startup", "--python-exit-code", "1", "--python", str(script),
-                          "--", str(bvh_path), str(dst), json.dumps(options)],
-                         check=False, capture_output=True, text=True, timeout=300)
-    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
-    data = json.loads(dst.read_text())
-    heads = np.array([[frame[name] for name in bvh_names("humanml3d")] for frame in data.pop("frames")])
-    # the importer maps BVH (x, y, z) to Blender (x, -z, y) for axis_up=Y, axis_forward=-Z
-    data["heads"] = np.stack([heads[..., 0], heads[..., 2], -heads[..., 1]], axis=-1)
-    return data
-
-
-def blender_heads(bvh_path, tmp_path) -> tuple[np.ndarray, float]:
-    """(T, 22, 3) bone heads, one per BVH frame (the scene at the file's rate), and the scene's fps."""
-    data = blender_import(bvh_path, tmp_path, SCENE_AT_FILE_RATE)
-    return data["heads"], data["fps"]
-
-
 @pytest.mark.parametrize("degrees", [0, 90, 180, 270])
 def test_blender_puts_the_bones_on_the_joints(tmp_path, degrees):
-    from test_bvh import flip, heading, synth_joints
-
     # a full turn on the spot then a somersault, turned to the heading: every orientation, upside down too
     from stablemo.bvh import forward_kinematics, motion_to_animation
 
@@ -87,8 +38,6 @@ def test_blender_puts_the_bones_on_the_joints(tmp_path, degrees):
 
 
 def test_blender_follows_stretching_bones(tmp_path):
-    from test_bvh import heading, synth_joints
-
     joints = heading(synth_joints("jump", 3), 180)
     wobble = 1.0 + 0.1 * np.sin(np.linspace(0, 9, len(joints)))[:, None, None]
     joints = joints[:, :1] + (joints - joints[:, :1]) * wobble  # every bone changes length
@@ -96,17 +45,6 @@ def test_blender_follows_stretching_bones(tmp_path):
     write_bvh(path, joints, stretch=True)
     heads, _ = blender_heads(path, tmp_path)
     assert np.linalg.norm(heads - joints, axis=-1).max() < 1e-4
-
-
-def walk_on_the_standard_body() -> np.ndarray:
-    """(T, 22, 3) a walk (~1.3 m/s) on the standard body, its pelvis made one rigid piece."""
-    from test_bvh import heading, synth_joints
-    from test_bvh_rigid import BODY, standard_body
-
-    from stablemo.bvh import forward_kinematics, motion_to_animation
-
-    walk = heading(standard_body(synth_joints("walk", 41, rigid=False)), 60)
-    return forward_kinematics(motion_to_animation(walk, bone_lengths=BODY))
 
 
 def test_a_20_fps_file_plays_at_20_fps_with_update_scene_fps(tmp_path):

@@ -7,23 +7,17 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_bvh import SAMPLE, bvh_fk, errors, heading, synth_joints
+from test_bvh import SAMPLE, errors
 from test_generate_cli import bundle  # noqa: F401  (the generate tests' tiny random-weight bundle)
 
+from stablemo.bench.motions import BODY, bvh_fk, heading, standard_body, synth_joints
 from stablemo.bvh import export_motion, measure_fit, read_bvh, write_bvh
 from stablemo.bvh.fit import WARN_M
 from stablemo.bvh.names import bvh_names
 from stablemo.errors import StableMoError
-from stablemo.motion import HUMANML3D, features_to_joints, joints_to_features
+from stablemo.motion import HUMANML3D
 
 HEADINGS = (0, 90, 180, 270)
-BODY = HUMANML3D.bone_lengths  # (22,) the standard body every training clip is retargeted to
-
-
-def standard_body(joints: np.ndarray) -> np.ndarray:
-    """The motion rebuilt on the standard body by the feature extraction (not by the BVH writer):
-    every bone at HUMANML3D.bone_lengths, the trunk one rigid piece. (T, 22, 3) -> (T-1, 22, 3)."""
-    return features_to_joints(joints_to_features(joints, "humanml3d").astype(np.float64), "humanml3d")
 
 
 def bone_lengths(joints: np.ndarray) -> np.ndarray:

@@ -7,8 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
-from test_bvh import errors, heading, synth_joints
+from test_bvh import errors
 
+from stablemo.bench.motions import heading, synth_joints
 from stablemo.bvh import export_motion
 from stablemo.bvh.smpl import SMPL_NAMES, SMPL_PARENTS, Y_TO_Z_UP, write_smpl_npz
 from stablemo.cli.bvh import main

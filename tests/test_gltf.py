@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_bvh import flip, heading, synth_joints
 
+from stablemo.bench.motions import flip, heading, synth_joints
 from stablemo.bvh import Animation, Rig, forward_kinematics, motion_to_animation
 from stablemo.bvh.names import bvh_names
 from stablemo.errors import StableMoError

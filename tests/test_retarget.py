@@ -28,7 +28,7 @@ SAMPLE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "human
 
 def synth(action: str, seed: int = 0, **params) -> np.ndarray:
     """(T, 22, 3) one synthetic action on one rigid body (stablemo.data.synth)."""
-    from test_bvh import synth_joints
+    from stablemo.bench.motions import synth_joints
 
     return synth_joints(action, seed, **params)
 

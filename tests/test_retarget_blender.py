@@ -9,62 +9,19 @@ from __future__ import annotations
 
 import json
 import shutil
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from stablemo.bench.blender import MAKE_RIGS, blender, custom_spec
+from stablemo.bench.motions import synth_joints
 from stablemo.gltf.fbx import NUMPY_FALLBACK
 from stablemo.retarget import retarget
 from stablemo.retarget.api import write_result
 from stablemo.retarget.measure import flipped_joints, heading_error, stance_speed
 
 pytestmark = pytest.mark.skipif(shutil.which("blender") is None, reason="blender is not installed")
-
-# Runs inside Blender: the Rigify metarig (when the add-on is there) and an armature from a joint
-# list, each exported to BVH and FBX at rest.
-MAKE_RIGS = """
-import bpy, sys, json, addon_utils
-out, spec = sys.argv[sys.argv.index("--") + 1:]
-spec = json.load(open(spec))
-
-def export(name):
-    bpy.ops.object.mode_set(mode="OBJECT")
-    bpy.ops.export_anim.bvh(filepath=f"{out}/{name}.bvh", frame_start=1, frame_end=1, root_transform_only=False)
-    bpy.ops.export_scene.fbx(filepath=f"{out}/{name}.fbx", use_selection=True, add_leaf_bones=False, bake_anim=False)
-
-bpy.ops.wm.read_factory_settings(use_empty=True)
-if addon_utils.enable("rigify", default_set=True) is not None:  # a Blender without Rigify: the custom rig only
-    bpy.ops.object.armature_human_metarig_add()
-    export("metarig")
-    # the metarig as a character: a body skinned to it (envelope weights), exported to FBX with its mesh
-    arm = bpy.context.active_object
-    bpy.ops.mesh.primitive_cylinder_add(radius=0.15, depth=1.7, location=(0, 0, 0.85), vertices=12)
-    body = bpy.context.active_object
-    body.select_set(True)
-    arm.select_set(True)
-    bpy.context.view_layer.objects.active = arm
-    bpy.ops.object.parent_set(type="ARMATURE_ENVELOPE")
-    bpy.ops.export_scene.fbx(filepath=f"{out}/character.fbx", use_selection=True, add_leaf_bones=False,
-                             bake_anim=False)
-
-bpy.ops.wm.read_factory_settings(use_empty=True)
-arm = bpy.data.objects.new("Armature", bpy.data.armatures.new("Armature"))
-bpy.context.scene.collection.objects.link(arm)
-bpy.context.view_layer.objects.active = arm
-arm.select_set(True)
-bpy.ops.object.mode_set(mode="EDIT")
-bones = []
-for name, parent, head, tail in spec:
-    b = arm.data.edit_bones.new(name)
-    b.head, b.tail = head, tail
-    if parent >= 0:
-        b.parent = bones[parent]
-        b.use_connect = False
-    bones.append(b)
-export("custom")
-"""
 
 # Runs inside Blender: import each file, then every pose bone's head at every frame of its action.
 READ_HEADS = """
@@ -88,44 +45,8 @@ for src, dst in jobs:
 """
 
 
-def blender(script: str, tmp_path: Path, *args: str) -> None:
-    path = tmp_path / "script.py"
-    path.write_text(script)
-    run = subprocess.run(["blender", "-b", "--factory-startup", "--python-exit-code", "1", "--python", str(path),
-                          "--", *args], capture_output=True, text=True, timeout=300, check=False)
-    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
-
-
-def custom_spec(walk: np.ndarray) -> list:
-    """An armature in Blender's axes (z up, facing -y), standing on the floor: SMPL-X names, 1.25x legs,
-    arms 40 degrees down, finger and twist bones; each bone from its joint to its first child
-    (leaves: along the parent)."""
-    from dataclasses import replace
-
-    from stablemo.bvh import motion_to_animation
-    from stablemo.retarget.variants import variant_rig
-
-    rig, index = variant_rig("smplx", legs=1.25, a_pose_deg=40, body=motion_to_animation(walk).rig.offsets)
-    offsets = rig.offsets.copy()
-    for toe in (index[10], index[11]):  # feet as modelled, toes 25 degrees below the ankles, not a T-pose's level feet
-        offsets[toe] = np.linalg.norm(offsets[toe]) * np.array([0.0, -np.sin(np.radians(25)), np.cos(np.radians(25))])
-    rest = replace(rig, offsets=offsets).rest
-    rest = rest - [0.0, rest[:, 1].min(), 0.0]  # standing on the floor
-    blender_xyz = np.stack([rest[:, 0], -rest[:, 2], rest[:, 1]], axis=-1)  # y up, +z front -> z up, -y front
-    spec = []
-    for j, p in enumerate(rig.parents):
-        kids = [c for c, q in enumerate(rig.parents) if q == j]
-        tail = blender_xyz[kids[0]] if kids else blender_xyz[j] + 0.5 * (blender_xyz[j] - blender_xyz[p])
-        if np.linalg.norm(tail - blender_xyz[j]) < 1e-3:
-            tail = blender_xyz[j] + [0.0, 0.0, 0.05]
-        spec.append([rig.names[j], p, blender_xyz[j].tolist(), tail.tolist()])
-    return spec
-
-
 @pytest.fixture(scope="module")
 def rigs(tmp_path_factory) -> Path:
-    from test_bvh import synth_joints
-
     out = tmp_path_factory.mktemp("rigs")
     (out / "spec.json").write_text(json.dumps(custom_spec(synth_joints("walk", 3))))
     blender(MAKE_RIGS, out, str(out), str(out / "spec.json"))
@@ -133,8 +54,6 @@ def rigs(tmp_path_factory) -> Path:
 
 
 def motions() -> dict[str, np.ndarray]:
-    from test_bvh import synth_joints
-
     from stablemo.inference.bundle import DEMO_BUNDLE
     from stablemo.inference.pipeline import Pipeline
 
@@ -202,7 +121,6 @@ json.dump({"action": action.name, "frames": frames}, open(dst, "w"))
 
 
 def test_blender_plays_the_animation_we_add_to_a_glb_character(tmp_path):
-    from test_bvh import synth_joints
     from test_retarget import glb_character
 
     from stablemo.gltf.fbx import site_packages
@@ -243,8 +161,6 @@ def test_an_fbx_character_gets_the_motion_as_fbx(rigs, tmp_path):
     """The skinned metarig as an FBX character: one command writes it back as FBX with the motion
     (read through the GLB Blender makes of it, written through stablemo.gltf.fbx), and Blender plays
     it with the character's own mesh: bone heads where the solve put them."""
-    from test_bvh import synth_joints
-
     if not (rigs / "character.fbx").is_file():
         pytest.skip("this Blender has no Rigify add-on (the character is the metarig)")
     walk = synth_joints("walk", 3)

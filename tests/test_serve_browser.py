@@ -21,9 +21,9 @@ webdriver = pytest.importorskip("selenium.webdriver")
 
 from stablemo.serve.vendor import missing
 
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-DRIVER = shutil.which("chromedriver")
-if not (CHROMIUM and DRIVER):
+from stablemo.bench.browser import chrome_driver, chromium_paths, wait_for
+
+if not all(chromium_paths()):
     pytest.skip("Chromium and chromedriver are not installed (apt-get install chromium chromium-driver)",
                 allow_module_level=True)
 if missing():
@@ -41,30 +41,6 @@ ASSETS = Path(__file__).resolve().parents[1] / "stablemo" / "assets"
 PROMPT = "a person jumps, then turns left"
 # the page's limb colours (stablemo.outputs.render): left, right, centre
 LIMBS = np.array([[0x1F, 0x6F, 0xD1], [0xD6, 0x2F, 0x2F], [0x44, 0x44, 0x44]], dtype=float)
-
-
-def chrome_driver(downloads: Path):
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = CHROMIUM
-    opts.add_experimental_option("prefs", {"download.default_directory": str(downloads),
-                                           "download.prompt_for_download": False})
-    for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1100,750",
-                "--disable-gpu-sandbox", "--enable-unsafe-swiftshader"):
-        opts.add_argument(arg)
-    return webdriver.Chrome(options=opts, service=webdriver.ChromeService(executable_path=DRIVER))
-
-
-def wait_for(driver, script: str, timeout: float = 60.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = driver.execute_script(script)
-        if value:
-            return value
-        time.sleep(0.05)
-    state = driver.execute_script("const s = window.stablemo; return {error: s.error, status:"
-                                  " (document.getElementById('status') || {}).textContent,"
-                                  " requests: s.requests, frame: s.frame, playing: s.playing}")
-    raise AssertionError(f"timed out waiting for: {script} (page: {state})")
 
 
 @pytest.fixture(scope="module")
@@ -178,12 +154,20 @@ def test_typed_prompt_is_drawn_and_moves_then_empty_prompt_shows_the_error(page,
     # pause, then compare the screenshot with where the page says it drew each joint
     page.find_element(By.ID, "play").click()
     wait_for(page, "return !window.stablemo.playing")
-    time.sleep(0.3)
-    drawn = page.execute_script("const r = document.getElementById('canvas').getBoundingClientRect();"
-                                "return [r.left, r.top, window.devicePixelRatio, window.stablemo.screenPose]")
     from PIL import Image
 
-    shot = np.asarray(Image.open(io.BytesIO(page.get_screenshot_as_png())).convert("RGB"))
+    # the screenshot must show the frame the page recorded: on a loaded machine the software-rendered
+    # canvas can be presented a frame or more after the page drew it, so wait for two animation
+    # frames, and take it again if the page drew anything in between
+    for _ in range(10):
+        before = page.execute_async_script("const done = arguments[0];"
+                                           "requestAnimationFrame(() => requestAnimationFrame(() => done("
+                                           "window.stablemo.drawCount)))")
+        drawn = page.execute_script("const r = document.getElementById('canvas').getBoundingClientRect();"
+                                    "return [r.left, r.top, window.devicePixelRatio, window.stablemo.screenPose]")
+        shot = np.asarray(Image.open(io.BytesIO(page.get_screenshot_as_png())).convert("RGB"))
+        if page.execute_script("return window.stablemo.drawCount") == before:
+            break
     Image.fromarray(shot).save(tmp_path / "page.png")
     left, top, ratio, joints = drawn
     hits = 0

@@ -20,13 +20,11 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "tests"))
 SAMPLE = ROOT.parent / "shared" / "data" / "humanml3d-sample"
 
 
 def fk_error(joints: np.ndarray, tmp: Path, stretch: bool = False, body=None) -> np.ndarray:
-    from test_bvh import bvh_fk
-
+    from stablemo.bench.motions import bvh_fk
     from stablemo.bvh import bvh_text
 
     fk, _ = bvh_fk(bvh_text(joints, stretch=stretch, bone_lengths=None if stretch else body), tmp)
@@ -39,9 +37,7 @@ PROMPTS = ["a person walks forward", "a person turns around to the left", "a per
 
 def motions(demo: bool) -> dict[str, tuple[np.ndarray, np.ndarray | None]]:
     """name -> (joints (T, 22, 3), the body's bone lengths or None)."""
-    from test_bvh import crawl, flip, synth_joints
-    from test_bvh_rigid import BODY, standard_body
-
+    from stablemo.bench.motions import BODY, crawl, flip, standard_body, synth_joints
     from stablemo.motion import features_to_joints
 
     out = {}
@@ -77,8 +73,7 @@ def heading_dependence() -> None:
     """The same poses at another heading: how far apart are the joint rotations? Ours against
     rotations built the way HumanML3D's 6D channels are (each bone's shortest world-space swing from
     its raw axis, joint rotation = parent swing^-1 * child swing)."""
-    from test_bvh import heading, synth_joints
-
+    from stablemo.bench.motions import heading, synth_joints
     from stablemo.bvh import motion_to_animation
     from stablemo.motion import HUMANML3D as skel
     from stablemo.motion.quaternion import qbetween_np, qinv_np, qmul_np
@@ -118,9 +113,8 @@ def blender(tmp: Path) -> None:
     if shutil.which("blender") is None:
         print("\nblender: not installed")
         return
-    from test_bvh import flip, heading, synth_joints
-    from test_bvh_blender import blender_heads
-
+    from stablemo.bench.blender import blender_heads
+    from stablemo.bench.motions import flip, heading, synth_joints
     from stablemo.bvh import forward_kinematics, motion_to_animation, write_bvh
 
     base = np.concatenate([synth_joints("turn", 1, angle=360), flip(2)])
@@ -136,12 +130,8 @@ def blender(tmp: Path) -> None:
 
 def blender_rate(tmp: Path) -> None:
     """Where Blender puts 1 s of a 20 fps walk, per import option (and a file written at 24 fps)."""
-    from test_bvh_blender import (
-        SCENE_AT_FILE_RATE,
-        blender_import,
-        walk_on_the_standard_body,
-    )
-
+    from stablemo.bench.blender import SCENE_AT_FILE_RATE, blender_import
+    from stablemo.bench.motions import walk_on_the_standard_body
     from stablemo.bvh import write_bvh
 
     joints = walk_on_the_standard_body()
@@ -158,8 +148,7 @@ def blender_rate(tmp: Path) -> None:
 
 
 def speed() -> None:
-    from test_bvh import synth_joints
-
+    from stablemo.bench.motions import synth_joints
     from stablemo.bvh import bvh_text, format_bvh, motion_to_animation
 
     joints = np.concatenate([synth_joints("circle", 3)] * 2)  # ~250 frames
@@ -186,7 +175,7 @@ def main() -> int:
     parser.add_argument("--no-demo", action="store_true", help="skip the demo model's samples")
     parser.add_argument("--no-blender", action="store_true")
     args = parser.parse_args()
-    from test_bvh import heading
+    from stablemo.bench.motions import heading
 
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)

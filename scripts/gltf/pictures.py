@@ -78,10 +78,10 @@ def blender_picture(glb: Path, png: Path) -> None:
 
 def page_pictures(out: Path) -> None:
     """The page before any motion (the body at rest) and paused on a motion, the canvas cropped."""
-    sys.path.insert(0, str(ROOT / "tests"))
     from selenium.webdriver.common.by import By
-    from test_serve_browser import ASSETS, chrome_driver, wait_for
 
+    from stablemo.bench.browser import chrome_driver, wait_for
+    from stablemo.inference.bundle import DEMO_STUDENT
     from stablemo.serve.api import create_app
     from stablemo.serve.local import serving
     from stablemo.serve.models import ModelSet
@@ -89,7 +89,7 @@ def page_pictures(out: Path) -> None:
     def canvas_shot(driver, path: Path) -> None:
         write_bytes(path, driver.find_element(By.ID, "canvas").screenshot_as_png)  # the canvas alone
 
-    with serving(create_app(ModelSet({"student": ASSETS / "demo_student"}))) as url, tempfile.TemporaryDirectory() as tmp:
+    with serving(create_app(ModelSet({"student": DEMO_STUDENT}))) as url, tempfile.TemporaryDirectory() as tmp:
         driver = chrome_driver(Path(tmp))
         try:
             driver.get(url + "/")

@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "tests"))
 SAMPLE = ROOT.parent / "shared" / "data" / "humanml3d-sample" / "new_joints" / "012314.npy"
 OUT = ROOT / "docs" / "data" / "retarget"
 
@@ -35,8 +34,7 @@ RIGS = [  # label, convention, legs, arms, scale, A-pose degrees, units
 
 
 def motions() -> dict[str, np.ndarray]:
-    from test_bvh import synth_joints
-
+    from stablemo.bench.motions import synth_joints
     from stablemo.inference.bundle import DEMO_BUNDLE
     from stablemo.inference.pipeline import Pipeline
 
@@ -49,9 +47,8 @@ def motions() -> dict[str, np.ndarray]:
 
 
 def rigify(tmp: Path):
-    from test_bvh import synth_joints
-    from test_retarget_blender import MAKE_RIGS, blender, custom_spec
-
+    from stablemo.bench.blender import MAKE_RIGS, blender, custom_spec
+    from stablemo.bench.motions import synth_joints
     from stablemo.io import write_text
 
     write_text(tmp / "spec.json", json.dumps(custom_spec(synth_joints("walk", 3))))
