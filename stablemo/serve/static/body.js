@@ -10,7 +10,7 @@ export class Body {
     this.loader = new GLTFLoader();
     this.key = null;       // what is loaded: 'rest:<model>' or a motion's spec object
     this.wanted = null;    // what was asked for last (a slower, older answer is dropped)
-    this.loaded = null;    // {root, mixer, clip, bones: {name: Bone}}
+    this.loaded = null;    // {root, mixer, clip, action, bones: {name: Bone}}
     this.error = null;
     this.loads = 0;        // files read so far
     this.bytes = 0;        // the size of the file on show
@@ -62,10 +62,11 @@ export class Body {
     });
     const mixer = new THREE.AnimationMixer(root);
     const clip = gltf.animations[0];
+    let action = null;
     if (clip) {
       // the page loops the motion itself: here time runs once and holds the last key at the end
       // (a repeating action wraps t = duration, the last frame, back to the first)
-      const action = mixer.clipAction(clip);
+      action = mixer.clipAction(clip);
       action.setLoop(THREE.LoopOnce, 1);
       action.clampWhenFinished = true;
       action.play();
@@ -73,7 +74,7 @@ export class Body {
     mixer.setTime(0);
     root.visible = false;
     this.scene.add(root);
-    this.loaded = { root, mixer, clip, bones };
+    this.loaded = { root, mixer, clip, action, bones };
     this.key = key;
     this.loads++;
     this.onload();
@@ -86,8 +87,15 @@ export class Body {
 
   get visible() { return this.loaded !== null && this.loaded.root.visible; }
 
-  // the pose at `seconds` into the animation (frame f of a motion at fps: f / fps, a key exactly)
-  pose(seconds) { if (this.loaded) this.loaded.mixer.setTime(seconds); }
+  // the pose at `seconds` into the animation (frame f of a motion at fps: f / fps, a key exactly).
+  // A one-shot action that reaches its end (the last frame, every loop of the page's playback) is
+  // paused there by three.js, and a paused action ignores the time setTime gives it: it would show
+  // its first frame from then on. So the action runs again before each pose.
+  pose(seconds) {
+    if (!this.loaded) return;
+    if (this.loaded.action) { this.loaded.action.paused = false; this.loaded.action.enabled = true; }
+    this.loaded.mixer.setTime(seconds);
+  }
 
   // each bone's world position [x, y, z] (metres), for the tests and the console
   bonePositions() {
