@@ -10,13 +10,12 @@ teacher, seed 0); the page runs the demo student, as tests/test_serve_browser.py
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-from stablemo.io import write_bytes, write_text
+from stablemo.io import write_bytes
 
 ROOT = Path(__file__).resolve().parents[2]
 PROMPT = "a person walks forward, then waves their right hand"
@@ -67,13 +66,12 @@ bpy.ops.render.render(write_still=True)
 
 
 def blender_picture(glb: Path, png: Path) -> None:
+    from stablemo.bench.blender import blender
     from stablemo.gltf.fbx import NUMPY_FALLBACK, site_packages
 
     with tempfile.TemporaryDirectory() as tmp:
-        script = Path(tmp) / "render.py"
-        write_text(script, RENDER.replace("{numpy_fallback}", NUMPY_FALLBACK))
-        subprocess.run(["blender", "-b", "--factory-startup", "--python-exit-code", "1", "--python", str(script), "--",
-                        str(glb), str(png), str(FRAME), site_packages()], check=True, capture_output=True, timeout=600)
+        blender(RENDER.replace("{numpy_fallback}", NUMPY_FALLBACK), Path(tmp), str(glb), str(png), str(FRAME),
+                site_packages(), timeout=600)
 
 
 def page_pictures(out: Path) -> None:

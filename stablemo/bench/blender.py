@@ -70,13 +70,13 @@ export("custom")
 """
 
 
-def blender(script: str, folder: Path, *args: str) -> None:
-    """Run `script` inside headless Blender (written to `folder`/script.py; `args` after "--").
-    StableMoError with the tail of Blender's output when it exits non-zero."""
+def blender(script: str, folder: Path, *args: str, timeout: float = 300) -> None:
+    """Run `script` inside headless Blender (written to `folder`/script.py; `args` after "--"), for at
+    most `timeout` seconds. StableMoError with the tail of Blender's output when it exits non-zero."""
     path = Path(folder) / "script.py"
     write_text(path, script)
     run = subprocess.run(["blender", "-b", "--factory-startup", "--python-exit-code", "1", "--python", str(path),
-                          "--", *args], capture_output=True, text=True, timeout=300, check=False)
+                          "--", *args], capture_output=True, text=True, timeout=timeout, check=False)
     if run.returncode != 0:
         raise StableMoError(f"blender exited with code {run.returncode}:\n{run.stdout[-3000:]}{run.stderr[-3000:]}")
 
