@@ -76,8 +76,9 @@ from stablemo.io import write_text
 
 REPO = Path(__file__).resolve().parents[2]
 DEFAULT_STUDENTS = ["LCM=bundles/demo_lcm", "PCM=bundles/demo_pcm"]
-# the benchmark's data: `stablemo data synth --num 2000 --seed 0 --rest tight`, the data the shipped demo
-# models, students and packaged evaluator were trained on (docs/synth.md); "varied" once they are retrained
+# the benchmark's data: `stablemo data synth --num 2000 --seed 0 --rest tight`, the clips without the idle
+# rest around their actions, which the packaged evaluator was trained on (the demo models train on the
+# same clips with the rest, `--rest varied`: docs/training.md, "The synthetic data and the demo recipe")
 SYNTH = {"num": 2000, "seed": 0, "rest": "tight"}
 
 
