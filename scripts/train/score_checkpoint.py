@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -27,7 +26,7 @@ TEXT_MODELS = ("length_predictor", "familiarity")  # what generation reads besid
 
 def attach_text_models(bundle: Path, like: Path) -> None:
     """Give `bundle` the length predictor and familiarity captions of `like` (files and config keys)."""
-    from stablemo.io import write_text
+    from stablemo.io import write_bytes, write_text
 
     config = json.loads((bundle / "config.json").read_text())
     source = json.loads((like / "config.json").read_text())
@@ -35,7 +34,7 @@ def attach_text_models(bundle: Path, like: Path) -> None:
         if key not in source:
             raise SystemExit(f"score_checkpoint.py: --like {like} has no {key} in its config.json")
         config[key] = source[key]
-        shutil.copyfile(like / source[key]["file"], bundle / source[key]["file"])
+        write_bytes(bundle / source[key]["file"], (like / source[key]["file"]).read_bytes())
     write_text(bundle / "config.json", json.dumps(config, indent=2) + "\n")
 
 
