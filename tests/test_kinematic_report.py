@@ -68,7 +68,10 @@ def test_script_refuses_bad_arguments_in_one_line():
     """Each refused before any model is loaded: one line on stderr, exit code 2 (the script run as
     a user runs it; nothing imports a script)."""
     for argv, said in ((["--models", "teacher,nope"], "--models"), (["--prompts-per-category", "5"], "64 prompts"),
-                       (["--frames", "12x"], "--frames"), (["--seeds", "0"], "--seeds")):
+                       (["--frames", "12x"], "--frames"), (["--seeds", "0"], "--seeds"),
+                       (["--bundle", "no-equals-sign"], "expected LABEL=PATH"),
+                       (["--bundle", "cand=/nonexistent/bundle"], "is not a bundle folder"),
+                       (["--models", "", "--no-evaluator"], "nothing to score")):
         done = subprocess.run([sys.executable, str(SCRIPT), *argv], capture_output=True, text=True, timeout=120)
         assert done.returncode == 2, (argv, done.stderr)
         assert said in done.stderr and len(done.stderr.strip().splitlines()) == 1, (argv, done.stderr)

@@ -20,6 +20,7 @@ import argparse
 import json
 import sys
 import time
+from pathlib import Path
 
 import torch
 
@@ -33,7 +34,9 @@ MODELS = {"teacher": ("Teacher (demo bundle)", DEMO_BUNDLE), "student": ("1-step
 
 def parse(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--models", default="teacher,student", help="comma-separated: teacher, student")
+    p.add_argument("--models", default="teacher,student", help="comma-separated: teacher, student ('' for none)")
+    p.add_argument("--bundle", action="append", default=[], metavar="LABEL=PATH",
+                   help="also score the bundle at PATH under LABEL (repeatable), e.g. a candidate before shipping it")
     p.add_argument("--frames", default="120,196", help="comma-separated motion lengths in frames")
     p.add_argument("--prompts-per-category", type=int, default=8)
     p.add_argument("--seeds", type=int, default=4)
@@ -50,8 +53,18 @@ def main(argv: list[str]) -> int:
     args = parse(argv)
     models = [m.strip() for m in args.models.split(",") if m.strip()]
     unknown = [m for m in models if m not in MODELS]
-    if unknown or not models:
-        raise StableMoError(f"--models: {unknown or args.models!r}; choose from {', '.join(MODELS)}")
+    if unknown:
+        raise StableMoError(f"--models: {unknown}; choose from {', '.join(MODELS)}")
+    extra = []
+    for spec in args.bundle:
+        label, sep, path = spec.partition("=")
+        if not sep or not label.strip() or not path.strip():
+            raise StableMoError(f"--bundle: expected LABEL=PATH, got {spec!r}")
+        if not (Path(path) / "config.json").is_file():
+            raise StableMoError(f"--bundle {spec}: {path} is not a bundle folder (no config.json)")
+        extra.append((label.strip(), path))
+    if not models and not extra:
+        raise StableMoError("--models and --bundle: nothing to score")
     try:
         frames = [int(x) for x in args.frames.split(",")]
     except ValueError:
@@ -66,6 +79,7 @@ def main(argv: list[str]) -> int:
     from stablemo.inference.pipeline import Pipeline
 
     pipes = [(MODELS[m][0], Pipeline.from_bundle(MODELS[m][1], device=args.device)) for m in models]
+    pipes += [(label, Pipeline.from_bundle(path, device=args.device)) for label, path in extra]
     for _, pipe in pipes:
         for n in frames:
             pipe.inference.check_length(n, "--frames")
@@ -76,7 +90,7 @@ def main(argv: list[str]) -> int:
         evaluator = load_text_motion_evaluator(EVALUATOR_SYNTH, "humanml3d")
     start = time.perf_counter()
     result = report.run(pipes, frames, args.prompts_per_category, args.seeds, evaluator, args.seed)
-    result["settings"].update(models=models, seconds=time.perf_counter() - start, threads=torch.get_num_threads())
+    result["settings"].update(models=models + [f"{label}={path}" for label, path in extra], seconds=time.perf_counter() - start, threads=torch.get_num_threads())
     s = result["settings"]
     print(f"\n{s['prompts']} prompts x {s['seeds']} seeds per row; {s['seconds']:.0f} s in all "
           f"({s['threads']} threads)\n")
