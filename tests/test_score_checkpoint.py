@@ -58,3 +58,16 @@ def test_data_without_statistics_is_refused_before_any_export(tmp_path):
     assert done.returncode == 2
     assert "is not a dataset folder" in done.stderr and len(done.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_a_like_bundle_without_text_models_is_refused_before_any_export(tmp_path):
+    ckpt, like = tmp_path / "a.ckpt", tmp_path / "like"
+    ckpt.write_bytes(b"")
+    like.mkdir()
+    (like / "config.json").write_text(json.dumps({"format": "stablemo-bundle"}))
+    done = subprocess.run([sys.executable, str(SCRIPT), str(ckpt), "--out", str(tmp_path / "out"), "--like", str(like)],
+                          capture_output=True, text=True)
+    assert done.returncode == 2
+    assert "is not a bundle with a length predictor and captions" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()

@@ -27,7 +27,7 @@ import torch
 from stablemo.bench import kinematic_report as report
 from stablemo.checks import check_positive_int
 from stablemo.errors import StableMoError, run_script
-from stablemo.inference.bundle import DEMO_BUNDLE, DEMO_STUDENT, EVALUATOR_SYNTH
+from stablemo.inference.bundle import DEMO_BUNDLE, DEMO_STUDENT, EVALUATOR_SYNTH, is_bundle
 
 MODELS = {"teacher": ("Teacher (demo bundle)", DEMO_BUNDLE), "student": ("1-step student", DEMO_STUDENT)}
 
@@ -60,8 +60,8 @@ def main(argv: list[str]) -> int:
         label, sep, path = spec.partition("=")
         if not sep or not label.strip() or not path.strip():
             raise StableMoError(f"--bundle: expected LABEL=PATH, got {spec!r}")
-        if not (Path(path) / "config.json").is_file():
-            raise StableMoError(f"--bundle {spec}: {path} is not a bundle folder (no config.json)")
+        if not is_bundle(Path(path)):
+            raise StableMoError(f"--bundle {spec}: {path} is not a bundle folder (no StableMo config.json)")
         extra.append((label.strip(), path))
     if not models and not extra:
         raise StableMoError("--models and --bundle: nothing to score")
@@ -90,7 +90,8 @@ def main(argv: list[str]) -> int:
         evaluator = load_text_motion_evaluator(EVALUATOR_SYNTH, "humanml3d")
     start = time.perf_counter()
     result = report.run(pipes, frames, args.prompts_per_category, args.seeds, evaluator, args.seed)
-    result["settings"].update(models=models + [f"{label}={path}" for label, path in extra], seconds=time.perf_counter() - start, threads=torch.get_num_threads())
+    named = models + [f"{label}={path}" for label, path in extra]
+    result["settings"].update(models=named, seconds=time.perf_counter() - start, threads=torch.get_num_threads())
     s = result["settings"]
     print(f"\n{s['prompts']} prompts x {s['seeds']} seeds per row; {s['seconds']:.0f} s in all "
           f"({s['threads']} threads)\n")

@@ -24,18 +24,32 @@ REPO = Path(__file__).resolve().parents[2]
 TEXT_MODELS = ("length_predictor", "familiarity")  # what generation reads beside the network
 
 
+def text_models_of(like: Path) -> dict | None:
+    """`like`'s config entries of the length predictor and captions; None when it lacks one."""
+    try:
+        source = json.loads((like / "config.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(source, dict) or any(not isinstance(source.get(key), dict) for key in TEXT_MODELS):
+        return None
+    return source
+
+
 def attach_text_models(bundle: Path, like: Path) -> None:
     """Give `bundle` the length predictor and familiarity captions of `like` (files and config keys)."""
     from stablemo.io import write_bytes, write_text
 
     config = json.loads((bundle / "config.json").read_text())
-    source = json.loads((like / "config.json").read_text())
+    source = text_models_of(like)
     for key in TEXT_MODELS:
-        if key not in source:
-            raise SystemExit(f"score_checkpoint.py: --like {like} has no {key} in its config.json")
         config[key] = source[key]
         write_bytes(bundle / source[key]["file"], (like / source[key]["file"]).read_bytes())
     write_text(bundle / "config.json", json.dumps(config, indent=2) + "\n")
+
+
+def _run(cmd: list[str]) -> int:
+    print("$", " ".join(cmd), flush=True)
+    return subprocess.run(cmd).returncode
 
 
 def main(argv=None) -> int:
@@ -51,6 +65,10 @@ def main(argv=None) -> int:
     if not args.checkpoint.is_file():
         print(f"score_checkpoint.py: checkpoint {args.checkpoint} not found", file=sys.stderr)
         return 2
+    if text_models_of(args.like) is None:
+        print(f"score_checkpoint.py: --like {args.like} is not a bundle with a length predictor and captions "
+              f"({' and '.join(TEXT_MODELS)} in its config.json)", file=sys.stderr)
+        return 2
     if not (args.data / "Mean.npy").is_file():
         print(f"score_checkpoint.py: --data {args.data} is not a dataset folder (no Mean.npy); make it with "
               f"`stablemo data synth --out {args.data} --num 2000 --seed 0 --rest tight`", file=sys.stderr)
@@ -58,22 +76,21 @@ def main(argv=None) -> int:
     stablemo = str(Path(sys.executable).with_name("stablemo"))
     bundle = args.out / "bundle"
     args.out.mkdir(parents=True, exist_ok=True)
-    steps = [
-        [stablemo, "export", str(args.checkpoint), "--out", str(bundle), "--overwrite", "--cfg", str(args.cfg)],
-        None,  # attach the text models
+    export = [stablemo, "export", str(args.checkpoint), "--out", str(bundle), "--overwrite", "--cfg", str(args.cfg)]
+    scores = [
         [stablemo, "behaviour", "--bundle", str(bundle), "--seeds", str(args.seeds), "--lengths", "default",
          "natural", "6", "9.8", "--out", str(args.out / "behaviour.json"), "--no-progress"],
         [stablemo, "evaluate", "--bundle", str(bundle), "--data", str(args.data), "--max-items", "128",
          "--replications", "3", "--out", str(args.out / "benchmark.json"), "--no-progress"],
     ]
-    for cmd in steps:
-        if cmd is None:
-            attach_text_models(bundle, args.like)
-            continue
-        print("$", " ".join(cmd), flush=True)
-        done = subprocess.run(cmd)
-        if done.returncode:
-            return done.returncode
+    rc = _run(export)
+    if rc:
+        return rc
+    attach_text_models(bundle, args.like)
+    for cmd in scores:
+        rc = _run(cmd)
+        if rc:
+            return rc
     return 0
 
 
