@@ -30,6 +30,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "stablemo.inference.config": ("InferenceConfig",),
     "stablemo.inference.hooks": ("make_hooks",),
     "stablemo.control.spec": ("ControlTargets", "Inpaint", "JointControl"),
+    "stablemo.control.turn": ("Turn",),
     "stablemo.control.files": ("load_control", "save_control"),
     "stablemo.motion": ("HUMANML3D", "KIT", "Skeleton", "features_to_joints", "get_skeleton", "joints_to_features"),
     "stablemo.timeline.spec": ("Segment", "parse_timeline", "read_timeline"),

@@ -35,6 +35,7 @@ from stablemo.checks import (
     resolve_dtype,
 )
 from stablemo.control.spec import ControlTargets, Inpaint, JointControl
+from stablemo.control.turn import Turn
 from stablemo.diffusion.hooks import SampleHook, StepState, apply_hooks
 from stablemo.diffusion.schedule import NoiseSchedule, check_prediction_type
 from stablemo.errors import StableMoError
@@ -69,9 +70,12 @@ class Request:
     joints are the network's raw output, for code that post-processes it itself); plan: read each
     prompt as a sequence of parts ("X, then Y", stablemo.text.plan) and generate it part by part, and
     a length longer than the text asks for as its parts then a body standing
-    (stablemo.timeline.planned). Off here, so the network reads each prompt whole at the length
-    given (benchmarks, evaluation); `stablemo generate`, the server and the behaviour suite turn it
-    on. Prompts with in-painting or joint control are never planned."""
+    (stablemo.timeline.planned), each part (or the whole prompt) turning by the angle its text says
+    (stablemo.text.turns) when `turns` is not given. Off here, so the network reads each prompt
+    whole at the length given (benchmarks, evaluation); `stablemo generate`, the server and the
+    behaviour suite turn it on. Prompts with in-painting, joint control or given turns are never planned.
+    turns: per prompt a `stablemo.control.Turn` or None: the body turns that many degrees over
+    those frames (stablemo.control.turn, at every sampler step)."""
 
     texts: Sequence[str]
     lengths: int | Sequence[int | None] | None = None
@@ -89,6 +93,7 @@ class Request:
     face_travel: bool = True
     finish: bool = True
     plan: bool = False
+    turns: Turn | Sequence[Turn | None] | None = None
 
 
 @dataclass
@@ -382,8 +387,9 @@ class Pipeline:
                                    lambda spec, n, what: spec.resolve(n, self.mean.shape[0], what))
         control = self._per_prompt(request.control, JointControl, "control", lengths,
                                    lambda spec, n, what: spec.resolve(n, self.skeleton, what))
+        turns = self._per_prompt(request.turns, Turn, "turns", lengths, lambda spec, n, what: spec.resolve(n, what))
         return replace(request, texts=texts, lengths=lengths, seed=seeds, sampler=sampler, steps=steps, cfg=cfg,
-                       dtype=dtype, hooks=list(request.hooks), inpaint=inpaint, control=control)
+                       dtype=dtype, hooks=list(request.hooks), inpaint=inpaint, control=control, turns=turns)
 
     @staticmethod
     def _per_prompt(value, cls, name: str, lengths: list[int], resolve) -> list | None:
@@ -427,12 +433,16 @@ class Pipeline:
         lengths_from = [predicted if n is None else "given" for n in asked]
         factory = denoiser or Pipeline.make_denoiser
         plans = None
-        if req.plan and req.inpaint is None and req.control is None:
+        if req.plan and req.inpaint is None and req.control is None and req.turns is None:
             from stablemo.timeline.planned import generate_planned, plan_prompts
 
             plans = plan_prompts(self, req.texts, asked, req.lengths)
             if all(p is None for p in plans):
                 plans = None
+                from stablemo.control.turn import said_turns
+
+                # each prompt whole: the turn its text says, over all of it
+                req = replace(req, turns=said_turns(req.texts, [(0, n) for n in req.lengths]))
         if plans is None:
             chunk = req.batch_size or len(req.texts)
             parts = []
@@ -440,7 +450,8 @@ class Pipeline:
                 sl = slice(start, start + chunk)
                 parts.append(self._generate_batch(req.texts[sl], req.lengths[sl], req.seed[sl], req, factory,
                                                   req.inpaint[sl] if req.inpaint else None,
-                                                  req.control[sl] if req.control else None))
+                                                  req.control[sl] if req.control else None,
+                                                  req.turns[sl] if req.turns else None))
             T = max(p.shape[1] for p in parts)
             normalized = torch.cat([torch.nn.functional.pad(p, (0, 0, 0, T - p.shape[1])) for p in parts])
         else:  # part by part; a planned prompt's length is its plan's
@@ -498,7 +509,8 @@ class Pipeline:
         return torch.where(mask[:, :, None, None], joints, torch.zeros((), dtype=joints.dtype))
 
     def _generate_batch(self, texts, lengths, seeds, req: Request, factory: DenoiserFactory,
-                        inpaint: list | None = None, control: list | None = None) -> torch.Tensor:
+                        inpaint: list | None = None, control: list | None = None,
+                        turns: list | None = None) -> torch.Tensor:
         B, D = len(texts), self.mean.shape[0]
         mult = self.length_multiple
         T = int(math.ceil(max(lengths) / mult) * mult)
@@ -514,6 +526,10 @@ class Pipeline:
         denoise = factory(self, list(texts), mask, req.cfg, req.dtype, timesteps, **extra_args)
 
         hooks = list(req.hooks)
+        if turns is not None and any(t is not None for t in turns):
+            from stablemo.control.turn import TurnAsAsked
+
+            hooks.append(TurnAsAsked(self.mean, self.std, self.skeleton, list(turns)))
         if targets is not None and req.control_guidance:  # last: after the other hooks (e.g. foot skating) moved the body
             from stablemo.control.guidance import JointGuidance
             from stablemo.control.heading import named_gaits

@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from stablemo.checks import check_seed
+from stablemo.control.turn import said_turns
 from stablemo.errors import StableMoError
 from stablemo.motion.features import features_to_joints
 from stablemo.timeline.planned import plan_prompts
@@ -75,12 +76,14 @@ def _frames(pipe, seconds: float, name: str) -> int:
 @dataclass(frozen=True)
 class Plan:
     """A checked timeline and how it is made: its segments, their [start, end) frames, the windows,
-    and the frames over which each window's first new row is settled."""
+    and the frames over which each window's first new row is settled; turns: per window the turn its
+    text says over its new frames (stablemo.control.turn), None where it says none (or unplanned)."""
 
     segments: list[Segment]
     frames: list[tuple[int, int]]
     windows: list[Window]
     settle: int
+    turns: list | None = None
 
 
 def plan_timeline(pipe, segments: Sequence[Segment | tuple], seed: int = 0, overlap: float = DEFAULT_OVERLAP_S,
@@ -114,7 +117,10 @@ def plan_timeline(pipe, segments: Sequence[Segment | tuple], seed: int = 0, over
                 texts.extend(part_plan.texts)
     windows = plan_windows(spans, texts, pipe.min_length, pipe.max_length, k, r)
     check_seed("seed", seed, count=len(windows))  # window i uses seed + i
-    return Plan(segments, frames, windows, h)
+    turns = None
+    if plan:  # each window turns by its share of the angle its text says
+        turns = [None if (t := said_turns([w.text], [w.new_frames], [w.share])) is None else t[0] for w in windows]
+    return Plan(segments, frames, windows, h, turns)
 
 
 def compose_windows(pipe, plan: Plan, seed: int, sampling: Sampling, progress: bool = False) -> Iterator[tuple[Window, np.ndarray]]:
@@ -123,7 +129,8 @@ def compose_windows(pipe, plan: Plan, seed: int, sampling: Sampling, progress: b
     motion = np.zeros((plan.frames[-1][1], pipe.mean.shape[0]), np.float32)  # (N, D)
     for i, w in enumerate(plan.windows):
         context = motion[w.start:w.new_start] if w.prefix else None
-        feats = generate_window(pipe, w.text, w.length, seed + i, context, w.prefix - w.blend, sampling)
+        feats = generate_window(pipe, w.text, w.length, seed + i, context, w.prefix - w.blend, sampling,
+                                turn=plan.turns[i] if plan.turns else None)
         hand_over(motion, w, feats, plan.settle, pipe.skeleton)
         if progress:
             print(f"  window {i + 1}/{len(plan.windows)}: frames {w.new_start}-{w.new_end} {w.text!r}", flush=True)

@@ -11,7 +11,8 @@ as often as the length allowed. Any other length is shared out over the parts.
 `generate_planned` makes the motions of a batch of plans together: window k of every prompt that has
 one is one batched request, continuing that prompt's motion so far by in-painting its last frames
 (the timeline's window plan and hand-over, stablemo.timeline.windows), so a batch of plans costs one
-request per window of its longest plan.
+request per window of its longest plan. Each window's part turns by the angle its text says
+(stablemo.control.turn), over the window's new frames.
 """
 
 from __future__ import annotations
@@ -117,6 +118,7 @@ def generate_planned(pipe, req, plans: Sequence[PromptPlan | None], lengths: Seq
     window by window, the others whole (window 0: the same request they would be alone). lengths:
     each prompt's frames (a plan's total for planned ones)."""
     from stablemo.control import Inpaint
+    from stablemo.control.turn import said_turns
 
     overlap, hold = round(DEFAULT_OVERLAP_S * pipe.fps), round(DEFAULT_SETTLE_S * pipe.fps)
     windows = []
@@ -132,10 +134,12 @@ def generate_planned(pipe, req, plans: Sequence[PromptPlan | None], lengths: Seq
         for i in items:
             w = windows[i][k]
             inpaint.append(Inpaint(motions[i][w.start:w.new_start].copy(), np.ones(w.prefix, bool)) if w.prefix else None)
-        step = replace(req, texts=[windows[i][k].text for i in items], lengths=[windows[i][k].length for i in items],
+        made = [windows[i][k] for i in items]
+        step = replace(req, texts=[w.text for w in made], lengths=[w.length for w in made],
                        seed=[window_seed(req.seed[i], k) for i in items],
                        inpaint=inpaint if any(p is not None for p in inpaint) else None,
-                       control=None, finish=False, plan=False, progress=False)
+                       control=None, finish=False, plan=False, progress=False,
+                       turns=said_turns([w.text for w in made], [w.new_frames for w in made], [w.share for w in made]))
         out = pipe.generate(step, denoiser=denoiser).feature_list()
         for i, feats in zip(items, out):
             hand_over(motions[i], windows[i][k], feats, hold, pipe.skeleton)

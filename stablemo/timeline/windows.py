@@ -29,7 +29,8 @@ DEFAULT_SETTLE_S = 1.0
 class Window:
     """One generated window: its text, the global frame of its first row, its generated length, how
     many rows were copied from the motion (prefix), of which the last `blend` were cross-faded, and
-    the global frames [new_start, new_end) it added."""
+    the global frames [new_start, new_end) it added; share: the part of its text's span those are
+    (1 unless a span longer than a window is split over several)."""
 
     text: str
     start: int
@@ -38,6 +39,12 @@ class Window:
     blend: int
     new_start: int
     new_end: int
+    share: float = 1.0
+
+    @property
+    def new_frames(self) -> tuple[int, int]:
+        """[start, end) of the new frames within the window's own rows."""
+        return self.prefix, self.prefix + self.new_end - self.new_start
 
 
 def plan_windows(frames: Sequence[tuple[int, int]], texts: Sequence[str], min_length: int, max_length: int,
@@ -57,7 +64,8 @@ def plan_windows(frames: Sequence[tuple[int, int]], texts: Sequence[str], min_le
             pieces = math.ceil(remaining / cap)
             new = math.ceil(remaining / pieces)
             length = max(min_length, prefix + new)
-            windows.append(Window(text, produced - prefix, length, prefix, min(blend, prefix), produced, produced + new))
+            windows.append(Window(text, produced - prefix, length, prefix, min(blend, prefix), produced, produced + new,
+                                  new / (b - a)))
             produced += new
     return windows
 
@@ -74,9 +82,10 @@ class Sampling:
 
 
 def generate_window(pipe, text: str, length: int, seed: int, context: np.ndarray | None, hard: int,
-                    sampling: Sampling, control=None) -> np.ndarray:
+                    sampling: Sampling, control=None, turn=None) -> np.ndarray:
     """Features (length, D) of one window whose first `hard` frames are `context[:hard]` exactly
-    (context: (k, D) de-normalised, k >= hard; frames hard..k are left free for blending)."""
+    (context: (k, D) de-normalised, k >= hard; frames hard..k are left free for blending); turn: a
+    stablemo.control.Turn over the window's rows, or None."""
     from stablemo.control import Inpaint
 
     inpaint = None
@@ -86,7 +95,8 @@ def generate_window(pipe, text: str, length: int, seed: int, context: np.ndarray
         inpaint = [Inpaint(feats, np.ones(hard, bool))]
     result = pipe.generate([text], length, seed=seed, steps=sampling.steps, sampler=sampling.sampler,
                            cfg=sampling.cfg, dtype=sampling.dtype, hooks=list(sampling.hooks), inpaint=inpaint,
-                           control=None if control is None else [control], finish=False)
+                           control=None if control is None else [control], finish=False,
+                           turns=None if turn is None else [turn])
     return result.feature_list()[0]
 
 
