@@ -219,6 +219,10 @@ def test_the_demo_student_is_served_by_default_and_equals_offline(tmp_path):
     frames = sum(pipe.text_lengths(["a person jumps", "a person turns left"]))
     assert (data["steps"], data["sampler"], data["frames"], data["length_from"]) == (1, "lcm", frames, "text")
     assert [p["text"] for p in data["plan"]] == ["a person jumps", "a person turns left"]
+    # the turn its words size, over the frames of its part (docs/inference.md, "Turns as said")
+    turn = data["plan"][1]
+    assert data["turns"] == [{"text": "a person turns left", "degrees": 90.0, "side": "left",
+                              "start": turn["start"], "end": turn["end"]}]
     assert info["kind"] == "consistency" and info["label"] == "student (consistency, 1 step)"
     ref = pipe.generate(Request(["a person jumps, then turns left"], seed=11, plan=True)).joint_list()[0]
     assert np.array_equal(np.asarray(data["joints"], dtype=np.float32), ref)
@@ -228,7 +232,7 @@ def test_plan_false_gives_the_network_the_prompt_whole(client, models):
     body = {"text": "a person jumps, then turns left", "frames": 60, "seed": 3, "steps": 2, "plan": False}
     data = client.post("/api/generate", json=body).json()
     joints, _ = offline(models, body["text"], 60, 3, plan=False, steps=2)
-    assert data["plan"] is None and data["frames"] == 60
+    assert data["plan"] is None and data["turns"] is None and data["frames"] == 60
     assert np.array_equal(np.asarray(data["joints"], dtype=np.float32), joints)
     planned = client.post("/api/generate", json={**body, "plan": True}).json()
     assert [p["text"] for p in planned["plan"]] == ["a person jumps", "a person turns left"]

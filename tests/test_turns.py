@@ -164,3 +164,34 @@ def test_a_timeline_window_turns_by_its_share_of_the_angle(student):
     assert made.turns[0] == Turn(90.0, "left", *made.windows[0].new_frames)
     assert made.turns[1:] == [None, None]
     assert plan_timeline(student, [(0, 4, "a person turns left")], 0, plan=False).turns is None
+
+
+def test_generate_says_the_turn_it_read_and_whole_reads_none(tmp_path, capsys):
+    from stablemo.cli import main
+    from stablemo.inference.bundle import DEMO_STUDENT
+
+    text = "a man makes a quarter turn to the right"
+    assert main(["generate", text, "--bundle", str(DEMO_STUDENT), "--out", str(tmp_path / "a"), "--no-render"]) == 0
+    assert "; turning 90 degrees to the right)" in capsys.readouterr().out
+    assert main(["generate", text, "--bundle", str(DEMO_STUDENT), "--out", str(tmp_path / "b"), "--no-render",
+                 "--whole"]) == 0
+    assert "turning" not in capsys.readouterr().out
+
+
+def test_the_hook_leaves_samples_it_does_not_turn_bit_for_bit():
+    """A multistep sampler steps first order for any sample whose x0 a hook changed; a sample
+    without a turn (or one left alone) must come back exactly as it went in."""
+    from stablemo.control.turn import TurnAsAsked
+    from stablemo.diffusion.hooks import StepState
+
+    turn = _turn_features("left", 90)
+    T = len(turn)
+    walk = joints_to_features(build_parts((Part("walk", {"speed_label": "normal"}),), 0, T + 1), "humanml3d")[:T]
+    feats = torch.from_numpy(np.stack([turn, walk.astype(np.float32)]))
+    mean, std = feats.flatten(0, 1).mean(0), feats.flatten(0, 1).std(0) + 0.1
+    x0 = (feats - mean) / std
+    hook = TurnAsAsked(mean, std, "humanml3d", [Turn(180, "left").resolve(T), None])
+    out = hook(StepState(0, 10, 500, x0.clone(), torch.ones(2, T, dtype=torch.bool), [T, T]))
+    assert torch.equal(out[1], x0[1]) and not torch.equal(out[0], x0[0])
+    alone = TurnAsAsked(mean, std, "humanml3d", [None, Turn(90, "right").resolve(T)])  # a walk: no turn to scale
+    assert alone(StepState(0, 10, 500, x0.clone(), torch.ones(2, T, dtype=torch.bool), [T, T])) is None

@@ -31,7 +31,8 @@
 #                           (CONTROL_TABLES), the behaviour section's fixed text in stablemo/eval/behaviour/report.py
 #   docs/inference.md       the finishing step's measured effect (kinematics.json), the length-from-text table
 #                           (length_count_check.py), "Prompts in parts" (behaviour JSONs, the README picture's
-#                           description), the counts-by-repetition and held-apart composite runs
+#                           description), the counts-by-repetition and held-apart composite runs, "Turns
+#                           as said" (the behaviour before/after and turns/turns.md's numbers)
 #   docs/evaluation.md      "What the demo models get wrong" and the behaviour runs' times (behaviour JSONs)
 #   docs/control.md         the heading tables (heading_*.json, logs), the control table's "What it says", the
 #                           ControlNet tables, its targets table and prose (controlnet_results.json, bench aits),
@@ -168,6 +169,10 @@ step_make_results() { run env OMP_NUM_THREADS=1 "$PYTHON" scripts/results/make_r
 # docs/inference.md "Prompts in parts": docs/data/results/readme_prompt.png
 step readme_prompt "shipped" "docs/inference.md: Prompts in parts (readme_prompt.png)"
 step_readme_prompt() { run "$PYTHON" scripts/results/readme_prompt_picture.py; }
+# docs/inference.md "Turns as said": docs/data/results/turns/ (turns.json, turns.md, turns.png); the
+# numbers in its prose are typed from turns.md
+step turn_report "shipped" "docs/inference.md: Turns as said (turns/: table and picture)"
+step_turn_report() { run "$PYTHON" scripts/results/turn_report.py --out docs/data/results/turns; }
 # docs/inference.md "How long a motion is": the jump-count table (printed; log)
 step length_count "shipped" "docs/inference.md: How long a motion is (table, printed)"
 step_length_count() { run "$PYTHON" scripts/text/length_count_check.py; }

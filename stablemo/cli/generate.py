@@ -59,8 +59,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--no-render", action="store_true", help="write the .npy files only")
     p.add_argument("--whole", action="store_true",
                    help="give the network each prompt (or --timeline segment) whole at the length asked for; by "
-                        "default a prompt that says an order (\"X, then Y\") is generated part by part, and a length "
-                        "longer than the text asks for ends standing (docs/inference.md, \"Prompts in parts\")")
+                        "default a prompt that says an order (\"X, then Y\") is generated part by part, a length "
+                        "longer than the text asks for ends standing, and a turn the text sizes (\"a quarter turn\", \"90 degrees\") "
+                        "turns that far (docs/inference.md, \"Prompts in parts\", \"Turns as said\")")
     p.add_argument("--footskate", action="store_true",
                    help="remove foot skating at the last denoising step (StableMoFusion*, vGRF-guided)")
     p.add_argument("--footskate-weights", default=None,
@@ -148,13 +149,15 @@ def main(argv: list[str] | None = None) -> int:
     for unfamiliar in result.info.get("unfamiliar", []):
         print(f"warning: {Unfamiliar(**unfamiliar).message()}", file=sys.stderr)
     sources = result.info["lengths_from"]
-    for text, slug, feats, joints, source, plan in zip(prompts, slugs, result.feature_list(), result.joint_list(), sources,
-                                                       result.info["plans"]):
+    for text, slug, feats, joints, source, plan, turns in zip(prompts, slugs, result.feature_list(), result.joint_list(),
+                                                              sources, result.info["plans"], result.info["turns"]):
         written = write_motion(out, slug, feats, joints, pipe, formats, text, targets,
                                warn=lambda line: print(line, file=sys.stderr))
         said = {"text": ", length from the text", "default": ", default length"}.get(source, "")
         if plan:
             said += "; in parts: " + ", ".join(f"{p['text']!r} {(p['end'] - p['start']) / pipe.fps:g} s" for p in plan)
+        for turn in turns or []:  # the angle the words say, which the body was turned by
+            said += f"; turning {turn['degrees']:g} degrees" + (f" to the {turn['side']}" if turn["side"] else "")
         print(f"{text!r}: {len(feats)} frames ({len(feats) / pipe.fps:g} s{said}) -> {out}/{{{', '.join(written)}}}")
     return 0
 

@@ -112,10 +112,11 @@ def turn_scale(features: torch.Tensor, lengths, turns, skeleton, fps: float) -> 
     return k
 
 
-def apply_turns(features: torch.Tensor, lengths, turns, skeleton, fps: float) -> torch.Tensor:
+def apply_turns(features: torch.Tensor, lengths, turns, skeleton, fps: float,
+                k: torch.Tensor | None = None) -> torch.Tensor:
     """Features (B, T, D) de-normalised, each sample's root yaw velocity scaled over its turn's
-    frames (turn_scale): the body turns as asked, everything else as generated."""
-    k = turn_scale(features, lengths, turns, skeleton, fps)
+    frames (by k: (B,), default turn_scale): the body turns as asked, everything else as generated."""
+    k = turn_scale(features, lengths, turns, skeleton, fps) if k is None else k
     if bool((k == 1).all()):
         return features
     T = features.shape[1]
@@ -155,12 +156,19 @@ class TurnAsAsked:
     def active(self, step: int, steps: int) -> bool:
         return True
 
-    def __call__(self, state: StepState) -> torch.Tensor:
+    def __call__(self, state: StepState) -> torch.Tensor | None:
         x0 = state.x0
         mean, std = self.mean.to(x0.device).float(), self.std.to(x0.device).float()
         feats = x0.float() * std + mean
-        out = apply_turns(feats, state.lengths, self.turns, self.skeleton, get_skeleton(self.skeleton).fps)
-        return ((out - mean) / std).to(x0.dtype)
+        k = turn_scale(feats, state.lengths, self.turns, self.skeleton, get_skeleton(self.skeleton).fps)
+        turned = k != 1  # (B,)
+        if not bool(turned.any()):
+            return None
+        out = ((apply_turns(feats, state.lengths, self.turns, self.skeleton, get_skeleton(self.skeleton).fps, k)
+                - mean) / std).to(x0.dtype)
+        # samples left as they were come back bit for bit: the samplers take any change as an edit
+        # (a multistep sampler then steps first order), and a normalisation round trip is a change
+        return torch.where(turned[:, None, None], out, x0)
 
 
 __all__ = ["K_MAX", "K_MIN", "MIN_TURN_DEG", "Turn", "TurnAsAsked", "apply_turns", "said_turns", "turn_scale"]

@@ -433,7 +433,8 @@ class Pipeline:
         lengths_from = [predicted if n is None else "given" for n in asked]
         factory = denoiser or Pipeline.make_denoiser
         plans = None
-        if req.plan and req.inpaint is None and req.control is None and req.turns is None:
+        reads_turns = req.plan and req.inpaint is None and req.control is None and req.turns is None
+        if reads_turns:
             from stablemo.timeline.planned import generate_planned, plan_prompts
 
             plans = plan_prompts(self, req.texts, asked, req.lengths)
@@ -480,6 +481,8 @@ class Pipeline:
                 "lengths_from": lengths_from,  # per prompt: "given", "text" (the predictor) or "default"
                 # per prompt: its parts [{text, start, end, rest}] when it was generated part by part, else None
                 "plans": [None if p is None else p.to_dict() for p in plans] if plans else [None] * len(req.texts),
+                # per prompt: the turns imposed [{text, degrees, side, start, end}] (text None: the caller's), else None
+                "turns": _turns_info(req, plans, reads_turns),
                 "unfamiliar": [asdict(u) for u in self.unfamiliar(req.texts)]}
         return Generation(req.texts, req.lengths, req.seed, features, joints, normalized, mask, info,
                           raw_features, raw_joints)
@@ -612,6 +615,26 @@ class Pipeline:
                 targets[i, :pos.shape[0]] = torch.from_numpy(pos)
                 mask[i, :keep.shape[0]] = torch.from_numpy(keep)
         return ControlTargets(targets.to(self.device), mask.to(self.device))
+
+
+def _turns_info(req: Request, plans, read: bool) -> list[list[dict] | None]:
+    """Per prompt the turns a generation imposed (stablemo.control.turn): read from each part's
+    words when `read`, else the caller's `req.turns`; None for a prompt without one."""
+    from stablemo.text.turns import asked_turn
+
+    out = []
+    for i, (text, n) in enumerate(zip(req.texts, req.lengths)):
+        if read:
+            parts = plans[i].to_dict() if plans and plans[i] is not None else [{"text": text, "start": 0, "end": n}]
+            said = [(p, asked_turn(p["text"])) for p in parts]
+            turns = [{"text": p["text"], "degrees": a.degrees, "side": a.side, "start": p["start"], "end": p["end"]}
+                     for p, a in said if a is not None]
+        else:
+            given = req.turns[i] if req.turns else None
+            turns = [] if given is None else [{"text": None, "degrees": given.degrees, "side": given.side,
+                                                "start": given.start, "end": given.end}]
+        out.append(turns or None)
+    return out
 
 
 def _check_stats(config: dict, source: str) -> None:

@@ -389,6 +389,8 @@ def motion_json(motion: Motion, encoding: str, features: bool) -> dict:
         out["control"] = motion.info["control"]
     # its parts [{text, start, end, rest}] when the prompt was generated part by part, else null
     out["plan"] = (motion.info.get("plans") or [None])[0]
+    # the turns its words sized and the body was turned by [{text, degrees, side, start, end}], else null
+    out["turns"] = (motion.info.get("turns") or [None])[0]
     out["warnings"] = motion.warnings()
     if features:
         out["features"] = encode_array(motion.features, encoding)

@@ -39,8 +39,11 @@ length given: the bundle's length predictor chooses it, stablemo.text.length; fo
 6 s), `natural` (the length the synthetic generator gives the actions, 2-9 s), seconds (`6`, the
 fixed default before the length predictor; `9.8`, longer than any action needs). The columns
 "whole" give the network each prompt whole at each length (`stablemo behaviour --whole`); the others
-score what `stablemo generate` gives: a prompt that says an order made part by part, and a length
-longer than the text asks for ending standing (docs/inference.md, "Prompts in parts"). (The demo
+score what `stablemo generate` gives: a prompt that says an order made part by part, a length
+longer than the text asks for ending standing (docs/inference.md, "Prompts in parts"), and a turn
+whose angle the text says turned by that angle (docs/inference.md, "Turns as said"; the angle check
+then measures the network's steps and the reading of the words, not the network's sense of an
+angle: the columns "whole" keep that). (The demo
 models before their input head and temporal attention, docs/training.md, passed 35.8 % (teacher) and
 37.7 % (student) of motions whole; their runs are in git history.) Percent passed
 [Wilson 95 % interval]; the intervals treat motions as independent, which the 4 seeds of one prompt

@@ -379,9 +379,11 @@ function setMotion(data, spec, rec) {
   // an empty seconds field says the length the text got
   if (data.length_from !== 'given') $('seconds').placeholder = `auto (${(T / data.fps).toFixed(1)} s)`;
   // a prompt that says an order was made part by part: say the parts and their seconds
-  $('plan-note').textContent = data.plan
-    ? 'in parts: ' + data.plan.map((p) => `${p.text} ${((p.end - p.start) / data.fps).toFixed(1)} s`).join(' → ')
-    : '';
+  // and a turn whose size the words say: the angle the body was turned by
+  const turns = (data.turns || []).map((t) => `turning ${t.degrees}°${t.side ? ' to the ' + t.side : ''}`);
+  $('plan-note').textContent = [
+    data.plan ? 'in parts: ' + data.plan.map((p) => `${p.text} ${((p.end - p.start) / data.fps).toFixed(1)} s`).join(' → ') : '',
+    ...turns].filter(Boolean).join('; ');
   buildPath(S.motion);
   // a new prompt plays from the start; an edit made while paused stays at the frame being edited;
   // the motion of a path just drawn plays from the start if the page was playing before the stroke
