@@ -30,7 +30,8 @@ from stablemo.eval.behaviour.measures import heading_change
 from stablemo.eval.kinematics import foot_acceleration, stance_speed
 from stablemo.inference.bundle import DEMO_BUNDLE, DEMO_STUDENT
 from stablemo.inference.pipeline import Pipeline, Request
-from stablemo.io import write_bytes, write_text
+from stablemo.io import write_text
+from stablemo.outputs.render import save_png
 from stablemo.text.turns import asked_turn
 
 PROMPTS = [
@@ -89,9 +90,7 @@ def table(results: dict) -> str:
     return "\n".join(out) + "\n"
 
 
-def picture(drawn: dict, skeleton) -> bytes:
-    import io
-
+def picture(drawn: dict, path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -115,10 +114,8 @@ def picture(drawn: dict, skeleton) -> bytes:
             ax.set_xlabel("time (s)")
             ax.set_ylabel("facing turned (deg, + = left)")
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=80)
+    save_png(fig, path, dpi=80)
     plt.close(fig)
-    return buf.getvalue()
 
 
 def main(argv=None) -> int:
@@ -137,7 +134,7 @@ def main(argv=None) -> int:
     print(text)
     write_text(out / "turns.json", json.dumps({"prompts": PROMPTS, "seeds": args.seeds, "results": results}, indent=1) + "\n")
     write_text(out / "turns.md", text)
-    write_bytes(out / "turns.png", picture(drawn, "humanml3d"))
+    picture(drawn, out / "turns.png")
     print(f"wrote {out}/turns.json, turns.md, turns.png")
     return 0
 

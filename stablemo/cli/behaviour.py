@@ -58,7 +58,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="leave out R@3 (which shows what retrieval misses: motions failing a check that it ranks top 3)")
     p.add_argument("--whole", action="store_true",
                    help="give the network each prompt whole at each length (default: as `stablemo generate` does, "
-                        "prompts that say an order in parts, and lengths longer than the text asks for ending standing)")
+                        "prompts that say an order in parts, lengths longer than the text asks for ending standing, "
+                        "and turns sized by their words)")
     p.add_argument("--batch-size", type=int, default=64, help="motions per network batch")
     p.add_argument("--device", default=None)
     p.add_argument("--dtype", choices=["fp32", "bf16", "fp16"], default=None)

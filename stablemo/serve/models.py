@@ -53,7 +53,8 @@ class Spec:
     # where `frames` came from: "given" (seconds or frames), "text" (the bundle's length predictor) or
     # "default" (a bundle without one), as the answer says it
     length_from: str = "given"
-    # a prompt that says an order is generated part by part (Request.plan); false: the network reads it whole
+    # a prompt that says an order is generated part by part, a turn sized by its words (Request.plan);
+    # false: the network reads it whole
     plan: bool = True
 
 
