@@ -142,6 +142,8 @@ def test_typed_prompt_is_drawn_and_moves_then_empty_prompt_shows_the_error(page,
     # the prompt says an order: it was made in parts, and the page says which
     note = page.find_element(By.ID, "plan-note").text
     assert note.startswith("in parts: a person jumps") and "→ a person turns left" in note
+    # and the turn whose size its words say (docs/inference.md, "Turns as said")
+    assert note.endswith("; turning 90° to the left"), note
 
     # the figure moves: two poses drawn 0.5 s apart differ by more than a few centimetres
     first = page.execute_script("return [window.stablemo.frame, window.stablemo.worldPose]")
