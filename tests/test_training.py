@@ -412,7 +412,8 @@ ABLATION = ["unet_base", "unet_xattn", "unet_xattn_gn", "dit_base", "dit_xattn",
 CONFIG_SETS = [["synth_small.yaml"], ["humanml3d.yaml"], ["kit.yaml"]] + [
     ["ablation/common.yaml", f"ablation/{v}.yaml"] for v in ABLATION] + [
     ["demo.yaml"], ["demo.yaml", "demo_variants/input_head_k1.yaml"], ["demo.yaml", "demo_variants/no_input_head.yaml"],
-    ["demo.yaml", "demo_variants/no_mid_attention.yaml"], ["demo.yaml", "demo_variants/base16.yaml"]]
+    ["demo.yaml", "demo_variants/no_mid_attention.yaml"], ["demo.yaml", "demo_variants/base16.yaml"],
+    ["demo.yaml", "demo_variants/base64.yaml"]]
 
 
 @pytest.mark.parametrize("files", CONFIG_SETS, ids=lambda f: f[-1])
@@ -441,14 +442,16 @@ def test_shipped_configs_parse(files, capsys):
         assert model["model"]["denoiser"]["variant"] == "official" and printed["data"]["pad_multiple"] == 16
 
 
-def test_the_half_width_demo_variant_changes_only_the_width():
-    """configs/demo_variants/base16.yaml (docs/training.md, "Behaviour against size and training
-    time"): the recipe's network at half the denoiser's width, everything else as shipped."""
+@pytest.mark.parametrize("variant, base, head", [("base16", 16, 64), ("base64", 64, 256)])
+def test_the_width_demo_variants_change_only_the_width(variant, base, head):
+    """configs/demo_variants/base16.yaml and base64.yaml (docs/training.md, "Behaviour against size
+    and training time"): the recipe's network at half and twice the denoiser's width, everything else
+    as shipped."""
     recipe = yaml.safe_load((REPO / "configs/demo.yaml").read_text())["model"]["model"]
-    overlay = yaml.safe_load((REPO / "configs/demo_variants/base16.yaml").read_text())["model"]["model"]
+    overlay = yaml.safe_load((REPO / f"configs/demo_variants/{variant}.yaml").read_text())["model"]["model"]
     assert overlay["text"] == recipe["text"]
     changed = {k: (recipe["denoiser"][k], v) for k, v in overlay["denoiser"].items() if recipe["denoiser"][k] != v}
-    assert changed == {"base_channels": (32, 16), "input_head": (128, 64)}
+    assert changed == {"base_channels": (32, base), "input_head": (128, head)}
     assert set(overlay["denoiser"]) == set(recipe["denoiser"])
 
 
