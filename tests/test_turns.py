@@ -126,6 +126,10 @@ def test_a_bad_turn_is_one_clear_error(turn, message):
         turn.resolve(60)
 
 
+def test_a_turn_takes_numpy_frame_numbers():
+    assert Turn(90, "left", np.int64(2), np.int64(40)).resolve(60) == Turn(90.0, "left", 2, 40)
+
+
 def test_said_turns_share_a_split_span():
     turns = said_turns(["a man turns left", "a man bows"], [(10, 50), (0, 40)], [0.5, 1.0])
     assert turns == [Turn(45.0, "left", 10, 50), None]

@@ -22,6 +22,7 @@ timeline's windows, or takes `Request(turns=[Turn(...), ...])` from the caller.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 import torch
@@ -60,12 +61,13 @@ class Turn:
             raise StableMoError(f"{what}.side: expected 'left', 'right' or None, got {self.side!r}")
         end = length if self.end is None else self.end
         for name, value in (("start", self.start), ("end", end)):
-            if isinstance(value, bool) or not isinstance(value, int):
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral):
                 raise StableMoError(f"{what}.{name}: expected a whole number of frames, got {value!r}")
-        if not 0 <= self.start < end <= length:
-            raise StableMoError(f"{what}: frames [{self.start}, {end}) do not lie in a motion of {length} frames "
+        start, end = int(self.start), int(end)
+        if not 0 <= start < end <= length:
+            raise StableMoError(f"{what}: frames [{start}, {end}) do not lie in a motion of {length} frames "
                                 f"(0 <= start < end <= {length})")
-        return Turn(degrees, self.side, self.start, end)
+        return Turn(degrees, self.side, start, end)
 
 
 def _facing_offset(features: torch.Tensor, skeleton) -> torch.Tensor:
