@@ -162,12 +162,12 @@ class TurnAsAsked:
         x0 = state.x0
         mean, std = self.mean.to(x0.device).float(), self.std.to(x0.device).float()
         feats = x0.float() * std + mean
-        k = turn_scale(feats, state.lengths, self.turns, self.skeleton, get_skeleton(self.skeleton).fps)
+        fps = get_skeleton(self.skeleton).fps
+        k = turn_scale(feats, state.lengths, self.turns, self.skeleton, fps)
         turned = k != 1  # (B,)
         if not bool(turned.any()):
             return None
-        out = ((apply_turns(feats, state.lengths, self.turns, self.skeleton, get_skeleton(self.skeleton).fps, k)
-                - mean) / std).to(x0.dtype)
+        out = ((apply_turns(feats, state.lengths, self.turns, self.skeleton, fps, k) - mean) / std).to(x0.dtype)
         # samples left as they were come back bit for bit: the samplers take any change as an edit
         # (a multistep sampler then steps first order), and a normalisation round trip is a change
         return torch.where(turned[:, None, None], out, x0)

@@ -25,6 +25,8 @@ from importlib import resources
 
 import yaml
 
+from stablemo.text.phrases import alternatives
+
 PACKAGED = "plan.yaml"
 
 
@@ -53,11 +55,6 @@ def plan_words() -> PlanWords:
                      frozenset(raw["not_verbs"]), frozenset(raw["before_verb"]), tuple(raw["pronouns"]),
                      int(raw["max_subject_words"]), str(raw["rest_text"]), float(raw["rest_quantile"]),
                      float(raw["min_rest_s"]))
-
-
-def _words(options) -> str:
-    """A regex alternative of whole words/phrases, longest first (so "after that" wins over "after")."""
-    return "|".join(r"\s+".join(map(re.escape, w.split())) for w in sorted(options, key=len, reverse=True))
 
 
 def _is_verb(word: str, words: PlanWords) -> bool:
@@ -92,10 +89,10 @@ def split_parts(text: str, words: PlanWords | None = None) -> list[str]:
     "followed by" that take a noun ("followed by a walk"); else the prompt stays whole ("kicks with the
     left leg, then the right" is one action)."""
     words = words or plan_words()
-    then = re.compile(rf"((?:,\s*|\s+)(?:and\s+)?\b(?:{_words(words.then)})\b\s*,?)", re.IGNORECASE)
-    after = re.compile(rf"(?:,\s*|\s+)\b(?:{_words(words.after)})\b\s+", re.IGNORECASE)
-    noun_after = re.compile(rf"\b(?:{_words(words.noun_after)})\b", re.IGNORECASE)
-    leading = re.compile(rf"^\s*(?:(?:and\s+)?\b(?:{_words(words.then)})\b\s*,?\s*)+", re.IGNORECASE)
+    then = re.compile(rf"((?:,\s*|\s+)(?:and\s+)?\b(?:{alternatives(words.then)})\b\s*,?)", re.IGNORECASE)
+    after = re.compile(rf"(?:,\s*|\s+)\b(?:{alternatives(words.after)})\b\s+", re.IGNORECASE)
+    noun_after = re.compile(rf"\b(?:{alternatives(words.noun_after)})\b", re.IGNORECASE)
+    leading = re.compile(rf"^\s*(?:(?:and\s+)?\b(?:{alternatives(words.then)})\b\s*,?\s*)+", re.IGNORECASE)
     whole = [_clean(text)] if _clean(text) else [text]
     split = then.split(text)  # [piece, separator, piece, ...]
     # "..., and then finally sits down": an order word left at a piece's start goes with the separator
@@ -153,7 +150,7 @@ def _subject(part: str, words: PlanWords) -> str:
 
 
 def _drop_first(part: str, words: PlanWords) -> str:
-    return re.sub(rf"\b(?:{_words(words.first)})\b\s*,?", "", part, count=1, flags=re.IGNORECASE)
+    return re.sub(rf"\b(?:{alternatives(words.first)})\b\s*,?", "", part, count=1, flags=re.IGNORECASE)
 
 
 def _with_subject(part: str, subject: str, words: PlanWords) -> str:

@@ -29,7 +29,10 @@ from importlib import resources
 
 import yaml
 
+from stablemo.text.phrases import alternatives
+
 PACKAGED = "turns.yaml"
+HYPHEN_OR_SPACE = r"[\s-]+"  # between number and fraction words: "forty-five" = "forty five"
 
 
 @dataclass(frozen=True)
@@ -38,16 +41,6 @@ class AskedTurn:
 
     degrees: float
     side: str | None
-
-
-def _alt(words) -> str:
-    """A regex alternative of whole words/phrases, longest first; spaces match any whitespace."""
-    return "|".join(r"\s+".join(map(re.escape, w.split())) for w in sorted(words, key=len, reverse=True))
-
-
-def _alt_words(words) -> str:
-    """Like _alt, a space in a phrase also matching a hyphen ("forty five" = "forty-five")."""
-    return "|".join(r"[\s-]+".join(map(re.escape, w.split())) for w in sorted(words, key=len, reverse=True))
 
 
 def _bounded(pattern: str) -> re.Pattern:
@@ -65,24 +58,25 @@ class _Rules:
 @lru_cache(maxsize=1)
 def _rules() -> _Rules:
     raw = yaml.safe_load(resources.files("stablemo.text").joinpath(PACKAGED).read_text(encoding="utf-8"))
-    verb, noun, side = _alt(raw["verbs"]), _alt(raw["nouns"]), _alt(raw["left"] + raw["right"])
-    fill = rf"(?:\s+(?:{_alt(raw['fillers'])}))*"
+    verb, noun, side = (alternatives(words) for words in (raw["verbs"], raw["nouns"], raw["left"] + raw["right"]))
+    fill = rf"(?:\s+(?:{alternatives(raw['fillers'])}))*"
     numbers = {_key(k): int(v) for k, v in raw["numbers"].items()}
-    number = rf"\d+(?:\.\d+)?|{_alt_words(numbers)}"
+    number = rf"\d+(?:\.\d+)?|{alternatives(numbers, HYPHEN_OR_SPACE)}"
     fractions = {_key(k): int(v) for k, v in raw["fractions"].items()}
     rules = [
         # 1. degrees: "90 degrees", "ninety-degree", "180°"
         (_bounded(rf"(?P<n>{number})(?:\s*-\s*|\s+)?(?:degrees?|deg|°)"), numbers),
         # 2. fractions: "a quarter turn", "half a turn", "half of a circle", "three-quarter rotation"
-        (_bounded(rf"(?P<f>{_alt_words(fractions)})(?:\s*-\s*|\s+)(?:(?:a|of\s+a|an)\s+)?(?:{noun})s?"), fractions),
-        (_bounded(_alt(raw["opposite"])), 180),
-        (_bounded(rf"(?:{_alt(raw['whole'])})\s+(?:{noun})|an?\s+(?:(?:{side}|{_alt(raw['circle_adjectives'])})\s+)?"
-                  rf"(?:{_alt(raw['circle_nouns'])})|{_alt(raw['circle_verbs'])}"), 360),
-        (_bounded(_alt(raw["spin"])), 360),
+        (_bounded(rf"(?P<f>{alternatives(fractions, HYPHEN_OR_SPACE)})(?:\s*-\s*|\s+)(?:(?:a|of\s+a|an)\s+)?(?:{noun})s?"), fractions),
+        (_bounded(alternatives(raw["opposite"])), 180),
+        (_bounded(rf"(?:{alternatives(raw['whole'])})\s+(?:{noun})|an?\s+(?:(?:{side}|{alternatives(raw['circle_adjectives'])})\s+)?"
+                  rf"(?:{alternatives(raw['circle_nouns'])})|{alternatives(raw['circle_verbs'])}"), 360),
+        (_bounded(alternatives(raw["spin"])), 360),
         (_bounded(rf"(?:{verb}){fill}\s+(?:around|round)"), 180),
         (_bounded(rf"(?:{verb}){fill}\s+(?:{side})|(?:makes?|takes?|making|taking|does|doing)\s+an?\s+(?:{side})\s+turn"), 90),
     ]
-    return _Rules(tuple(rules), _bounded(_alt(raw["vague"])), _bounded(_alt(raw["left"])), _bounded(_alt(raw["right"])))
+    vague, left, right = (_bounded(alternatives(raw[key])) for key in ("vague", "left", "right"))
+    return _Rules(tuple(rules), vague, left, right)
 
 
 def asked_turn(text: str) -> AskedTurn | None:

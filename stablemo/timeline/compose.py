@@ -77,7 +77,8 @@ def _frames(pipe, seconds: float, name: str) -> int:
 class Plan:
     """A checked timeline and how it is made: its segments, their [start, end) frames, the windows,
     and the frames over which each window's first new row is settled; turns: per window the turn its
-    text says over its new frames (stablemo.control.turn), None where it says none (or unplanned)."""
+    text says over its new frames (stablemo.control.turn), None where it says none; None in all when
+    no window says one, or the segments were not planned."""
 
     segments: list[Segment]
     frames: list[tuple[int, int]]
@@ -117,9 +118,10 @@ def plan_timeline(pipe, segments: Sequence[Segment | tuple], seed: int = 0, over
                 texts.extend(part_plan.texts)
     windows = plan_windows(spans, texts, pipe.min_length, pipe.max_length, k, r)
     check_seed("seed", seed, count=len(windows))  # window i uses seed + i
+    # each window turns by its share of the angle its text says
     turns = None
-    if plan:  # each window turns by its share of the angle its text says
-        turns = [None if (t := said_turns([w.text], [w.new_frames], [w.share])) is None else t[0] for w in windows]
+    if plan:
+        turns = said_turns([w.text for w in windows], [w.new_frames for w in windows], [w.share for w in windows])
     return Plan(segments, frames, windows, h, turns)
 
 
