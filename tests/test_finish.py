@@ -12,7 +12,7 @@ import torch
 from stablemo.errors import StableMoError
 from stablemo.eval import kinematics as K
 from stablemo.inference.finish import Finish, body_lengths
-from stablemo.motion.features import features_to_joints, joints_to_features
+from stablemo.motion.features import feature_slices, features_to_joints, joints_to_features
 from stablemo.motion.floor import place_on_floor
 from stablemo.motion.rigid import bone_lengths_of, rigid_joints
 from stablemo.motion.skeleton import HUMANML3D, KIT
@@ -450,3 +450,27 @@ def test_a_wave_on_short_arms_keeps_its_swing():
     assert any(spans for spans, _ in waves.values())  # the clip waves
     for side, (truth, finished) in waves.items():
         assert len(finished) == len(truth), (side, waves)
+
+
+def test_rows_of_a_motion_own_joints_give_its_features_back():
+    """Finish.rows (the step's second half, which scripts/results/finish_fid_parts.py calls alone):
+    handed a motion's own joints it gives its features back, every column, and the same joints; on
+    rubber joints the root's columns stay the network's and the rest follow the joints."""
+    finish = Finish.from_config({}, "humanml3d", 20.0)
+    clips = [synth(a)[:41] for a in ("walk", "turn")]  # 40 feature rows each
+    assert all(len(c) == 41 for c in clips)
+    feats, lengths = make_features(clips)
+    joints = features_to_joints(feats)
+    out_f, out_j = finish.rows(feats, joints.permute(2, 3, 0, 1).contiguous(), lengths)
+    # the last row's velocities and contacts look one frame ahead, past the motion: the step moves
+    # the last pose on by the last root step there
+    torch.testing.assert_close(out_f[:, :-1], feats[:, :-1], rtol=0, atol=1e-4)
+    ahead = feature_slices("humanml3d")["local_vel"].start
+    torch.testing.assert_close(out_f[:, -1, :ahead], feats[:, -1, :ahead], rtol=0, atol=1e-4)
+    torch.testing.assert_close(out_j, joints, rtol=0, atol=1e-4)
+    rubber = torch.from_numpy(np.stack([stretch(c)[:40] for c in clips])).float()
+    moved_f, moved_j = finish.rows(feats, rubber.permute(2, 3, 0, 1).contiguous(), lengths)
+    assert torch.equal(moved_f[..., :3], feats[..., :3])  # the network's root rotation and path
+    assert (moved_f[..., 3:] - feats[..., 3:]).abs().max() > 0.05
+    torch.testing.assert_close(moved_j[:, :, 1:] - moved_j[:, :, :1], rubber[:, :, 1:] - rubber[:, :, :1],
+                               rtol=0, atol=1e-4)  # the body as handed over, about the root

@@ -89,3 +89,35 @@ def test_summary_reads_the_right_categories():
     assert s["stance_speed"] == 10.0                         # NaN (no contact) left out
     assert s["airborne_jump"] == 0.4 and s["airborne_stance"] == pytest.approx(0.05)
     assert json.loads(json.dumps(s)) == s
+
+
+FID_PARTS = Path(__file__).resolve().parents[1] / "scripts" / "results" / "finish_fid_parts.py"
+
+
+def test_fid_parts_script_scores_four_ways_of_one_generation(tmp_path):
+    """scripts/results/finish_fid_parts.py: raw, raw recomputed, final with the network's rotation
+    columns, final, all from one generation; bad arguments are one line each."""
+    import importlib.util
+
+    from stablemo.inference.pipeline import Pipeline
+    from stablemo.motion.features import feature_slices
+
+    spec = importlib.util.spec_from_file_location("finish_fid_parts", FID_PARTS)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    torch.set_num_threads(1)
+    pipe = Pipeline.from_bundle(make_tiny_bundle(tmp_path / "bundle"))
+    ways = module.ways(pipe, ["a person walks.", "a person jumps."], [0, 1], 24)
+    assert list(ways) == list(module.WAYS)
+    rot = feature_slices(pipe.skeleton)["rot6d"]
+    raw, recomputed, mixed, final = ways.values()
+    assert torch.equal(mixed[..., rot], raw[..., rot])
+    others = torch.ones(raw.shape[-1], dtype=torch.bool)
+    others[rot] = False
+    assert torch.equal(mixed[..., others], final[..., others])
+    assert torch.equal(recomputed[..., :3], raw[..., :3]) and not torch.equal(final, raw)
+    for argv, said in ((["--models", "nope"], "--models"), (["--frames", "1a"], "--frames"),
+                       (["--seeds", "0"], "--seeds"), (["--out", str(FID_PARTS)], "--out")):
+        done = subprocess.run([sys.executable, str(FID_PARTS), *argv], capture_output=True, text=True, timeout=120)
+        assert done.returncode == 2, (argv, done.stderr)
+        assert said in done.stderr and len(done.stderr.strip().splitlines()) == 1, (argv, done.stderr)

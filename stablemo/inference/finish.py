@@ -316,11 +316,19 @@ class Finish:
         are): the step moves joints, not the root, so only the columns seen from the root are
         computed again, from the new joints."""
         n = valid_lengths(lengths, *features.shape[:2], features.device)
-        b, t = features.shape[:2]
-        q, root = recover_root(features)  # (B, T, 4), (B, T, 3): the root rotation and path recovery will use
         raw = features_to_joints(features, self.skeleton) if raw_joints is None else raw_joints.to(features)
         contacts = features[..., feature_slices(self.skeleton)["contacts"]]
-        body = self.body(raw, n, control, contacts, given)  # (J, 3, B, T)
+        return self.rows(features, self.body(raw, n, control, contacts, given), n)
+
+    @torch.no_grad()
+    def rows(self, features: torch.Tensor, body: torch.Tensor, lengths) -> tuple[torch.Tensor, torch.Tensor]:
+        """The features (B, T, D) with every column seen from the root computed again from the joint-major
+        body (J, 3, B, T), and their joints (B, T, J, 3); both zero past lengths[b]. The root's rotation
+        and path columns stay the network's. (__call__'s second half: scripts/results/finish_fid_parts.py
+        hands it the raw joints, to measure what the recomputation alone changes.)"""
+        n = valid_lengths(lengths, *features.shape[:2], features.device)
+        b, t = features.shape[:2]
+        q, root = recover_root(features)  # (B, T, 4), (B, T, 3): the root rotation and path recovery will use
         ext, last = self._extended(body, n)
         r = torch.cat([q, q.gather(1, last[..., None].expand(b, 1, 4))], dim=1)  # (B, T+1, 4)
         rows = fast_motion.finish_rows(ext, r, features[..., :3], n, root, self.skeleton)

@@ -1,0 +1,115 @@
+"""Where the finishing step's FID change comes from (docs/inference.md, "The finishing step").
+
+    OMP_NUM_THREADS=2 python scripts/results/finish_fid_parts.py [--out docs/data/results/finish_fid]
+        [--models teacher,student] [--frames 120,196] [--seeds 4]
+
+The finishing step (stablemo.inference.finish) does two things to the features the evaluator reads:
+it moves the joints (the rigid body, planted feet, the floor) and it computes every column seen
+from the root again from the joints, the 6D rotations included, where the network predicted its own.
+On the kinematic report's draw (stablemo.bench.kinematic_report: 72 prompts x `seeds` seeds, FID
+against synthetic ground truth of the same actions, R@3 over batches of 32 distinct prompts), each
+model and length is scored four ways, from one generation:
+
+- raw: the network's features;
+- raw, recomputed: the raw joints unchanged, the columns computed again from them (Finish.rows);
+- final, network's rotations: what the user receives, with the 6D rotation columns put back to the
+  network's (not something StableMo writes: it shows how much of the change is those columns);
+- final: what the user receives.
+
+Writes finish_fid.json and finish_fid.md (the table) under --out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import torch
+
+from stablemo.bench import kinematic_report as report
+from stablemo.checks import check_positive_int
+from stablemo.errors import StableMoError, run_script
+from stablemo.eval import metrics
+from stablemo.eval.evaluate import embed_motions, embed_texts, generation_outputs
+from stablemo.inference.bundle import DEMO_BUNDLE, DEMO_STUDENT, EVALUATOR_SYNTH
+from stablemo.io import check_output_dir, write_text
+from stablemo.motion.features import feature_slices
+
+MODELS = {"teacher": ("Teacher (demo bundle)", DEMO_BUNDLE), "student": ("1-step student", DEMO_STUDENT)}
+WAYS = ("raw", "raw, recomputed", "final, network's rotations", "final")
+
+
+def parse(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", default="docs/data/results/finish_fid", help="folder for finish_fid.json and .md")
+    p.add_argument("--models", default="teacher,student", help="comma-separated: teacher, student")
+    p.add_argument("--frames", default="120,196", help="comma-separated motion lengths in frames")
+    p.add_argument("--seeds", type=int, default=4)
+    return p.parse_args(argv)
+
+
+def ways(pipe, texts: list[str], seeds: list[int], frames: int) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:
+    """{way: features (B, T, D)} of one generation, the four ways of the module docstring."""
+    gen = pipe.generate(texts, [frames] * len(texts), seed=seeds)
+    features, _, raw_features, raw_joints = generation_outputs(gen)
+    lengths = [frames] * len(texts)
+    recomputed, _ = pipe.finish.rows(raw_features, raw_joints.permute(2, 3, 0, 1).contiguous(), lengths)
+    rot = feature_slices(pipe.skeleton)["rot6d"]
+    network_rotations = features.clone()
+    network_rotations[..., rot] = raw_features[..., rot]
+    return dict(zip(WAYS, (raw_features, recomputed, network_rotations, features)))
+
+
+def main(argv=None) -> int:
+    args = parse(argv)
+    models = [m.strip() for m in args.models.split(",") if m.strip()]
+    unknown = [m for m in models if m not in MODELS]
+    if unknown or not models:
+        raise StableMoError(f"--models: expected some of {', '.join(MODELS)}, got {args.models!r}")
+    try:
+        frames = [int(x) for x in args.frames.split(",")]
+    except ValueError:
+        raise StableMoError(f"--frames: expected comma-separated whole numbers, got {args.frames!r}") from None
+    check_positive_int("--seeds", args.seeds)
+    out = check_output_dir(args.out, "--out")
+    from stablemo.eval.text_motion import load_text_motion_evaluator
+    from stablemo.inference.pipeline import Pipeline
+
+    pipes = [(MODELS[m][0], Pipeline.from_bundle(MODELS[m][1])) for m in models]
+    for _, pipe in pipes:
+        for n in frames:
+            pipe.inference.check_length(n, "--frames")
+    evaluator = load_text_motion_evaluator(EVALUATOR_SYNTH, "humanml3d")
+    items = report.prompts(8, 0)
+    reference = metrics.embedding_statistics(embed_motions(evaluator, report.reference_features(items, args.seeds), 64))
+    texts = [p.text for _ in range(args.seeds) for p in items]  # seed-major: each batch of 32 holds distinct prompts
+    seeds = [s for s in range(args.seeds) for _ in items]
+    text_emb = embed_texts(evaluator, texts, [[] for _ in texts], 64)
+    rows = []
+    for name, pipe in pipes:
+        for n in frames:
+            print(f"== {name}, {len(items)} prompts x {args.seeds} seeds, {n} frames", flush=True)
+            for way, feats in ways(pipe, texts, seeds, n).items():
+                emb = embed_motions(evaluator, [f.float().cpu() for f in feats], 64)
+                fid = metrics.frechet_distance(*metrics.embedding_statistics(emb), *reference)
+                r3 = float(metrics.r_precision(text_emb, emb).r_precision[2])
+                rows.append({"model": name, "frames": n, "way": way, "fid": fid, "r3": r3})
+                print(f"   {way}: FID {fid:.4f}, R@3 {r3:.3f}", flush=True)
+    lines = ["| Model | Frames | " + " | ".join(f"FID, {w}" for w in WAYS) + " | R@3, raw | R@3, final |",
+             "|---|---|" + "---|" * (len(WAYS) + 2)]
+    for name, _ in pipes:
+        for n in frames:
+            got = {r["way"]: r for r in rows if r["model"] == name and r["frames"] == n}
+            cells = [f"{got[w]['fid']:.4f}" for w in WAYS] + [f"{got['raw']['r3']:.3f}", f"{got['final']['r3']:.3f}"]
+            lines.append(f"| {name} | {n} | " + " | ".join(cells) + " |")
+    table = "\n".join(lines) + "\n"
+    print(table)
+    write_text(out / "finish_fid.json", json.dumps({"prompts": len(items), "seeds": args.seeds, "rows": rows},
+                                                  indent=1) + "\n")
+    write_text(out / "finish_fid.md", table)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(run_script(main, "finish_fid_parts.py", sys.argv[1:]))
