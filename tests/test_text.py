@@ -143,3 +143,28 @@ def test_real_clip_if_available():
     assert cond.frozen.dim == 512
     text, mask = cond(["a person walks forward", NULL_TEXT])
     assert text.shape[-1] == 32 and mask[1].sum() == 2
+
+
+def test_feature_noise_only_in_training_and_drawn_from_the_seeded_generator():
+    """feature_noise blurs the frozen token features in training mode only; the global generator
+    (which the training step seeds per step) decides the draw, so the same seed gives the same
+    features; a negative or non-finite value is one clear error."""
+    torch.manual_seed(0)
+    noisy = TextConditioner(latent_dim=32, num_layers=1, ff_dim=64, dropout=0.0, feature_noise=0.5)
+    quiet = TextConditioner(latent_dim=32, num_layers=1, ff_dim=64, dropout=0.0)
+    quiet.load_state_dict(noisy.state_dict())
+    texts = ["a person walks forward.", "a man jumps twice."]
+    noisy.eval(), quiet.eval()
+    assert torch.equal(noisy(texts)[0], quiet(texts)[0])  # eval: no noise
+    noisy.train(), quiet.train()
+    torch.manual_seed(1)
+    a = noisy(texts)[0]
+    torch.manual_seed(1)
+    b = noisy(texts)[0]
+    torch.manual_seed(2)
+    c = noisy(texts)[0]
+    assert torch.equal(a, b) and not torch.equal(a, c)
+    assert not torch.allclose(a, quiet(texts)[0], atol=1e-3)
+    for bad in (-0.1, float("nan"), float("inf"), "0.5"):
+        with pytest.raises(StableMoError, match="feature_noise"):
+            TextConditioner(latent_dim=32, num_layers=1, ff_dim=64, feature_noise=bad)

@@ -413,7 +413,7 @@ CONFIG_SETS = [["synth_small.yaml"], ["humanml3d.yaml"], ["kit.yaml"]] + [
     ["ablation/common.yaml", f"ablation/{v}.yaml"] for v in ABLATION] + [
     ["demo.yaml"], ["demo.yaml", "demo_variants/input_head_k1.yaml"], ["demo.yaml", "demo_variants/no_input_head.yaml"],
     ["demo.yaml", "demo_variants/no_mid_attention.yaml"], ["demo.yaml", "demo_variants/base16.yaml"],
-    ["demo.yaml", "demo_variants/base64.yaml"]]
+    ["demo.yaml", "demo_variants/base64.yaml"], ["demo.yaml", "demo_variants/text_noise.yaml"]]
 
 
 @pytest.mark.parametrize("files", CONFIG_SETS, ids=lambda f: f[-1])
@@ -453,6 +453,15 @@ def test_the_width_demo_variants_change_only_the_width(variant, base, head):
     changed = {k: (recipe["denoiser"][k], v) for k, v in overlay["denoiser"].items() if recipe["denoiser"][k] != v}
     assert changed == {"base_channels": (32, base), "input_head": (128, head)}
     assert set(overlay["denoiser"]) == set(recipe["denoiser"])
+
+
+def test_the_text_noise_variant_changes_only_the_text_noise():
+    """configs/demo_variants/text_noise.yaml (docs/training.md, "Noise on the text features"): the
+    recipe with feature_noise on the frozen text features, nothing else."""
+    recipe = yaml.safe_load((REPO / "configs/demo.yaml").read_text())["model"]["model"]
+    overlay = yaml.safe_load((REPO / "configs/demo_variants/text_noise.yaml").read_text())["model"]["model"]
+    assert overlay["denoiser"] == recipe["denoiser"]
+    assert overlay["text"] == {**recipe["text"], "feature_noise": 0.5}
 
 
 @pytest.mark.parametrize("variant, head, kernel, heads", [(None, 128, 3, 4), ("no_mid_attention", 128, 3, 0),

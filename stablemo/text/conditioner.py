@@ -36,8 +36,16 @@ def frozen_encoder(encoder: str = MINILM, variant: str = "stablemo", cache_size:
 
 class TextConditioner(nn.Module):
     def __init__(self, encoder: str = MINILM, latent_dim: int = 256, num_layers: int = 4, num_heads: int = 4,
-                 ff_dim: int = 2048, dropout: float = 0.1, cache_size: int = 4096, variant: str = "stablemo"):
+                 ff_dim: int = 2048, dropout: float = 0.1, cache_size: int = 4096, variant: str = "stablemo",
+                 feature_noise: float = 0.0):
+        """feature_noise: in training only, each frozen token feature gets Gaussian noise of this many
+        times its own standard deviation over the feature axis (0: none), so that the layers above
+        learn a neighbourhood of each caption's features, not the caption's exact ones (an experiment
+        for sentences unlike the training captions: docs/training.md, "Noise on the text features")."""
         super().__init__()
+        if not (isinstance(feature_noise, (int, float)) and 0.0 <= float(feature_noise) < float("inf")):
+            raise StableMoError(f"text feature_noise: expected a finite number >= 0, got {feature_noise!r}")
+        self.feature_noise = float(feature_noise)
         frozen = frozen_encoder(encoder, variant, cache_size)
         self.encoder_name, self.latent_dim, self.variant = encoder, latent_dim, variant
         # stored in __dict__ (not a submodule): no state_dict entry, no parameters, no .to() moves
@@ -82,7 +90,12 @@ class TextConditioner(nn.Module):
         if self.frozen.device != weight.device:
             self.frozen.to(weight.device)
         feats, mask = self.frozen_features(texts)
-        feats, mask = feats.to(weight.device, weight.dtype), mask.to(weight.device)
+        feats, mask = feats.to(weight.device, weight.dtype), mask.to(weight.device)  # (B, L, dim), (B, L)
+        if self.training and self.feature_noise > 0:
+            # drawn from the global generator, which the training step seeds per step (as the dropout
+            # layers' draws), so a resumed run draws the same noise
+            scale = feats.std(dim=-1, keepdim=True)  # (B, L, 1)
+            feats = feats + self.feature_noise * scale * torch.randn_like(feats)
         # the official path has no padding mask (a null row, all masked, would give NaN with one)
         padding = None if self.variant == "official" else ~mask
         x = self.transformer(self.proj(feats), src_key_padding_mask=padding)
