@@ -165,6 +165,6 @@ def test_feature_noise_only_in_training_and_drawn_from_the_seeded_generator():
     c = noisy(texts)[0]
     assert torch.equal(a, b) and not torch.equal(a, c)
     assert not torch.allclose(a, quiet(texts)[0], atol=1e-3)
-    for bad in (-0.1, float("nan"), float("inf"), "0.5"):
+    for bad in (-0.1, float("nan"), float("inf"), "0.5", True):
         with pytest.raises(StableMoError, match="feature_noise"):
             TextConditioner(latent_dim=32, num_layers=1, ff_dim=64, feature_noise=bad)

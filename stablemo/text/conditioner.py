@@ -43,7 +43,8 @@ class TextConditioner(nn.Module):
         learn a neighbourhood of each caption's features, not the caption's exact ones (an experiment
         for sentences unlike the training captions: docs/training.md, "Noise on the text features")."""
         super().__init__()
-        if not (isinstance(feature_noise, (int, float)) and 0.0 <= float(feature_noise) < float("inf")):
+        if isinstance(feature_noise, bool) or not (isinstance(feature_noise, (int, float))
+                                                   and 0.0 <= float(feature_noise) < float("inf")):
             raise StableMoError(f"text feature_noise: expected a finite number >= 0, got {feature_noise!r}")
         self.feature_noise = float(feature_noise)
         frozen = frozen_encoder(encoder, variant, cache_size)
