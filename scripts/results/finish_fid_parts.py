@@ -30,13 +30,12 @@ import torch
 from stablemo.bench import kinematic_report as report
 from stablemo.checks import check_positive_int
 from stablemo.errors import StableMoError, run_script
-from stablemo.eval import metrics
-from stablemo.eval.evaluate import embed_motions, embed_texts, generation_outputs
-from stablemo.inference.bundle import DEMO_BUNDLE, DEMO_STUDENT, EVALUATOR_SYNTH
+from stablemo.eval.evaluate import embed_texts, generation_outputs
+from stablemo.inference.bundle import EVALUATOR_SYNTH
 from stablemo.io import check_output_dir, write_text
 from stablemo.motion.features import feature_slices
 
-MODELS = {"teacher": ("Teacher (demo bundle)", DEMO_BUNDLE), "student": ("1-step student", DEMO_STUDENT)}
+MODELS = report.DEMO_MODELS
 WAYS = ("raw", "raw, recomputed", "final, network's rotations", "final")
 
 
@@ -49,7 +48,7 @@ def parse(argv: list[str]) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def ways(pipe, texts: list[str], seeds: list[int], frames: int) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:
+def ways(pipe, texts: list[str], seeds: list[int], frames: int) -> dict[str, torch.Tensor]:
     """{way: features (B, T, D)} of one generation, the four ways of the module docstring."""
     gen = pipe.generate(texts, [frames] * len(texts), seed=seeds)
     features, _, raw_features, raw_joints = generation_outputs(gen)
@@ -67,10 +66,7 @@ def main(argv=None) -> int:
     unknown = [m for m in models if m not in MODELS]
     if unknown or not models:
         raise StableMoError(f"--models: expected some of {', '.join(MODELS)}, got {args.models!r}")
-    try:
-        frames = [int(x) for x in args.frames.split(",")]
-    except ValueError:
-        raise StableMoError(f"--frames: expected comma-separated whole numbers, got {args.frames!r}") from None
+    frames = report.parse_frames(args.frames)
     check_positive_int("--seeds", args.seeds)
     out = check_output_dir(args.out, "--out")
     from stablemo.eval.text_motion import load_text_motion_evaluator
@@ -82,7 +78,7 @@ def main(argv=None) -> int:
             pipe.inference.check_length(n, "--frames")
     evaluator = load_text_motion_evaluator(EVALUATOR_SYNTH, "humanml3d")
     items = report.prompts(8, 0)
-    reference = metrics.embedding_statistics(embed_motions(evaluator, report.reference_features(items, args.seeds), 64))
+    reference = report.reference_statistics(evaluator, items, args.seeds)
     texts = [p.text for _ in range(args.seeds) for p in items]  # seed-major: each batch of 32 holds distinct prompts
     seeds = [s for s in range(args.seeds) for _ in items]
     text_emb = embed_texts(evaluator, texts, [[] for _ in texts], 64)
@@ -91,9 +87,7 @@ def main(argv=None) -> int:
         for n in frames:
             print(f"== {name}, {len(items)} prompts x {args.seeds} seeds, {n} frames", flush=True)
             for way, feats in ways(pipe, texts, seeds, n).items():
-                emb = embed_motions(evaluator, [f.float().cpu() for f in feats], 64)
-                fid = metrics.frechet_distance(*metrics.embedding_statistics(emb), *reference)
-                r3 = float(metrics.r_precision(text_emb, emb).r_precision[2])
+                fid, r3 = report.fid_r3(evaluator, feats, text_emb, reference)
                 rows.append({"model": name, "frames": n, "way": way, "fid": fid, "r3": r3})
                 print(f"   {way}: FID {fid:.4f}, R@3 {r3:.3f}", flush=True)
     lines = ["| Model | Frames | " + " | ".join(f"FID, {w}" for w in WAYS) + " | R@3, raw | R@3, final |",

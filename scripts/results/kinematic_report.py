@@ -27,9 +27,9 @@ import torch
 from stablemo.bench import kinematic_report as report
 from stablemo.checks import check_positive_int
 from stablemo.errors import StableMoError, run_script
-from stablemo.inference.bundle import DEMO_BUNDLE, DEMO_STUDENT, EVALUATOR_SYNTH, is_bundle
+from stablemo.inference.bundle import EVALUATOR_SYNTH, is_bundle
 
-MODELS = {"teacher": ("Teacher (demo bundle)", DEMO_BUNDLE), "student": ("1-step student", DEMO_STUDENT)}
+MODELS = report.DEMO_MODELS
 
 
 def parse(argv: list[str]) -> argparse.Namespace:
@@ -65,10 +65,7 @@ def main(argv: list[str]) -> int:
         extra.append((label.strip(), path))
     if not models and not extra:
         raise StableMoError("--models and --bundle: nothing to score")
-    try:
-        frames = [int(x) for x in args.frames.split(",")]
-    except ValueError:
-        raise StableMoError(f"--frames: expected comma-separated whole numbers, got {args.frames!r}") from None
+    frames = report.parse_frames(args.frames)
     report.check_prompts(check_positive_int("--prompts-per-category", args.prompts_per_category))
     check_positive_int("--seeds", args.seeds)
     for flag, path in (("--json", args.json), ("--summary", args.summary)):

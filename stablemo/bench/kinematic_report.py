@@ -24,6 +24,7 @@ import torch
 from stablemo.errors import StableMoError
 from stablemo.eval import kinematics, metrics
 from stablemo.eval.evaluate import embed_motions, embed_texts, generation_outputs
+from stablemo.inference.bundle import DEMO_BUNDLE, DEMO_STUDENT
 
 # docs/results.md's section on these measures (scripts/results/make_results.py renders it before the
 # joint-control sections); the table of this report joins it once the finishing step has landed
@@ -66,9 +67,19 @@ CATEGORIES = {
     "turn": ("turn",), "wave": ("wave",), "kick": ("kick",), "squat": ("squat",),
     "side step": ("walk_sideways",), "stand": ("stand",),
 }
+# the shipped demo models by the name scripts take them under: (table label, bundle)
+DEMO_MODELS = {"teacher": ("Teacher (demo bundle)", DEMO_BUNDLE), "student": ("1-step student", DEMO_STUDENT)}
 STANCE_CATEGORIES = ("stand", "walk")  # where the feet should rest on the floor most of the time
 JUMP_CATEGORIES = ("jump",)  # where they must leave it
 MIN_PROMPTS = 64
+
+
+def parse_frames(text: str, flag: str = "--frames") -> list[int]:
+    """Comma-separated motion lengths in frames -> [int], else one line naming the flag."""
+    try:
+        return [int(x) for x in text.split(",")]
+    except ValueError:
+        raise StableMoError(f"{flag}: expected comma-separated whole numbers, got {text!r}") from None
 
 
 def check_prompts(per_category: int) -> int:
@@ -127,6 +138,20 @@ def reference_features(items: list[Prompt], per_prompt: int, seed: int = 0) -> l
     return out
 
 
+def reference_statistics(evaluator, items: list[Prompt], per_prompt: int, seed: int = 0):
+    """The evaluator's embedding statistics of reference_features(items, per_prompt, seed): what FID
+    compares with."""
+    return metrics.embedding_statistics(embed_motions(evaluator, reference_features(items, per_prompt, seed), 64))
+
+
+def fid_r3(evaluator, features, text_emb, reference_stats) -> tuple[float, float]:
+    """FID against reference_stats and R@3 against the texts' embeddings text_emb (in the features'
+    order: seed-major, so each batch of 32 holds distinct prompts) of features, (B, T, D) or a list."""
+    emb = embed_motions(evaluator, [x.float().cpu() for x in features], 64)
+    return (metrics.frechet_distance(*metrics.embedding_statistics(emb), *reference_stats),
+            float(metrics.r_precision(text_emb, emb).r_precision[2]))
+
+
 def score(pipe, items: list[Prompt], seeds: int, frames: int, evaluator, reference_stats) -> dict:
     """One model at one length: {"raw": {...}, "final": {...}, "seconds": s} with per-motion measures,
     displacement groups (final), FID and R@3 (when an evaluator is given)."""
@@ -144,9 +169,7 @@ def score(pipe, items: list[Prompt], seeds: int, frames: int, evaluator, referen
     for name, f, j in (("raw", raw_features, raw_joints), ("final", features, joints)):
         row = {k: v.tolist() for k, v in kinematics.measure(j, lengths, pipe.skeleton).items()}
         if evaluator is not None:
-            emb = embed_motions(evaluator, [x.float().cpu() for x in f], 64)
-            row["r3"] = float(metrics.r_precision(text_emb, emb).r_precision[2])
-            row["fid"] = metrics.frechet_distance(*metrics.embedding_statistics(emb), *reference_stats)
+            row["fid"], row["r3"] = fid_r3(evaluator, f, text_emb, reference_stats)
         out[name] = row
     for part, ids in kinematics.end_effector_groups(pipe.skeleton).items():
         out["final"][f"moved_{part}"] = kinematics.displacement(raw_joints, joints, lengths, pipe.skeleton,
@@ -227,8 +250,7 @@ def run(models: list[tuple[str, object]], frames: list[int], per_category: int =
     items = prompts(per_category, seed)
     reference_stats = None
     if evaluator is not None:
-        reference = reference_features(items, seeds, seed)
-        reference_stats = metrics.embedding_statistics(embed_motions(evaluator, reference, 64))
+        reference_stats = reference_statistics(evaluator, items, seeds, seed)
     rows = []
     for name, pipe in models:
         for n in frames:
