@@ -318,6 +318,74 @@ def test_velocity_and_root_losses_are_what_they_say(student_bundle, monkeypatch)
     assert out["velocity"] > 0 and out["root"] > 0
 
 
+
+def test_skate_loss_is_the_planted_feet_speed_the_estimate_itself_marks(student_bundle):
+    """skate_weight adds kappa * the mean squared horizontal speed (m/s)^2 of the contact joints over
+    the frame pairs whose estimate's own contact channel (de-normalised, > 0.5, at the first frame)
+    says planted; recomputed here by hand from a given estimate, with padding excluded."""
+    from stablemo.motion.features import feature_slices
+    from stablemo.training.controlnet_module import ControlNetTraining
+
+    module = ControlNetTraining(str(student_bundle), control={"channels": 16, "layers": 2}, skate_weight=2.0)
+    skel = module.skeleton
+    gen = torch.Generator().manual_seed(3)
+    x0_hat = torch.randn(2, 12, D, generator=gen) * 0.5
+    mask = torch.ones(2, 12, dtype=torch.bool)
+    mask[1, 8:] = False
+    joints = module.joints(x0_hat)
+    got = module.skate(x0_hat, joints, mask)
+    raw = (x0_hat * module.std + module.mean)[..., feature_slices(skel)["contacts"]]
+    total, count = 0.0, 0
+    for b in range(2):
+        for i in range(11):
+            if not (mask[b, i] and mask[b, i + 1]):
+                continue
+            for k, j in enumerate(skel.contact_joints):
+                if raw[b, i, k] > 0.5:
+                    step = (joints[b, i + 1, j] - joints[b, i, j])[[0, 2]] * skel.fps
+                    total += float(step.square().sum())
+                    count += 1
+    assert count > 0 and 0 < count < 2 * 11 * 4  # the draw plants some, not all
+    close(got, torch.tensor(total / count), rtol=1e-5)
+    # a gradient reaches the joints, never the labels (they are the estimate's, detached)
+    x = x0_hat.clone().requires_grad_(True)
+    module.skate(x, module.joints(x), mask).backward()
+    assert x.grad[..., feature_slices(skel)["contacts"]].abs().max() == 0 and x.grad.abs().max() > 0
+    # a still body slides nothing
+    still = x0_hat[:, :1].expand(2, 12, D).clone()
+    still[..., :4] = ((torch.zeros(4) - module.mean[:4]) / module.std[:4])  # no root motion
+    assert module.skate(still, module.joints(still), mask) < 1e-10
+    for bad in (-1.0, float("nan"), True):
+        with pytest.raises(StableMoError, match="skate_weight"):
+            ControlNetTraining(str(student_bundle), skate_weight=bad)
+
+
+def test_init_starts_from_a_controlnet_of_the_same_base_and_names_every_misfit(student_bundle, teacher_bundle, tmp_path):
+    from stablemo.training.controlnet_module import ControlNetTraining
+
+    control = {"channels": 16, "layers": 2, "path": True, "output": True}
+    path, _ = controlled_bundle(student_bundle, tmp_path, "start")  # perturbed: its weights are not the zero start
+    from stablemo.inference.bundle import load_bundle
+
+    saved = {k[len("control."):]: v for k, v in load_bundle(path).state_dict.items() if k.startswith("control.")}
+    assert any(v.abs().max() > 0 for k, v in saved.items() if "skip" in k)
+    module = ControlNetTraining(str(student_bundle), control=control, init=str(path))
+    for k, v in module.model.control.state_dict().items():
+        assert torch.equal(v, saved[k]), k
+    for k, v in module.ema.shadow.items():  # the average starts there too
+        assert torch.equal(v, saved[k].float()), k
+    assert module.bundle_config()["training"]["init"] == str(path)
+    with pytest.raises(StableMoError, match="init: .* has control"):
+        ControlNetTraining(str(student_bundle), control={"channels": 16, "layers": 2}, init=str(path))
+    with pytest.raises(StableMoError, match="trained on another base"):
+        other, _ = controlled_bundle(teacher_bundle, tmp_path, "other")
+        ControlNetTraining(str(student_bundle), control=control, init=str(other))
+    with pytest.raises(StableMoError, match="not a ControlNet"):
+        ControlNetTraining(str(student_bundle), control=control, init=str(student_bundle))
+    with pytest.raises(StableMoError, match="bundle folder not found"):
+        ControlNetTraining(str(student_bundle), control=control, init=str(tmp_path / "nowhere"))
+
+
 def controlled_bundle(base_bundle, tmp_path, name, trained=True):
     from stablemo.training.controlnet_module import ControlNetTraining
 
@@ -460,6 +528,27 @@ def test_shipped_control_configs_parse(name, capsys):
     if name == "controlnet_lcm_pelvis_synth.yaml":  # trained on path walks, in the frozen student's units
         assert printed["data"]["data_dir"] == "data/synth_paths" and printed["data"]["stats_dir"] == "data/synth"
 
+
+
+def test_skate_overlay_fine_tunes_the_shipped_controlnet(capsys):
+    import yaml
+
+    from stablemo.cli.train import main_fit
+
+    base = str(REPO / "configs" / "control" / "controlnet_lcm_pelvis_synth.yaml")
+    with pytest.raises(SystemExit) as exit_:
+        main_fit(["--config", base, "--config", str(REPO / "configs" / "control" / "pelvis_skate.yaml"), "--print_config"])
+    assert exit_.value.code in (0, None)
+    printed = yaml.safe_load(capsys.readouterr().out)
+    with pytest.raises(SystemExit):
+        main_fit(["--config", base, "--print_config"])
+    plain = yaml.safe_load(capsys.readouterr().out)
+    args, plain_args = printed["model"]["init_args"], plain["model"]["init_args"]
+    assert args["init"] == "stablemo/assets/demo_controlnet" and args["skate_weight"] == 1.0
+    assert plain_args["init"] is None and plain_args["skate_weight"] == 0.0
+    changed = {k for k in args if args[k] != plain_args[k]}
+    assert changed == {"init", "skate_weight", "lr", "lr_step"}, changed
+    assert printed["data"] == plain["data"]
 
 @pytest.mark.slow
 def test_fit_resume_and_export_through_the_cli(student_bundle, tmp_path):

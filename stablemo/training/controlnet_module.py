@@ -12,13 +12,20 @@ One step, per batch of clean clips x0 (B, T, D) (MotionLCM, Dai et al. ECCV 2024
    (m/s) where two neighbouring frames are hints: a global position is the sum of every earlier
    step, so its error's gradient couples all frames, while a step's error is local; and
    (root_weight > 0, ours) + nu * the squared error of the 4 root feature channels (normalised) on
-   the frames whose pelvis is a hint, the local quantities a dense pelvis path all but determines.
+   the frames whose pelvis is a hint, the local quantities a dense pelvis path all but determines;
+   and (skate_weight > 0, ours) + kappa * the mean squared horizontal speed (m/s) of the foot joints
+   on the frames the estimate's own contact channels mark as planted (> 0.5, detached): a body
+   pulled along a path whose legs do not carry it slides its planted feet, which the finishing step
+   can hold only within its anchors' reach. The estimate's own labels rather than the clip's: from
+   t = 999 the estimate's gait need not be in the clip's phase, so the clip's labels would mark the
+   wrong frames (MDM's foot loss, stablemo.training.geometry, uses the clip's).
 Only the ControlNet trains; the base stays frozen and in eval mode. Its EMA is what export writes.
 Randomness comes from (seed, step, batch, rank), so a resumed run repeats the uninterrupted one.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
@@ -39,8 +46,10 @@ from stablemo.inference.bundle import load_bundle
 from stablemo.inference.config import InferenceConfig
 from stablemo.inference.kinds import model_kind
 from stablemo.motion import features_to_joints
+from stablemo.motion.features import feature_slices
 from stablemo.motion.skeleton import get_skeleton
 from stablemo.training.ema import EMA
+from stablemo.training.geometry import CONTACT_THRESHOLD, METRES_PER_UNIT
 from stablemo.training.module import CHECKPOINT_KEY, derive_seed, masked_mse
 
 # HumanML3D / KIT root features: rotation velocity (1), velocity in the body's frame (x, z), height
@@ -58,6 +67,9 @@ class ControlNetTraining(LightningModule):
         joint_weight: lambda of the joint-position loss (MotionLCM: 1).
         velocity_weight: mu of the hinted joints' velocity loss (0: MotionLCM's loss alone).
         root_weight: nu of the root-channel loss on pelvis-hinted frames (0: MotionLCM's loss alone).
+        skate_weight: kappa of the planted-foot speed loss (0: MotionLCM's loss alone).
+        init: a ControlNet bundle on this same base whose ControlNet weights start the run (a
+            fine-tune; None: MotionLCM's zero-initialised injections).
         train_timesteps: timesteps drawn from (None: uniform over the schedule).
         cond_drop_prob: captions replaced by "" (a diffusion base samples with CFG).
         ema_decay, ema_warmup: EMA of the ControlNet's weights (exported).
@@ -79,6 +91,8 @@ class ControlNetTraining(LightningModule):
         joint_weight: float = 1.0,
         velocity_weight: float = 0.0,
         root_weight: float = 0.0,
+        skate_weight: float = 0.0,
+        init: str | None = None,
         train_timesteps: Sequence[int] | None = None,
         cond_drop_prob: float = 0.0,
         ema_decay: float = 0.999,
@@ -103,6 +117,10 @@ class ControlNetTraining(LightningModule):
             raise StableMoError("hint_scale > 0 and dense_prob, empty_prob >= 0 with a sum <= 1 are required")
         if lr_step is not None and (lr_step < 1 or not 0 < lr_gamma <= 1):
             raise StableMoError(f"lr_step >= 1 and 0 < lr_gamma <= 1 are required, got {lr_step}, {lr_gamma}")
+        for name, value in (("joint_weight", joint_weight), ("velocity_weight", velocity_weight),
+                            ("root_weight", root_weight), ("skate_weight", skate_weight)):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+                raise StableMoError(f"{name}: must be a finite number >= 0, got {value!r}")
         self.base_config = config
         self.skeleton = get_skeleton(config.get("skeleton", "humanml3d"))
         bad = [j for j in hint_joints if not 0 <= int(j) < self.skeleton.num_joints]
@@ -117,11 +135,33 @@ class ControlNetTraining(LightningModule):
         base_model.load_state_dict(bundle.state_dict)
         self.model = ControlledModel(base_model.eval().requires_grad_(False), self.base_kind,
                                      self.skeleton.num_joints, control)
+        if init is not None:
+            self._start_from(init, control)
         self.ema = EMA(self.model.control, decay=ema_decay, warmup=ema_warmup)
         self.register_buffer("mean", torch.tensor(config["mean"], dtype=torch.float32), persistent=False)
         self.register_buffer("std", torch.tensor(config["std"], dtype=torch.float32), persistent=False)
         # a student's guidance w, as it samples (LCM convention, scale 1 + w)
         self.w = float(config["consistency"]["w"]) if self.base_kind == "consistency" else None
+
+    def _start_from(self, init: str, control: dict[str, Any] | None) -> None:
+        """Load the ControlNet weights of bundle `init` (checked: a ControlNet of this architecture
+        on this very base) into self.model.control."""
+        bundle = load_bundle(init)
+        section = bundle.config.get("controlnet")
+        if bundle.config.get("kind") != "controlnet" or not isinstance(section, dict):
+            raise StableMoError(f"init: {init} is a {bundle.config.get('kind', 'diffusion')!r} bundle, not a ControlNet")
+        if dict(section.get("control") or {}) != dict(control or {}):
+            raise StableMoError(f"init: {init} has control {section.get('control')}, this run {dict(control or {})}; "
+                                "give the run the same control settings")
+        base = {f"base.{k}": v for k, v in self.model.base.state_dict().items()}
+        if set(k for k in bundle.state_dict if k.startswith("base.")) != set(base) or any(
+                not torch.equal(bundle.state_dict[k], v.to(bundle.state_dict[k].dtype)) for k, v in base.items()):
+            raise StableMoError(f"init: {init}'s ControlNet was trained on another base than {self.hparams.base}")
+        weights = {k[len("control."):]: v for k, v in bundle.state_dict.items() if k.startswith("control.")}
+        missing, unexpected = self.model.control.load_state_dict(weights, strict=False)
+        if missing or unexpected:
+            raise StableMoError(f"init: {init}'s ControlNet weights do not fit this run's "
+                                f"(missing {len(missing)}, unexpected {len(unexpected)})")
 
     def train(self, mode: bool = True):
         super().train(mode)
@@ -221,7 +261,22 @@ class ControlNetTraining(LightningModule):
             root_sq = (x0_hat[..., :ROOT_CHANNELS] - x0[..., :ROOT_CHANNELS]).square().mean(-1)
             terms["root"] = (root_sq * pelvis).sum() / pelvis.sum().clamp(min=1.0)
             loss = loss + hp.root_weight * terms["root"]
+        if hp.skate_weight:
+            terms["skate"] = self.skate(x0_hat, joints_hat, mask)
+            loss = loss + hp.skate_weight * terms["skate"]
         return {"loss": loss, **terms}
+
+    def skate(self, x0_hat: torch.Tensor, joints_hat: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """Mean squared horizontal speed ((m/s)^2) of the contact joints over the displacements
+        i -> i+1 of valid frames whose estimate marks the joint planted at frame i (the extraction's
+        convention). x0_hat (B, T, D) normalised, joints_hat (B, T, J, 3), mask (B, T)."""
+        skel = self.skeleton
+        contacts = (x0_hat.detach() * self.std + self.mean)[:, :-1, feature_slices(skel)["contacts"]]  # (B, T-1, 4)
+        planted = (contacts > CONTACT_THRESHOLD) & (mask[:, 1:] & mask[:, :-1]).bool()[..., None]
+        feet = joints_hat[:, :, list(skel.contact_joints)][..., [0, 2]]  # (B, T, 4, 2)
+        speed_sq = (torch.diff(feet, dim=1) * (skel.fps * METRES_PER_UNIT[skel.units])).square().sum(-1)  # (B, T-1, 4)
+        w = planted.to(speed_sq.dtype)
+        return (speed_sq * w).sum() / w.sum().clamp(min=1.0)
 
     # ------------------------------------------------------------------ loop
 
@@ -239,7 +294,7 @@ class ControlNetTraining(LightningModule):
         self.log("train/recon", out["recon"], batch_size=B)
         self.log("train/joint", out["joint"], batch_size=B)
         self.log("train/joint_err_m", out["joint_err"], prog_bar=True, batch_size=B)
-        for name in ("velocity", "root"):
+        for name in ("velocity", "root", "skate"):
             if name in out:
                 self.log(f"train/{name}", out[name], batch_size=B)
         return out["loss"]
@@ -277,6 +332,7 @@ class ControlNetTraining(LightningModule):
         config["training"] = {"base": str(hp.base), "global_step": int(self.global_step), "ema_decay": hp.ema_decay,
                               "ema_updates": self.ema.num_updates, "joint_weight": hp.joint_weight,
                               "velocity_weight": hp.velocity_weight, "root_weight": hp.root_weight,
+                              "skate_weight": hp.skate_weight, "init": None if hp.init is None else str(hp.init),
                               "train_timesteps": None if hp.train_timesteps is None else list(hp.train_timesteps)}
         return config
 
