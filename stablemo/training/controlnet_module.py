@@ -18,7 +18,9 @@ One step, per batch of clean clips x0 (B, T, D) (MotionLCM, Dai et al. ECCV 2024
    pulled along a path whose legs do not carry it slides its planted feet, which the finishing step
    can hold only within its anchors' reach. The estimate's own labels rather than the clip's: from
    t = 999 the estimate's gait need not be in the clip's phase, so the clip's labels would mark the
-   wrong frames (MDM's foot loss, stablemo.training.geometry, uses the clip's).
+   wrong frames (MDM's foot loss, stablemo.training.geometry, uses the clip's). Tried on the shipped
+   pelvis ControlNet and not adopted: the demo student marks nearly every frame planted, so the term
+   weighs every foot's motion and its stance feet slid more (docs/control.md).
 Only the ControlNet trains; the base stays frozen and in eval mode. Its EMA is what export writes.
 Randomness comes from (seed, step, batch, rank), so a resumed run repeats the uninterrupted one.
 """
