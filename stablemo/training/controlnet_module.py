@@ -13,14 +13,14 @@ One step, per batch of clean clips x0 (B, T, D) (MotionLCM, Dai et al. ECCV 2024
    step, so its error's gradient couples all frames, while a step's error is local; and
    (root_weight > 0, ours) + nu * the squared error of the 4 root feature channels (normalised) on
    the frames whose pelvis is a hint, the local quantities a dense pelvis path all but determines;
-   and (skate_weight > 0, ours) + kappa * the mean squared horizontal speed (m/s) of the foot joints
-   on the frames the estimate's own contact channels mark as planted (> 0.5, detached): a body
-   pulled along a path whose legs do not carry it slides its planted feet, which the finishing step
-   can hold only within its anchors' reach. The estimate's own labels rather than the clip's: from
-   t = 999 the estimate's gait need not be in the clip's phase, so the clip's labels would mark the
-   wrong frames (MDM's foot loss, stablemo.training.geometry, uses the clip's). Tried on the shipped
-   pelvis ControlNet and not adopted: the demo student marks nearly every frame planted, so the term
-   weighs every foot's motion and its stance feet slid more (docs/control.md).
+   and (skate_weight > 0, ours) + kappa * the squared horizontal speed (m/s) of the foot joint that
+   carries the body: per frame pair, the four foot joints weighted by a softmin of their heights
+   (SKATE_SOFTMIN_M) and by how near the floor the lowest one is (SKATE_FLOOR_M), both detached so
+   that lifting a foot never pays. A body pulled along a path whose legs do not carry it slides the
+   foot it stands on, which the finishing step can hold only within its anchors' reach. The
+   estimate's own feet rather than the clip's contact labels: from t = 999 the estimate's gait need
+   not be in the clip's phase; nor the estimate's contact channels, which the demo student's
+   ControlNet output holds flat along paths (tried first: docs/control.md).
 Only the ControlNet trains; the base stays frozen and in eval mode. Its EMA is what export writes.
 Randomness comes from (seed, step, batch, rank), so a resumed run repeats the uninterrupted one.
 """
@@ -48,14 +48,17 @@ from stablemo.inference.bundle import load_bundle
 from stablemo.inference.config import InferenceConfig
 from stablemo.inference.kinds import model_kind
 from stablemo.motion import features_to_joints
-from stablemo.motion.features import feature_slices
 from stablemo.motion.skeleton import get_skeleton
 from stablemo.training.ema import EMA
-from stablemo.training.geometry import CONTACT_THRESHOLD, METRES_PER_UNIT
+from stablemo.training.geometry import METRES_PER_UNIT
 from stablemo.training.module import CHECKPOINT_KEY, derive_seed, masked_mse
 
 # HumanML3D / KIT root features: rotation velocity (1), velocity in the body's frame (x, z), height
 ROOT_CHANNELS = 4
+# the skate term's weights (metres): the foot joint within ~1 cm of the lowest carries the body, and
+# a lowest foot joint more than ~5 cm above the floor (the stance measure's margin) carries nothing
+SKATE_SOFTMIN_M = 0.01
+SKATE_FLOOR_M = 0.05
 
 
 class ControlNetTraining(LightningModule):
@@ -69,7 +72,7 @@ class ControlNetTraining(LightningModule):
         joint_weight: lambda of the joint-position loss (MotionLCM: 1).
         velocity_weight: mu of the hinted joints' velocity loss (0: MotionLCM's loss alone).
         root_weight: nu of the root-channel loss on pelvis-hinted frames (0: MotionLCM's loss alone).
-        skate_weight: kappa of the planted-foot speed loss (0: MotionLCM's loss alone).
+        skate_weight: kappa of the standing foot's speed loss (0: MotionLCM's loss alone).
         init: a ControlNet bundle on this same base whose ControlNet weights start the run (a
             fine-tune; None: MotionLCM's zero-initialised injections).
         train_timesteps: timesteps drawn from (None: uniform over the schedule).
@@ -264,21 +267,25 @@ class ControlNetTraining(LightningModule):
             terms["root"] = (root_sq * pelvis).sum() / pelvis.sum().clamp(min=1.0)
             loss = loss + hp.root_weight * terms["root"]
         if hp.skate_weight:
-            terms["skate"] = self.skate(x0_hat, joints_hat, mask)
+            terms["skate"] = self.skate(joints_hat, mask)
             loss = loss + hp.skate_weight * terms["skate"]
         return {"loss": loss, **terms}
 
-    def skate(self, x0_hat: torch.Tensor, joints_hat: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        """Mean squared horizontal speed ((m/s)^2) of the contact joints over the displacements
-        i -> i+1 of valid frames whose estimate marks the joint planted at frame i (the extraction's
-        convention). x0_hat (B, T, D) normalised, joints_hat (B, T, J, 3), mask (B, T)."""
+    def skate(self, joints_hat: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """Mean over valid frame pairs i -> i+1 near the floor of the squared horizontal speed
+        ((m/s)^2) of the foot joint the body stands on (see the module docstring). joints_hat
+        (B, T, J, 3) in dataset units, floor at y = 0; mask (B, T)."""
         skel = self.skeleton
-        contacts = (x0_hat.detach() * self.std + self.mean)[:, :-1, feature_slices(skel)["contacts"]]  # (B, T-1, 4)
-        planted = (contacts > CONTACT_THRESHOLD) & (mask[:, 1:] & mask[:, :-1]).bool()[..., None]
-        feet = joints_hat[:, :, list(skel.contact_joints)][..., [0, 2]]  # (B, T, 4, 2)
-        speed_sq = (torch.diff(feet, dim=1) * (skel.fps * METRES_PER_UNIT[skel.units])).square().sum(-1)  # (B, T-1, 4)
-        w = planted.to(speed_sq.dtype)
-        return (speed_sq * w).sum() / w.sum().clamp(min=1.0)
+        metres = METRES_PER_UNIT[skel.units]
+        feet = joints_hat[:, :, list(skel.contact_joints)] * metres  # (B, T, 4, 3)
+        with torch.no_grad():
+            height = 0.5 * (feet[:, 1:, :, 1] + feet[:, :-1, :, 1])  # (B, T-1, 4) over the pair
+            lowest = height.amin(-1, keepdim=True)
+            share = torch.softmax(-(height - lowest) / SKATE_SOFTMIN_M, dim=-1)
+            on_floor = torch.sigmoid((SKATE_FLOOR_M - lowest) / (0.2 * SKATE_FLOOR_M))  # (B, T-1, 1)
+            w = share * on_floor * (mask[:, 1:] & mask[:, :-1]).to(feet.dtype)[..., None]
+        speed_sq = (torch.diff(feet[..., [0, 2]], dim=1) * skel.fps).square().sum(-1)  # (B, T-1, 4)
+        return (speed_sq * w).sum() / w.sum().clamp(min=1e-6)
 
     # ------------------------------------------------------------------ loop
 
