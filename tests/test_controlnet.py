@@ -345,7 +345,9 @@ def test_skate_loss_is_the_speed_of_the_foot_the_body_stands_on(student_bundle):
     airborne[..., 1] += 0.5
     assert module.skate(airborne, mask) < 1e-3 * 0.16  # nothing carries the body: nothing to hold
     padded = joints.clone()
-    padded[1, 6:, feet[0], 0] = 100.0  # garbage past the length
+    padded[1, 6:, feet[0], 0] = 100.0  # garbage past the length, non-finite too
+    padded[1, 8:, feet[1], 1] = float("nan")
+    padded[1, 9:, feet[2], 0] = float("inf")
     short = mask.clone()
     short[1, 6:] = False
     close(module.skate(padded, short), module.skate(joints, short), rtol=1e-6)

@@ -283,9 +283,11 @@ class ControlNetTraining(LightningModule):
             lowest = height.amin(-1, keepdim=True)
             share = torch.softmax(-(height - lowest) / SKATE_SOFTMIN_M, dim=-1)
             on_floor = torch.sigmoid((SKATE_FLOOR_M - lowest) / (0.2 * SKATE_FLOOR_M))  # (B, T-1, 1)
-            w = share * on_floor * (mask[:, 1:] & mask[:, :-1]).to(feet.dtype)[..., None]
+            pairs = (mask[:, 1:] & mask[:, :-1]).bool()[..., None]  # (B, T-1, 1)
+            # selected rather than multiplied by zero: a padded frame's garbage may be non-finite
+            w = torch.where(pairs, share * on_floor, torch.zeros_like(share))
         speed_sq = (torch.diff(feet[..., [0, 2]], dim=1) * skel.fps).square().sum(-1)  # (B, T-1, 4)
-        return (speed_sq * w).sum() / w.sum().clamp(min=1e-6)
+        return torch.where(w > 0, speed_sq * w, torch.zeros_like(w)).sum() / w.sum().clamp(min=1e-6)
 
     # ------------------------------------------------------------------ loop
 
