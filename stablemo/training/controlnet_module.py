@@ -20,7 +20,8 @@ One step, per batch of clean clips x0 (B, T, D) (MotionLCM, Dai et al. ECCV 2024
    foot it stands on, which the finishing step can hold only within its anchors' reach. The
    estimate's own feet rather than the clip's contact labels: from t = 999 the estimate's gait need
    not be in the clip's phase; nor the estimate's contact channels, which the demo student's
-   ControlNet output holds flat along paths (tried first: docs/control.md).
+   ControlNet output holds flat along paths (tried first). Fine-tuning the shipped ControlNet with
+   either made its stance feet slide more (docs/control.md): not in the shipped recipe.
 Only the ControlNet trains; the base stays frozen and in eval mode. Its EMA is what export writes.
 Randomness comes from (seed, step, batch, rank), so a resumed run repeats the uninterrupted one.
 """
