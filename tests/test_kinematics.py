@@ -87,6 +87,28 @@ def test_planted_defects_are_seen():
     assert K.airborne_share(glued[None], [len(jump)], "humanml3d")[0] == 0
 
 
+
+def test_standing_foot_speed_sees_a_drag_that_the_stance_measure_drops():
+    """Ground truth stands on still feet; a body dragged at 0.5 m/s slides its standing foot at 0.5;
+    dragged at 1.5 m/s (past footskate's 0.93 m/s contact bound) the stance measure stops counting
+    those feet, the standing foot's speed does not; a jump's flight is not a slide."""
+    for action in ("walk", "stand", "run", "squat", "turn", "walk_sideways", "jump"):
+        clip = synth_clip(action)
+        assert K.standing_foot_speed(clip[None], [len(clip)], "humanml3d")[0] < 3.0, action  # cm/s
+    walk = synth_clip("walk")
+    n = [len(walk)]
+    t = np.arange(len(walk))[:, None, None] / 20.0
+    slow = walk + t * np.array([0.0, 0, 0.5])
+    fast = walk + t * np.array([0.0, 0, 1.5])
+    assert K.standing_foot_speed(slow[None], n, "humanml3d")[0] == pytest.approx(50.0, abs=6.0)
+    assert K.standing_foot_speed(fast[None], n, "humanml3d")[0] == pytest.approx(150.0, abs=10.0)
+    assert K.stance_speed(slow[None], n, "humanml3d")[0] == pytest.approx(50.0, abs=6.0)
+    assert np.isnan(K.stance_speed(fast[None], n, "humanml3d")[0])  # no foot under 0.93 m/s: no contact
+    # a batch scores each motion as if alone, padding ignored
+    joints, lengths = pad([walk, slow[:60]])
+    both = K.standing_foot_speed(joints, lengths, "humanml3d")
+    assert both[1] == pytest.approx(K.standing_foot_speed(slow[None, :60], [60], "humanml3d")[0], rel=1e-9)
+
 def test_floating_between_jumps_is_floating_not_flight():
     """A jump lifted 6 cm except for two frames on the floor (what putting a motion's lowest dip on the
     floor does) floats in stance: stance height 6 cm, its flights as before; a 2-frame dip of 6 cm

@@ -183,6 +183,29 @@ def stance_speed(joints, lengths, skeleton, contacts: torch.Tensor | None = None
     return (total / count * _cm(skel)).numpy()  # 0/0 = NaN: no pair in contact
 
 
+def standing_foot_speed(joints, lengths, skeleton) -> np.ndarray:
+    """(B,) cm/s: median, over valid frame pairs i -> i+1 where the body is not airborne (its lowest
+    foot joint within AIRBORNE_M of its local ground at frame i), of the horizontal speed of the foot
+    joint that is lowest at frame i (NaN for a motion without such a pair).
+
+    No contact detection, so no speed bound: stance_speed counts a foot only while it is slower than
+    footskate's 0.93 m/s, and a foot dragged faster than that drops out of it instead of counting as
+    a slide. Tried on 2026-12-06 (docs/control.md), a change to the finishing step's anchors
+    lowered stance_speed along drawn paths to 0.7-1.1x the free walk's while this median rose from
+    0.53-0.58 to 0.78-0.81 m/s, the walk's own speed."""
+    j, n, skel = prepare(joints, lengths, skeleton)
+    feet = j[:, :, _foot_joints(skel)]  # (B, T, F, 3)
+    heights = feet[..., 1]
+    low = heights.argmin(-1)  # (B, T): the foot joint nearest the floor
+    lowest = heights.amin(-1)
+    ground = local_ground(lowest, n, skel.fps)
+    step = (feet[:, 1:, :, [0, 2]] - feet[:, :-1, :, [0, 2]]).norm(dim=-1) * skel.fps  # (B, T-1, F)
+    speed = torch.gather(step, 2, low[:, :-1, None])[..., 0]  # (B, T-1)
+    keep = (valid_mask(n - 1, j.shape[1] - 1)
+            & (torch.nan_to_num(lowest - ground, nan=float("inf"))[:, :-1] <= AIRBORNE_M * scale(skel)))
+    return (_masked_quantile(speed, keep, 0.5) * _cm(skel)).numpy()
+
+
 def foot_acceleration(joints, lengths, skeleton) -> np.ndarray:
     """(B,) m/s²: stablemo.skating.metrics.foot_acceleration of the foot joints, in m/s² on any skeleton."""
     j, n, skel = prepare(joints, lengths, skeleton)
