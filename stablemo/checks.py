@@ -65,6 +65,14 @@ def check_finite(name: str, value, low: float | None = None, high: float | None 
     return value
 
 
+def check_weight(name: str, value) -> float:
+    """A loss weight or noise scale from a config: an int or float (not a bool, not a string), finite
+    and >= 0, else one clear error. Stricter than check_finite, which reads any float()-able value."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        raise StableMoError(f"{name}: must be a finite number >= 0, got {value!r}")
+    return float(value)
+
+
 def check_positive_int(name: str, value) -> int:
     if isinstance(value, bool) or not (isinstance(value, numbers.Integral)
                                        or (isinstance(value, float) and value.is_integer())):

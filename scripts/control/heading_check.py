@@ -44,8 +44,9 @@ def run(pipe, text, family, args, seeds, face_travel):
     fps = pipe.fps
     T = args.frames
     free = pipe.generate(Request([text] * len(seeds), T, seed=seeds))
-    free_stance = stance_speed(free.joints, torch.tensor([T] * len(seeds)), pipe.skeleton)
-    free_standing = standing_foot_speed(free.joints, torch.tensor([T] * len(seeds)), pipe.skeleton)
+    lengths = torch.tensor([T] * len(seeds))
+    free_stance = stance_speed(free.joints, lengths, pipe.skeleton)
+    free_standing = standing_foot_speed(free.joints, lengths, pipe.skeleton)
     speed = args.speed or float(np.median([_speed(j, T, fps) for j in free.joints]))
     per_metre = get_skeleton(pipe.skeleton).per_metre
     rng = np.random.default_rng(args.rng)
@@ -58,7 +59,6 @@ def run(pipe, text, family, args, seeds, face_travel):
         controls = [path_control(paths[i], free.joints[i, :, 0, 1].numpy(), free.joints.shape[2]) for i in range(len(seeds))]
         out = pipe.generate(Request([text] * len(seeds), T, seed=seeds, control=controls,
                                     control_guidance=args.guidance, face_travel=face_travel))
-        lengths = torch.tensor([T] * len(seeds))
         m = heading_measures(out.joints, lengths, pipe.skeleton)
         err = (out.joints[:, :, 0][..., [0, 2]] - torch.tensor(np.stack(paths), dtype=out.joints.dtype)).norm(dim=-1)  # (B, T)
         stance = stance_speed(out.joints, lengths, pipe.skeleton)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from stablemo.checks import check_weight
 from stablemo.errors import StableMoError
 from stablemo.text.encoders import MINILM, FrozenTextEncoder, get_encoder
 
@@ -43,10 +44,7 @@ class TextConditioner(nn.Module):
         learn a neighbourhood of each caption's features, not the caption's exact ones (an experiment
         for sentences unlike the training captions: docs/training.md, "Noise on the text features")."""
         super().__init__()
-        if isinstance(feature_noise, bool) or not (isinstance(feature_noise, (int, float))
-                                                   and 0.0 <= float(feature_noise) < float("inf")):
-            raise StableMoError(f"text feature_noise: expected a finite number >= 0, got {feature_noise!r}")
-        self.feature_noise = float(feature_noise)
+        self.feature_noise = check_weight("text feature_noise", feature_noise)
         frozen = frozen_encoder(encoder, variant, cache_size)
         self.encoder_name, self.latent_dim, self.variant = encoder, latent_dim, variant
         # stored in __dict__ (not a submodule): no state_dict entry, no parameters, no .to() moves

@@ -28,7 +28,6 @@ Randomness comes from (seed, step, batch, rank), so a resumed run repeats the un
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
@@ -36,6 +35,7 @@ from typing import Any
 import torch
 from lightning.pytorch import LightningModule
 
+from stablemo.checks import check_weight
 from stablemo.control.controlnet import ControlledModel
 from stablemo.control.hints import (
     PATH_SCALE,
@@ -125,8 +125,7 @@ class ControlNetTraining(LightningModule):
             raise StableMoError(f"lr_step >= 1 and 0 < lr_gamma <= 1 are required, got {lr_step}, {lr_gamma}")
         for name, value in (("joint_weight", joint_weight), ("velocity_weight", velocity_weight),
                             ("root_weight", root_weight), ("skate_weight", skate_weight)):
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-                raise StableMoError(f"{name}: must be a finite number >= 0, got {value!r}")
+            check_weight(name, value)
         self.base_config = config
         self.skeleton = get_skeleton(config.get("skeleton", "humanml3d"))
         bad = [j for j in hint_joints if not 0 <= int(j) < self.skeleton.num_joints]
