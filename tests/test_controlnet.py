@@ -381,7 +381,7 @@ def test_init_starts_from_a_controlnet_of_the_same_base_and_names_every_misfit(s
         ControlNetTraining(str(student_bundle), control=control, init=str(other))
     with pytest.raises(StableMoError, match="not a ControlNet"):
         ControlNetTraining(str(student_bundle), control=control, init=str(student_bundle))
-    with pytest.raises(StableMoError, match="bundle folder not found"):
+    with pytest.raises(StableMoError, match="init: .*nowhere: bundle folder not found"):
         ControlNetTraining(str(student_bundle), control=control, init=str(tmp_path / "nowhere"))
 
 

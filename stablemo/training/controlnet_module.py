@@ -151,7 +151,10 @@ class ControlNetTraining(LightningModule):
     def _start_from(self, init: str, control: dict[str, Any] | None) -> None:
         """Load the ControlNet weights of bundle `init` (checked: a ControlNet of this architecture
         on this very base) into self.model.control."""
-        bundle = load_bundle(init)
+        try:
+            bundle = load_bundle(init)
+        except StableMoError as err:  # name the option: the same message would fit `base`
+            raise StableMoError(f"init: {err}") from None
         section = bundle.config.get("controlnet")
         if bundle.config.get("kind") != "controlnet" or not isinstance(section, dict):
             raise StableMoError(f"init: {init} is a {bundle.config.get('kind', 'diffusion')!r} bundle, not a ControlNet")
