@@ -157,6 +157,60 @@ def test_output_scale_starts_at_zero_and_can_replace_the_base_output(name):
     assert torch.equal(out[1], ref[1])
 
 
+@pytest.mark.parametrize("variant", ["official", "mid_attention"])
+def test_root_only_controlnet_moves_the_root_channels_and_keeps_the_body_bit_exact(variant):
+    """control.root_only: a copy of the first stage only, whose injections reach the root's four
+    channels and no other: the body channels are the base's bit for bit, controlled or not; it
+    starts as its base, is padding invariant, learns through both output injections and the hint
+    encoder, turns the body by its heading offsets' changes, and names a setting it cannot take."""
+    from stablemo.control.controlnet import ROOT_CHANNELS
+
+    base = tiny_base(variant)
+    form = {"channels": 16, "layers": 2, "output": True, "output_scale": True, "root_only": True, "heading_scale": 50.0}
+    model = ControlledModel(base, "diffusion", J, form).eval()
+    assert model.control.mid_conv is None and len(model.control.skip_convs) == 0
+    assert model.control.out_conv.out_channels == ROOT_CHANNELS + 1 and model.control.out_scale_conv.out_channels == ROOT_CHANNELS
+    x, t, text, text_mask, mask, hint = check_zero_start_and_padding_invariance(base, model)
+    with torch.no_grad():
+        ref = base(x, t, text, text_mask, mask)
+        out = model(x, t, text, text_mask, mask, hint)
+    assert torch.equal(out[..., ROOT_CHANNELS:], ref[..., ROOT_CHANNELS:])
+    assert (out[..., :ROOT_CHANNELS] - ref[..., :ROOT_CHANNELS]).abs().max() > 1e-2
+    base.requires_grad_(False)
+    model(x, t, text, text_mask, mask, hint).square().sum().backward()
+    for layer in (model.control.out_conv, model.control.out_scale_conv, model.control.hint_out,
+                  model.control.hint_encoder.out):
+        assert float(layer.weight.grad.abs().sum()) > 0
+    # the rotation is a facing vector ((0, 1) + the first two outputs): its turn to the next frame
+    # (rad), times heading_scale, is the rotation velocity's (a constant facing turns nothing)
+    class Ramp(torch.nn.Module):  # a facing turning 0.01 rad per frame, shift 0 on the other root channels
+        def forward(self, h):
+            out = torch.zeros(h.shape[0], ROOT_CHANNELS + 1, h.shape[2])
+            yaw = 0.01 * torch.arange(h.shape[2])
+            out[:, 0], out[:, 1] = 2 * torch.sin(-yaw), 2 * torch.cos(yaw) - 1  # any length: only its direction counts
+            return out
+
+    model.control.out_conv = Ramp()
+    for layer in (model.control.out_scale_conv, model.control.hint_out):
+        torch.nn.init.zeros_(layer.weight)
+        torch.nn.init.zeros_(layer.bias)
+    with torch.no_grad():
+        out = model(x, t, text, text_mask, mask, hint)
+    turn = out[..., 0] - ref[..., 0]  # (B, T)
+    close(turn[0, :31], torch.full((31,), 0.5))
+    close(turn[1, :23], torch.full((23,), 0.5))
+    assert turn[0, 31] == 0 and turn[1, 23] == 0 and torch.all(out[1, 24:] == 0)  # the last valid frame, padding
+    assert torch.equal(out[..., 1:], ref[..., 1:])
+    with pytest.raises(StableMoError, match="root_only sets the root's channels through the output injections"):
+        ControlledModel(base, "diffusion", J, {"output": True, "root_only": True, "heading_scale": 1.0})
+    with pytest.raises(StableMoError, match="root_only needs heading_scale > 0"):
+        ControlledModel(base, "diffusion", J, {"output": True, "output_scale": True, "root_only": True})
+    with pytest.raises(StableMoError, match="root_only needs heading_scale > 0"):
+        ControlledModel(base, "diffusion", J, {"heading_scale": 2.0})
+    with pytest.raises(StableMoError, match=r"unknown key\(s\) \['root_only'\]"):
+        ControlledModel(tiny_transformer("dit", True), "diffusion", J, {"root_only": True})
+
+
 def test_a_sample_without_targets_is_its_base_exactly_beside_controlled_ones():
     base = tiny_base()
     model = ControlledModel(base, "diffusion", J, {"channels": 16, "layers": 2}).eval()
@@ -317,6 +371,60 @@ def test_velocity_and_root_losses_are_what_they_say(student_bundle, monkeypatch)
     close(out["loss"], out["recon"] + 3.0 * out["joint"] + 2.0 * out["velocity"] + 0.5 * out["root"], rtol=1e-6)
     assert out["velocity"] > 0 and out["root"] > 0
 
+
+
+def test_base_target_keeps_the_base_motion_and_walks_the_clip_path_at_its_pace(student_bundle):
+    """recon_target "base": the goal is the frozen base's own estimate from the same x_t (all
+    channels but the root's rotation velocity), the hint the clip's pelvis path walked as that
+    estimate walks (paths_on); a ControlNet that has learnt nothing is its base, so it reconstructs
+    it exactly and misses only the re-timed path."""
+    from stablemo.control.pace import path_on_reference
+    from stablemo.training.controlnet_module import ControlNetTraining
+
+    kw = dict(control={"channels": 16, "layers": 2, "path": True}, train_timesteps=[999], dense_prob=1.0,
+              hint_joints=[0], recon_target="base")
+    module = ControlNetTraining(str(student_bundle), **kw).eval()
+    gen = torch.Generator().manual_seed(0)
+    batch = {"motion": torch.randn(2, 24, D, generator=gen) * 0.3, "mask": torch.ones(2, 24, dtype=torch.bool),
+             "text": ["a person walks", "a person runs"]}
+    batch["mask"][1, 18:] = False
+    seen = {}
+    real = module._x0_estimate
+    module._x0_estimate = lambda *a: seen.setdefault("x0", []).append(real(*a)) or seen["x0"][-1]
+    out = module.losses(batch, torch.Generator().manual_seed(1))
+    base, x0_hat = seen["x0"]  # the base's estimate, then the controlled one
+    assert torch.equal(base, x0_hat) and out["recon"] == 0
+    joints = module.joints(base)
+    for b, n in enumerate((24, 18)):  # the clip's path on the base's pace, its heights the base's
+        walked = path_on_reference(module.joints(batch["motion"])[b, :n, 0][:, [0, 2]].double().numpy(),
+                                   joints[b, :n, 0][:, [0, 2]].double().numpy(), smooth_frames=20)
+        miss = (joints[b, :n, 0][:, [0, 2]].double() - torch.as_tensor(walked)).square().sum(-1)
+        seen.setdefault("miss", []).append(miss)
+    close(out["joint"], torch.cat(seen["miss"]).mean().float(), rtol=1e-4)
+    # a ControlNet that changes the motion: the recon is its distance to the base, less channel 0
+    perturb(module.model.control, std=0.05)
+    seen.clear()
+    out = module.losses(batch, torch.Generator().manual_seed(1))
+    base, x0_hat = seen["x0"]
+    sq = (x0_hat - base)[..., 1:].detach().square().mean(-1)  # (B, T)
+    close(out["recon"], (sq * batch["mask"]).sum() / batch["mask"].sum(), rtol=1e-5)
+    # a root-only ControlNet is held on the root channels it sets (its others are the base's exactly)
+    root = ControlNetTraining(str(student_bundle), **{**kw, "control": {**kw["control"], "output": True,
+                                                                          "output_scale": True, "root_only": True}})
+    assert root.hparams.control["heading_scale"] == pytest.approx(1.0 / root.std[0].item())  # from the base's statistics
+    perturb(root.model.control, std=0.05)
+    root._x0_estimate = module._x0_estimate
+    seen.clear()
+    out = root.eval().losses(batch, torch.Generator().manual_seed(1))
+    base, x0_hat = seen["x0"]
+    assert torch.equal(x0_hat[..., 4:], base[..., 4:])
+    sq = (x0_hat - base)[..., 1:4].detach().square().mean(-1)
+    assert out["recon"] > 0
+    close(out["recon"], (sq * batch["mask"]).sum() / batch["mask"].sum(), rtol=1e-5)
+    with pytest.raises(StableMoError, match="recon_target: 'base' re-times the pelvis path only"):
+        ControlNetTraining(str(student_bundle), **{**kw, "hint_joints": [0, 20]})
+    with pytest.raises(StableMoError, match="recon_target: expected one of"):
+        ControlNetTraining(str(student_bundle), **{**kw, "recon_target": "teacher"})
 
 
 def test_skate_loss_is_the_speed_of_the_foot_the_body_stands_on(student_bundle):
@@ -510,7 +618,8 @@ def test_bad_bundles_and_bases_are_named(teacher_bundle, student_bundle, tmp_pat
 
 
 @pytest.mark.parametrize("name", ["controlnet_lcm_synth.yaml", "controlnet_teacher_synth.yaml",
-                                  "controlnet_lcm_pelvis_synth.yaml", "controlnet_teacher_pelvis_synth.yaml"])
+                                  "controlnet_lcm_pelvis_synth.yaml", "controlnet_teacher_pelvis_synth.yaml",
+                                  "controlnet_lcm_pelvis_root.yaml"])
 def test_shipped_control_configs_parse(name, capsys):
     import yaml
 
@@ -522,10 +631,14 @@ def test_shipped_control_configs_parse(name, capsys):
     printed = yaml.safe_load(capsys.readouterr().out)
     assert printed["model"]["class_path"] == "stablemo.training.controlnet_module.ControlNetTraining"
     # MotionLCM's lambda = 1, except the shipped student's pelvis recipe (docs/control.md)
-    assert printed["model"]["init_args"]["joint_weight"] == (10.0 if name == "controlnet_lcm_pelvis_synth.yaml" else 1.0)
+    student_pelvis = name in ("controlnet_lcm_pelvis_synth.yaml", "controlnet_lcm_pelvis_root.yaml")
+    assert printed["model"]["init_args"]["joint_weight"] == (10.0 if student_pelvis else 1.0)
     assert printed["model"]["init_args"]["hint_joints"] == ([0] if "pelvis" in name else list(TRAIN_JOINTS))
-    if name == "controlnet_lcm_pelvis_synth.yaml":  # trained on path walks, in the frozen student's units
+    if student_pelvis:  # trained on path walks, in the frozen student's units
         assert printed["data"]["data_dir"] == "data/synth_paths" and printed["data"]["stats_dir"] == "data/synth"
+    root = name == "controlnet_lcm_pelvis_root.yaml"  # the root-only form, against the student's own motion
+    assert printed["model"]["init_args"]["recon_target"] == ("base" if root else "clip")
+    assert bool(printed["model"]["init_args"]["control"].get("root_only")) == root
 
 
 
@@ -548,6 +661,23 @@ def test_skate_overlay_fine_tunes_the_shipped_controlnet(capsys):
     changed = {k for k in args if args[k] != plain_args[k]}
     assert changed == {"init", "skate_weight", "lr", "lr_step"}, changed
     assert printed["data"] == plain["data"]
+
+def test_base_target_overlay_fine_tunes_the_shipped_controlnet(capsys):
+    import yaml
+
+    from stablemo.cli.train import main_fit
+
+    base = str(REPO / "configs" / "control" / "controlnet_lcm_pelvis_synth.yaml")
+    printed = {}
+    for key, extra in (("overlay", ["--config", str(REPO / "configs" / "control" / "pelvis_base_target.yaml")]), ("plain", [])):
+        with pytest.raises(SystemExit):
+            main_fit(["--config", base, *extra, "--print_config"])
+        printed[key] = yaml.safe_load(capsys.readouterr().out)
+    args, plain = printed["overlay"]["model"]["init_args"], printed["plain"]["model"]["init_args"]
+    assert args["init"] == "stablemo/assets/demo_controlnet" and args["recon_target"] == "base"
+    assert {k for k in args if args[k] != plain[k]} == {"init", "recon_target", "lr", "lr_step"}
+    assert printed["overlay"]["data"] == printed["plain"]["data"]
+
 
 @pytest.mark.slow
 def test_fit_resume_and_export_through_the_cli(student_bundle, tmp_path):

@@ -119,6 +119,37 @@ def test_a_drawn_path_is_walked_where_the_reference_walks_and_waits_where_it_sta
     assert np.allclose(half, out[::2][:50], atol=0.05)
 
 
+def test_a_clip_path_is_walked_at_the_reference_pace_and_length():
+    """path_on_reference: the clip's shape (its sway smoothed over a gait cycle), scaled to the
+    reference's length, from the reference's start, walked at its pace; a clip that stands gives
+    the reference itself."""
+    from stablemo.control.pace import path_on_reference, progress
+
+    fps, T = 20.0, 100
+    t = np.arange(T) / fps
+    # the clip: 3 m along a diagonal at a steady pace, swaying 4 cm sideways once a second
+    d = np.array([0.6, -0.8])
+    clip = (3.0 * t / t[-1])[:, None] * d + 0.04 * np.sin(2 * np.pi * t)[:, None] * np.array([0.8, 0.6])
+    # the reference: stands 1 s, then walks 1.5 m along +z from (1, 2)
+    walked = np.r_[np.zeros(20), np.linspace(0.0, 1.5, T - 20)]
+    ref = np.stack([np.ones(T), 2.0 + walked], -1)
+    out = path_on_reference(clip, ref, smooth_frames=20)
+    assert out.shape == (T, 2) and np.allclose(out[0], ref[0])
+    step = np.linalg.norm(np.diff(out, axis=0), axis=1)
+    assert step[:17].max() < 1e-9  # waits while the reference stands
+    assert abs(step.sum() - 1.5) < 0.02  # the reference's length
+    direction = (out[-1] - out[0]) / np.linalg.norm(out[-1] - out[0])
+    assert direction @ d > 0.999  # the clip's direction
+    share = np.r_[0, np.cumsum(step)] / step.sum()
+    assert np.abs(share - progress(ref, T)).max() < 0.02  # at the reference's pace
+    # the sway is smoothed away
+    side = np.array([d[1], -d[0]])
+    off = out[40:-10] @ side  # inside: a half cycle at either end keeps some (the average meets the edge)
+    raw = path_on_reference(clip, ref)[40:-10] @ side  # unsmoothed: the clip's 8 cm swing, halved
+    assert np.ptp(off) < 0.004 and np.ptp(raw) > 0.03
+    assert np.array_equal(path_on_reference(np.zeros((T, 2)), ref), ref)
+
+
 @pytest.fixture(scope="module")
 def student():
     from stablemo.inference.bundle import DEMO_STUDENT

@@ -13,6 +13,19 @@
   of the blocks, its frame tokens plus the encoded hint, and one zero-initialised linear layer per
   copied block; their outputs are added to the frame tokens the frozen blocks put out (the
   ControlNet-Transformer form: the transformers have no skips to inject into).
+- `root_only` (UNet): a copy of the first stage only (with the time and text embeddings), whose
+  zero-initialised 1x1 convolutions set the root's feature channels (a rotation velocity, a
+  velocity in the body's frame, a height: where the body goes) and nothing else. Its rotation
+  output is a facing per frame, a vector on the floor ((0, 1): the base's own), whose turn from
+  one frame to the next is added to the rotation velocity (`heading_scale`: normalised
+  rotation-velocity units per radian), so that facing a path's direction is a per-frame reading
+  of the hint's direction channels (a vector too: no angle to wrap) rather than a sum over every
+  earlier frame, which a network with a short receptive field cannot keep (tried first: it walked
+  the right gait in the wrong direction, 1.3-2.3 m off the path on mean). The frozen network
+  runs unchanged, so the body is its base's as generated: the legs keep their gait and the contact
+  channels their phase, and the finishing step plants the feet as for a free motion. A full
+  ControlNet trained from t = 999 against the clip learns the average over gait phases, the legs
+  blurred and the contact channels flat, and its stance feet slid 2-2.6x the free walk's (issue #41).
 - `make_controlnet(denoiser, ...)` picks the form; each has `prepare`, `residuals` and `run_base`
   (the frozen network's forward with the residuals added, through the network's named steps).
 - `ControlledModel`: the frozen base (a MotionDiffusionModel or a ConsistencyStudent) and its
@@ -36,11 +49,15 @@ from torch import nn
 
 from stablemo.control.hints import hint_channels
 from stablemo.errors import StableMoError
-from stablemo.nets.conditioning import Conditioning
+from stablemo.nets.conditioning import Conditioning, check_conditioning
 from stablemo.nets.dit import DiT
-from stablemo.nets.layers import zero_pad_bct, zero_pad_btc
+from stablemo.nets.layers import masked_mean, zero_pad_bct, zero_pad_btc
 from stablemo.nets.retnet import RetNet
-from stablemo.nets.unet import CondUNet1D
+from stablemo.nets.unet import CondUNet1D, UNetConditioning
+
+# HumanML3D and KIT features start with the root's: rotation velocity (1), velocity in the body's
+# frame (x, z), height -- what a root_only ControlNet sets
+ROOT_CHANNELS = 4
 
 
 def _zeroed(layer: nn.Module) -> nn.Module:
@@ -61,11 +78,15 @@ class HintEncoder(nn.Module):
                                    for i in range(layers))
         self.out = _zeroed(nn.Conv1d(channels, out_dim, 1))
 
-    def forward(self, hint: torch.Tensor, motion_mask: torch.Tensor) -> torch.Tensor:
+    def features(self, hint: torch.Tensor, motion_mask: torch.Tensor) -> torch.Tensor:
+        """The hidden features before the projection: (B, channels, T), zero on padding."""
         h = zero_pad_bct(hint.transpose(1, 2), motion_mask)  # (B, hint_dim, T)
         for conv in self.convs:  # padded frames zero before every temporal convolution
             h = zero_pad_bct(F.mish(conv(h)), motion_mask)
-        return zero_pad_bct(self.out(h), motion_mask)
+        return h
+
+    def forward(self, hint: torch.Tensor, motion_mask: torch.Tensor) -> torch.Tensor:
+        return zero_pad_bct(self.out(self.features(hint, motion_mask)), motion_mask)
 
 
 def _encoder_copy(unet: CondUNet1D) -> CondUNet1D:
@@ -77,6 +98,32 @@ def _encoder_copy(unet: CondUNet1D) -> CondUNet1D:
     enc.final_conv = enc.final_norm = None
     enc.out = nn.Identity()
     return enc.requires_grad_(True).train()
+
+
+class _FirstStageCopy(nn.Module):
+    """A trainable copy of a CondUNet1D's time and text embeddings and its first down stage, with
+    the network's `prepare`/`step_adagn` contract for that one stage (a root_only ControlNet's
+    copy: full resolution, no down-sampling)."""
+
+    def __init__(self, unet: CondUNet1D):
+        super().__init__()
+        self.text_dim = unet.text_dim
+        self.time_embed = copy.deepcopy(unet.time_embed)
+        self.text_embed = copy.deepcopy(unet.text_embed)
+        self.stage = copy.deepcopy(unet.down[0])
+        self.requires_grad_(True).train()
+
+    def prepare(self, text, text_mask, motion_mask, time_cond=None, timesteps=()) -> UNetConditioning:
+        check_conditioning(text, text_mask, motion_mask, self.text_dim)
+        pooled = None if self.text_embed is None else self.text_embed(masked_mean(text, text_mask))  # (B, time_dim)
+        contexts = [[attn.attn.context(text, text_mask) for attn in self.stage.attns]]
+        return UNetConditioning(motion_mask, time_cond, (), [motion_mask], pooled, contexts, None)
+
+    def step_adagn(self, t: torch.Tensor, ctx: UNetConditioning) -> list[list[torch.Tensor]]:
+        emb = self.time_embed(t, ctx.time_cond)  # (B, time_dim)
+        if ctx.pooled is not None:
+            emb = emb + ctx.pooled
+        return [[block.adagn(emb) for block in self.stage.blocks]]
 
 
 @dataclass
@@ -134,7 +181,11 @@ class _ControlNetBase(nn.Module):
         if not self.training and not bool(gate.any()):
             return None, None, gate  # no sample has a target: nothing to inject, the copy need not run
         ctx = self.encoder.prepare(text, text_mask, motion_mask, time_cond, timesteps)
-        return ctx, self.hint_encoder(hint.to(text.dtype), motion_mask), gate
+        return ctx, self.encode_hint(hint.to(text.dtype), motion_mask), gate
+
+    def encode_hint(self, hint: torch.Tensor, motion_mask: torch.Tensor) -> torch.Tensor:
+        """What a request's steps read of the hint (B, C, T): the encoded hint."""
+        return self.hint_encoder(hint, motion_mask)
 
 
 class UNetControlNet(_ControlNetBase):
@@ -146,17 +197,49 @@ class UNetControlNet(_ControlNetBase):
     output_scale: one more, scaling the network's output per frame and channel before that shift
     (zero-initialised too), so the injection can replace the base's value of a channel the hint
     determines rather than add to a value it cannot see (the base's output at t = 999 depends on the
-    noise)."""
+    noise); root_only: the first stage's copy and the output injections onto the root's channels
+    only, nothing inside the network, the rotation as a facing vector's turns times heading_scale
+    (see the module docstring; output and output_scale both on)."""
 
     def __init__(self, unet: CondUNet1D, joints: int, channels: int = 64, layers: int = 3, path: bool = False,
-                 output: bool = False, output_scale: bool = False):
+                 output: bool = False, output_scale: bool = False, root_only: bool = False,
+                 heading_scale: float | None = None):
         super().__init__(joints, unet.input_dim, channels, layers, path)
-        self.encoder = _encoder_copy(unet)
+        self.root_only = bool(root_only)
+        if self.root_only != (heading_scale is not None) or (root_only and not float(heading_scale) > 0):
+            raise StableMoError("controlnet.control: root_only needs heading_scale > 0 (normalised rotation-velocity "
+                                "units per radian: 1 / the base's rotation-velocity std) and nothing else does; "
+                                f"got root_only {root_only}, heading_scale {heading_scale}")
+        self.heading_scale = None if heading_scale is None else float(heading_scale)
         widths = [stage.blocks[-1].conv2.out_channels for stage in unet.down]
-        self.skip_convs = nn.ModuleList(_zeroed(nn.Conv1d(c, c, 1)) for c in widths)
-        self.mid_conv = _zeroed(nn.Conv1d(widths[-1], widths[-1], 1))
-        self.out_conv = _zeroed(nn.Conv1d(widths[0], unet.input_dim, 1)) if output else None
-        self.out_scale_conv = _zeroed(nn.Conv1d(widths[0], unet.input_dim, 1)) if output_scale else None
+        self.input_dim = unet.input_dim
+        if self.root_only:
+            if not (output and output_scale):
+                raise StableMoError("controlnet.control: root_only sets the root's channels through the output "
+                                    "injections; give it output: true and output_scale: true")
+            self.encoder = _FirstStageCopy(unet)
+            # the base never sees the hint here (the zero out_conv keeps the start exact), so the
+            # copy may see it from the first step: a zero projection would also hold back its gradient
+            nn.init.kaiming_uniform_(self.hint_encoder.out.weight, a=5 ** 0.5)
+            # and the output reads the hint's own features too, straight (the facing is a per-frame
+            # reading of its direction channels; through the copy it competes with x_t's noise)
+            self.hint_out = _zeroed(nn.Conv1d(channels, ROOT_CHANNELS + 1, 1))
+            self.skip_convs, self.mid_conv = nn.ModuleList(), None
+            out_dim = ROOT_CHANNELS + 1  # the facing vector in place of the rotation: one more
+        else:
+            self.encoder = _encoder_copy(unet)
+            self.skip_convs = nn.ModuleList(_zeroed(nn.Conv1d(c, c, 1)) for c in widths)
+            self.mid_conv = _zeroed(nn.Conv1d(widths[-1], widths[-1], 1))
+            out_dim = unet.input_dim
+        self.out_conv = _zeroed(nn.Conv1d(widths[0], out_dim, 1)) if output else None
+        self.out_scale_conv = _zeroed(nn.Conv1d(widths[0], ROOT_CHANNELS if root_only else out_dim, 1)) if output_scale else None
+
+    def encode_hint(self, hint: torch.Tensor, motion_mask: torch.Tensor) -> torch.Tensor:
+        """The encoded hint (B, D, T); root_only: the hint encoder's features (B, channels, T), which
+        both the copy's input projection and the output read."""
+        if self.root_only:
+            return self.hint_encoder.features(hint, motion_mask)
+        return self.hint_encoder(hint, motion_mask)
 
     def residuals(self, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning, hint: torch.Tensor,
                   gate: torch.Tensor) -> Residuals:
@@ -165,6 +248,21 @@ class UNetControlNet(_ControlNetBase):
         targets gets exact zeros."""
         enc = self.encoder
         adagn = enc.step_adagn(t, ctx)
+        if self.root_only:  # (B, T, 4) onto the root's channels, zeros on the others; hint: its features
+            mask = ctx.masks[0]
+            h = zero_pad_bct(x.transpose(1, 2), mask) + zero_pad_bct(self.hint_encoder.out(hint), mask)
+            h = enc.stage(h, adagn[0], ctx.text_contexts[0], mask)
+            out = _frames_out(self.out_conv, h, mask, gate) + _frames_out(self.hint_out, hint, mask, gate)  # (B, T, 5)
+            # channels 0, 1: a facing vector (x, z), (0, 1) at rest; the rotation velocity of frame t
+            # turns frame t into frame t + 1, so it gains the facing's turn from t to t + 1 (rad;
+            # none on the last valid frame)
+            face = torch.stack([out[..., 0], 1.0 + out[..., 1]], -1)  # (B, T, 2)
+            follows = F.pad(mask[:, 1:], (0, 1))  # (B, T): frame t + 1 is valid
+            after = torch.where(follows[..., None], F.pad(face[:, 1:], (0, 0, 0, 1)), face)
+            turn = torch.atan2(face[..., 0] * after[..., 1] - face[..., 1] * after[..., 0], (face * after).sum(-1))
+            shift = torch.cat([(turn * self.heading_scale)[..., None], out[..., 2:]], -1)  # (B, T, 4)
+            pad = (0, self.input_dim - ROOT_CHANNELS)
+            return Residuals([], F.pad(shift, pad), F.pad(_frames_out(self.out_scale_conv, h, mask, gate), pad))
         h = zero_pad_bct(x.transpose(1, 2), ctx.masks[0]) + hint  # (B, D, T)
         out, to_output, scale = [], None, None
         for i, stage in enumerate(enc.down):
@@ -184,7 +282,10 @@ class UNetControlNet(_ControlNetBase):
     def run_base(unet: CondUNet1D, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning,
                  residuals: Residuals) -> torch.Tensor:
         """CondUNet1D.forward with the residuals added to each skip, to the middle output and to
-        the output (the same named steps, so a fast network keeps its fused pieces). x: (B, T, D)."""
+        the output (the same named steps, so a fast network keeps its fused pieces); no inner
+        residuals (root_only): the network as it is, then the output's. x: (B, T, D)."""
+        if not residuals.inner:
+            return residuals.apply_output(unet(x, t, ctx))
         inner = residuals.inner
         adagn = unet.step_adagn(t, ctx)
         n = len(unet.down)
@@ -278,9 +379,10 @@ def _add_to_frames(h: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
 
 def make_controlnet(denoiser: nn.Module, joints: int, **control) -> _ControlNetBase:
     """The ControlNet form for `denoiser` (a CondUNet1D, DiT or RetNet), with its copy made now;
-    control: channels, layers, path, output, output_scale (and blocks for a DiT/RetNet)."""
+    control: channels, layers, path, output, output_scale (and root_only, heading_scale for a UNet,
+    blocks for a DiT/RetNet)."""
     if isinstance(denoiser, CondUNet1D):
-        form, known = UNetControlNet, {"channels", "layers", "path", "output", "output_scale"}
+        form, known = UNetControlNet, {"channels", "layers", "path", "output", "output_scale", "root_only", "heading_scale"}
     elif isinstance(denoiser, (DiT, RetNet)):
         form, known = TokenControlNet, {"channels", "layers", "path", "output", "output_scale", "blocks"}
     else:

@@ -52,4 +52,28 @@ def timed_path(path_xz: np.ndarray, reference_xz: np.ndarray, frames: int, per_m
     return np.stack([np.interp(s, along, pts[:, 0]), np.interp(s, along, pts[:, 1])], -1)
 
 
-__all__ = ["progress", "timed_path"]
+def path_on_reference(shape_xz: np.ndarray, reference_xz: np.ndarray, per_metre: float = 1.0,
+                      smooth_frames: int = 0) -> np.ndarray:
+    """(n, 2) the shape of a pelvis path (n, 2) walked as a reference pelvis (n, 2) walks: the shape,
+    optionally smoothed over `smooth_frames` (a gait cycle: the sway a drawn path has not), scaled to
+    the reference's own length, started at its start and timed by its progress (`timed_path`). So a
+    clip's path becomes one the reference motion's legs can walk at their own pace -- the hint a
+    ControlNet trained against its base's own output needs (ControlNetTraining recon_target
+    "base"). A shape that does not move gives the reference itself."""
+    shape = np.asarray(shape_xz, np.float64)
+    ref = np.asarray(reference_xz, np.float64)
+    n = len(ref)
+    if smooth_frames > 1 and len(shape) > 1:
+        k = min(smooth_frames, len(shape))
+        kernel = np.ones(k) / k
+        shape = np.stack([np.convolve(np.pad(shape[:, i], (k // 2, k - 1 - k // 2), mode="edge"), kernel, mode="valid")
+                          for i in range(2)], -1)
+    shape_len = float(np.linalg.norm(np.diff(shape, axis=0), axis=-1).sum()) if len(shape) > 1 else 0.0
+    ref_len = float(np.linalg.norm(np.diff(ref, axis=0), axis=-1).sum()) if n > 1 else 0.0
+    if shape_len < 1e-6 * per_metre:
+        return ref.copy()
+    scaled = (shape - shape[0]) * (ref_len / shape_len) + ref[0]
+    return timed_path(scaled, ref, n, per_metre)
+
+
+__all__ = ["path_on_reference", "progress", "timed_path"]

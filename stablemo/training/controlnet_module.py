@@ -22,6 +22,16 @@ One step, per batch of clean clips x0 (B, T, D) (MotionLCM, Dai et al. ECCV 2024
    not be in the clip's phase; nor the estimate's contact channels, which the demo student's
    ControlNet output holds flat along paths (tried first). Fine-tuning the shipped ControlNet with
    either made its stance feet slide more (docs/control.md): not in the shipped recipe.
+With recon_target "base" (ours; pelvis hints only) the reconstruction's goal is not the clip but the
+frozen base's own estimate from the same x_t and text, and the hint is the clip's pelvis path
+smoothed over a gait cycle, scaled to that estimate's length and walked at its pace
+(pace.path_on_reference), at its pelvis heights. From t = 999 the clip's gait phase is not in x_t,
+so an MSE to the clip teaches the conditional mean: legs blurred across phases, contact channels
+flat, the stance foot sliding. The base's estimate is one sharp motion, so the ControlNet learns to
+keep that body and move it along the path: every channel but the root's rotation velocity (the
+turning the path needs) is the base's, the body-frame velocity included, so the body faces where it
+walks as the text walked it (forward, backward, sideways), and the pace the path is timed at is its
+legs' own, as the page times a drawn path by the motion on screen.
 Only the ControlNet trains; the base stays frozen and in eval mode. Its EMA is what export writes.
 Randomness comes from (seed, step, batch, rank), so a resumed run repeats the uninterrupted one.
 """
@@ -36,13 +46,14 @@ import torch
 from lightning.pytorch import LightningModule
 
 from stablemo.checks import check_weight
-from stablemo.control.controlnet import ControlledModel
+from stablemo.control.controlnet import ROOT_CHANNELS, ControlledModel
 from stablemo.control.hints import (
     PATH_SCALE,
     TRAIN_JOINTS,
     hint_input,
     sample_hint_mask,
 )
+from stablemo.control.pace import path_on_reference
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.errors import StableMoError
 from stablemo.inference.bundle import load_bundle
@@ -54,12 +65,14 @@ from stablemo.training.ema import EMA
 from stablemo.training.geometry import METRES_PER_UNIT
 from stablemo.training.module import CHECKPOINT_KEY, derive_seed, masked_mse
 
-# HumanML3D / KIT root features: rotation velocity (1), velocity in the body's frame (x, z), height
-ROOT_CHANNELS = 4
 # the skate term's weights (metres): the foot joint within ~1 cm of the lowest carries the body, and
 # a lowest foot joint more than ~5 cm above the floor (the stance measure's margin) carries nothing
 SKATE_SOFTMIN_M = 0.01
 SKATE_FLOOR_M = 0.05
+RECON_TARGETS = ("clip", "base")
+# recon_target "base": a clip's pelvis path is smoothed over about a gait cycle (s) before it is
+# walked at the base's pace, as a drawn path has no sway of its own
+GAIT_CYCLE_S = 1.0
 
 
 class ControlNetTraining(LightningModule):
@@ -76,6 +89,8 @@ class ControlNetTraining(LightningModule):
         skate_weight: kappa of the standing foot's speed loss (0: MotionLCM's loss alone).
         init: a ControlNet bundle on this same base whose ControlNet weights start the run (a
             fine-tune; None: MotionLCM's zero-initialised injections).
+        recon_target: "clip" (MotionLCM: the clip's features and joints) or "base" (the frozen base's
+            own estimate, the clip's path walked at its pace; see above; pelvis-only hint_joints).
         train_timesteps: timesteps drawn from (None: uniform over the schedule).
         cond_drop_prob: captions replaced by "" (a diffusion base samples with CFG).
         ema_decay, ema_warmup: EMA of the ControlNet's weights (exported).
@@ -99,6 +114,7 @@ class ControlNetTraining(LightningModule):
         root_weight: float = 0.0,
         skate_weight: float = 0.0,
         init: str | None = None,
+        recon_target: str = "clip",
         train_timesteps: Sequence[int] | None = None,
         cond_drop_prob: float = 0.0,
         ema_decay: float = 0.999,
@@ -126,6 +142,10 @@ class ControlNetTraining(LightningModule):
         for name, value in (("joint_weight", joint_weight), ("velocity_weight", velocity_weight),
                             ("root_weight", root_weight), ("skate_weight", skate_weight)):
             check_weight(name, value)
+        if recon_target not in RECON_TARGETS:
+            raise StableMoError(f"recon_target: expected one of {RECON_TARGETS}, got {recon_target!r}")
+        if recon_target == "base" and [int(j) for j in hint_joints] != [0]:
+            raise StableMoError(f"recon_target: 'base' re-times the pelvis path only; give hint_joints [0], got {list(hint_joints)}")
         self.base_config = config
         self.skeleton = get_skeleton(config.get("skeleton", "humanml3d"))
         bad = [j for j in hint_joints if not 0 <= int(j) < self.skeleton.num_joints]
@@ -136,6 +156,10 @@ class ControlNetTraining(LightningModule):
         num_t = self.schedule.num_train_timesteps
         if train_timesteps is not None and (not train_timesteps or any(not 0 <= int(t) < num_t for t in train_timesteps)):
             raise StableMoError(f"train_timesteps: need values in [0, {num_t}), got {list(train_timesteps)}")
+        if control and control.get("root_only") and control.get("heading_scale") is None:
+            # the root-only form's heading offsets in the base's normalised rotation-velocity units
+            control = {**control, "heading_scale": 1.0 / float(config["std"][0])}
+            self.hparams.control = control  # exported as trained
         base_model = model_kind(self.base_kind, base).build_model(config, base)
         base_model.load_state_dict(bundle.state_dict)
         self.model = ControlledModel(base_model.eval().requires_grad_(False), self.base_kind,
@@ -242,16 +266,28 @@ class ControlNetTraining(LightningModule):
         noise = torch.randn(x0.shape, generator=generator).to(device, x0.dtype)
         hint_mask = sample_hint_mask(mask, self.skeleton.num_joints, generator, tuple(int(j) for j in hp.hint_joints),
                                      hp.dense_prob, hp.empty_prob)  # (B, T, J)
-        with torch.no_grad():
-            true_joints = self.joints(x0)  # (B, T, J, 3)
-            text, text_mask = self.model.encode_text(texts)
-        hint = hint_input(true_joints, hint_mask, hp.hint_scale, path=self.model.control.path)
         x_t = self.schedule.q_sample(x0, t, noise)
         cond = None if self.w is None else torch.full((B,), self.w, device=device)
+        with torch.no_grad():
+            text, text_mask = self.model.encode_text(texts)
+            goal, true_joints = x0, self.joints(x0)  # (B, T, D), (B, T, J, 3)
+            if hp.recon_target == "base":
+                net = self.model.net
+                base_ctx = net.prepare(text, text_mask, mask, self.model.time_cond(cond), ())
+                goal = self._x0_estimate(net.denoise(x_t, t, base_ctx), x_t, t)
+                true_joints = self.paths_on(self.joints(goal), true_joints, mask)
+        hint = hint_input(true_joints, hint_mask, hp.hint_scale, path=self.model.control.path)
         out = self.model(x_t, t, text, text_mask, mask, hint, cond)
         x0_hat = self._x0_estimate(out, x_t, t)
         frames = mask.float().sum(1)
-        recon = (masked_mse(x0_hat, x0, mask) * frames).sum() / frames.sum().clamp(min=1.0)
+        # "base": the root's rotation velocity (channel 0) is the ControlNet's to change, and a
+        # root-only ControlNet is held on the root channels it sets (its others are the base's):
+        # over all channels their error would weigh 3/262 against the joint term, and the
+        # body-frame velocity, the shortest way to a target, would walk the body sideways
+        kept = slice(None)
+        if hp.recon_target == "base":
+            kept = slice(1, ROOT_CHANNELS) if (hp.control or {}).get("root_only") else slice(1, None)
+        recon = (masked_mse(x0_hat[..., kept], goal[..., kept], mask) * frames).sum() / frames.sum().clamp(min=1.0)
         joints_hat = self.joints(x0_hat)  # (B, T, J, 3)
         sq = (joints_hat - true_joints).square().sum(-1)  # (B, T, J)
         m = hint_mask.float()
@@ -266,13 +302,29 @@ class ControlNetTraining(LightningModule):
             loss = loss + hp.velocity_weight * terms["velocity"]
         if hp.root_weight:
             pelvis = m[..., 0]  # (B, T): frames whose pelvis is a target
-            root_sq = (x0_hat[..., :ROOT_CHANNELS] - x0[..., :ROOT_CHANNELS]).square().mean(-1)
+            root_sq = (x0_hat[..., :ROOT_CHANNELS] - goal[..., :ROOT_CHANNELS]).square().mean(-1)
             terms["root"] = (root_sq * pelvis).sum() / pelvis.sum().clamp(min=1.0)
             loss = loss + hp.root_weight * terms["root"]
         if hp.skate_weight:
             terms["skate"] = self.skate(joints_hat, mask)
             loss = loss + hp.skate_weight * terms["skate"]
         return {"loss": loss, **terms}
+
+    def paths_on(self, base_joints: torch.Tensor, clip_joints: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """The hint targets of recon_target "base": base_joints (B, T, J, 3) with the pelvis's ground
+        path replaced, per sample over its valid frames, by the clip's (clip_joints (B, T, J, 3))
+        walked as the base's pelvis walks (pace.path_on_reference); its heights stay the base's."""
+        targets = base_joints.clone()
+        smooth = max(1, round(GAIT_CYCLE_S * self.skeleton.fps))
+        for b, n in enumerate(mask.sum(1).tolist()):
+            if n < 2:
+                continue
+            xz = path_on_reference(clip_joints[b, :n, 0][:, [0, 2]].double().cpu().numpy(),
+                                   base_joints[b, :n, 0][:, [0, 2]].double().cpu().numpy(),
+                                   self.skeleton.per_metre, smooth)
+            xz = torch.as_tensor(xz, dtype=targets.dtype, device=targets.device)
+            targets[b, :n, 0, 0], targets[b, :n, 0, 2] = xz[:, 0], xz[:, 1]
+        return targets
 
     def skate(self, joints_hat: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """Mean over valid frame pairs i -> i+1 near the floor of the squared horizontal speed
@@ -346,7 +398,7 @@ class ControlNetTraining(LightningModule):
         config["training"] = {"base": str(hp.base), "global_step": int(self.global_step), "ema_decay": hp.ema_decay,
                               "ema_updates": self.ema.num_updates, "joint_weight": hp.joint_weight,
                               "velocity_weight": hp.velocity_weight, "root_weight": hp.root_weight,
-                              "skate_weight": hp.skate_weight, "init": None if hp.init is None else str(hp.init),
+                              "skate_weight": hp.skate_weight, "recon_target": hp.recon_target, "init": None if hp.init is None else str(hp.init),
                               "train_timesteps": None if hp.train_timesteps is None else list(hp.train_timesteps)}
         return config
 
