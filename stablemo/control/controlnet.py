@@ -221,9 +221,10 @@ class UNetControlNet(_ControlNetBase):
             # the base never sees the hint here (the zero out_conv keeps the start exact), so the
             # copy may see it from the first step: a zero projection would also hold back its gradient
             nn.init.kaiming_uniform_(self.hint_encoder.out.weight, a=5 ** 0.5)
-            # and the output reads the hint's own features too, straight (the facing is a per-frame
-            # reading of its direction channels; through the copy it competes with x_t's noise)
-            self.hint_out = _zeroed(nn.Conv1d(channels, ROOT_CHANNELS + 1, 1))
+            # and the output reads the hint itself and its features too, straight (the facing is a
+            # per-frame reading of its direction channels, a linear one from the hint; through the
+            # copy it competes with x_t's noise)
+            self.hint_out = _zeroed(nn.Conv1d(channels + self.hint_width, ROOT_CHANNELS + 1, 1))
             self.skip_convs, self.mid_conv = nn.ModuleList(), None
             out_dim = ROOT_CHANNELS + 1  # the facing vector in place of the rotation: one more
         else:
@@ -235,10 +236,11 @@ class UNetControlNet(_ControlNetBase):
         self.out_scale_conv = _zeroed(nn.Conv1d(widths[0], ROOT_CHANNELS if root_only else out_dim, 1)) if output_scale else None
 
     def encode_hint(self, hint: torch.Tensor, motion_mask: torch.Tensor) -> torch.Tensor:
-        """The encoded hint (B, D, T); root_only: the hint encoder's features (B, channels, T), which
-        both the copy's input projection and the output read."""
+        """The encoded hint (B, D, T); root_only: the hint encoder's features and the hint itself
+        (B, channels + hint width, T): the copy's input projection reads the first, the output both."""
         if self.root_only:
-            return self.hint_encoder.features(hint, motion_mask)
+            raw = zero_pad_bct(hint.transpose(1, 2), motion_mask)
+            return torch.cat([self.hint_encoder.features(hint, motion_mask), raw], 1)
         return self.hint_encoder(hint, motion_mask)
 
     def residuals(self, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning, hint: torch.Tensor,
@@ -246,23 +248,10 @@ class UNetControlNet(_ControlNetBase):
         """The injections: one (B, C_i, T_i) per down stage (into its skip), then the middle's, and
         (with `output`) the output's (B, T, D); each times the gate (B, 1, 1), so a sample without
         targets gets exact zeros."""
+        if self.root_only:
+            return self._root_residuals(x, t, ctx, hint, gate)
         enc = self.encoder
         adagn = enc.step_adagn(t, ctx)
-        if self.root_only:  # (B, T, 4) onto the root's channels, zeros on the others; hint: its features
-            mask = ctx.masks[0]
-            h = zero_pad_bct(x.transpose(1, 2), mask) + zero_pad_bct(self.hint_encoder.out(hint), mask)
-            h = enc.stage(h, adagn[0], ctx.text_contexts[0], mask)
-            out = _frames_out(self.out_conv, h, mask, gate) + _frames_out(self.hint_out, hint, mask, gate)  # (B, T, 5)
-            # channels 0, 1: a facing vector (x, z), (0, 1) at rest; the rotation velocity of frame t
-            # turns frame t into frame t + 1, so it gains the facing's turn from t to t + 1 (rad;
-            # none on the last valid frame)
-            face = torch.stack([out[..., 0], 1.0 + out[..., 1]], -1)  # (B, T, 2)
-            follows = F.pad(mask[:, 1:], (0, 1))  # (B, T): frame t + 1 is valid
-            after = torch.where(follows[..., None], F.pad(face[:, 1:], (0, 0, 0, 1)), face)
-            turn = torch.atan2(face[..., 0] * after[..., 1] - face[..., 1] * after[..., 0], (face * after).sum(-1))
-            shift = torch.cat([(turn * self.heading_scale)[..., None], out[..., 2:]], -1)  # (B, T, 4)
-            pad = (0, self.input_dim - ROOT_CHANNELS)
-            return Residuals([], F.pad(shift, pad), F.pad(_frames_out(self.out_scale_conv, h, mask, gate), pad))
         h = zero_pad_bct(x.transpose(1, 2), ctx.masks[0]) + hint  # (B, D, T)
         out, to_output, scale = [], None, None
         for i, stage in enumerate(enc.down):
@@ -277,6 +266,26 @@ class UNetControlNet(_ControlNetBase):
         h = enc.mid(h, adagn[n], ctx.text_contexts[n], ctx.masks[-1])
         out.append(zero_pad_bct(self.mid_conv(h), ctx.masks[-1]) * gate)
         return Residuals(out, to_output, scale)
+
+    def _root_residuals(self, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning, hint: torch.Tensor,
+                        gate: torch.Tensor) -> Residuals:
+        """root_only: no inner injection; the output's shift and scale (B, T, D), zero but on the
+        root's channels, times the gate. hint: encode_hint's (B, channels + hint width, T)."""
+        mask = ctx.masks[0]
+        features = hint[:, :self.hint_encoder.out.in_channels]  # (B, channels, T)
+        h = zero_pad_bct(x.transpose(1, 2), mask) + zero_pad_bct(self.hint_encoder.out(features), mask)
+        h = self.encoder.stage(h, self.encoder.step_adagn(t, ctx)[0], ctx.text_contexts[0], mask)
+        out = _frames_out(self.out_conv, h, mask, gate) + _frames_out(self.hint_out, hint, mask, gate)  # (B, T, 5)
+        # channels 0, 1: a facing vector (x, z), (0, 1) at rest; the rotation velocity of frame t
+        # turns frame t into frame t + 1, so it gains the facing's turn from t to t + 1 (rad; none
+        # on the last valid frame)
+        face = torch.stack([out[..., 0], 1.0 + out[..., 1]], -1)  # (B, T, 2)
+        follows = F.pad(mask[:, 1:], (0, 1))  # (B, T): frame t + 1 is valid
+        after = torch.where(follows[..., None], F.pad(face[:, 1:], (0, 0, 0, 1)), face)
+        turn = torch.atan2(face[..., 0] * after[..., 1] - face[..., 1] * after[..., 0], (face * after).sum(-1))  # (B, T)
+        shift = torch.cat([(turn * self.heading_scale)[..., None], out[..., 2:]], -1)  # (B, T, 4)
+        pad = (0, self.input_dim - ROOT_CHANNELS)
+        return Residuals([], F.pad(shift, pad), F.pad(_frames_out(self.out_scale_conv, h, mask, gate), pad))
 
     @staticmethod
     def run_base(unet: CondUNet1D, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning,

@@ -142,7 +142,8 @@ class ControlNetKind:
     denoiser are the base kind's; the request's resolved joint targets become the hint.
 
     Bundle config: the base bundle's config with `kind: "controlnet"` and a section `controlnet:
-    {base_kind, joints, hint_scale, control: {channels, layers, path, output, output_scale[, blocks]}}`.
+    {base_kind, joints, hint_scale, control: {channels, layers, path, output, output_scale[, root_only,
+    heading_scale][, blocks]}}`.
     """
 
     reads_control = True
