@@ -493,10 +493,10 @@ def test_init_starts_from_a_controlnet_of_the_same_base_and_names_every_misfit(s
         ControlNetTraining(str(student_bundle), control=control, init=str(tmp_path / "nowhere"))
 
 
-def controlled_bundle(base_bundle, tmp_path, name, trained=True):
+def controlled_bundle(base_bundle, tmp_path, name, trained=True, **form):
     from stablemo.training.controlnet_module import ControlNetTraining
 
-    module = ControlNetTraining(str(base_bundle), control={"channels": 16, "layers": 2, "path": True, "output": True})
+    module = ControlNetTraining(str(base_bundle), control={"channels": 16, "layers": 2, "path": True, "output": True, **form})
     if trained:
         perturb(module.model.control, std=0.02)
     config = module.bundle_config()
@@ -580,6 +580,23 @@ def test_controlled_bundle_serves_through_the_pipeline(student_bundle, teacher_b
     out = Pipeline.from_bundle(teacher_path).generate(texts, lengths, steps=2, seed=0, control=[control, None],
                                                      control_guidance=False)
     assert torch.isfinite(out.features).all()
+
+
+def test_root_only_bundle_serves_the_base_body_with_its_own_root(student_bundle, tmp_path):
+    """A root-only ControlNet exported as trained (heading_scale from the base's statistics) loads
+    and serves: the hint moves the root's channels, every other raw channel is the student's."""
+    from stablemo.control.spec import JointControl
+    from stablemo.inference.pipeline import Pipeline
+
+    path, config = controlled_bundle(student_bundle, tmp_path, "root", output_scale=True, root_only=True)
+    assert config["controlnet"]["control"]["heading_scale"] > 0
+    pos, mask = pelvis_path()
+    control = JointControl(pos, mask)
+    pipe, base = Pipeline.from_bundle(path), Pipeline.from_bundle(student_bundle)
+    out = pipe.generate(["a person walks"], [40], seed=3, control=control, control_guidance=False)
+    free = base.generate(["a person walks"], [40], seed=3)
+    assert (out.raw_features[..., :4] - free.raw_features[..., :4]).abs().max() > 1e-4
+    torch.testing.assert_close(out.raw_features[..., 4:], free.raw_features[..., 4:], rtol=1e-5, atol=1e-6)
 
 
 def test_export_writes_the_controlnet_ema_over_the_frozen_base(student_bundle, tmp_path):

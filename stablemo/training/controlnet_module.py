@@ -31,7 +31,9 @@ flat, the stance foot sliding. The base's estimate is one sharp motion, so the C
 keep that body and move it along the path: every channel but the root's rotation velocity (the
 turning the path needs) is the base's, the body-frame velocity included, so the body faces where it
 walks as the text walked it (forward, backward, sideways), and the pace the path is timed at is its
-legs' own, as the page times a drawn path by the motion on screen.
+legs' own, as the page times a drawn path by the motion on screen. A root-only ControlNet
+(control.root_only) is held on the root channels it sets. Tried on 2026-12-06 as a fine-tune of the
+shipped ControlNet and as the root-only form (docs/control.md): neither is the shipped recipe yet.
 Only the ControlNet trains; the base stays frozen and in eval mode. Its EMA is what export writes.
 Randomness comes from (seed, step, batch, rank), so a resumed run repeats the uninterrupted one.
 """
@@ -157,7 +159,7 @@ class ControlNetTraining(LightningModule):
         if train_timesteps is not None and (not train_timesteps or any(not 0 <= int(t) < num_t for t in train_timesteps)):
             raise StableMoError(f"train_timesteps: need values in [0, {num_t}), got {list(train_timesteps)}")
         if control and control.get("root_only") and control.get("heading_scale") is None:
-            # the root-only form's heading offsets in the base's normalised rotation-velocity units
+            # the root-only form's facing turns in the base's normalised rotation-velocity units
             control = {**control, "heading_scale": 1.0 / float(config["std"][0])}
             self.hparams.control = control  # exported as trained
         base_model = model_kind(self.base_kind, base).build_model(config, base)
