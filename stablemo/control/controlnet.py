@@ -453,6 +453,11 @@ class ControlledModel(nn.Module):
         copy_ctx, encoded, gate = self.control.prepare(text, text_mask, motion_mask, time_cond, timesteps, hint)
         return ControlConditioning(motion_mask, time_cond, base.timesteps, base, copy_ctx, encoded, gate)
 
+    def base_forward(self, x, t, text, text_mask, motion_mask, cond=None) -> torch.Tensor:
+        """The frozen base alone, as a request without targets gets it (training's recon_target
+        "base" reconstructs it)."""
+        return self.net.denoise(x, t, self.net.prepare(text, text_mask, motion_mask, self.time_cond(cond), ()))
+
     def denoise(self, x, t, ctx: ControlConditioning) -> torch.Tensor:
         if ctx.copy is None:  # no targets in the batch (a free prompt): the base alone, at its cost
             return self.net.denoise(x, t, ctx.base)

@@ -23,6 +23,13 @@ SMOOTH_FRAMES = 5
 STILL_M = 0.2
 
 
+def _moving_average(values: np.ndarray, k: int) -> np.ndarray:
+    """values (N, ...) averaged over k neighbouring rows (the edge rows repeated), same shape."""
+    pad = [(k // 2, k - 1 - k // 2)] + [(0, 0)] * (values.ndim - 1)
+    padded = np.pad(values, pad, mode="edge")
+    return np.stack([padded[i:i + len(values)] for i in range(k)]).mean(0)
+
+
 def progress(reference_xz: np.ndarray, frames: int, per_metre: float = 1.0) -> np.ndarray:
     """(frames,) share of its pelvis path that a reference motion (T, 2) horizontal pelvis has
     walked at each of `frames` frames spread over its duration: from 0 to 1, never decreasing;
@@ -33,7 +40,7 @@ def progress(reference_xz: np.ndarray, frames: int, per_metre: float = 1.0) -> n
         return ramp
     step = np.linalg.norm(np.diff(ref, axis=0), axis=-1)  # (T-1,)
     k = min(SMOOTH_FRAMES, len(step))
-    step = np.convolve(np.pad(step, (k // 2, k - 1 - k // 2), mode="edge"), np.ones(k) / k, mode="valid")
+    step = _moving_average(step, k)
     walked = np.concatenate([[0.0], np.cumsum(step)])  # (T,)
     if walked[-1] < STILL_M * per_metre:
         return ramp
@@ -64,10 +71,7 @@ def path_on_reference(shape_xz: np.ndarray, reference_xz: np.ndarray, per_metre:
     ref = np.asarray(reference_xz, np.float64)
     n = len(ref)
     if smooth_frames > 1 and len(shape) > 1:
-        k = min(smooth_frames, len(shape))
-        kernel = np.ones(k) / k
-        shape = np.stack([np.convolve(np.pad(shape[:, i], (k // 2, k - 1 - k // 2), mode="edge"), kernel, mode="valid")
-                          for i in range(2)], -1)
+        shape = _moving_average(shape, min(smooth_frames, len(shape)))
     shape_len = float(np.linalg.norm(np.diff(shape, axis=0), axis=-1).sum()) if len(shape) > 1 else 0.0
     ref_len = float(np.linalg.norm(np.diff(ref, axis=0), axis=-1).sum()) if n > 1 else 0.0
     if shape_len < 1e-6 * per_metre:

@@ -274,9 +274,7 @@ class ControlNetTraining(LightningModule):
             text, text_mask = self.model.encode_text(texts)
             goal, true_joints = x0, self.joints(x0)  # (B, T, D), (B, T, J, 3)
             if hp.recon_target == "base":
-                net = self.model.net
-                base_ctx = net.prepare(text, text_mask, mask, self.model.time_cond(cond), ())
-                goal = self._x0_estimate(net.denoise(x_t, t, base_ctx), x_t, t)
+                goal = self._x0_estimate(self.model.base_forward(x_t, t, text, text_mask, mask, cond), x_t, t)
                 true_joints = self.paths_on(self.joints(goal), true_joints, mask)
         hint = hint_input(true_joints, hint_mask, hp.hint_scale, path=self.model.control.path)
         out = self.model(x_t, t, text, text_mask, mask, hint, cond)
