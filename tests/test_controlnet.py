@@ -211,6 +211,57 @@ def test_root_only_controlnet_moves_the_root_channels_and_keeps_the_body_bit_exa
         ControlledModel(tiny_transformer("dit", True), "diffusion", J, {"root_only": True})
 
 
+def test_root_only_floor_steps_set_the_path_as_the_sum_of_its_steps_whatever_the_facing():
+    """control.floor_steps: a root_only ControlNet's velocity is a step on the floor, turned into
+    the body's frame by the output's own heading, so the recovered root path is the running sum of
+    the steps even while the facing turns; at initialisation the step is the base's own (the base's
+    output back, to rounding); the statistics are checked."""
+    from stablemo.control.hints import PATH_SCALE
+    from stablemo.motion.features import recover_root
+
+    base = tiny_base()
+    mean = torch.tensor([0.01, 0.02, 0.3])
+    std = torch.tensor([0.05, 0.2, 0.4])
+    stats = {"mean": mean.tolist(), "std": std.tolist()}
+    form = {"channels": 16, "layers": 2, "output": True, "output_scale": True, "root_only": True,
+            "heading_scale": 1.0 / 0.05, "floor_steps": stats}
+    model = ControlledModel(base, "diffusion", J, form).eval()
+    text, text_mask = base.encode_text(["a person walks", "a person jumps"])
+    x, t, mask, hint = inputs()
+    with torch.no_grad():
+        ref = base(x, t, text, text_mask, mask)
+        close(model(x, t, text, text_mask, mask, hint), ref)  # the base's velocity, turned out and back
+
+    class Walk(torch.nn.Module):  # facing turning 0.02 rad per frame; steps (0.6, 0.8) m/s on the floor
+        def forward(self, h):
+            out = torch.zeros(h.shape[0], 5, h.shape[2])
+            yaw = 0.02 * torch.arange(h.shape[2])
+            out[:, 0], out[:, 1] = torch.sin(-yaw), torch.cos(yaw) - 1
+            out[:, 2], out[:, 3] = 0.6, 0.8
+            return out
+
+    model.control.out_conv = Walk()
+    with torch.no_grad():
+        torch.nn.init.zeros_(model.control.hint_out.weight)
+        torch.nn.init.zeros_(model.control.hint_out.bias)
+        torch.nn.init.zeros_(model.control.out_scale_conv.weight)
+        model.control.out_scale_conv.bias.copy_(torch.tensor([0.0, -1.0, -1.0, 0.0]))  # the base's step off
+        out = model(x, t, text, text_mask, mask, hint)
+    _, root = recover_root(out * torch.cat([std, torch.ones(D - 3)]) + torch.cat([mean, torch.zeros(D - 3)]))
+    for b, n in enumerate(mask.sum(1).tolist()):
+        frames = torch.arange(n, dtype=torch.float32)
+        close(root[b, :n, 0], 0.6 / PATH_SCALE * frames)
+        close(root[b, :n, 2], 0.8 / PATH_SCALE * frames)
+    assert (out[0, 1:20, 0] - ref[0, 1:20, 0]).abs().min() > 0.1  # while it turns
+    assert torch.equal(out[..., 3:], ref[..., 3:])  # the height and the body: the base's
+    assert torch.all(out[1, 24:] == 0)
+    for bad in ({"mean": [0, 0], "std": [1, 1, 1]}, {"mean": [0, 0, 0], "std": [1, 0, 1]}, {"mean": [0, 0, 0]}, "yes"):
+        with pytest.raises(StableMoError, match="controlnet.control.floor_steps"):
+            ControlledModel(base, "diffusion", J, {**form, "floor_steps": bad})
+    with pytest.raises(StableMoError, match="only a root_only ControlNet"):
+        ControlledModel(base, "diffusion", J, {"output": True, "floor_steps": stats})
+
+
 def test_a_sample_without_targets_is_its_base_exactly_beside_controlled_ones():
     base = tiny_base()
     model = ControlledModel(base, "diffusion", J, {"channels": 16, "layers": 2}).eval()
@@ -412,6 +463,10 @@ def test_base_target_keeps_the_base_motion_and_walks_the_clip_path_at_its_pace(s
     root = ControlNetTraining(str(student_bundle), **{**kw, "control": {**kw["control"], "output": True,
                                                                           "output_scale": True, "root_only": True}})
     assert root.hparams.control["heading_scale"] == pytest.approx(1.0 / root.std[0].item())  # from the base's statistics
+    floor = ControlNetTraining(str(student_bundle), **{**kw, "control": {**kw["control"], "output": True, "output_scale": True,
+                                                                           "root_only": True, "floor_steps": True}})
+    stats = floor.hparams.control["floor_steps"]  # the root's first three channels' statistics, exported as trained
+    assert stats == {"mean": pytest.approx(floor.mean[:3].tolist()), "std": pytest.approx(floor.std[:3].tolist())}
     perturb(root.model.control, std=0.05)
     root._x0_estimate = module._x0_estimate
     seen.clear()
@@ -582,14 +637,18 @@ def test_controlled_bundle_serves_through_the_pipeline(student_bundle, teacher_b
     assert torch.isfinite(out.features).all()
 
 
-def test_root_only_bundle_serves_the_base_body_with_its_own_root(student_bundle, tmp_path):
-    """A root-only ControlNet exported as trained (heading_scale from the base's statistics) loads
-    and serves: the hint moves the root's channels, every other raw channel is the student's."""
+@pytest.mark.parametrize("floor", [False, True])
+def test_root_only_bundle_serves_the_base_body_with_its_own_root(student_bundle, tmp_path, floor):
+    """A root-only ControlNet exported as trained (heading_scale, and floor_steps' statistics, from
+    the base's) loads and serves: the hint moves the root's channels, every other raw channel is
+    the student's."""
     from stablemo.control.spec import JointControl
     from stablemo.inference.pipeline import Pipeline
 
-    path, config = controlled_bundle(student_bundle, tmp_path, "root", output_scale=True, root_only=True)
+    extra = {"floor_steps": True} if floor else {}
+    path, config = controlled_bundle(student_bundle, tmp_path, "root", output_scale=True, root_only=True, **extra)
     assert config["controlnet"]["control"]["heading_scale"] > 0
+    assert isinstance(config["controlnet"]["control"].get("floor_steps"), dict) == floor
     pos, mask = pelvis_path()
     control = JointControl(pos, mask)
     pipe, base = Pipeline.from_bundle(path), Pipeline.from_bundle(student_bundle)
@@ -636,7 +695,7 @@ def test_bad_bundles_and_bases_are_named(teacher_bundle, student_bundle, tmp_pat
 
 @pytest.mark.parametrize("name", ["controlnet_lcm_synth.yaml", "controlnet_teacher_synth.yaml",
                                   "controlnet_lcm_pelvis_synth.yaml", "controlnet_teacher_pelvis_synth.yaml",
-                                  "controlnet_lcm_pelvis_root.yaml"])
+                                  "controlnet_lcm_pelvis_root.yaml", "controlnet_lcm_pelvis_floor.yaml"])
 def test_shipped_control_configs_parse(name, capsys):
     import yaml
 
@@ -648,14 +707,17 @@ def test_shipped_control_configs_parse(name, capsys):
     printed = yaml.safe_load(capsys.readouterr().out)
     assert printed["model"]["class_path"] == "stablemo.training.controlnet_module.ControlNetTraining"
     # MotionLCM's lambda = 1, except the shipped student's pelvis recipe (docs/control.md)
-    student_pelvis = name in ("controlnet_lcm_pelvis_synth.yaml", "controlnet_lcm_pelvis_root.yaml")
+    student_pelvis = name in ("controlnet_lcm_pelvis_synth.yaml", "controlnet_lcm_pelvis_root.yaml",
+                              "controlnet_lcm_pelvis_floor.yaml")
     assert printed["model"]["init_args"]["joint_weight"] == (10.0 if student_pelvis else 1.0)
     assert printed["model"]["init_args"]["hint_joints"] == ([0] if "pelvis" in name else list(TRAIN_JOINTS))
     if student_pelvis:  # trained on path walks, in the frozen student's units
         assert printed["data"]["data_dir"] == "data/synth_paths" and printed["data"]["stats_dir"] == "data/synth"
-    root = name == "controlnet_lcm_pelvis_root.yaml"  # the root-only form, against the student's own motion
+    # the root-only forms, against the student's own motion; the second with steps on the floor
+    root = name in ("controlnet_lcm_pelvis_root.yaml", "controlnet_lcm_pelvis_floor.yaml")
     assert printed["model"]["init_args"]["recon_target"] == ("base" if root else "clip")
     assert bool(printed["model"]["init_args"]["control"].get("root_only")) == root
+    assert printed["model"]["init_args"]["control"].get("floor_steps") == (True if "floor" in name else None)
 
 
 

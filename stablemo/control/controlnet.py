@@ -21,7 +21,11 @@
   rotation-velocity units per radian), so that facing a path's direction is a per-frame reading
   of the hint's direction channels (a vector too: no angle to wrap) rather than a sum over every
   earlier frame, which a network with a short receptive field cannot keep (tried first: it walked
-  the right gait in the wrong direction, 1.3-2.3 m off the path on mean). The frozen network
+  the right gait in the wrong direction, 1.3-2.3 m off the path on mean). With `floor_steps` its
+  velocity is likewise a step on the floor, turned into the body's frame by its own heading
+  (`FloorSteps`): the path is then the sum of per-frame readings of the hint's velocity, not of
+  velocities that only sum to the path once turned by a heading summed over every earlier frame
+  (without it the path drifted 26-101 cm from its hint on mean). The frozen network
   runs unchanged, so the body is its base's as generated: the legs keep their gait and the contact
   channels their phase, and the finishing step plants the feet as for a free motion. A full
   ControlNet trained from t = 999 against the clip learns the average over gait phases, the legs
@@ -47,7 +51,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from stablemo.control.hints import hint_channels
+from stablemo.control.hints import PATH_SCALE, hint_channels
 from stablemo.errors import StableMoError
 from stablemo.nets.conditioning import Conditioning, check_conditioning
 from stablemo.nets.dit import DiT
@@ -137,12 +141,56 @@ class Residuals:
     inner: list[torch.Tensor]
     output: torch.Tensor | None = None
     output_scale: torch.Tensor | None = None
+    steps: FloorSteps | None = None
 
     def apply_output(self, out: torch.Tensor) -> torch.Tensor:
-        """The network's output (B, T, D) with the output injection: out * (1 + output_scale) + output."""
+        """The network's output (B, T, D) with the output injection: out * (1 + output_scale) + output,
+        then (with `steps`) the root's velocity from its steps on the floor."""
+        base = out
         if self.output_scale is not None:
             out = out + out * self.output_scale
-        return out if self.output is None else out + self.output
+        out = out if self.output is None else out + self.output
+        return out if self.steps is None else self.steps.apply(base, out)
+
+
+@dataclass
+class FloorSteps:
+    """A root_only ControlNet's velocity as the root's step on the floor (world frame, from frame t
+    to t + 1), so that the path, the sum of the steps, is a per-frame reading of the hint's
+    velocity channels whatever the body's facing (a velocity in the body's frame must be turned by
+    the facing summed over every earlier frame: the first root_only ControlNet's path drifted
+    26-101 cm from its hint on mean, issue #41). The step is the base's own, turned onto the
+    floor by the base's heading, times (1 + scale) plus shift ((B, T, 2) each, (x, z), zero at
+    initialisation: the base's velocity back), in PATH_SCALE units (m/s at 20 fps, as the hint's
+    velocity channels); it is turned into the body's frame by the output's heading (the one the
+    recovery will use, stablemo.motion.features.recover_root). gate (B, 1, 1), mask (B, T): where
+    it applies; mean/std (3,): the model's statistics of the root's first three channels."""
+
+    shift: torch.Tensor
+    scale: torch.Tensor
+    gate: torch.Tensor
+    mask: torch.Tensor
+    mean: torch.Tensor
+    std: torch.Tensor
+
+    def _turns(self, out: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """cos, sin (B, T) of 2 a_{t+1}, the turn about +y of recover_root's quaternion for velocity t
+        (a_{t+1}: the sum of rotation velocities 0..t)."""
+        angle = 2 * torch.cumsum(out[..., 0] * self.std[0].to(out) + self.mean[0].to(out), 1)
+        return torch.cos(angle), torch.sin(angle)
+
+    def apply(self, base: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
+        """base, out (B, T, D) normalised: the network's output, and with the other injections ->
+        out with channels 1, 2 (the body-frame velocity) from the steps, on gated valid frames."""
+        mean, std = self.mean[1:3].to(out), self.std[1:3].to(out)
+        cos, sin = self._turns(base)
+        v = (base[..., 1:3] * std + mean) * PATH_SCALE  # (B, T, 2) the base's velocity, body frame
+        own = torch.stack([cos * v[..., 0] - sin * v[..., 1], sin * v[..., 0] + cos * v[..., 1]], -1)  # on the floor
+        step = (own * (1 + self.scale) + self.shift) / PATH_SCALE  # (B, T, 2) dataset units per frame
+        cos, sin = self._turns(out)
+        local = torch.stack([cos * step[..., 0] + sin * step[..., 1], cos * step[..., 1] - sin * step[..., 0]], -1)
+        use = (self.mask[..., None] & (self.gate > 0)).expand_as(local)
+        return torch.cat([out[..., :1], torch.where(use, (local - mean) / std, out[..., 1:3]), out[..., 3:]], -1)
 
 
 @dataclass
@@ -203,7 +251,7 @@ class UNetControlNet(_ControlNetBase):
 
     def __init__(self, unet: CondUNet1D, joints: int, channels: int = 64, layers: int = 3, path: bool = False,
                  output: bool = False, output_scale: bool = False, root_only: bool = False,
-                 heading_scale: float | None = None):
+                 heading_scale: float | None = None, floor_steps: dict | None = None):
         super().__init__(joints, unet.input_dim, channels, layers, path)
         self.root_only = bool(root_only)
         if self.root_only != (heading_scale is not None) or (root_only and not float(heading_scale) > 0):
@@ -211,6 +259,9 @@ class UNetControlNet(_ControlNetBase):
                                 "units per radian: 1 / the base's rotation-velocity std) and nothing else does; "
                                 f"got root_only {root_only}, heading_scale {heading_scale}")
         self.heading_scale = None if heading_scale is None else float(heading_scale)
+        self.floor_steps = None
+        if floor_steps is not None:
+            self.floor_steps = _root_stats(floor_steps, root_only)
         widths = [stage.blocks[-1].conv2.out_channels for stage in unet.down]
         self.input_dim = unet.input_dim
         if self.root_only:
@@ -284,8 +335,14 @@ class UNetControlNet(_ControlNetBase):
         after = torch.where(follows[..., None], F.pad(face[:, 1:], (0, 0, 0, 1)), face)
         turn = torch.atan2(face[..., 0] * after[..., 1] - face[..., 1] * after[..., 0], (face * after).sum(-1))  # (B, T)
         shift = torch.cat([(turn * self.heading_scale)[..., None], out[..., 2:]], -1)  # (B, T, 4)
+        scale = _frames_out(self.out_scale_conv, h, mask, gate)  # (B, T, 4)
+        steps = None
+        if self.floor_steps is not None:  # the velocity's shift and scale act on the step on the floor
+            steps = FloorSteps(shift[..., 1:3], scale[..., 1:3], gate, mask, *self.floor_steps)
+            keep = torch.tensor([1.0, 0.0, 0.0, 1.0], device=shift.device, dtype=shift.dtype)
+            shift, scale = shift * keep, scale * keep
         pad = (0, self.input_dim - ROOT_CHANNELS)
-        return Residuals([], F.pad(shift, pad), F.pad(_frames_out(self.out_scale_conv, h, mask, gate), pad))
+        return Residuals([], F.pad(shift, pad), F.pad(scale, pad), steps)
 
     @staticmethod
     def run_base(unet: CondUNet1D, x: torch.Tensor, t: torch.Tensor, ctx: Conditioning,
@@ -314,6 +371,23 @@ class UNetControlNet(_ControlNetBase):
             if not unet.upsample_first and j < len(unet.upsample):
                 h = unet.resample(unet.upsample[j], h, ctx.masks[level - 1])
         return residuals.apply_output(unet.output(h, x_in, adagn, ctx))  # (B, T, D)
+
+
+def _root_stats(floor_steps: dict, root_only: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    """control.floor_steps {mean: [3], std: [3]} (the base's statistics of the root's first three
+    channels) -> (mean, std) tensors, checked."""
+    what = "controlnet.control.floor_steps"
+    if not root_only:
+        raise StableMoError(f"{what}: only a root_only ControlNet predicts the root's steps on the floor")
+    if not isinstance(floor_steps, dict) or set(floor_steps) != {"mean", "std"}:
+        raise StableMoError(f"{what}: expected {{mean: [3 numbers], std: [3 numbers]}}, got {floor_steps!r}")
+    try:
+        mean, std = (torch.tensor([float(v) for v in floor_steps[k]]) for k in ("mean", "std"))
+    except (TypeError, ValueError):
+        raise StableMoError(f"{what}: mean and std must be lists of 3 numbers, got {floor_steps!r}") from None
+    if mean.shape != (3,) or std.shape != (3,) or not bool(torch.isfinite(mean).all()) or not bool((std > 0).all()):
+        raise StableMoError(f"{what}: mean and std must be 3 finite numbers, std > 0, got {floor_steps!r}")
+    return mean, std
 
 
 def _block_copy(net: nn.Module, blocks: int) -> nn.Module:
@@ -388,10 +462,11 @@ def _add_to_frames(h: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
 
 def make_controlnet(denoiser: nn.Module, joints: int, **control) -> _ControlNetBase:
     """The ControlNet form for `denoiser` (a CondUNet1D, DiT or RetNet), with its copy made now;
-    control: channels, layers, path, output, output_scale (and root_only, heading_scale for a UNet,
+    control: channels, layers, path, output, output_scale (and root_only, heading_scale, floor_steps for a UNet,
     blocks for a DiT/RetNet)."""
     if isinstance(denoiser, CondUNet1D):
-        form, known = UNetControlNet, {"channels", "layers", "path", "output", "output_scale", "root_only", "heading_scale"}
+        form, known = UNetControlNet, {"channels", "layers", "path", "output", "output_scale", "root_only",
+                                       "heading_scale", "floor_steps"}
     elif isinstance(denoiser, (DiT, RetNet)):
         form, known = TokenControlNet, {"channels", "layers", "path", "output", "output_scale", "blocks"}
     else:

@@ -162,6 +162,11 @@ class ControlNetTraining(LightningModule):
             # the root-only form's facing turns in the base's normalised rotation-velocity units
             control = {**control, "heading_scale": 1.0 / float(config["std"][0])}
             self.hparams.control = control  # exported as trained
+        if control and control.get("floor_steps") is True:
+            # its steps on the floor are turned into the body's frame with the base's statistics
+            stats = {"mean": [float(v) for v in config["mean"][:3]], "std": [float(v) for v in config["std"][:3]]}
+            control = {**control, "floor_steps": stats}
+            self.hparams.control = control
         base_model = model_kind(self.base_kind, base).build_model(config, base)
         base_model.load_state_dict(bundle.state_dict)
         self.model = ControlledModel(base_model.eval().requires_grad_(False), self.base_kind,
