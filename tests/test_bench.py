@@ -44,9 +44,10 @@ def test_aits_table_and_json(tiny_config, tmp_path, capsys):
         (False, False, "fp32"), (True, False, "fp32"), (True, True, "fp32"), (True, True, "bf16"), (True, False, "fp32")]
     # the student runs its network once on batch 1: half the FLOPs of a CFG step
     assert rows[5]["sampler"] == "lcm" and rows[5]["flops_per_step"] == pytest.approx(rows[1]["flops_per_step"] / 2)
-    # + ControlNet (the encoder half again, the hint encoder): more than the student's, less than twice
+    # + ControlNet (the shipped form: the first stage again and the hint encoder, whose 64 channels
+    # outweigh this tiny network's 16): more than the student's, less than three times
     assert [r["name"] for r in rows[6:]] == [bench.CONTROLNET_ROW, bench.CONTROLNET_GUIDED_ROW]
-    assert rows[5]["flops_per_step"] < rows[6]["flops_per_step"] < 2 * rows[5]["flops_per_step"]
+    assert rows[5]["flops_per_step"] < rows[6]["flops_per_step"] < 3 * rows[5]["flops_per_step"]
     assert f"'{bench.CONTROLNET_ROW}' AITS / '{bench.STUDENT_ROW}' AITS" in text
     assert data["matmul_fp32_gflops"] > 0 and data["frames"] == 12
     # the distillation speed-up again over a test set's varied lengths, side by side

@@ -435,7 +435,7 @@ def format_report(result: dict) -> str:
     for name in by_name:
         if "ControlNet" in name and base in by_name:
             notes.append(f"'{name}' AITS / '{base}' AITS: {by_name[name].aits / by_name[base].aits:.2f} "
-                         "(dense pelvis path; the ControlNet's copy is its base's encoder half)")
+                         "(dense pelvis path)")
     varied = result.get("varied_lengths")
     if varied:
         notes.append(f"the same two over {len(varied['lengths'])} sentences of varied lengths "
