@@ -181,16 +181,18 @@ class FloorSteps:
 
     def apply(self, base: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
         """base, out (B, T, D) normalised: the network's output, and with the other injections ->
-        out with channels 1, 2 (the body-frame velocity) from the steps, on gated valid frames."""
+        out with channels 1, 2 (the body-frame velocity) from the steps, on gated valid frames. In float32
+        whatever the network's precision: the heading is a sum over every earlier frame."""
+        dtype, base, out = out.dtype, base.float(), out.float()
         mean, std = self.mean[1:3].to(out), self.std[1:3].to(out)
         cos, sin = self._turns(base)
         v = (base[..., 1:3] * std + mean) * PATH_SCALE  # (B, T, 2) the base's velocity, body frame
         own = torch.stack([cos * v[..., 0] - sin * v[..., 1], sin * v[..., 0] + cos * v[..., 1]], -1)  # on the floor
-        step = (own * (1 + self.scale) + self.shift) / PATH_SCALE  # (B, T, 2) dataset units per frame
+        step = (own * (1 + self.scale.float()) + self.shift.float()) / PATH_SCALE  # (B, T, 2) dataset units per frame
         cos, sin = self._turns(out)
         local = torch.stack([cos * step[..., 0] + sin * step[..., 1], cos * step[..., 1] - sin * step[..., 0]], -1)
         use = (self.mask[..., None] & (self.gate > 0)).expand_as(local)
-        return torch.cat([out[..., :1], torch.where(use, (local - mean) / std, out[..., 1:3]), out[..., 3:]], -1)
+        return torch.cat([out[..., :1], torch.where(use, (local - mean) / std, out[..., 1:3]), out[..., 3:]], -1).to(dtype)
 
 
 @dataclass
