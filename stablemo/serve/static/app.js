@@ -200,6 +200,13 @@ function resize() {
 
 S.three = { scene, camera, renderer, controls, floor };  // for debugging in the console
 
+// A lost WebGL context (a GPU reset; software WebGL on a machine too busy to answer in time) leaves
+// the canvas blank until the page draws again: let the browser restore it (preventDefault), and
+// draw the scene again once it has (three.js rebuilds its own state on restore).
+S.contextLosses = 0;
+canvas.addEventListener('webglcontextlost', (e) => { e.preventDefault(); S.contextLosses++; });
+canvas.addEventListener('webglcontextrestored', () => { dirtyView = true; });
+
 // The body (static/body.js: our mannequin from the server's GLB) is shown instead of the stick figure
 // when it holds the motion on screen (or, before any motion, the model's body at rest), unless the
 // stick figure is asked for, a joint is being dragged (the sticks' joints are the handles) or a
