@@ -53,6 +53,7 @@ from torch import nn
 
 from stablemo.control.hints import PATH_SCALE, hint_channels
 from stablemo.errors import StableMoError
+from stablemo.motion.quaternion import qinv, qrot
 from stablemo.nets.conditioning import Conditioning, check_conditioning
 from stablemo.nets.dit import DiT
 from stablemo.nets.layers import masked_mean, zero_pad_bct, zero_pad_btc
@@ -173,11 +174,12 @@ class FloorSteps:
     mean: torch.Tensor
     std: torch.Tensor
 
-    def _turns(self, out: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """cos, sin (B, T) of 2 a_{t+1}, the turn about +y of recover_root's quaternion for velocity t
-        (a_{t+1}: the sum of rotation velocities 0..t)."""
-        angle = 2 * torch.cumsum(out[..., 0] * self.std[0].to(out) + self.mean[0].to(out), 1)
-        return torch.cos(angle), torch.sin(angle)
+    def _headings(self, out: torch.Tensor) -> torch.Tensor:
+        """(B, T, 4) recover_root's yaw quaternion of frame t + 1, the one velocity t is seen from
+        (its angle: the sum of rotation velocities 0..t)."""
+        angle = torch.cumsum(out[..., 0] * self.std[0].to(out) + self.mean[0].to(out), 1)
+        zero = torch.zeros_like(angle)
+        return torch.stack([torch.cos(angle), zero, torch.sin(angle), zero], -1)
 
     def apply(self, base: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
         """base, out (B, T, D) normalised: the network's output, and with the other injections ->
@@ -185,14 +187,17 @@ class FloorSteps:
         whatever the network's precision: the heading is a sum over every earlier frame."""
         dtype, base, out = out.dtype, base.float(), out.float()
         mean, std = self.mean[1:3].to(out), self.std[1:3].to(out)
-        cos, sin = self._turns(base)
         v = (base[..., 1:3] * std + mean) * PATH_SCALE  # (B, T, 2) the base's velocity, body frame
-        own = torch.stack([cos * v[..., 0] - sin * v[..., 1], sin * v[..., 0] + cos * v[..., 1]], -1)  # on the floor
+        own = qrot(qinv(self._headings(base)), _on_floor(v))[..., 0::2]  # (B, T, 2) its step on the floor
         step = (own * (1 + self.scale.float()) + self.shift.float()) / PATH_SCALE  # (B, T, 2) dataset units per frame
-        cos, sin = self._turns(out)
-        local = torch.stack([cos * step[..., 0] + sin * step[..., 1], cos * step[..., 1] - sin * step[..., 0]], -1)
+        local = qrot(self._headings(out), _on_floor(step))[..., 0::2]  # (B, T, 2) seen from the output's heading
         use = (self.mask[..., None] & (self.gate > 0)).expand_as(local)
         return torch.cat([out[..., :1], torch.where(use, (local - mean) / std, out[..., 1:3]), out[..., 3:]], -1).to(dtype)
+
+
+def _on_floor(xz: torch.Tensor) -> torch.Tensor:
+    """(..., 2) x, z -> (..., 3) x, 0, z."""
+    return torch.stack([xz[..., 0], torch.zeros_like(xz[..., 0]), xz[..., 1]], -1)
 
 
 @dataclass

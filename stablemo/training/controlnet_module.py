@@ -33,7 +33,9 @@ turning the path needs) is the base's, the body-frame velocity included, so the 
 walks as the text walked it (forward, backward, sideways), and the pace the path is timed at is its
 legs' own, as the page times a drawn path by the motion on screen. A root-only ControlNet
 (control.root_only) is held on the root channels it sets. Tried on 2026-12-06 as a fine-tune of the
-shipped ControlNet and as the root-only form (docs/control.md): neither is the shipped recipe yet.
+full ControlNet shipped then, and as the root-only form; the root-only form with steps on the floor
+(control.floor_steps), trained this way and then against the clips, is shipped since 2026-12-07
+(docs/control.md).
 Only the ControlNet trains; the base stays frozen and in eval mode. Its EMA is what export writes.
 Randomness comes from (seed, step, batch, rank), so a resumed run repeats the uninterrupted one.
 """
