@@ -96,15 +96,16 @@ def close(actual, expected, rtol=1e-5):
     torch.testing.assert_close(actual, expected, rtol=rtol, atol=rtol * float(expected.abs().max()))
 
 
-def check_zero_start_and_padding_invariance(base, model) -> tuple:
-    """The controlled model is its base at initialisation, and after its injections get weights the
-    valid output does not depend on padded garbage, a longer batch or the batch mates. Returns the
-    inputs for further checks."""
+def check_zero_start_and_padding_invariance(base, model, exact_start: bool = True) -> tuple:
+    """The controlled model is its base at initialisation (exact_start), and after its injections
+    get weights the valid output does not depend on padded garbage, a longer batch or the batch
+    mates. Returns the inputs for further checks."""
     text, text_mask = base.encode_text(["a person walks", "a person jumps"])
     x, t, mask, hint = inputs()
     with torch.no_grad():
         ref = base(x, t, text, text_mask, mask)
-        assert torch.equal(model(x, t, text, text_mask, mask, hint), ref)  # zero injections: the base exactly
+        if exact_start:
+            assert torch.equal(model(x, t, text, text_mask, mask, hint), ref)  # zero injections: the base exactly
         perturb(model.control)
         out = model(x, t, text, text_mask, mask, hint)
         assert (out - ref).abs().max() > 1e-2  # the hint now acts
@@ -260,6 +261,80 @@ def test_root_only_floor_steps_set_the_path_as_the_sum_of_its_steps_whatever_the
             ControlledModel(base, "diffusion", J, {**form, "floor_steps": bad})
     with pytest.raises(StableMoError, match="only a root_only ControlNet"):
         ControlledModel(base, "diffusion", J, {"output": True, "floor_steps": stats})
+
+
+def test_toward_next_target_reads_each_frames_line_to_the_next_target():
+    """Dense targets: each frame's own step direction; sparse ones: the chord from the last target
+    (the origin before the first) to the next; nothing after the last target or along a chord
+    that does not move."""
+    from stablemo.control.hints import toward_next_target
+
+    T = 10
+    pos = torch.zeros(3, T, 2)
+    mask = torch.zeros(3, T, dtype=torch.bool)
+    pos[0, :, 0] = 0.05 * torch.arange(T)  # dense, along +x at 1 m/s
+    mask[0] = True
+    mask[1, [3, 7]] = True  # sparse: (0, 1) at frame 3, then (1, 1) at frame 7
+    pos[1, 3], pos[1, 7] = torch.tensor([0.0, 1.0]), torch.tensor([1.0, 1.0])
+    mask[2, [2, 8]] = True  # a target held in place: no direction
+    pos[2, 2] = pos[2, 8] = torch.tensor([0.0, 0.001])
+    u, speed = toward_next_target(pos, mask)
+    close(u[0, :-1], torch.tensor([1.0, 0.0]).expand(T - 1, 2))
+    close(speed[0, :-1], torch.ones(T - 1))  # m/s
+    assert torch.all(u[0, -1] == 0) and speed[0, -1] == 0  # no target after the last frame
+    close(u[1, :3], torch.tensor([0.0, 1.0]).expand(3, 2))  # from the origin to the first target
+    close(speed[1, :3], torch.full((3,), 20.0 / 3))  # 1 m in 3 frames at 20 fps
+    close(u[1, 3:7], torch.tensor([1.0, 0.0]).expand(4, 2))  # the chord between them
+    close(speed[1, 3:7], torch.full((4,), 5.0))
+    assert torch.all(u[1, 7:] == 0) and torch.all(u[2] == 0) and torch.all(speed[1, 7:] == 0) and torch.all(speed[2] == 0)
+
+
+def test_toward_targets_points_the_bases_steps_at_the_next_target():
+    """control.toward_targets: at initialisation each step is the base's own step length along the
+    line to the pelvis's next target (its own direction where none follows), so a path drawn away
+    from where the base walks is walked that way from the start; it needs floor_steps."""
+    from stablemo.control.hints import toward_next_target
+    from stablemo.motion.features import recover_root
+
+    base = tiny_base()
+    mean, std = torch.tensor([0.01, 0.02, 0.3]), torch.tensor([0.05, 0.2, 0.4])
+    form = {"channels": 16, "layers": 2, "output": True, "output_scale": True, "root_only": True,
+            "heading_scale": 1.0 / 0.05, "floor_steps": {"mean": mean.tolist(), "std": std.tolist()},
+            "toward_targets": True}
+    model = ControlledModel(base, "diffusion", J, form).eval()
+    text, text_mask = base.encode_text(["a person walks", "a person jumps"])
+    x, t, mask, _ = inputs()
+    targets = torch.zeros(2, 32, J, 3)
+    angle = torch.linspace(0.0, 3.0, 32)  # sample 0: a dense curve set off behind the body (-z)
+    targets[0, :, 0, 0] = torch.cumsum(0.04 * torch.sin(angle), 0)
+    targets[0, :, 0, 2] = -torch.cumsum(0.04 * torch.cos(angle), 0)
+    hint_mask = torch.zeros(2, 32, J, dtype=torch.bool)
+    hint_mask[0, :, 0] = True
+    hint_mask[1, 10, 0] = True  # sample 1: one target, then nothing
+    targets[1, 10, 0] = torch.tensor([1.0, 0.0, -1.0])
+    hint = hint_input(targets, hint_mask)
+    scale = torch.cat([std, torch.ones(D - 3)])
+    shift = torch.cat([mean, torch.zeros(D - 3)])
+    with torch.no_grad():
+        ref = base(x, t, text, text_mask, mask)
+        out = model(x, t, text, text_mask, mask, hint)
+    own = torch.diff(recover_root(ref * scale + shift)[1][..., [0, 2]], dim=1)  # (B, T-1, 2) the base's steps
+    steps = torch.diff(recover_root(out * scale + shift)[1][..., [0, 2]], dim=1)
+    u, _ = toward_next_target(targets[..., 0, [0, 2]], hint_mask[..., 0])
+    for b, n in enumerate(mask.sum(1).tolist()):
+        aimed = u[b, :n - 1].norm(dim=-1) > 0
+        assert aimed.sum() >= (n - 2 if b == 0 else 10)
+        close(steps[b, :n - 1][aimed], own[b, :n - 1][aimed].norm(dim=-1, keepdim=True) * u[b, :n - 1][aimed])
+        if not bool(aimed.all()):  # no next target: the base's own step
+            close(steps[b, :n - 1][~aimed], own[b, :n - 1][~aimed])
+    assert float((steps[0, :8, 1] / own[0, :8].norm(dim=-1)).max()) < -0.7  # towards -z, which the base does not walk
+    assert torch.equal(out[..., 3:], ref[..., 3:])
+    # the output reads the chord's velocity too, and stays padding invariant once it has weights
+    assert model.control.hint_out.in_channels == 16 + model.control.hint_width + 3
+    # (its start is not the base: the steps already point at the targets)
+    check_zero_start_and_padding_invariance(base, ControlledModel(base, "diffusion", J, form).eval(), exact_start=False)
+    with pytest.raises(StableMoError, match="toward_targets .* needs floor_steps"):
+        ControlledModel(base, "diffusion", J, {k: v for k, v in form.items() if k != "floor_steps"})
 
 
 def test_a_sample_without_targets_is_its_base_exactly_beside_controlled_ones():
@@ -719,6 +794,24 @@ def test_shipped_control_configs_parse(name, capsys):
     assert bool(printed["model"]["init_args"]["control"].get("root_only")) == root
     assert printed["model"]["init_args"]["control"].get("floor_steps") == (True if "floor" in name else None)
 
+
+
+def test_toward_overlay_changes_only_the_steps_direction(capsys):
+    import yaml
+
+    from stablemo.cli.train import main_fit
+
+    base = str(REPO / "configs" / "control" / "controlnet_lcm_pelvis_floor.yaml")
+    printed = []
+    for overlay in ([], ["--config", str(REPO / "configs" / "control" / "controlnet_lcm_pelvis_toward.yaml")]):
+        with pytest.raises(SystemExit) as exit_:
+            main_fit(["--config", base, *overlay, "--print_config"])
+        assert exit_.value.code in (0, None)
+        printed.append(yaml.safe_load(capsys.readouterr().out))
+    floor, toward = (p["model"]["init_args"] for p in printed)
+    assert toward["control"] == {**floor["control"], "toward_targets": True}
+    assert {k for k in toward if toward[k] != floor[k]} == {"control"}
+    assert printed[1]["trainer"]["default_root_dir"] == "runs/controlnet_lcm_pelvis_toward"
 
 
 def test_skate_overlay_fine_tunes_the_shipped_controlnet(capsys):

@@ -25,7 +25,11 @@
   velocity is likewise a step on the floor, turned into the body's frame by its own heading
   (`FloorSteps`): the path is then the sum of per-frame readings of the hint's velocity, not of
   velocities that only sum to the path once turned by a heading summed over every earlier frame
-  (without it the path drifted 26-101 cm from its hint on mean). The frozen network
+  (without it the path drifted 26-101 cm from its hint on mean). With `toward_targets` too, each
+  step starts as the base's own step length along the line to the pelvis's next target
+  (`hints.toward_next_target`), and the output also reads that line's velocity: a step left in the
+  base's direction had to be turned by the network, which fell short on paths setting off away
+  from where the base walks (20-70 cm off). The frozen network
   runs unchanged, so the body is its base's as generated: the legs keep their gait and the contact
   channels their phase, and the finishing step plants the feet as for a free motion. A full
   ControlNet trained from t = 999 against the clip learns the average over gait phases, the legs
@@ -35,7 +39,8 @@
 - `ControlledModel`: the frozen base (a MotionDiffusionModel or a ConsistencyStudent) and its
   ControlNet, with the base's `prepare`/`denoise` contract plus a hint.
 
-At initialisation every injection is exactly zero, so a controlled model is its base. A sample
+At initialisation every injection is exactly zero, so a controlled model is its base (with
+`toward_targets`, its base's steps pointed at the targets: the base's gait and pace). A sample
 whose hint has no target gets no injection at all (a per-sample gate), so a free prompt served by a
 controlled bundle is exactly its base's motion, and a batch mixing free and controlled prompts
 gives each the motion it would get alone. Every operator masks padded frames, so the controlled
@@ -51,7 +56,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from stablemo.control.hints import PATH_SCALE, hint_channels
+from stablemo.control.hints import PATH_SCALE, hint_channels, toward_next_target
 from stablemo.errors import StableMoError
 from stablemo.motion.quaternion import qinv, qrot
 from stablemo.nets.conditioning import Conditioning, check_conditioning
@@ -165,7 +170,10 @@ class FloorSteps:
     initialisation: the base's velocity back), in PATH_SCALE units (m/s at 20 fps, as the hint's
     velocity channels); it is turned into the body's frame by the output's heading (the one the
     recovery will use, stablemo.motion.features.recover_root). gate (B, 1, 1), mask (B, T): where
-    it applies; mean/std (3,): the model's statistics of the root's first three channels."""
+    it applies; mean/std (3,): the model's statistics of the root's first three channels; toward
+    (B, T, 2) or None: a unit direction to the next target per frame (zero where none), along
+    which the base's step is laid at its own length before scale (then along and across that
+    line) and shift act."""
 
     shift: torch.Tensor
     scale: torch.Tensor
@@ -173,6 +181,7 @@ class FloorSteps:
     mask: torch.Tensor
     mean: torch.Tensor
     std: torch.Tensor
+    toward: torch.Tensor | None = None  # (B, T, 2) unit direction to the next target, zero where none
 
     def _headings(self, out: torch.Tensor) -> torch.Tensor:
         """(B, T, 4) recover_root's yaw quaternion of frame t + 1, the one velocity t is seen from
@@ -189,7 +198,18 @@ class FloorSteps:
         mean, std = self.mean[1:3].to(out), self.std[1:3].to(out)
         v = (base[..., 1:3] * std + mean) * PATH_SCALE  # (B, T, 2) the base's velocity, body frame
         own = qrot(qinv(self._headings(base)), _on_floor(v))[..., 0::2]  # (B, T, 2) its step on the floor
-        step = (own * (1 + self.scale.float()) + self.shift.float()) / PATH_SCALE  # (B, T, 2) dataset units per frame
+        if self.toward is None:
+            step = own * (1 + self.scale.float()) + self.shift.float()
+        else:
+            # the base's step at its own length, pointed at the next target where there is one;
+            # scale then changes the pace along that line (0) and steps across it (1)
+            length = own.norm(dim=-1, keepdim=True)  # (B, T, 1)
+            known = self.toward.float().norm(dim=-1, keepdim=True) > 0.5
+            u = torch.where(known, self.toward.float(), own / length.clamp(min=1e-6))  # (B, T, 2)
+            across = torch.stack([u[..., 1], -u[..., 0]], -1)
+            scale = self.scale.float()
+            step = length * ((1 + scale[..., :1]) * u + scale[..., 1:] * across) + self.shift.float()
+        step = step / PATH_SCALE  # (B, T, 2) dataset units per frame
         local = qrot(self._headings(out), _on_floor(step))[..., 0::2]  # (B, T, 2) seen from the output's heading
         use = (self.mask[..., None] & (self.gate > 0)).expand_as(local)
         return torch.cat([out[..., :1], torch.where(use, (local - mean) / std, out[..., 1:3]), out[..., 3:]], -1).to(dtype)
@@ -258,7 +278,7 @@ class UNetControlNet(_ControlNetBase):
 
     def __init__(self, unet: CondUNet1D, joints: int, channels: int = 64, layers: int = 3, path: bool = False,
                  output: bool = False, output_scale: bool = False, root_only: bool = False,
-                 heading_scale: float | None = None, floor_steps: dict | None = None):
+                 heading_scale: float | None = None, floor_steps: dict | None = None, toward_targets: bool = False):
         super().__init__(joints, unet.input_dim, channels, layers, path)
         self.root_only = bool(root_only)
         if self.root_only != (heading_scale is not None) or (root_only and not float(heading_scale) > 0):
@@ -269,6 +289,9 @@ class UNetControlNet(_ControlNetBase):
         self.floor_steps = None
         if floor_steps is not None:
             self.floor_steps = _root_stats(floor_steps, root_only)
+        if toward_targets and self.floor_steps is None:
+            raise StableMoError("controlnet.control: toward_targets points the root's steps on the floor; it needs floor_steps")
+        self.toward_targets = bool(toward_targets)
         widths = [stage.blocks[-1].conv2.out_channels for stage in unet.down]
         self.input_dim = unet.input_dim
         if self.root_only:
@@ -282,7 +305,8 @@ class UNetControlNet(_ControlNetBase):
             # and the output reads the hint itself and its features too, straight (the facing is a
             # per-frame reading of its direction channels, a linear one from the hint; through the
             # copy it competes with x_t's noise)
-            self.hint_out = _zeroed(nn.Conv1d(channels + self.hint_width, ROOT_CHANNELS + 1, 1))
+            # (toward_targets: and the chord to the pelvis's next target, its velocity and whether there is one)
+            self.hint_out = _zeroed(nn.Conv1d(channels + self.hint_width + 3 * self.toward_targets, ROOT_CHANNELS + 1, 1))
             self.skip_convs, self.mid_conv = nn.ModuleList(), None
             out_dim = ROOT_CHANNELS + 1  # the facing vector in place of the rotation: one more
         else:
@@ -331,6 +355,12 @@ class UNetControlNet(_ControlNetBase):
         root's channels, times the gate. hint: encode_hint's (B, channels + hint width, T)."""
         mask = ctx.masks[0]
         features = hint[:, :self.hint_encoder.out.in_channels]  # (B, channels, T)
+        toward = None
+        if self.toward_targets:  # the pelvis's targets, read off the raw hint: x, z and the mask
+            raw = hint[:, features.shape[1]:].float()  # (B, hint width, T); float32: a chord spans many frames
+            toward, speed = toward_next_target(raw[:, [0, 2]].transpose(1, 2), raw[:, 3 * self.joints] > 0.5)
+            chord = torch.cat([toward * speed[..., None], (speed > 0)[..., None].float()], -1)  # (B, T, 3)
+            hint = torch.cat([hint, zero_pad_bct(chord.transpose(1, 2).to(hint.dtype), mask)], 1)
         h = zero_pad_bct(x.transpose(1, 2), mask) + zero_pad_bct(self.hint_encoder.out(features), mask)
         h = self.encoder.stage(h, self.encoder.step_adagn(t, ctx)[0], ctx.text_contexts[0], mask)
         out = _frames_out(self.out_conv, h, mask, gate) + _frames_out(self.hint_out, hint, mask, gate)  # (B, T, 5)
@@ -345,7 +375,7 @@ class UNetControlNet(_ControlNetBase):
         scale = _frames_out(self.out_scale_conv, h, mask, gate)  # (B, T, 4)
         steps = None
         if self.floor_steps is not None:  # the velocity's shift and scale act on the step on the floor
-            steps = FloorSteps(shift[..., 1:3], scale[..., 1:3], gate, mask, *self.floor_steps)
+            steps = FloorSteps(shift[..., 1:3], scale[..., 1:3], gate, mask, *self.floor_steps, toward=toward)
             keep = torch.tensor([1.0, 0.0, 0.0, 1.0], device=shift.device, dtype=shift.dtype)
             shift, scale = shift * keep, scale * keep
         pad = (0, self.input_dim - ROOT_CHANNELS)
@@ -469,11 +499,12 @@ def _add_to_frames(h: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
 
 def make_controlnet(denoiser: nn.Module, joints: int, **control) -> _ControlNetBase:
     """The ControlNet form for `denoiser` (a CondUNet1D, DiT or RetNet), with its copy made now;
-    control: channels, layers, path, output, output_scale (and root_only, heading_scale, floor_steps for a UNet,
+    control: channels, layers, path, output, output_scale (and root_only, heading_scale, floor_steps,
+    toward_targets for a UNet,
     blocks for a DiT/RetNet)."""
     if isinstance(denoiser, CondUNet1D):
         form, known = UNetControlNet, {"channels", "layers", "path", "output", "output_scale", "root_only",
-                                       "heading_scale", "floor_steps"}
+                                       "heading_scale", "floor_steps", "toward_targets"}
     elif isinstance(denoiser, (DiT, RetNet)):
         form, known = TokenControlNet, {"channels", "layers", "path", "output", "output_scale", "blocks"}
     else:

@@ -42,6 +42,30 @@ def hint_input(targets: torch.Tensor, mask: torch.Tensor, scale: float = 1.0, pa
     return torch.cat(parts, dim=-1)
 
 
+def toward_next_target(pos: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """One joint's targets pos (B, T, 2) on the floor (zero off the mask), mask (B, T) bool -> the
+    direction (B, T, 2) and speed (B, T) of the chord from the last target at or before frame t (the
+    origin, where the motion starts, before the first) to the first target after t: a unit vector,
+    and the chord's length over its frames in PATH_SCALE units (m/s); both zero where no target
+    follows or the chord moves slower than MOVING_SPEED. Dense targets give each frame its step;
+    sparse ones the straight line between them, walked evenly."""
+    B, T = mask.shape
+    frames = torch.arange(T, device=mask.device).expand(B, T)
+    last = torch.where(mask, frames, torch.full_like(frames, -1)).cummax(1).values  # (B, T), -1: none yet
+    upcoming = torch.where(mask, frames, torch.full_like(frames, T)).flip(1).cummin(1).values.flip(1)
+    following = torch.cat([upcoming[:, 1:], torch.full_like(upcoming[:, :1], T)], 1)  # first target > t, T: none
+    start = torch.where((last >= 0)[..., None], pos.gather(1, last.clamp(min=0)[..., None].expand(B, T, 2)),
+                        torch.zeros_like(pos))
+    end = pos.gather(1, following.clamp(max=T - 1)[..., None].expand(B, T, 2))
+    chord = end - start  # (B, T, 2)
+    size = chord.norm(dim=-1)
+    span = (following - last.clamp(min=0)).clamp(min=1)  # frames the chord is walked over
+    speed = size * PATH_SCALE / span
+    moving = (following < T) & (speed > MOVING_SPEED)
+    direction = torch.where(moving[..., None], chord / size.clamp(min=1e-9)[..., None], torch.zeros_like(chord))
+    return direction, torch.where(moving, speed, torch.zeros_like(speed))
+
+
 def path_features(pos: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """pos (B, T, J, 3) targets (zero off the mask), mask (B, T, J) -> (B, T, J, 8), zero where a
     target has no target neighbour. Velocity: central difference where both neighbours are targets,
@@ -104,4 +128,5 @@ def sample_hint_mask(motion_mask: torch.Tensor, joints: int, generator: torch.Ge
     return out.to(motion_mask.device)
 
 
-__all__ = ["PATH_CHANNELS", "PATH_SCALE", "TRAIN_JOINTS", "hint_channels", "hint_input", "path_features", "sample_hint_mask"]
+__all__ = ["PATH_CHANNELS", "PATH_SCALE", "TRAIN_JOINTS", "hint_channels", "hint_input", "path_features", "sample_hint_mask",
+           "toward_next_target"]

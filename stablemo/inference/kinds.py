@@ -143,7 +143,7 @@ class ControlNetKind:
 
     Bundle config: the base bundle's config with `kind: "controlnet"` and a section `controlnet:
     {base_kind, joints, hint_scale, control: {channels, layers, path, output, output_scale[, root_only,
-    heading_scale[, floor_steps]][, blocks]}}`.
+    heading_scale[, floor_steps[, toward_targets]]][, blocks]}}`.
     """
 
     reads_control = True
