@@ -203,8 +203,9 @@ CONTROL_TABLES = [  # (JSON in docs/data/results/, heading, how it was made)
      "`python scripts/control/report.py --no-teacher --student LCM=stablemo/assets/demo_student --controlnet "
      "\"LCM 1-step=stablemo/assets/demo_controlnet\" --rows none:100%,pelvis:100%,pelvis:25%,pelvis:5,pelvis:1 "
      "--replications 3 --max-items 96 --out docs/data/results/controlnet_results.json` (the shipped pelvis ControlNet, "
-     "root only with steps on the floor: `configs/control/controlnet_lcm_pelvis_floor.yaml`, then "
-     "`configs/control/pelvis_floor_clip.yaml`). Training and reading: docs/control.md. Measured 2026-12-07."),
+     "root only, its steps on the floor toward the next target: `configs/control/controlnet_lcm_pelvis_floor.yaml` "
+     "with `configs/control/controlnet_lcm_pelvis_toward.yaml`, then `configs/control/pelvis_toward_clip.yaml`). "
+     "Training and reading: docs/control.md. Measured 2026-12-07."),
     ("controlnet_teacher_results.json", "Motion ControlNet on the teacher (10 steps)",
      "`python scripts/control/report.py --no-teacher --controlnet \"teacher 10-step=bundles/demo_pelvis_control\" "
      "--rows pelvis:100%,pelvis:5 --replications 2 --max-items 64 --out docs/data/results/controlnet_teacher_results.json` "
@@ -213,7 +214,8 @@ CONTROL_TABLES = [  # (JSON in docs/data/results/, heading, how it was made)
     ("control_facing.json", "Facing along hinted paths, 1-step student and its ControlNet (body steered)",
      "`python scripts/control/report.py --no-teacher --student LCM=stablemo/assets/demo_student --controlnet "
      "\"LCM 1-step=stablemo/assets/demo_controlnet\" --rows none:100%,pelvis:100%,pelvis:5 --replications 2 "
-     "--max-items 64 --out docs/data/results/control_facing.json`, measured 2026-12-07 (the root-only ControlNet). "
+     "--max-items 64 --out docs/data/results/control_facing.json`, measured 2026-12-07 (the root-only ControlNet "
+     "stepping toward the next target). "
      "Facing err: the median over moving frames of the difference between the generated and the hinted motion's "
      "facing-against-travel angles (degrees); Backward / Sideways: shares of moving frames walked so where the "
      "hinted motion walks forward (stablemo.eval.heading). Paths of test motions start facing +z: drawn paths, "
