@@ -25,6 +25,7 @@ import torch
 
 from stablemo.control.heading import gait_angle, steer_heading, text_gait
 from stablemo.diffusion.hooks import StepState
+from stablemo.motion.extract_torch import known_neighbours
 from stablemo.motion.features import feature_slices, features_to_joints, recover_root
 from stablemo.motion.quaternion import qinv, qrot
 from stablemo.motion.skeleton import get_skeleton
@@ -41,8 +42,7 @@ def smooth_offsets(delta: torch.Tensor, anchors: torch.Tensor) -> torch.Tensor:
     frames = torch.arange(T, device=delta.device)
     idx = frames[None, :].expand(B, T)
     # last anchor <= t (-1: none) and first anchor > t (T: none)
-    prev = torch.where(anchors, idx, torch.full_like(idx, -1)).cummax(1).values
-    first_ge = torch.where(anchors, idx, torch.full_like(idx, T)).flip(1).cummin(1).values.flip(1)
+    prev, first_ge = known_neighbours(anchors)
     nxt = torch.cat([first_ge[:, 1:], torch.full_like(first_ge[:, :1], T)], 1)
     before = torch.cat([torch.full_like(prev[:, :1], -1), prev[:, :-1]], 1)  # last anchor < t
 

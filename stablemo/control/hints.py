@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import torch
 
+from stablemo.motion.extract_torch import known_neighbours
+
 # HumanML3D joint indices: pelvis 0, left foot 10, right foot 11, head 15, left wrist 20, right wrist 21
 TRAIN_JOINTS = (0, 10, 11, 15, 20, 21)
 
@@ -50,9 +52,7 @@ def toward_next_target(pos: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Ten
     follows or the chord moves slower than MOVING_SPEED. Dense targets give each frame its step;
     sparse ones the straight line between them, walked evenly."""
     B, T = mask.shape
-    frames = torch.arange(T, device=mask.device).expand(B, T)
-    last = torch.where(mask, frames, torch.full_like(frames, -1)).cummax(1).values  # (B, T), -1: none yet
-    upcoming = torch.where(mask, frames, torch.full_like(frames, T)).flip(1).cummin(1).values.flip(1)
+    last, upcoming = known_neighbours(mask)  # (B, T): last target <= t (-1: none yet), first >= t
     following = torch.cat([upcoming[:, 1:], torch.full_like(upcoming[:, :1], T)], 1)  # first target > t, T: none
     start = torch.where((last >= 0)[..., None], pos.gather(1, last.clamp(min=0)[..., None].expand(B, T, 2)),
                         torch.zeros_like(pos))

@@ -68,6 +68,16 @@ def fill_padding(x: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
     return torch.gather(x, 1, idx.view(b, t, *([1] * (x.dim() - 2))).expand_as(x))
 
 
+def known_neighbours(known: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """known (B, T) bool -> (last, first) (B, T) long: the last known frame at or before each frame
+    (-1: none) and the first known frame at or after it (T: none)."""
+    b, t = known.shape
+    idx = torch.arange(t, device=known.device).expand(b, t)
+    last = torch.where(known, idx, torch.full_like(idx, -1)).cummax(1).values
+    first = torch.where(known, idx, torch.full_like(idx, t)).flip(1).cummin(1).values.flip(1)
+    return last, first
+
+
 def smooth_frames(v: torch.Tensor, sigma: float, radius: int | None = None) -> torch.Tensor:
     """Gaussian smoothing of v (B, T) along T (sigma in frames; radius: the kernel's half width,
     default 3 sigma), edges replicated: run it on padding-filled rows to smooth each motion alone."""

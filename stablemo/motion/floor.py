@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import torch
 
-from stablemo.motion.extract_torch import fill_padding, smooth_frames, valid_lengths
+from stablemo.motion.extract_torch import fill_padding, known_neighbours, smooth_frames, valid_lengths
 from stablemo.motion.skeleton import Skeleton, get_skeleton
 
 # which frames stand on the ground (_on_ground): the lowest joint under LOW_M above the nearby ground
@@ -42,8 +42,7 @@ def _fill_between(values: torch.Tensor, known: torch.Tensor) -> torch.Tensor:
     """values (B, T) where `known`, linearly interpolated in between (held constant past the ends)."""
     b, t = values.shape
     idx = torch.arange(t, device=values.device).expand(b, t)
-    prev = torch.where(known, idx, torch.full_like(idx, -1)).cummax(1).values  # last known <= t
-    nxt = torch.where(known, idx, torch.full_like(idx, t)).flip(1).cummin(1).values.flip(1)  # first known >= t
+    prev, nxt = known_neighbours(known)  # last known <= t, first known >= t
     prev_ok, next_ok = prev >= 0, nxt < t
     prev_c, next_c = prev.clamp(0, t - 1), nxt.clamp(0, t - 1)
     v_prev, v_next = values.gather(1, prev_c), values.gather(1, next_c)
