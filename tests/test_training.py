@@ -381,6 +381,39 @@ def test_export_round_trip_reproduces_the_ema_model(tiny_data, tmp_path):
         export_main([str(tmp_path / "nope.ckpt"), "--out", str(tmp_path / "b2")])
 
 
+def test_init_from_a_bundle_starts_from_its_weights_and_checks_config_and_statistics(tiny_data, tmp_path):
+    from stablemo.cli.export import main as export_main
+    from stablemo.training.module import DiffusionModule
+
+    run = tmp_path / "run"
+    _fit(tiny_config(run, tiny_data, **{"trainer.max_steps": 3}))
+    out = tmp_path / "bundle"
+    assert export_main([str(run / "checkpoints" / "last.ckpt"), "--out", str(out)]) == 0
+    bundle = load_bundle(out)
+
+    module = DiffusionModule(model=TINY_MODEL, init_from=str(out))
+    state = module.model.state_dict()
+    assert set(state) == set(bundle.state_dict)
+    assert all(torch.equal(state[k], bundle.state_dict[k]) for k in state)
+    assert all(torch.equal(module.ema.shadow[k], bundle.state_dict[k]) for k in module.ema.shadow)
+    fresh = DiffusionModule(model=TINY_MODEL).model.state_dict()
+    assert not all(torch.equal(fresh[k], state[k]) for k in state)  # the bundle's, not a new draw
+
+    # training further: the first step starts from the bundle's weights, on data with its statistics
+    further = tmp_path / "further"
+    _fit(tiny_config(further, tiny_data, **{"trainer.max_steps": 2, "model.init_from": str(out)}))
+    assert (further / "checkpoints" / "last.ckpt").is_file()
+
+    other = dict(TINY_MODEL, denoiser=dict(TINY_MODEL["denoiser"], base_channels=8))
+    with pytest.raises(StableMoError, match="model.init_from: .*network config differs"):
+        DiffusionModule(model=other, init_from=str(out))
+    with pytest.raises(StableMoError, match="bundle folder not found"):
+        DiffusionModule(model=TINY_MODEL, init_from=str(tmp_path / "nope"))
+    shifted = write_random_dataset(tmp_path / "shifted", seed=5)
+    with pytest.raises(StableMoError, match="feature mean differs from the bundle's"):
+        _fit(tiny_config(tmp_path / "bad", shifted, **{"trainer.max_steps": 1, "model.init_from": str(out)}))
+
+
 def test_input_dim_mismatch_is_a_clear_error(tiny_data, tmp_path):
     model = dict(TINY_MODEL, denoiser=dict(TINY_MODEL["denoiser"], input_dim=251))
     cfg = tiny_config(tmp_path, tiny_data, **{"model.model": model})

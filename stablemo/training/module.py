@@ -74,6 +74,9 @@ class DiffusionModule(LightningModule):
             (the MSE of the clean-motion estimate x̂0 whatever the output: the paper's x0 objective,
             with, under v_prediction, x̂0 = sqrt(abar) x_t - sqrt(1 - abar) v̂ carrying x_t's detail
             at low noise; for "sample" both are the same loss).
+        init_from: a diffusion bundle whose weights the network (and its EMA) start from, to train
+            a shipped model further (on more data, say); its `model` config must equal `model` and
+            its feature statistics the dataset's. A resumed run takes its weights from the checkpoint.
     """
 
     def __init__(
@@ -94,6 +97,7 @@ class DiffusionModule(LightningModule):
         gemm_conv: bool = True,
         geometry: dict[str, float] | None = None,
         loss_on: str = "target",
+        init_from: str | None = None,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -112,6 +116,7 @@ class DiffusionModule(LightningModule):
         from stablemo.nets.model import MotionDiffusionModel
 
         self.model = MotionDiffusionModel(**model)
+        self.init_stats = None if init_from is None else _init_weights(self.model, model, init_from)
         if fast_training:
             from stablemo.fast.train import accelerate_training
 
@@ -139,6 +144,8 @@ class DiffusionModule(LightningModule):
                 f"model.denoiser.input_dim: {want} does not match the dataset's feature width "
                 f"{self.data_info['feature_dim']} ({self.data_info['dataset']})"
             )
+        if self.init_stats is not None:
+            _check_init_stats(self.init_stats, self.data_info, self.hparams.init_from)
         if self.geometry_weights:
             self.geometric_loss()  # checks the dataset's facts against the terms before the first step
 
@@ -353,6 +360,36 @@ def follow_configured_lrs(optimizer, scheduler, base_lrs: list[float]) -> None:
     if scheduler is not None:
         scheduler.base_lrs = list(base_lrs)
         scheduler._last_lr = [group["lr"] for group in groups]  # what get_last_lr() and the LR monitor report
+
+
+def _init_weights(model: torch.nn.Module, config: dict, bundle_path: str) -> dict:
+    """Load a diffusion bundle's weights into `model` (built from `config`); returns the bundle's
+    feature statistics {mean, std}, which the dataset must share (checked in setup)."""
+    from stablemo.inference.bundle import load_bundle
+
+    bundle = load_bundle(bundle_path)
+    where = f"model.init_from: {bundle_path}"
+    if bundle.config.get("kind", "diffusion") != "diffusion":
+        raise StableMoError(f"{where}: not a diffusion bundle (kind {bundle.config.get('kind')!r})")
+    if bundle.config.get("model") != config:
+        raise StableMoError(f"{where}: its network config differs from this run's model config "
+                            "(train further only the network the bundle holds)")
+    missing, unexpected = model.load_state_dict(bundle.state_dict, strict=False)
+    if missing or unexpected:
+        raise StableMoError(f"{where}: weights do not fit the network ({len(missing)} missing, "
+                            f"{len(unexpected)} unexpected, e.g. {(missing + unexpected)[0]!r})")
+    return {"mean": bundle.config.get("mean"), "std": bundle.config.get("std")}
+
+
+def _check_init_stats(stats: dict, data_info: dict, bundle_path: str) -> None:
+    """The dataset normalises with the statistics the bundle's network was trained with."""
+    for key in ("mean", "std"):
+        want, got = stats.get(key), data_info.get(key)
+        if want is None or got is None or len(want) != len(got) or any(
+                abs(a - b) > 1e-5 * max(1.0, abs(a)) for a, b in zip(want, got)):
+            raise StableMoError(f"model.init_from: {bundle_path}: the dataset's feature {key} differs from the "
+                                f"bundle's; give the data folder the statistics the bundle was trained with "
+                                f"(its Mean.npy and Std.npy)")
 
 
 def data_info_from(datamodule) -> dict:
