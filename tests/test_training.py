@@ -382,8 +382,9 @@ def test_export_round_trip_reproduces_the_ema_model(tiny_data, tmp_path):
 
 
 def test_init_from_a_bundle_starts_from_its_weights_and_checks_config_and_statistics(tiny_data, tmp_path):
+    import shutil
+
     from stablemo.cli.export import main as export_main
-    from stablemo.training.module import DiffusionModule
 
     run = tmp_path / "run"
     _fit(tiny_config(run, tiny_data, **{"trainer.max_steps": 3}))
@@ -391,24 +392,39 @@ def test_init_from_a_bundle_starts_from_its_weights_and_checks_config_and_statis
     assert export_main([str(run / "checkpoints" / "last.ckpt"), "--out", str(out)]) == 0
     bundle = load_bundle(out)
 
-    module = DiffusionModule(model=TINY_MODEL, init_from=str(out))
-    state = module.model.state_dict()
-    assert set(state) == set(bundle.state_dict)
-    assert all(torch.equal(state[k], bundle.state_dict[k]) for k in state)
-    assert all(torch.equal(module.ema.shadow[k], bundle.state_dict[k]) for k in module.ema.shadow)
-    fresh = DiffusionModule(model=TINY_MODEL).model.state_dict()
-    assert not all(torch.equal(fresh[k], state[k]) for k in state)  # the bundle's, not a new draw
+    # one step at learning rate 0 (AdamW's decay is scaled by it too): the weights the run starts from
+    still = tmp_path / "still"
+    _fit(tiny_config(still, tiny_data, **{"trainer.max_steps": 1, "model.init_from": str(out)}), "--model.lr=0.0")
+    ckpt = load_checkpoint_file(still / "checkpoints" / "last.ckpt")
+    raw = {k[len("model."):]: v for k, v in ckpt["state_dict"].items() if k.startswith("model.")}
+    shadow = ckpt["stablemo"]["ema"]["shadow"]
+    assert set(raw) == set(bundle.state_dict)
+    assert all(torch.equal(raw[k], bundle.state_dict[k]) for k in raw)
+    assert all(torch.equal(shadow[k], bundle.state_dict[k]) for k in shadow)
 
-    # training further: the first step starts from the bundle's weights, on data with its statistics
-    further = tmp_path / "further"
-    _fit(tiny_config(further, tiny_data, **{"trainer.max_steps": 2, "model.init_from": str(out)}))
-    assert (further / "checkpoints" / "last.ckpt").is_file()
+    # resuming takes the checkpoint's weights, not the bundle's again: 4 steps straight == 2, then 2
+    straight, split = tmp_path / "straight", tmp_path / "split"
+    _fit(tiny_config(straight, tiny_data, **{"trainer.max_steps": 4, "model.init_from": str(out)}))
+    cfg = tiny_config(split, tiny_data, **{"trainer.max_steps": 4, "model.init_from": str(out)})
+    _fit(cfg, "--trainer.max_steps=2")
+    _fit(cfg, "--ckpt_path=last")
+    a = load_checkpoint_file(straight / "checkpoints" / "last.ckpt")["state_dict"]
+    b = load_checkpoint_file(split / "checkpoints" / "last.ckpt")["state_dict"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert any(not torch.equal(a["model." + k], raw[k]) for k in raw)  # and they trained on from there
+
+    # a checkpoint of such a run exports without the bundle it started from
+    shutil.rmtree(out)
+    assert export_main([str(straight / "checkpoints" / "last.ckpt"), "--out", str(tmp_path / "again")]) == 0
+    assert export_main([str(run / "checkpoints" / "last.ckpt"), "--out", str(out)]) == 0
 
     other = dict(TINY_MODEL, denoiser=dict(TINY_MODEL["denoiser"], base_channels=8))
+    bad = tiny_config(tmp_path / "other", tiny_data, **{"trainer.max_steps": 1, "model.init_from": str(out)})
     with pytest.raises(StableMoError, match="model.init_from: .*network config differs"):
-        DiffusionModule(model=other, init_from=str(out))
-    with pytest.raises(StableMoError, match="bundle folder not found"):
-        DiffusionModule(model=TINY_MODEL, init_from=str(tmp_path / "nope"))
+        _fit(bad, f"--model.model={json.dumps(other)}")
+    with pytest.raises(StableMoError, match="model.init_from: .*bundle folder not found"):
+        _fit(tiny_config(tmp_path / "nope", tiny_data, **{"trainer.max_steps": 1,
+                                                           "model.init_from": str(tmp_path / "nope_bundle")}))
     shifted = write_random_dataset(tmp_path / "shifted", seed=5)
     with pytest.raises(StableMoError, match="feature mean differs from the bundle's"):
         _fit(tiny_config(tmp_path / "bad", shifted, **{"trainer.max_steps": 1, "model.init_from": str(out)}))

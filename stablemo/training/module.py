@@ -116,7 +116,6 @@ class DiffusionModule(LightningModule):
         from stablemo.nets.model import MotionDiffusionModel
 
         self.model = MotionDiffusionModel(**model)
-        self.init_stats = None if init_from is None else _init_weights(self.model, model, init_from)
         if fast_training:
             from stablemo.fast.train import accelerate_training
 
@@ -136,6 +135,9 @@ class DiffusionModule(LightningModule):
     def setup(self, stage: str) -> None:
         datamodule = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
         if datamodule is None or getattr(datamodule, "mean", None) is None:
+            if stage == "fit" and self.hparams.init_from is not None:
+                raise StableMoError("model.init_from: needs a data module with feature statistics (checked "
+                                    "against the bundle's)")
             return
         self.data_info = data_info_from(datamodule)
         want = self.hparams.model.get("denoiser", {}).get("input_dim")
@@ -144,8 +146,11 @@ class DiffusionModule(LightningModule):
                 f"model.denoiser.input_dim: {want} does not match the dataset's feature width "
                 f"{self.data_info['feature_dim']} ({self.data_info['dataset']})"
             )
-        if self.init_stats is not None:
-            _check_init_stats(self.init_stats, self.data_info, self.hparams.init_from)
+        if stage == "fit" and self.hparams.init_from is not None:
+            # here, not in __init__: a checkpoint of this run loads (export, resume) without the
+            # bundle, and a resumed run's checkpoint is restored after setup, over these weights
+            _init_weights(self.model, self.hparams.model, self.hparams.init_from, self.data_info)
+            self.ema = EMA(self.model, decay=self.hparams.ema_decay, warmup=self.hparams.ema_warmup)
         if self.geometry_weights:
             self.geometric_loss()  # checks the dataset's facts against the terms before the first step
 
@@ -362,34 +367,32 @@ def follow_configured_lrs(optimizer, scheduler, base_lrs: list[float]) -> None:
         scheduler._last_lr = [group["lr"] for group in groups]  # what get_last_lr() and the LR monitor report
 
 
-def _init_weights(model: torch.nn.Module, config: dict, bundle_path: str) -> dict:
-    """Load a diffusion bundle's weights into `model` (built from `config`); returns the bundle's
-    feature statistics {mean, std}, which the dataset must share (checked in setup)."""
+def _init_weights(model: torch.nn.Module, config: dict, bundle_path: str, data_info: dict) -> None:
+    """Load a diffusion bundle's weights into `model` (built from `config`), after checking that the
+    bundle holds this network and that the dataset (`data_info`) normalises its features with the
+    statistics the bundle's network was trained with."""
     from stablemo.inference.bundle import load_bundle
 
-    bundle = load_bundle(bundle_path)
     where = f"model.init_from: {bundle_path}"
+    try:
+        bundle = load_bundle(bundle_path)
+    except StableMoError as err:
+        raise StableMoError(f"model.init_from: {err}") from None
     if bundle.config.get("kind", "diffusion") != "diffusion":
         raise StableMoError(f"{where}: not a diffusion bundle (kind {bundle.config.get('kind')!r})")
     if bundle.config.get("model") != config:
         raise StableMoError(f"{where}: its network config differs from this run's model config "
                             "(train further only the network the bundle holds)")
+    for key in ("mean", "std"):
+        want, got = bundle.config.get(key), data_info.get(key)
+        if want is None or got is None or len(want) != len(got) or any(
+                abs(a - b) > 1e-5 * max(1.0, abs(a)) for a, b in zip(want, got)):
+            raise StableMoError(f"{where}: the dataset's feature {key} differs from the bundle's; give the "
+                                f"data folder the statistics the bundle was trained with (its Mean.npy and Std.npy)")
     missing, unexpected = model.load_state_dict(bundle.state_dict, strict=False)
     if missing or unexpected:
         raise StableMoError(f"{where}: weights do not fit the network ({len(missing)} missing, "
                             f"{len(unexpected)} unexpected, e.g. {(missing + unexpected)[0]!r})")
-    return {"mean": bundle.config.get("mean"), "std": bundle.config.get("std")}
-
-
-def _check_init_stats(stats: dict, data_info: dict, bundle_path: str) -> None:
-    """The dataset normalises with the statistics the bundle's network was trained with."""
-    for key in ("mean", "std"):
-        want, got = stats.get(key), data_info.get(key)
-        if want is None or got is None or len(want) != len(got) or any(
-                abs(a - b) > 1e-5 * max(1.0, abs(a)) for a, b in zip(want, got)):
-            raise StableMoError(f"model.init_from: {bundle_path}: the dataset's feature {key} differs from the "
-                                f"bundle's; give the data folder the statistics the bundle was trained with "
-                                f"(its Mean.npy and Std.npy)")
 
 
 def data_info_from(datamodule) -> dict:
