@@ -462,7 +462,8 @@ CONFIG_SETS = [["synth_small.yaml"], ["humanml3d.yaml"], ["kit.yaml"]] + [
     ["ablation/common.yaml", f"ablation/{v}.yaml"] for v in ABLATION] + [
     ["demo.yaml"], ["demo.yaml", "demo_variants/input_head_k1.yaml"], ["demo.yaml", "demo_variants/no_input_head.yaml"],
     ["demo.yaml", "demo_variants/no_mid_attention.yaml"], ["demo.yaml", "demo_variants/base16.yaml"],
-    ["demo.yaml", "demo_variants/base64.yaml"], ["demo.yaml", "demo_variants/text_noise.yaml"]]
+    ["demo.yaml", "demo_variants/base64.yaml"], ["demo.yaml", "demo_variants/text_noise.yaml"],
+    ["demo.yaml", "demo_variants/further_same_data.yaml"], ["demo.yaml", "demo_variants/further_more_data.yaml"]]
 
 
 @pytest.mark.parametrize("files", CONFIG_SETS, ids=lambda f: f[-1])
@@ -489,6 +490,29 @@ def test_shipped_configs_parse(files, capsys):
         assert model["model"]["text"]["encoder"] == "openai/clip-vit-base-patch32"
         # the paper configs train the published network (293.7 M), padded as its layout needs
         assert model["model"]["denoiser"]["variant"] == "official" and printed["data"]["pad_multiple"] == 16
+
+
+@pytest.mark.parametrize("variant, data_dir", [("further_same_data", "data/synth"),
+                                               ("further_more_data", "data/synth_8k")])
+def test_the_further_demo_variants_start_from_the_shipped_teacher(variant, data_dir, capsys):
+    """They train the packaged teacher's own network on from its weights (model.init_from checks that
+    its config equals the run's), at the learning rate its schedule had reached at step 6000."""
+    from stablemo.cli.train import main_fit
+
+    printed = {}
+    for files in (["demo.yaml"], ["demo.yaml", f"demo_variants/{variant}.yaml"]):
+        with pytest.raises(SystemExit):
+            main_fit([a for f in files for a in ("--config", str(REPO / "configs" / f))] + ["--print_config"])
+        printed[len(files)] = yaml.safe_load(capsys.readouterr().out)
+    recipe, overlay = printed[1], printed[2]
+    model = overlay["model"]["init_args"]
+    shipped = load_bundle(REPO / model["init_from"]).config
+    assert model["init_from"] == "stablemo/assets/demo_bundle" and shipped["model"] == model["model"]
+    assert model["lr"] == pytest.approx(recipe["model"]["init_args"]["lr"] * 0.9 ** 6, rel=1e-3)
+    assert shipped["training"]["global_step"] == 6000
+    assert overlay["data"]["data_dir"] == data_dir and overlay["trainer"]["max_steps"] == 2000
+    changed = {k for k in model if model[k] != recipe["model"]["init_args"][k]}
+    assert changed == {"init_from", "lr"}
 
 
 @pytest.mark.parametrize("variant, base, head", [("base16", 16, 64), ("base64", 64, 256)])
