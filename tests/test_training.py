@@ -511,6 +511,8 @@ def test_the_further_demo_variants_start_from_the_shipped_teacher(variant, data_
     assert model["lr"] == pytest.approx(recipe["model"]["init_args"]["lr"] * 0.9 ** 6, rel=1e-3)
     assert shipped["training"]["global_step"] == 6000
     assert overlay["data"]["data_dir"] == data_dir and overlay["trainer"]["max_steps"] == 2000
+    # the shipped teacher's statistics: its own data's, or data/synth's named for new clips
+    assert overlay["data"].get("stats_dir") == (None if data_dir == "data/synth" else "data/synth")
     changed = {k for k in model if model[k] != recipe["model"]["init_args"][k]}
     assert changed == {"init_from", "lr"}
 

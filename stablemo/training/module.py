@@ -387,8 +387,8 @@ def _init_weights(model: torch.nn.Module, config: dict, bundle_path: str, data_i
         want, got = bundle.config.get(key), data_info.get(key)
         if want is None or got is None or len(want) != len(got) or any(
                 abs(a - b) > 1e-5 * max(1.0, abs(a)) for a, b in zip(want, got)):
-            raise StableMoError(f"{where}: the dataset's feature {key} differs from the bundle's; give the "
-                                f"data folder the statistics the bundle was trained with (its Mean.npy and Std.npy)")
+            raise StableMoError(f"{where}: the dataset's feature {key} differs from the bundle's; normalise with the "
+                                f"statistics the bundle was trained with (--data.stats_dir: the folder it was trained on)")
     missing, unexpected = model.load_state_dict(bundle.state_dict, strict=False)
     if missing or unexpected:
         raise StableMoError(f"{where}: weights do not fit the network ({len(missing)} missing, "
