@@ -957,3 +957,16 @@ def test_shipped_controlled_student_is_padding_invariant_and_follows_a_path():
     # against 0.284 on an earlier student).
     # docs/control.md
     assert miss(alone) < 0.2 * miss(pipe.generate(texts[:1], [60], seed=1))
+
+
+def test_controlnet_training_needs_the_bases_statistics(student_bundle):
+    from types import SimpleNamespace
+
+    from stablemo.training.controlnet_module import ControlNetTraining
+
+    module = ControlNetTraining(str(student_bundle), control={"channels": 16, "layers": 2})
+    module._trainer = SimpleNamespace(datamodule=SimpleNamespace(mean=torch.zeros(D), std=torch.ones(D)))
+    module.setup("fit")  # the base's own statistics
+    module._trainer.datamodule.mean = torch.full((D,), 0.01)
+    with pytest.raises(StableMoError, match="the dataset's mean differs from the base bundle's"):
+        module.setup("fit")

@@ -20,6 +20,7 @@ from stablemo.data.stats import (
     compute_stats,
     denormalize,
     feature_groups,
+    same_statistics,
 )
 from stablemo.errors import StableMoError
 
@@ -617,3 +618,16 @@ def test_windows_line_endings_and_byte_order_mark(tmp_path):
     ds = MotionDataset.from_folder(root, "train", crop="none", progress=False)
     assert ds.items.ids == ["000001", "000002"]
     assert [c.text for c in ds.items.captions[1]] == ["someone strolls ahead", "a person walks forward"]
+
+
+def test_same_statistics_accepts_round_trips_and_rejects_other_statistics():
+    gen = np.random.default_rng(0)
+    std = apply_feat_bias(gen.uniform(0.01, 3.0, 263).astype(np.float32), 5.0)
+    as_json = [float(v) for v in std]  # how a bundle's config keeps them
+    assert same_statistics(as_json, torch.from_numpy(std))
+    assert same_statistics(std, std.astype(np.float64) * (1 + 5e-5))  # float32 and checkpoint round trips
+    other = std.copy()
+    other[100] *= 1.001  # one channel 0.1 % off: another dataset's statistics
+    assert not same_statistics(as_json, other)
+    assert not same_statistics(std, std[:-1])  # another feature width
+    assert not same_statistics(None, std) and not same_statistics(std, None)

@@ -227,3 +227,24 @@ def test_student_inference_is_the_students_own_with_the_teachers_lengths():
     got = student_inference(config)
     assert (got.sampler, got.steps, got.cfg) == ("lcm", 1, 2.5)
     assert (got.min_length, got.max_length, got.fps) == (40, 196, 20.0)
+
+
+def attach_data(module, mean, std) -> None:
+    """What setup() reads from a Trainer: its data module's feature statistics."""
+    from types import SimpleNamespace
+
+    module._trainer = SimpleNamespace(datamodule=SimpleNamespace(mean=mean, std=std))
+
+
+def test_distillation_needs_the_teachers_statistics(teacher_bundle):
+    from stablemo.errors import StableMoError
+    from stablemo.training.distill_module import ConsistencyDistillation
+
+    module = ConsistencyDistillation(teacher=str(teacher_bundle), mode="lcm", ddim_steps=50)
+    attach_data(module, np.zeros(D, np.float32), np.ones(D, np.float32))
+    module.setup("fit")  # the teacher's own statistics
+    std = np.ones(D, np.float32)
+    std[7] = 1.01
+    attach_data(module, np.zeros(D, np.float32), std)
+    with pytest.raises(StableMoError, match="the dataset's std differs from the teacher's"):
+        module.setup("fit")

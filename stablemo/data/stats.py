@@ -53,6 +53,18 @@ def load_dataset_stats(root: str | Path, spec: DatasetSpec) -> tuple[np.ndarray,
     return load_stat(root, "Mean.npy", spec), load_stat(root, "Std.npy", spec)
 
 
+def same_statistics(ours, theirs) -> bool:
+    """Whether two copies of a model's feature statistics (mean or std, (D,)) are the same: equal shape,
+    and equal within float32 round trips through JSON and checkpoints (relative 1e-4, absolute 1e-6).
+    Training against a bundle (distillation, a ControlNet, `model.init_from`) needs the dataset to
+    normalise with the statistics its network was trained with."""
+    if ours is None or theirs is None:
+        return False
+    ours = np.asarray(ours, dtype=np.float64)
+    theirs = np.asarray(theirs, dtype=np.float64)
+    return ours.shape == theirs.shape and bool(np.allclose(ours, theirs, rtol=1e-4, atol=1e-6))
+
+
 def load_model_stats(root: str | Path, spec: DatasetSpec, feat_bias: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
     """(mean, std) used to normalise model inputs: dataset stats with feat_bias applied to std."""
     mean, std = load_dataset_stats(root, spec)

@@ -58,6 +58,7 @@ from stablemo.control.hints import (
     sample_hint_mask,
 )
 from stablemo.control.pace import path_on_reference
+from stablemo.data.stats import same_statistics
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.errors import StableMoError
 from stablemo.inference.bundle import load_bundle
@@ -213,9 +214,7 @@ class ControlNetTraining(LightningModule):
         dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
         if dm is not None and getattr(dm, "mean", None) is not None:
             for name in ("mean", "std"):
-                theirs = torch.as_tensor(getattr(dm, name)).float()
-                ours = getattr(self, name).cpu()
-                if ours.shape != theirs.shape or not torch.allclose(ours, theirs, rtol=1e-4, atol=1e-6):
+                if not same_statistics(getattr(self, name).cpu(), torch.as_tensor(getattr(dm, name)).float()):
                     raise StableMoError(f"data: the dataset's {name} differs from the base bundle's; "
                                         "train the ControlNet on the base's dataset, or give --data.stats_dir the folder the base was trained on")
 

@@ -20,6 +20,7 @@ from typing import Any
 import torch
 from lightning.pytorch import LightningModule
 
+from stablemo.data.stats import same_statistics
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.distill.consistency import (
     CLEAN,
@@ -126,9 +127,7 @@ class ConsistencyDistillation(LightningModule):
         dm = getattr(self.trainer, "datamodule", None) if self._trainer is not None else None
         if dm is not None and getattr(dm, "mean", None) is not None:
             for name in ("mean", "std"):
-                ours = torch.tensor(self.teacher_config[name])
-                theirs = torch.as_tensor(getattr(dm, name)).float()
-                if ours.shape != theirs.shape or not torch.allclose(ours, theirs, rtol=1e-4, atol=1e-6):
+                if not same_statistics(self.teacher_config[name], torch.as_tensor(getattr(dm, name)).float()):
                     raise StableMoError(f"data: the dataset's {name} differs from the teacher's; distil on the teacher's dataset")
         if self.discriminator is not None and not len(self.discriminator.heads):
             T = 4 * self.teacher.length_multiple

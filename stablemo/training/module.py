@@ -17,6 +17,7 @@ from typing import Any, Sequence
 import torch
 from lightning.pytorch import LightningModule
 
+from stablemo.data.stats import same_statistics
 from stablemo.diffusion.schedule import PREDICTION_TYPES
 from stablemo.errors import StableMoError
 from stablemo.motion.skeleton import MAX_FRAMES
@@ -384,9 +385,7 @@ def _init_weights(model: torch.nn.Module, config: dict, bundle_path: str, data_i
         raise StableMoError(f"{where}: its network config differs from this run's model config "
                             "(train further only the network the bundle holds)")
     for key in ("mean", "std"):
-        want, got = bundle.config.get(key), data_info.get(key)
-        if want is None or got is None or len(want) != len(got) or any(
-                abs(a - b) > 1e-5 * max(1.0, abs(a)) for a, b in zip(want, got)):
+        if not same_statistics(bundle.config.get(key), data_info.get(key)):
             raise StableMoError(f"{where}: the dataset's feature {key} differs from the bundle's; normalise with the "
                                 f"statistics the bundle was trained with (--data.stats_dir: the folder it was trained on)")
     missing, unexpected = model.load_state_dict(bundle.state_dict, strict=False)
