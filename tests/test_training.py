@@ -463,7 +463,8 @@ CONFIG_SETS = [["synth_small.yaml"], ["humanml3d.yaml"], ["kit.yaml"]] + [
     ["demo.yaml"], ["demo.yaml", "demo_variants/input_head_k1.yaml"], ["demo.yaml", "demo_variants/no_input_head.yaml"],
     ["demo.yaml", "demo_variants/no_mid_attention.yaml"], ["demo.yaml", "demo_variants/base16.yaml"],
     ["demo.yaml", "demo_variants/base64.yaml"], ["demo.yaml", "demo_variants/text_noise.yaml"],
-    ["demo.yaml", "demo_variants/further_same_data.yaml"], ["demo.yaml", "demo_variants/further_more_data.yaml"]]
+    ["demo.yaml", "demo_variants/further_same_data.yaml"], ["demo.yaml", "demo_variants/further_more_data.yaml"],
+    ["demo.yaml", "demo_variants/further_16k.yaml"]]
 
 
 @pytest.mark.parametrize("files", CONFIG_SETS, ids=lambda f: f[-1])
@@ -515,6 +516,25 @@ def test_the_further_demo_variants_start_from_the_shipped_teacher(variant, data_
     assert overlay["data"].get("stats_dir") == (None if data_dir == "data/synth" else "data/synth")
     changed = {k for k in model if model[k] != recipe["model"]["init_args"][k]}
     assert changed == {"init_from", "lr"}
+
+
+def test_the_16k_variant_continues_the_more_clips_teacher_where_its_schedule_stopped(capsys):
+    """configs/demo_variants/further_16k.yaml: the more-clips teacher (the further_more_data run
+    resumed to 4000 steps: 10000 in all, exported to bundles/, which a clean clone lacks) trained on
+    from its weights on new clips, at the recipe's learning rate decayed ten times, its network and
+    everything else as the recipe."""
+    from stablemo.cli.train import main_fit
+
+    printed = {}
+    for files in (["demo.yaml"], ["demo.yaml", "demo_variants/further_16k.yaml"]):
+        with pytest.raises(SystemExit):
+            main_fit([a for f in files for a in ("--config", str(REPO / "configs" / f))] + ["--print_config"])
+        printed[len(files)] = yaml.safe_load(capsys.readouterr().out)
+    recipe, overlay = printed[1]["model"]["init_args"], printed[2]["model"]["init_args"]
+    assert overlay["init_from"] == "bundles/demo_more_data_10000"
+    assert overlay["lr"] == pytest.approx(recipe["lr"] * recipe["lr_gamma"] ** 10, rel=1e-4)
+    assert {k for k in overlay if overlay[k] != recipe[k]} == {"init_from", "lr"}
+    assert printed[2]["data"]["data_dir"] == "data/synth_16k" and printed[2]["data"]["stats_dir"] == "data/synth"
 
 
 @pytest.mark.parametrize("variant, base, head", [("base16", 16, 64), ("base64", 64, 256)])
