@@ -248,3 +248,38 @@ def test_distillation_needs_the_teachers_statistics(teacher_bundle):
     attach_data(module, np.zeros(D, np.float32), std)
     with pytest.raises(StableMoError, match="the dataset's std differs from the teacher's"):
         module.setup("fit")
+
+
+def test_bone_length_term_pulls_the_students_bones_to_the_bodys_and_refuses_the_other_terms(teacher_bundle):
+    """geometry: {bone_lengths: w} adds w x the student's bone-length error (its clean estimate's
+    bones against the data clip's, m²) to the consistency loss; training with it shortens the
+    error, and terms that compare with the clip itself are refused."""
+    from stablemo.data.synth import generate_motion
+    from stablemo.data.synth.writer import motion_rng
+    from stablemo.errors import StableMoError
+    from stablemo.motion import joints_to_features
+    from stablemo.training.distill_module import ConsistencyDistillation
+
+    with pytest.raises(StableMoError, match="distillation takes only bone_lengths, got positions"):
+        ConsistencyDistillation(teacher=str(teacher_bundle), geometry={"positions": 1.0})
+    plain = ConsistencyDistillation(teacher=str(teacher_bundle), mode="lcm", ddim_steps=10)
+    module = ConsistencyDistillation(teacher=str(teacher_bundle), mode="lcm", ddim_steps=10,
+                                     geometry={"bone_lengths": 10.0})
+    # real clips (the fixture's statistics are 0 / 1: model space is the features themselves)
+    clips = [joints_to_features(generate_motion(motion_rng(0, i)).joints)[:40] for i in range(2)]
+    batch = {"motion": torch.tensor(np.stack(clips), dtype=torch.float32), "mask": torch.ones(2, 40, dtype=torch.bool),
+             "text": ["a person walks", "a person jumps"]}
+    batch["mask"][1, 30:] = False
+    out = module.distillation_loss(batch, torch.Generator().manual_seed(0))
+    same = plain.distillation_loss(batch, torch.Generator().manual_seed(0))
+    torch.testing.assert_close(out["consistency"], same["loss"])  # the same draws, the same consistency loss
+    torch.testing.assert_close(out["loss"], out["consistency"] + 10.0 * out["bone_lengths"])
+    opt = torch.optim.Adam([p for p in module.student.parameters() if p.requires_grad], lr=1e-3)
+    bones = []
+    for _ in range(30):
+        out = module.distillation_loss(batch, torch.Generator().manual_seed(1))
+        opt.zero_grad()
+        out["loss"].backward()
+        opt.step()
+        bones.append(out["bone_lengths"].item())
+    assert bones[0] > 1e-3 and bones[-1] < 0.5 * bones[0], bones  # the random tiny teacher's bones: far off

@@ -9,6 +9,8 @@ of a batch of clean clips x0 (B, T, D):
 4. student: consistency function at (x_hi, t_hi); pseudo-Huber loss over valid frames;
 5. optional (PCM): hinge adversarial loss with a discriminator on the frozen teacher's features;
    real = data noised to t' in [s_m, s_m + T/M), fake = the student's edge state moved to t'.
+6. optional: a bone-length term on the student's clean estimate (stablemo.training.geometry): its
+   bones against the data clip's, which a body keeps whatever motion the noise leads to.
 The target follows the student by EMA (mu) after every optimiser step.
 """
 
@@ -41,6 +43,7 @@ from stablemo.errors import StableMoError
 from stablemo.inference.bundle import load_bundle
 from stablemo.inference.config import InferenceConfig, student_inference
 from stablemo.nets.model import MotionDiffusionModel
+from stablemo.training.geometry import GeometricLoss, geometry_weights
 from stablemo.training.module import CHECKPOINT_KEY, derive_seed
 
 
@@ -64,6 +67,9 @@ class ConsistencyDistillation(LightningModule):
         w_lr_scale: learning-rate multiplier for the zero-initialised guidance embedding (w_proj).
         adversarial: add the PCM adversarial loss (weight adv_weight; discriminator lr disc_lr).
         sample_steps: default inference steps recorded in the exported bundle.
+        geometry: {bone_lengths: weight} (m², stablemo.training.geometry) on the student's x0
+            estimate; the other geometric terms compare with the data clip's joints and contacts,
+            which the teacher's trajectory from noise does not reproduce, so they are refused.
         seed: seeds every random draw from (seed, step, rank).
     """
 
@@ -90,6 +96,7 @@ class ConsistencyDistillation(LightningModule):
         timestep_scale: float = 10.0,
         w_dim: int = 256,
         sample_steps: int = 1,
+        geometry: dict[str, float] | None = None,
         seed: int = 0,
     ) -> None:
         super().__init__()
@@ -100,10 +107,17 @@ class ConsistencyDistillation(LightningModule):
             raise StableMoError(f"w_min/w_max: need 0 <= w_min <= w_max, got {w_min}, {w_max}")
         if adversarial and mode != "pcm":
             raise StableMoError("adversarial: the adversarial loss is defined for mode 'pcm'")
+        self.geometry_weights = geometry_weights(geometry)
+        if set(self.geometry_weights) - {"bone_lengths"}:
+            raise StableMoError(f"model.geometry: distillation takes only bone_lengths, got "
+                                f"{', '.join(sorted(self.geometry_weights))} (the other terms compare with the data "
+                                "clip, not with the teacher's motion from the same noise)")
         bundle = load_bundle(teacher)
         if bundle.config.get("kind", "diffusion") != "diffusion":
             raise StableMoError(f"{teacher}: the teacher must be a diffusion bundle, got kind {bundle.config.get('kind')!r}")
         self.teacher_config = bundle.config
+        self.geometric_loss = GeometricLoss(self.geometry_weights, bundle.config.get("skeleton", bundle.config.get("dataset")),
+                                            bundle.config["mean"], bundle.config["std"]) if self.geometry_weights else None
         self.prediction_type = bundle.config.get("prediction_type", "sample")
         self.schedule = NoiseSchedule(**bundle.config["schedule"])
         self.grid = ddim_grid(self.schedule.num_train_timesteps, ddim_steps)
@@ -210,8 +224,13 @@ class ConsistencyDistillation(LightningModule):
         text_s, mask_s = self.student.encode_text(texts)
         x0_student = self._x0(self.student, x_hi, t_hi, w, text_s, mask_s, mask)
         pred = self._f(x_hi, x0_student, t_hi)
-        return {"loss": masked_pseudo_huber(pred, target, mask, hp.huber_c), "pred": pred, "t_hi": t_hi,
-                "x0": x0, "mask": mask, "text": (text_cu[:B], mask_cu[:B])}
+        out = {"loss": masked_pseudo_huber(pred, target, mask, hp.huber_c), "pred": pred, "t_hi": t_hi,
+               "x0": x0, "mask": mask, "text": (text_cu[:B], mask_cu[:B])}
+        if self.geometric_loss is not None:
+            out["consistency"] = out["loss"]
+            out["bone_lengths"] = self.geometric_loss.terms(x0_student, x0, mask)["bone_lengths"].mean()
+            out["loss"] = out["loss"] + self.geometry_weights["bone_lengths"] * out["bone_lengths"]
+        return out
 
     def _adversarial_pair(self, out: dict, generator: torch.Generator):
         """(fake, real, t') at a random level t' in [s_m, s_m + T/M) above each sample's edge."""
@@ -238,7 +257,9 @@ class ConsistencyDistillation(LightningModule):
         opt = optimizers[0] if isinstance(optimizers, (list, tuple)) else optimizers
         out = self.distillation_loss(batch, generator)
         loss = out["loss"]
-        self.log("train/consistency", loss, prog_bar=True, batch_size=len(batch["text"]))
+        self.log("train/consistency", out.get("consistency", loss), prog_bar=True, batch_size=len(batch["text"]))
+        if "bone_lengths" in out:
+            self.log("train/loss_bone", out["bone_lengths"], batch_size=len(batch["text"]))
 
         if self.discriminator is not None:
             fake, real, t_prime = self._adversarial_pair(out, generator)
@@ -279,9 +300,12 @@ class ConsistencyDistillation(LightningModule):
 
     def validation_step(self, batch: dict, batch_idx: int):
         generator = torch.Generator().manual_seed(derive_seed("distill-val", self.hparams.seed, batch_idx))
-        loss = self.distillation_loss(batch, generator)["loss"]
-        self.log("val/consistency", loss, prog_bar=True, batch_size=len(batch["text"]), sync_dist=True)
-        return loss
+        out = self.distillation_loss(batch, generator)
+        self.log("val/consistency", out.get("consistency", out["loss"]), prog_bar=True, batch_size=len(batch["text"]),
+                 sync_dist=True)
+        if "bone_lengths" in out:
+            self.log("val/loss_bone", out["bone_lengths"], batch_size=len(batch["text"]), sync_dist=True)
+        return out["loss"]
 
     # ------------------------------------------------------------------ export
 
