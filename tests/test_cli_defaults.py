@@ -93,3 +93,13 @@ def test_names_model_class(tmp_path):
     assert not names_model_class(["fit", "--model", '{"lr": 1}'])
     assert not names_model_class(["fit", "--config"])
     assert not names_model_class([])
+
+
+def test_the_bone_length_distillation_overlay_changes_only_the_geometry_and_the_run_folder(capsys):
+    """configs/distill/lcm_synth_bones.yaml: the LCM recipe with the bone-length term, nothing else."""
+    recipe = ["--config", str(REPO / "configs/distill/lcm_synth.yaml")]
+    plain = printed_model(recipe, capsys)["init_args"]
+    argv = [*recipe, "--config", str(REPO / "configs/distill/lcm_synth_bones.yaml")]
+    bones = printed_model(argv, capsys)["init_args"]
+    assert bones["geometry"] == {"bone_lengths": 20.0} and plain.get("geometry") is None
+    assert {k for k in bones if bones[k] != plain.get(k)} == {"geometry"}
