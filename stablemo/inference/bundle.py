@@ -157,6 +157,12 @@ def bundle_or_demo(arg: str | os.PathLike | None, flag: str = "--bundle") -> Pat
     return DEMO_BUNDLE
 
 
+def skeleton_name(config: dict) -> str:
+    """The skeleton a bundle's features use: its `skeleton`, else its dataset's (bundles exported
+    before the key was written), else HumanML3D's."""
+    return config.get("skeleton") or config.get("dataset", "humanml3d")
+
+
 def load_bundle(path: str | os.PathLike) -> Bundle:
     """Read a bundle; every failure names the folder or file at fault."""
     path = Path(path)

@@ -189,7 +189,7 @@ class Pipeline:
     @classmethod
     def from_bundle(cls, path: str | Path, device=None, dtype=None, fast: bool = True) -> Pipeline:
         """Load a bundle: its network with its weights, statistics, schedule and inference defaults."""
-        from stablemo.inference.bundle import load_bundle
+        from stablemo.inference.bundle import load_bundle, skeleton_name
 
         device = resolve_device(device)  # a wrong device is reported before any loading
         bundle = load_bundle(path)
@@ -205,7 +205,7 @@ class Pipeline:
         except TypeError as err:
             raise StableMoError(f"{cfg_file}: 'model' does not describe a network ({err})") from None
         _check_stats(config, cfg_file)
-        body_lengths(config, config.get("skeleton") or config.get("dataset", "humanml3d"), cfg_file)  # named here
+        body_lengths(config, skeleton_name(config), cfg_file)  # named here
         weights_file = Path(path) / "model.safetensors"
         bad = [k for k, v in bundle.state_dict.items() if v.is_floating_point() and not torch.isfinite(v).all()]
         if bad:
@@ -231,7 +231,7 @@ class Pipeline:
             config["mean"],
             config["std"],
             prediction_type=config.get("prediction_type", "sample"),
-            skeleton=config.get("skeleton") or config.get("dataset", "humanml3d"),
+            skeleton=skeleton_name(config),
             kind=kind_name,
             device=device,
             dtype=dtype,

@@ -61,7 +61,7 @@ from stablemo.control.pace import path_on_reference
 from stablemo.data.stats import same_statistics
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.errors import StableMoError
-from stablemo.inference.bundle import load_bundle
+from stablemo.inference.bundle import load_bundle, skeleton_name
 from stablemo.inference.config import InferenceConfig
 from stablemo.inference.kinds import model_kind
 from stablemo.motion import features_to_joints
@@ -152,7 +152,7 @@ class ControlNetTraining(LightningModule):
         if recon_target == "base" and [int(j) for j in hint_joints] != [0]:
             raise StableMoError(f"recon_target: 'base' re-times the pelvis path only; give hint_joints [0], got {list(hint_joints)}")
         self.base_config = config
-        self.skeleton = get_skeleton(config.get("skeleton", "humanml3d"))
+        self.skeleton = get_skeleton(skeleton_name(config))
         bad = [j for j in hint_joints if not 0 <= int(j) < self.skeleton.num_joints]
         if bad or not hint_joints:
             raise StableMoError(f"hint_joints: need joint indices in [0, {self.skeleton.num_joints}), got {list(hint_joints)}")

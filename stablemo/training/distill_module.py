@@ -40,7 +40,7 @@ from stablemo.distill.discriminator import (
 )
 from stablemo.distill.student import MODES, ConsistencyStudent, consistency_fn
 from stablemo.errors import StableMoError
-from stablemo.inference.bundle import load_bundle
+from stablemo.inference.bundle import load_bundle, skeleton_name
 from stablemo.inference.config import InferenceConfig, student_inference
 from stablemo.nets.model import MotionDiffusionModel
 from stablemo.training.geometry import GeometricLoss, geometry_weights
@@ -116,7 +116,7 @@ class ConsistencyDistillation(LightningModule):
         if bundle.config.get("kind", "diffusion") != "diffusion":
             raise StableMoError(f"{teacher}: the teacher must be a diffusion bundle, got kind {bundle.config.get('kind')!r}")
         self.teacher_config = bundle.config
-        self.geometric_loss = GeometricLoss(self.geometry_weights, bundle.config.get("skeleton", bundle.config.get("dataset")),
+        self.geometric_loss = GeometricLoss(self.geometry_weights, skeleton_name(bundle.config),
                                             bundle.config["mean"], bundle.config["std"]) if self.geometry_weights else None
         self.prediction_type = bundle.config.get("prediction_type", "sample")
         self.schedule = NoiseSchedule(**bundle.config["schedule"])
@@ -224,12 +224,12 @@ class ConsistencyDistillation(LightningModule):
         text_s, mask_s = self.student.encode_text(texts)
         x0_student = self._x0(self.student, x_hi, t_hi, w, text_s, mask_s, mask)
         pred = self._f(x_hi, x0_student, t_hi)
-        out = {"loss": masked_pseudo_huber(pred, target, mask, hp.huber_c), "pred": pred, "t_hi": t_hi,
+        consistency = masked_pseudo_huber(pred, target, mask, hp.huber_c)
+        out = {"loss": consistency, "consistency": consistency, "pred": pred, "t_hi": t_hi,
                "x0": x0, "mask": mask, "text": (text_cu[:B], mask_cu[:B])}
         if self.geometric_loss is not None:
-            out["consistency"] = out["loss"]
             out["bone_lengths"] = self.geometric_loss.terms(x0_student, x0, mask)["bone_lengths"].mean()
-            out["loss"] = out["loss"] + self.geometry_weights["bone_lengths"] * out["bone_lengths"]
+            out["loss"] = consistency + self.geometry_weights["bone_lengths"] * out["bone_lengths"]
         return out
 
     def _adversarial_pair(self, out: dict, generator: torch.Generator):
@@ -257,7 +257,7 @@ class ConsistencyDistillation(LightningModule):
         opt = optimizers[0] if isinstance(optimizers, (list, tuple)) else optimizers
         out = self.distillation_loss(batch, generator)
         loss = out["loss"]
-        self.log("train/consistency", out.get("consistency", loss), prog_bar=True, batch_size=len(batch["text"]))
+        self.log("train/consistency", out["consistency"], prog_bar=True, batch_size=len(batch["text"]))
         if "bone_lengths" in out:
             self.log("train/loss_bone", out["bone_lengths"], batch_size=len(batch["text"]))
 
@@ -301,7 +301,7 @@ class ConsistencyDistillation(LightningModule):
     def validation_step(self, batch: dict, batch_idx: int):
         generator = torch.Generator().manual_seed(derive_seed("distill-val", self.hparams.seed, batch_idx))
         out = self.distillation_loss(batch, generator)
-        self.log("val/consistency", out.get("consistency", out["loss"]), prog_bar=True, batch_size=len(batch["text"]),
+        self.log("val/consistency", out["consistency"], prog_bar=True, batch_size=len(batch["text"]),
                  sync_dist=True)
         if "bone_lengths" in out:
             self.log("val/loss_bone", out["bone_lengths"], batch_size=len(batch["text"]), sync_dist=True)
