@@ -62,10 +62,11 @@ def _templates(n: int) -> set[str]:
     return {synth_captions.join([f"<{i}>" for i in range(n)], np.random.default_rng(seed)) for seed in range(64)}
 
 
-def _producible(prompt) -> bool:
-    """Whether the synthetic captions can write this very sentence for the prompt's parts."""
-    for subject, pron in synth_captions.SUBJECTS:
-        options = [synth_captions.phrases(part.action, {"waving": None, **part.params}, pron) for part in prompt.parts]
+def _producible(prompt, mode: str = "plain") -> bool:
+    """Whether the synthetic captions (vocabulary `mode`) can write this very sentence for the prompt's parts."""
+    for subject, pron in synth_captions.subjects(mode):
+        options = [synth_captions.phrases(part.action, {"waving": None, **part.params}, pron, mode)
+                   for part in prompt.parts]
         for template in _templates(len(options)):
             pattern = re.escape(f"{subject} {template}.")
             for i, phrases in enumerate(options):

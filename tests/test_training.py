@@ -464,7 +464,7 @@ CONFIG_SETS = [["synth_small.yaml"], ["humanml3d.yaml"], ["kit.yaml"]] + [
     ["demo.yaml", "demo_variants/no_mid_attention.yaml"], ["demo.yaml", "demo_variants/base16.yaml"],
     ["demo.yaml", "demo_variants/base64.yaml"], ["demo.yaml", "demo_variants/text_noise.yaml"],
     ["demo.yaml", "demo_variants/further_same_data.yaml"], ["demo.yaml", "demo_variants/further_more_data.yaml"],
-    ["demo.yaml", "demo_variants/further_16k.yaml"]]
+    ["demo.yaml", "demo_variants/further_16k.yaml"], ["demo.yaml", "demo_variants/further_16k_varied.yaml"]]
 
 
 @pytest.mark.parametrize("files", CONFIG_SETS, ids=lambda f: f[-1])
@@ -535,6 +535,19 @@ def test_the_16k_variant_continues_the_more_clips_teacher_where_its_schedule_sto
     assert overlay["lr"] == pytest.approx(recipe["lr"] * recipe["lr_gamma"] ** 10, rel=1e-4)
     assert {k for k in overlay if overlay[k] != recipe[k]} == {"init_from", "lr"}
     assert printed[2]["data"]["data_dir"] == "data/synth_16k" and printed[2]["data"]["stats_dir"] == "data/synth"
+
+
+def test_the_varied_captions_variant_is_the_16k_run_with_other_captions():
+    """configs/demo_variants/further_16k_varied.yaml trains on the 16k run's clips captioned in the
+    varied vocabulary (`stablemo data synth ... --captions varied`: the same motions): only its data
+    folder and run folder differ from further_16k.yaml."""
+    plain = yaml.safe_load((REPO / "configs/demo_variants/further_16k.yaml").read_text())
+    varied = yaml.safe_load((REPO / "configs/demo_variants/further_16k_varied.yaml").read_text())
+    assert varied["data"].pop("data_dir") == "data/synth_16k_varied" and plain["data"].pop("data_dir") == "data/synth_16k"
+    assert varied["trainer"].pop("default_root_dir") != plain["trainer"].pop("default_root_dir")
+    assert varied == plain
+    config = (REPO / "configs/demo_variants/further_16k_varied.yaml").read_text()
+    assert "--num 16000 --seed 2 --rest varied --captions varied" in config
 
 
 @pytest.mark.parametrize("variant, base, head", [("base16", 16, 64), ("base64", 64, 256)])

@@ -1,4 +1,4 @@
-"""`stablemo data check DIR [--dataset humanml3d|kit]`, `stablemo data synth --out DIR [--num N] [--seed S] [--rest varied|tight] [--path-walks SHARE]`,
+"""`stablemo data check DIR [--dataset humanml3d|kit]`, `stablemo data synth --out DIR [--num N] [--seed S] [--rest varied|tight] [--captions plain|varied] [--path-walks SHARE]`,
 `stablemo data preview OUT.png`, `stablemo data glove-words GLOVE_DIR`, `stablemo data shard SRC [SRC ...] --out DIR` (stablemo/data/shards.py) and `stablemo data import-bvh DIR --out DATASET [--texts CSV] [--map YAML]` (stablemo/data/bvh_import.py)."""
 
 from __future__ import annotations
@@ -7,6 +7,7 @@ import argparse
 import os
 
 from stablemo.data.layout import DATASETS
+from stablemo.data.synth.captions import CAPTION_MODES, DEFAULT_CAPTIONS
 from stablemo.data.synth.idle import DEFAULT_REST, REST_MODES
 from stablemo.errors import StableMoError
 
@@ -31,6 +32,9 @@ def _parser() -> argparse.ArgumentParser:
     synth.add_argument("--rest", default=None, choices=list(REST_MODES),
                        help="idle rest around each action: " + "; ".join(f"{k}: {v}" for k, v in REST_MODES.items())
                             + f" (default: the generator's, {DEFAULT_REST})")
+    synth.add_argument("--captions", default=DEFAULT_CAPTIONS, choices=list(CAPTION_MODES),
+                       help="the captions' vocabulary: " + "; ".join(f"{k}: {v}" for k, v in CAPTION_MODES.items())
+                            + f" (default {DEFAULT_CAPTIONS}). The motions are the same in either")
     synth.add_argument("--path-walks", type=float, default=0.0, metavar="SHARE",
                        help="share of the motions, 0 to 1, that walk forward along random curved paths in any "
                             "direction (for path-control training; default 0: none). The others are the dataset's "
@@ -127,6 +131,7 @@ def main(argv: list[str]) -> int:
     check_share(args.path_walks, "--path-walks")
     rest = {} if args.rest is None else {"rest": args.rest}
     rest["path_walks"] = args.path_walks
+    rest["captions"] = args.captions
     if args.num is None:
         write_dataset(args.out, seed=args.seed, flag="--out", **rest)
     else:

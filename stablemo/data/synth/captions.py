@@ -7,9 +7,12 @@ count, so a caption determines what happens. Tokens follow HumanML3D's `word/POS
 
 from __future__ import annotations
 
+import functools
 import re
+from pathlib import Path
 
 import numpy as np
+import yaml
 
 from stablemo.data.synth import path_walks
 
@@ -19,12 +22,62 @@ SUBJECTS = (("a person", "their"), ("a man", "his"), ("a woman", "her"), ("someo
             ("the person", "their"), ("a figure", "its"), ("the man", "his"), ("a human", "their"))
 
 
+# The vocabulary of the captions (`stablemo data synth --captions`): the plain generator's phrases, or
+# those together with captions_varied.yaml's (more subjects and more phrasings of every action; the
+# plain sentences stay writable). A dataset's motions do not depend on it (compose.generate_plan).
+CAPTION_MODES = {"plain": "the generator's phrasings (the data the demo models were trained on)",
+                 "varied": "the plain phrasings and captions_varied.yaml's other subjects and phrasings"}
+DEFAULT_CAPTIONS = "plain"
+VARIED_FILE = Path(__file__).with_name("captions_varied.yaml")
+
+
+@functools.cache
+def _varied() -> dict:
+    return yaml.safe_load(VARIED_FILE.read_text())
+
+
+def subjects(mode: str = DEFAULT_CAPTIONS) -> tuple[tuple[str, str], ...]:
+    """(subject, possessive) pairs a caption may start with."""
+    if mode == "plain":
+        return SUBJECTS
+    return SUBJECTS + tuple((s, pron) for s, pron in _varied()["subjects"])
+
+
 def _side(d: str) -> str:
     return {"left": "left", "right": "right"}[d]
 
 
-def phrases(action: str, p: dict, pron: str) -> list[str]:
-    """Paraphrases (third person, present tense) of one action with its parameters."""
+def phrases(action: str, p: dict, pron: str, mode: str = DEFAULT_CAPTIONS) -> list[str]:
+    """Paraphrases (third person, present tense) of one action with its parameters, in the caption
+    vocabulary `mode` (CAPTION_MODES)."""
+    if mode not in CAPTION_MODES:
+        raise ValueError(f"captions={mode!r}: one of {', '.join(CAPTION_MODES)}")
+    out = _plain_phrases(action, p, pron)
+    return out + _varied_phrases(action, p, pron) if mode == "varied" else out
+
+
+def _varied_phrases(action: str, p: dict, pron: str) -> list[str]:
+    """captions_varied.yaml's phrasings of one action (none for a walk that waves or follows a path)."""
+    table = _varied()["phrases"]
+    if action == "walk_path" or action == "walk" and p.get("waving"):
+        return []
+    n = p.get("count")
+    many = "once" if n == 1 else "many"
+    key = {"walk": lambda: p["speed_label"], "walk_backward": lambda: p["speed_label"],
+           "turn": lambda: str(p["angle"]), "circle": lambda: p["direction"], "jump": lambda: many,
+           "jump_forward": lambda: many, "squat": lambda: many, "raise_arms": lambda: p["mode"],
+           "wave": lambda: "both" if p["hand"] == "both" else "hand",
+           "punch": lambda: ("both" if p["hand"] == "both" else "hand") + "_" + many}.get(action)
+    templates = table[action][key()] if key else table[action]
+    hand = p.get("hand")
+    fill = dict(pron=pron, side=p.get("direction"), leg=p.get("leg"), hand=hand,
+                n=NUMBER_WORDS.get(n), times=TIMES_WORDS.get(n),
+                what="both arms" if hand == "both" else f"the {hand} arm",
+                what2="both arms" if hand == "both" else f"{pron} {hand} arm")
+    return [t.format(**fill) for t in templates]
+
+
+def _plain_phrases(action: str, p: dict, pron: str) -> list[str]:
     if action == "stand":
         return ["stands still", "stands in place", "stands still and waits", "stands without moving",
                 "waits standing in place"]
@@ -168,13 +221,15 @@ def join(parts: list[str], rng: np.random.Generator) -> str:
             f"{parts[0]}, {parts[1]}, and then {parts[2]}"][style]
 
 
-def captions_for(parts: list[tuple[str, dict]], rng: np.random.Generator, num: int = 3) -> list[str]:
+def captions_for(parts: list[tuple[str, dict]], rng: np.random.Generator, num: int = 3,
+                 mode: str = DEFAULT_CAPTIONS) -> list[str]:
     """`num` distinct paraphrases of a composite (different subjects, phrases and joiners)."""
-    subjects = rng.permutation(len(SUBJECTS))
+    pool = subjects(mode)
+    order = rng.permutation(len(pool))
     out: list[str] = []
     for i in range(num * 4):
-        subj, pron = SUBJECTS[subjects[i % len(SUBJECTS)]]
-        bits = [rng.choice(phrases(a, p, pron)) for a, p in parts]
+        subj, pron = pool[order[i % len(pool)]]
+        bits = [rng.choice(phrases(a, p, pron, mode)) for a, p in parts]
         text = f"{subj} {join([str(b) for b in bits], rng)}."
         if text not in out:
             out.append(text)
@@ -183,9 +238,10 @@ def captions_for(parts: list[tuple[str, dict]], rng: np.random.Generator, num: i
     return out
 
 
-def part_caption(action: str, p: dict, rng: np.random.Generator) -> str:
-    subj, pron = SUBJECTS[rng.integers(len(SUBJECTS))]
-    return f"{subj} {rng.choice(phrases(action, p, pron))}."
+def part_caption(action: str, p: dict, rng: np.random.Generator, mode: str = DEFAULT_CAPTIONS) -> str:
+    pool = subjects(mode)
+    subj, pron = pool[rng.integers(len(pool))]
+    return f"{subj} {rng.choice(phrases(action, p, pron, mode))}."
 
 
 # --- tokens -------------------------------------------------------------------------------------
@@ -208,6 +264,10 @@ _POS = {
              "way hello"),
 }
 _TAGS = {w: tag for tag, words in _POS.items() for w in words.split()}
+# the varied captions' own words (a word the plain captions use keeps its plain tag)
+for _tag, _words in _varied()["pos"].items():
+    for _w in _words:
+        _TAGS.setdefault(_w, _tag)
 # Possessives are tagged DET (as spaCy 2 did for HumanML3D).
 for _w in ("his", "her", "their", "its"):
     _TAGS[_w] = "DET"

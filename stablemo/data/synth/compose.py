@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stablemo.data.synth import actions, captions, idle, path_walks
+from stablemo.data.synth.captions import DEFAULT_CAPTIONS
 from stablemo.data.synth.idle import DEFAULT_REST, REST_MODES
 from stablemo.data.synth.timeline import FPS, Built, Timeline
 from stablemo.motion.skeleton import MAX_FRAMES as HUMANML3D_MAX_FRAMES
@@ -75,11 +76,12 @@ def build_rested(plan: list[tuple[str, dict]], lead_in: int, lead_out: int, styl
     return tl.build(tl.t)
 
 
-def generate_motion(rng: np.random.Generator, rest: str = DEFAULT_REST, max_tries: int = 40) -> SynthMotion:
+def generate_motion(rng: np.random.Generator, rest: str = DEFAULT_REST, max_tries: int = 40,
+                    caption_mode: str = DEFAULT_CAPTIONS) -> SynthMotion:
     """One motion of 40..196 feature frames. Parameters are redrawn (then the actions) until the
     plan fits, so long actions are not crowded out of composites. rest: idle.REST_MODES; both
     modes draw the same actions, parameters and captions from `rng`, "varied" then draws the total
-    length and the idling."""
+    length and the idling. caption_mode: captions.CAPTION_MODES (the motion does not depend on it)."""
     names: list[str] = []
 
     def draw(attempt: int) -> list[tuple[str, dict]]:
@@ -88,19 +90,26 @@ def generate_motion(rng: np.random.Generator, rest: str = DEFAULT_REST, max_trie
             names = sample_names(rng)
         return [(n, actions.sample_params(n, rng)) for n in names]
 
-    return generate_plan(draw, rng, rest, max_tries)
+    return generate_plan(draw, rng, rest, max_tries, caption_mode)
 
 
-def generate_path_walk(rng: np.random.Generator, rest: str = DEFAULT_REST, max_tries: int = 40) -> SynthMotion:
+def generate_path_walk(rng: np.random.Generator, rest: str = DEFAULT_REST, max_tries: int = 40,
+                       caption_mode: str = DEFAULT_CAPTIONS) -> SynthMotion:
     """One path walk (path_walks.py) of 40..196 feature frames, with rest as in generate_motion."""
-    return generate_plan(lambda attempt: [("walk_path", path_walks.sample_params(rng))], rng, rest, max_tries)
+    return generate_plan(lambda attempt: [("walk_path", path_walks.sample_params(rng))], rng, rest, max_tries,
+                         caption_mode)
 
 
-def generate_plan(draw, rng: np.random.Generator, rest: str = DEFAULT_REST, max_tries: int = 40) -> SynthMotion:
+def generate_plan(draw, rng: np.random.Generator, rest: str = DEFAULT_REST, max_tries: int = 40,
+                  caption_mode: str = DEFAULT_CAPTIONS) -> SynthMotion:
     """The first plan from draw(attempt) -> [(action, params)] that fits 40..196 frames, built with
-    its rest and captioned (all draws from `rng`, in a fixed order)."""
+    its rest and captioned (all draws from `rng`, in a fixed order). Captions other than the plain
+    ones are drawn from a stream jumped ahead of `rng`'s, after the plain draws, which still consume
+    `rng`: so a dataset's motions are the same in every caption mode, and only the texts differ."""
     if rest not in REST_MODES:
         raise ValueError(f"rest={rest!r}: one of {', '.join(REST_MODES)}")
+    if caption_mode not in captions.CAPTION_MODES:
+        raise ValueError(f"caption_mode={caption_mode!r}: one of {', '.join(captions.CAPTION_MODES)}")
     for attempt in range(max_tries):
         plan = draw(attempt)
         lead_in, lead_out = float(rng.uniform(0.1, 0.4)), float(rng.uniform(0.2, 0.5))
@@ -117,7 +126,10 @@ def generate_plan(draw, rng: np.random.Generator, rest: str = DEFAULT_REST, max_
             lead_out += (MIN_FRAMES - frames) / FPS + rng.uniform(0.0, 0.5)
             if rest == "tight":
                 built = build(plan, lead_in, lead_out)
+        caption_rng = np.random.Generator(rng.bit_generator.jumped())  # rng's state is not changed
         texts, part_texts = _draw_captions(plan, rng)
+        if caption_mode != "plain":
+            texts, part_texts = _draw_captions(plan, caption_rng, caption_mode)
         if rest == "varied":
             built = draw_rest(plan, shortest, *short_rest, rng)
         return _caption(built, texts, part_texts)
@@ -139,10 +151,11 @@ def draw_rest(plan: list[tuple[str, dict]], shortest: int, lead_in: int, lead_ou
     return built
 
 
-def _draw_captions(plan: list[tuple[str, dict]], rng: np.random.Generator) -> tuple[list[str], list[str]]:
+def _draw_captions(plan: list[tuple[str, dict]], rng: np.random.Generator,
+                   mode: str = DEFAULT_CAPTIONS) -> tuple[list[str], list[str]]:
     """Whole-clip captions and, for a composite, one sub-caption per part."""
-    texts = captions.captions_for(plan, rng)
-    parts = [captions.part_caption(name, params, rng) for name, params in plan] if len(plan) > 1 else []
+    texts = captions.captions_for(plan, rng, mode=mode)
+    parts = [captions.part_caption(name, params, rng, mode) for name, params in plan] if len(plan) > 1 else []
     return texts, parts
 
 

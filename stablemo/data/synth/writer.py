@@ -6,7 +6,8 @@
     texts/<id>.txt           3 whole-clip captions + timed sub-captions for composites
     Mean.npy, Std.npy        statistics over all clips (std averaged within feature groups)
     train/val/test/train_val/all.txt   80 / 5 / 15 % split
-    synth.json               generator version, seed, rest mode, count, per-action counts
+    synth.json               generator version, seed, rest mode, caption vocabulary (when not plain),
+                             count, per-action counts
     .stablemo-files.json     every file written, with its size (written last)
 
 Replacing an earlier dataset: only one whose content is exactly what that file lists (a `data
@@ -42,6 +43,7 @@ from tqdm import tqdm
 
 from stablemo.data.cache import CACHE_DIRNAME
 from stablemo.data.stats import feature_groups
+from stablemo.data.synth.captions import CAPTION_MODES, DEFAULT_CAPTIONS
 from stablemo.data.synth.compose import generate_motion, generate_path_walk, text_file
 from stablemo.data.synth.idle import DEFAULT_REST, REST_MODES
 from stablemo.errors import StableMoError
@@ -87,7 +89,7 @@ def clip_id(index: int) -> str:
 
 
 def _write_chunk(args) -> tuple[np.ndarray, np.ndarray, int, list[str]]:
-    root, seed, indices, rest, path_walks = args
+    root, seed, indices, rest, path_walks, caption_mode = args
     from stablemo.motion import joints_to_features
 
     root = Path(root)
@@ -97,7 +99,7 @@ def _write_chunk(args) -> tuple[np.ndarray, np.ndarray, int, list[str]]:
     names: list[str] = []
     for i in indices:
         make = generate_path_walk if is_path_walk(seed, i, path_walks) else generate_motion
-        m = make(motion_rng(seed, i), rest)
+        m = make(motion_rng(seed, i), rest, caption_mode=caption_mode)
         feats = joints_to_features(m.joints, "humanml3d")  # (T, 263)
         T = len(feats)
         cid = clip_id(i)
@@ -202,9 +204,11 @@ class _Progress:
             self.bar.close()
 
 
-def _generate(tmp: Path, num: int, seed: int, workers: int, rest: str, path_walks: float) -> list[tuple]:
+def _generate(tmp: Path, num: int, seed: int, workers: int, rest: str, path_walks: float,
+              caption_mode: str) -> list[tuple]:
     """Write the clips into `tmp` in chunks; returns each chunk's statistics and action names."""
-    jobs = [(str(tmp), seed, range(a, min(a + CHUNK, num)), rest, path_walks) for a in range(0, num, CHUNK)]
+    jobs = [(str(tmp), seed, range(a, min(a + CHUNK, num)), rest, path_walks, caption_mode)
+            for a in range(0, num, CHUNK)]
     bar = _Progress(num)
     results = []
     if workers == 1 or len(jobs) == 1:
@@ -221,7 +225,8 @@ def _generate(tmp: Path, num: int, seed: int, workers: int, rest: str, path_walk
     return results
 
 
-def _write_summary(tmp: Path, results: list[tuple], num: int, seed: int, rest: str, path_walks: float) -> None:
+def _write_summary(tmp: Path, results: list[tuple], num: int, seed: int, rest: str, path_walks: float,
+                   caption_mode: str) -> None:
     """Mean/Std, the split lists and the marker file, from the chunks' statistics."""
     total = sum(r[0] for r in results)
     total_sq = sum(r[1] for r in results)
@@ -238,23 +243,28 @@ def _write_summary(tmp: Path, results: list[tuple], num: int, seed: int, rest: s
     kinds = Counter(a for r in results for names in r[3] for a in names.split("+"))
     meta = dict(generator="stablemo.data.synth", version=VERSION, seed=seed, rest=rest, num=num, fps=20,
                 **({"path_walks": path_walks} if path_walks else {}),
+                **({"captions": caption_mode} if caption_mode != DEFAULT_CAPTIONS else {}),
                 skeleton="humanml3d", frames=int(count), action_counts=dict(sorted(kinds.items())),
                 parts=dict(sorted(Counter(len(n.split("+")) for r in results for n in r[3]).items())))
     write_text(tmp / MARKER, json.dumps(meta, indent=2) + "\n")
 
 
 def write_dataset(out_dir, num: int = 2000, seed: int = 0, workers: int | None = None,
-                  flag: str | None = None, rest: str = DEFAULT_REST, path_walks: float = 0.0) -> Path:
+                  flag: str | None = None, rest: str = DEFAULT_REST, path_walks: float = 0.0,
+                  captions: str = DEFAULT_CAPTIONS) -> Path:
     """Generate `num` motions with `seed` into `out_dir` (HumanML3D layout); returns the folder.
     flag: the option that named `out_dir` (e.g. "--out"), to start its error lines.
     rest: the idle rest around each action (idle.REST_MODES).
     path_walks: the share of motions that are path walks (synth/path_walks.py: walks along curved
-    paths in any direction, for training path control); the others are the dataset's without them."""
+    paths in any direction, for training path control); the others are the dataset's without them.
+    captions: the captions' vocabulary (captions.CAPTION_MODES); the motions are the same in each."""
     num = check_num(num)
     if int(seed) < 0:
         raise StableMoError(f"seed={seed}: must be >= 0")
     if rest not in REST_MODES:
         raise StableMoError(f"rest={rest!r}: must be one of {', '.join(REST_MODES)}")
+    if captions not in CAPTION_MODES:
+        raise StableMoError(f"captions={captions!r}: must be one of {', '.join(CAPTION_MODES)}")
     seed, path_walks = int(seed), check_share(path_walks)
     out_dir = Path(out_dir)
     workers = min(os.cpu_count() or 1, 2) if workers is None else int(workers)
@@ -269,7 +279,8 @@ def write_dataset(out_dir, num: int = 2000, seed: int = 0, workers: int | None =
                                                   manifest=MANIFEST, derived=(CACHE_DIRNAME,)) as tmp:
             for sub in ("new_joint_vecs", "new_joints", "contacts", "texts"):
                 (tmp / sub).mkdir()
-            _write_summary(tmp, _generate(tmp, num, seed, workers, rest, path_walks), num, seed, rest, path_walks)
+            _write_summary(tmp, _generate(tmp, num, seed, workers, rest, path_walks, captions), num, seed, rest,
+                           path_walks, captions)
     except FileExistsError as err:
         raise StableMoError(f"{prefix}{out_dir}: changed while the dataset was written ({err.strerror}); "
                             "nothing replaced") from None
