@@ -76,14 +76,15 @@ def _producible(prompt, mode: str = "plain") -> bool:
     return False
 
 
-def _training_words() -> set[str]:
+def _training_words(mode: str = "plain") -> set[str]:
+    """Every word the synthetic captions (vocabulary `mode`) can write."""
     words = set()
     rng = np.random.default_rng(0)
     for action in ACTIONS:
         for _ in range(200):  # every discrete parameter value of the generator, many times over
             params = sample_params(action, rng)
-            for subject, pron in synth_captions.SUBJECTS:
-                for text in synth_captions.phrases(action, params, pron):
+            for subject, pron in synth_captions.subjects(mode):
+                for text in synth_captions.phrases(action, params, pron, mode):
                     words.update(re.findall(r"[a-z0-9]+", f"{subject} {text}"))
     words.update(re.findall(r"[a-z]+", " ".join(_templates(2) | _templates(3))))
     return words

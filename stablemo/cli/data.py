@@ -129,12 +129,11 @@ def main(argv: list[str]) -> int:
     if args.seed < 0:
         raise StableMoError(f"--seed={args.seed}: must be >= 0")
     check_share(args.path_walks, "--path-walks")
-    rest = {} if args.rest is None else {"rest": args.rest}
-    rest["path_walks"] = args.path_walks
-    rest["captions"] = args.captions
+    options = {} if args.rest is None else {"rest": args.rest}
+    options.update(path_walks=args.path_walks, captions=args.captions)
     if args.num is None:
-        write_dataset(args.out, seed=args.seed, flag="--out", **rest)
+        write_dataset(args.out, seed=args.seed, flag="--out", **options)
     else:
-        write_dataset(args.out, args.num, args.seed, flag="--out", **rest)
+        write_dataset(args.out, args.num, args.seed, flag="--out", **options)
     print(f"wrote synthetic dataset to {args.out}")
     return 0

@@ -36,8 +36,15 @@ def _varied() -> dict:
     return yaml.safe_load(VARIED_FILE.read_text())
 
 
+def _check(mode: str) -> None:
+    if mode not in CAPTION_MODES:
+        raise ValueError(f"captions={mode!r}: one of {', '.join(CAPTION_MODES)}")
+
+
+@functools.cache
 def subjects(mode: str = DEFAULT_CAPTIONS) -> tuple[tuple[str, str], ...]:
     """(subject, possessive) pairs a caption may start with."""
+    _check(mode)
     if mode == "plain":
         return SUBJECTS
     return SUBJECTS + tuple((s, pron) for s, pron in _varied()["subjects"])
@@ -50,31 +57,45 @@ def _side(d: str) -> str:
 def phrases(action: str, p: dict, pron: str, mode: str = DEFAULT_CAPTIONS) -> list[str]:
     """Paraphrases (third person, present tense) of one action with its parameters, in the caption
     vocabulary `mode` (CAPTION_MODES)."""
-    if mode not in CAPTION_MODES:
-        raise ValueError(f"captions={mode!r}: one of {', '.join(CAPTION_MODES)}")
+    _check(mode)
     out = _plain_phrases(action, p, pron)
     return out + _varied_phrases(action, p, pron) if mode == "varied" else out
 
 
 def _varied_phrases(action: str, p: dict, pron: str) -> list[str]:
     """captions_varied.yaml's phrasings of one action (none for a walk that waves or follows a path)."""
-    table = _varied()["phrases"]
     if action == "walk_path" or action == "walk" and p.get("waving"):
         return []
-    n = p.get("count")
-    many = "once" if n == 1 else "many"
-    key = {"walk": lambda: p["speed_label"], "walk_backward": lambda: p["speed_label"],
-           "turn": lambda: str(p["angle"]), "circle": lambda: p["direction"], "jump": lambda: many,
-           "jump_forward": lambda: many, "squat": lambda: many, "raise_arms": lambda: p["mode"],
-           "wave": lambda: "both" if p["hand"] == "both" else "hand",
-           "punch": lambda: ("both" if p["hand"] == "both" else "hand") + "_" + many}.get(action)
-    templates = table[action][key()] if key else table[action]
-    hand = p.get("hand")
+    templates = _varied()["phrases"][action]
+    key = _varied_key(action, p)
+    if key is not None:
+        templates = templates[key]
+    n, hand = p.get("count"), p.get("hand")
     fill = dict(pron=pron, side=p.get("direction"), leg=p.get("leg"), hand=hand,
                 n=NUMBER_WORDS.get(n), times=TIMES_WORDS.get(n),
                 what="both arms" if hand == "both" else f"the {hand} arm",
                 what2="both arms" if hand == "both" else f"{pron} {hand} arm")
     return [t.format(**fill) for t in templates]
+
+
+def _varied_key(action: str, p: dict) -> str | None:
+    """Which of captions_varied.yaml's lists an action's parameters pick (None: the action has one list)."""
+    many = "once" if p.get("count") == 1 else "many"
+    if action in ("walk", "walk_backward"):
+        return p["speed_label"]
+    if action == "turn":
+        return str(p["angle"])
+    if action == "circle":
+        return p["direction"]
+    if action in ("jump", "jump_forward", "squat"):
+        return many
+    if action == "raise_arms":
+        return p["mode"]
+    if action == "wave":
+        return "both" if p["hand"] == "both" else "hand"
+    if action == "punch":
+        return ("both" if p["hand"] == "both" else "hand") + "_" + many
+    return None
 
 
 def _plain_phrases(action: str, p: dict, pron: str) -> list[str]:

@@ -126,10 +126,12 @@ def generate_plan(draw, rng: np.random.Generator, rest: str = DEFAULT_REST, max_
             lead_out += (MIN_FRAMES - frames) / FPS + rng.uniform(0.0, 0.5)
             if rest == "tight":
                 built = build(plan, lead_in, lead_out)
-        caption_rng = np.random.Generator(rng.bit_generator.jumped())  # rng's state is not changed
+        # other captions: a stream jumped ahead from here (rng's state is not changed); the plain ones
+        # are drawn in every mode, so that the draws after them (the rest) are the same
+        other = np.random.Generator(rng.bit_generator.jumped()) if caption_mode != "plain" else None
         texts, part_texts = _draw_captions(plan, rng)
-        if caption_mode != "plain":
-            texts, part_texts = _draw_captions(plan, caption_rng, caption_mode)
+        if other is not None:
+            texts, part_texts = _draw_captions(plan, other, caption_mode)
         if rest == "varied":
             built = draw_rest(plan, shortest, *short_rest, rng)
         return _caption(built, texts, part_texts)
