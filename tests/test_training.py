@@ -495,9 +495,10 @@ def test_shipped_configs_parse(files, capsys):
 
 @pytest.mark.parametrize("variant, data_dir", [("further_same_data", "data/synth"),
                                                ("further_more_data", "data/synth_8k")])
-def test_the_further_demo_variants_start_from_the_shipped_teacher(variant, data_dir, capsys):
-    """They train the packaged teacher's own network on from its weights (model.init_from checks that
-    its config equals the run's), at the learning rate its schedule had reached at step 6000."""
+def test_the_further_demo_variants_start_from_the_6000_step_teacher(variant, data_dir, capsys):
+    """They train the recipe's network on from its 6000-step weights (bundles/demo_6000, which
+    scripts/train/train_demo.sh's first stage exports and a clean clone lacks; model.init_from checks
+    that its config equals the run's), at the learning rate its schedule had reached at step 6000."""
     from stablemo.cli.train import main_fit
 
     printed = {}
@@ -507,10 +508,9 @@ def test_the_further_demo_variants_start_from_the_shipped_teacher(variant, data_
         printed[len(files)] = yaml.safe_load(capsys.readouterr().out)
     recipe, overlay = printed[1], printed[2]
     model = overlay["model"]["init_args"]
-    shipped = load_bundle(REPO / model["init_from"]).config
-    assert model["init_from"] == "stablemo/assets/demo_bundle" and shipped["model"] == model["model"]
+    assert model["init_from"] == "bundles/demo_6000" and model["model"] == recipe["model"]["init_args"]["model"]
+    assert "stage 1 runs/demo 6000 bundles/demo_6000 " in (REPO / "scripts/train/train_demo.sh").read_text()
     assert model["lr"] == pytest.approx(recipe["model"]["init_args"]["lr"] * 0.9 ** 6, rel=1e-3)
-    assert shipped["training"]["global_step"] == 6000
     assert overlay["data"]["data_dir"] == data_dir and overlay["trainer"]["max_steps"] == 2000
     # the shipped teacher's statistics: its own data's, or data/synth's named for new clips
     assert overlay["data"].get("stats_dir") == (None if data_dir == "data/synth" else "data/synth")
@@ -535,6 +535,48 @@ def test_the_16k_variant_continues_the_more_clips_teacher_where_its_schedule_sto
     assert overlay["lr"] == pytest.approx(recipe["lr"] * recipe["lr_gamma"] ** 10, rel=1e-4)
     assert {k for k in overlay if overlay[k] != recipe[k]} == {"init_from", "lr"}
     assert printed[2]["data"]["data_dir"] == "data/synth_16k" and printed[2]["data"]["stats_dir"] == "data/synth"
+
+
+def _teacher_stages() -> list[dict]:
+    """The `stage N RUN STEPS BUNDLE LOG CONFIG...` lines of scripts/train/train_demo.sh."""
+    script = (REPO / "scripts/train/train_demo.sh").read_text().replace("\\\n", " ")
+    stages = []
+    for line in script.splitlines():
+        if line.startswith("stage "):
+            _, n, run, steps, bundle, log, *configs = line.split()
+            stages.append({"n": int(n), "run": run, "steps": int(steps), "bundle": bundle, "log": log,
+                           "configs": configs})
+    return stages
+
+
+def test_the_teacher_recipe_chains_its_stages_into_the_shipped_bundle():
+    """scripts/train/train_demo.sh: each stage trains the recipe's config (plus its overlay) in its own
+    run folder, from the bundle the stage before exported, and the last one exports the packaged
+    teacher, which says so (its training step count is the last stage's)."""
+    stages = _teacher_stages()
+    assert [s["n"] for s in stages] == [1, 2, 3]
+    assert stages[-1]["bundle"] == "stablemo/assets/demo_bundle"
+    assert load_bundle(REPO / stages[-1]["bundle"]).config["training"]["global_step"] == stages[-1]["steps"]
+    for before, stage in zip([None, *stages], stages):
+        assert stage["configs"][0] == "configs/demo.yaml"
+        merged = yaml.safe_load((REPO / "configs/demo.yaml").read_text())
+        for overlay in stage["configs"][1:]:
+            for key, value in yaml.safe_load((REPO / overlay).read_text()).items():
+                merged[key] = {**merged.get(key, {}), **value}
+        assert merged["trainer"]["default_root_dir"] == stage["run"]
+        assert merged["model"].get("init_from") == (before["bundle"] if before else None)
+        assert stage["steps"] >= merged["checkpoint"]["every_n_train_steps"]
+    assert len({s["run"] for s in stages}) == len({s["bundle"] for s in stages}) == len({s["log"] for s in stages}) == 3
+
+
+@pytest.mark.parametrize("args", [["--stage", "4"], ["--stage"], ["--fast"]])
+def test_the_teacher_recipe_refuses_a_bad_argument_in_one_line(args, tmp_path):
+    """Checked before anything is written or trained (the script stops at its argument check)."""
+    env = {**os.environ, "STABLEMO": str(tmp_path / "no-such-stablemo")}
+    done = subprocess.run(["bash", str(REPO / "scripts/train/train_demo.sh"), *args], capture_output=True,
+                          text=True, env=env, timeout=60)
+    assert done.returncode == 2 and done.stdout == ""
+    assert len(done.stderr.strip().splitlines()) == 1 and done.stderr.startswith("train_demo.sh: ")
 
 
 def test_the_varied_captions_variant_is_the_16k_run_with_other_captions():

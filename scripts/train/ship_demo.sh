@@ -3,7 +3,7 @@
 #   bash scripts/train/train_demo.sh           # the teacher -> stablemo/assets/demo_bundle
 #   bash scripts/train/distill_demo.sh lcm     # its 1-step LCM student -> runs/distill_lcm_synth, bundles/demo_lcm
 #   stablemo data synth --out data/synth_paths --path-walks 0.4      # path walks for the ControlNet
-#   stablemo fit --config configs/control/controlnet_lcm_pelvis_synth.yaml --trainer.max_steps=7500
+#   stablemo fit --config configs/control/controlnet_lcm_pelvis_synth.yaml
 #                                                # its pelvis ControlNet on the shipped student (optional)
 # this exports the student into the package (stablemo/assets/demo_student, the page's default model),
 # the ControlNet when its run is there (stablemo/assets/demo_controlnet; run this script once before
@@ -29,8 +29,11 @@ fi
 # The length predictor learns an action's own length from clips with tight rest: in the varied data a
 # clip's idle rest is drawn at random, which no text predicts (it measured 32 % of test lengths within
 # one bin there against 48 % on tight clips). The models fill any longer length with rest themselves.
-[ -f data/synth_tight/Mean.npy ] || "$STABLEMO" data synth --out data/synth_tight --num 2000 --seed 0 --rest tight
-"$PYTHON" scripts/text/length_predictor.py --data data/synth_tight stablemo/assets/demo_bundle stablemo/assets/demo_student \
-    stablemo/assets/demo_controlnet
-"$PYTHON" scripts/text/familiarity.py --data data/synth --threshold 0.65 stablemo/assets/demo_bundle stablemo/assets/demo_student \
-    stablemo/assets/demo_controlnet
+# Its captions, and the familiar ones, are those of the wider vocabulary the teacher last trained on
+# (--captions varied: every plain caption can be written in it; docs/training.md, "Other captions").
+[ -f data/synth_tight_varied/Mean.npy ] || "$STABLEMO" data synth --out data/synth_tight_varied --num 2000 --seed 0 \
+    --rest tight --captions varied
+"$PYTHON" scripts/text/length_predictor.py --data data/synth_tight_varied stablemo/assets/demo_bundle \
+    stablemo/assets/demo_student stablemo/assets/demo_controlnet
+"$PYTHON" scripts/text/familiarity.py --data data/synth_tight_varied --threshold 0.65 stablemo/assets/demo_bundle \
+    stablemo/assets/demo_student stablemo/assets/demo_controlnet
