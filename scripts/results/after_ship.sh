@@ -8,6 +8,7 @@
 #   bash scripts/results/after_ship.sh --dry-run    # print the commands, run nothing
 #   bash scripts/results/after_ship.sh --list       # the step names (and the docs section each refreshes)
 #   bash scripts/results/after_ship.sh --from STEP  # start at STEP (resume an interrupted run)
+#   bash scripts/results/after_ship.sh --to STEP    # stop after STEP (with --from: a range of steps)
 #   bash scripts/results/after_ship.sh --skip STEP  # leave STEP out (repeatable)
 #
 # Each step runs the command its docs section gives (same options, same output paths) and logs to
@@ -370,19 +371,19 @@ check() {  # KEY: one prerequisite; adds a line "what is missing: the command th
 
 usage() { sed -n '2,/^set -euo/p' "$0" | sed '$d' | sed 's/^# \{0,1\}//'; }
 known() { local s; for s in "${STEPS[@]}"; do [[ $s == "$1" ]] && return 0; done; return 1; }
-FROM="" LIST=0
+FROM="" TO="" LIST=0
 declare -A SKIP=()
 while (($#)); do
   case $1 in
     --dry-run) DRY=1 ;;
     --list) LIST=1 ;;
-    --from|--skip)
+    --from|--to|--skip)
       [[ $# -ge 2 ]] || { echo "after_ship.sh: $1 needs a step name (--list names them)" >&2; exit 2; }
       known "$2" || { echo "after_ship.sh: $1: no step '$2' (--list names them)" >&2; exit 2; }
-      if [[ $1 == --from ]]; then FROM=$2; else SKIP[$2]=1; fi
+      case $1 in --from) FROM=$2 ;; --to) TO=$2 ;; *) SKIP[$2]=1 ;; esac
       shift ;;
     -h|--help) usage; exit 0 ;;
-    *) echo "after_ship.sh: unknown option '$1' (use --dry-run, --list, --from STEP, --skip STEP)" >&2; exit 2 ;;
+    *) echo "after_ship.sh: unknown option '$1' (use --dry-run, --list, --from STEP, --to STEP, --skip STEP)" >&2; exit 2 ;;
   esac
   shift
 done
@@ -397,6 +398,10 @@ started=$([[ -z $FROM ]] && echo 1 || echo 0)
 for s in "${STEPS[@]}"; do
   [[ $s == "$FROM" ]] && started=1
   [[ $started == 1 && -z ${SKIP[$s]:-} ]] && SELECTED+=("$s")
+  if [[ $s == "$TO" ]]; then
+    [[ $started == 1 ]] || { echo "after_ship.sh: --to $TO comes before --from $FROM (--list gives the order)" >&2; exit 2; }
+    break
+  fi
 done
 
 for s in "${SELECTED[@]}"; do
