@@ -161,9 +161,10 @@ step control_facing_unsteered "shipped controlnet synth" "docs/results.md: Facin
 step_control_facing_unsteered() { run "$PYTHON" scripts/control/report.py "${CONTROLNET[@]}" --rows none:100%,pelvis:100%,pelvis:5 --replications 2 --max-items 64 --no-face-travel --out docs/data/results/control_facing_unsteered.json; }
 
 # docs/results.md, all of it: samplers, students, bf16, then the sections above from their JSON (last, so it
-# renders the fresh ones); --resume rescores every row whose bundle changed (bundles/demo_lcm, bundles/demo_pcm)
+# renders the fresh ones); --resume rescores every row whose bundle changed (bundles/demo_lcm, bundles/demo_pcm);
+# --ddpm-replications 1: Table 5's 1000-step DDPM row beside the 10-step SDE row (96 items, one replication)
 step make_results "shipped synth_tight lcm pcm" "docs/results.md: every table (samplers, students, bf16; re-renders the sections above)"
-step_make_results() { run env OMP_NUM_THREADS=1 "$PYTHON" scripts/results/make_results.py --no-distill --resume --replications 10 --ddpm-replications 0; }
+step_make_results() { run env OMP_NUM_THREADS=1 "$PYTHON" scripts/results/make_results.py --no-distill --resume --replications 10 --ddpm-replications 1; }
 
 # ------------------------------------------------------------------------------- docs/inference.md
 
