@@ -27,8 +27,8 @@
 # make_results.py and behaviour_report.py), the pictures and the files under docs/data/ are rewritten.
 # Numbers quoted in text, and tables typed into the docs from printed output or from a JSON, are in:
 #   README.md               the double jump's length and count ("a double jump 3.2 s, two jumps")
-#   docs/results.md         the notes above the joint-control tables ("measured 2026-12-05", "teacher 1.27x,
-#                           student 1.29x", "13.0 -> 9.5 cm/s") live in scripts/results/make_results.py
+#   docs/results.md         the notes above the joint-control tables (the date measured, the AITS ratios
+#                           "teacher 1.21x, student 1.25x") live in scripts/results/make_results.py
 #                           (CONTROL_TABLES), the behaviour section's fixed text in stablemo/eval/behaviour/report.py
 #   docs/inference.md       the finishing step's measured effect (kinematics.json), the length-from-text table
 #                           (length_count_check.py), "Prompts in parts" (behaviour JSONs, the README picture's
