@@ -35,9 +35,20 @@ def test_dry_run_from_a_step_starts_there():
     assert headers == [names[-2]]
 
 
+def test_dry_run_to_a_step_stops_there():
+    names = [line.split()[0] for line in _run("--list").stdout.splitlines() if line.strip()]
+    for args, expected in ((["--to", names[1]], names[:2]), (["--from", names[2], "--to", names[4]], names[2:5]),
+                           (["--from", names[3], "--to", names[3]], names[3:4])):
+        done = _run("--dry-run", *args)
+        assert done.returncode == 0, done.stderr
+        assert re.findall(r"^# (\w+): ", done.stdout, flags=re.MULTILINE) == expected
+
+
 def test_bad_options_get_one_line_and_exit_2():
+    names = [line.split()[0] for line in _run("--list").stdout.splitlines() if line.strip()]
     for args, says in ((["--bogus"], "unknown option '--bogus'"), (["--from"], "--from needs a step name"),
-                       (["--from", "nothing"], "--from: no step 'nothing'")):
+                       (["--from", "nothing"], "--from: no step 'nothing'"), (["--to"], "--to needs a step name"),
+                       (["--from", names[3], "--to", names[1]], f"--to {names[1]} comes before --from {names[3]}")):
         done = _run(*args)
         assert done.returncode == 2
         lines = done.stderr.strip().splitlines()

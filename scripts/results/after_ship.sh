@@ -8,6 +8,7 @@
 #   bash scripts/results/after_ship.sh --dry-run    # print the commands, run nothing
 #   bash scripts/results/after_ship.sh --list       # the step names (and the docs section each refreshes)
 #   bash scripts/results/after_ship.sh --from STEP  # start at STEP (resume an interrupted run)
+#   bash scripts/results/after_ship.sh --to STEP    # stop after STEP (with --from: a range of steps)
 #   bash scripts/results/after_ship.sh --skip STEP  # leave STEP out (repeatable)
 #
 # Each step runs the command its docs section gives (same options, same output paths) and logs to
@@ -160,9 +161,10 @@ step control_facing_unsteered "shipped controlnet synth" "docs/results.md: Facin
 step_control_facing_unsteered() { run "$PYTHON" scripts/control/report.py "${CONTROLNET[@]}" --rows none:100%,pelvis:100%,pelvis:5 --replications 2 --max-items 64 --no-face-travel --out docs/data/results/control_facing_unsteered.json; }
 
 # docs/results.md, all of it: samplers, students, bf16, then the sections above from their JSON (last, so it
-# renders the fresh ones); --resume rescores every row whose bundle changed (bundles/demo_lcm, bundles/demo_pcm)
+# renders the fresh ones); --resume rescores every row whose bundle changed (bundles/demo_lcm, bundles/demo_pcm);
+# --ddpm-replications 1: Table 5's 1000-step DDPM row beside the 10-step SDE row (96 items, one replication)
 step make_results "shipped synth_tight lcm pcm" "docs/results.md: every table (samplers, students, bf16; re-renders the sections above)"
-step_make_results() { run env OMP_NUM_THREADS=1 "$PYTHON" scripts/results/make_results.py --no-distill --resume --replications 10 --ddpm-replications 0; }
+step_make_results() { run env OMP_NUM_THREADS=1 "$PYTHON" scripts/results/make_results.py --no-distill --resume --replications 10 --ddpm-replications 1; }
 
 # ------------------------------------------------------------------------------- docs/inference.md
 
@@ -370,19 +372,19 @@ check() {  # KEY: one prerequisite; adds a line "what is missing: the command th
 
 usage() { sed -n '2,/^set -euo/p' "$0" | sed '$d' | sed 's/^# \{0,1\}//'; }
 known() { local s; for s in "${STEPS[@]}"; do [[ $s == "$1" ]] && return 0; done; return 1; }
-FROM="" LIST=0
+FROM="" TO="" LIST=0
 declare -A SKIP=()
 while (($#)); do
   case $1 in
     --dry-run) DRY=1 ;;
     --list) LIST=1 ;;
-    --from|--skip)
+    --from|--to|--skip)
       [[ $# -ge 2 ]] || { echo "after_ship.sh: $1 needs a step name (--list names them)" >&2; exit 2; }
       known "$2" || { echo "after_ship.sh: $1: no step '$2' (--list names them)" >&2; exit 2; }
-      if [[ $1 == --from ]]; then FROM=$2; else SKIP[$2]=1; fi
+      case $1 in --from) FROM=$2 ;; --to) TO=$2 ;; *) SKIP[$2]=1 ;; esac
       shift ;;
     -h|--help) usage; exit 0 ;;
-    *) echo "after_ship.sh: unknown option '$1' (use --dry-run, --list, --from STEP, --skip STEP)" >&2; exit 2 ;;
+    *) echo "after_ship.sh: unknown option '$1' (use --dry-run, --list, --from STEP, --to STEP, --skip STEP)" >&2; exit 2 ;;
   esac
   shift
 done
@@ -397,6 +399,10 @@ started=$([[ -z $FROM ]] && echo 1 || echo 0)
 for s in "${STEPS[@]}"; do
   [[ $s == "$FROM" ]] && started=1
   [[ $started == 1 && -z ${SKIP[$s]:-} ]] && SELECTED+=("$s")
+  if [[ $s == "$TO" ]]; then
+    [[ $started == 1 ]] || { echo "after_ship.sh: --to $TO comes before --from $FROM (--list gives the order)" >&2; exit 2; }
+    break
+  fi
 done
 
 for s in "${SELECTED[@]}"; do
