@@ -579,6 +579,26 @@ def test_the_teacher_recipe_refuses_a_bad_argument_in_one_line(args, tmp_path):
     assert len(done.stderr.strip().splitlines()) == 1 and done.stderr.startswith("train_demo.sh: ")
 
 
+def test_the_teacher_recipe_refuses_a_run_trained_past_its_stage(tmp_path):
+    """A run folder whose checkpoints went past the stage's steps would be exported as it is: the
+    script says so in one line instead (here the first stage's run at step 7000 of 6000), before any
+    data is written or anything trained."""
+    (tmp_path / "scripts/train").mkdir(parents=True)
+    script = tmp_path / "scripts/train/train_demo.sh"
+    script.write_text((REPO / "scripts/train/train_demo.sh").read_text())
+    (tmp_path / "data/synth").mkdir(parents=True)
+    (tmp_path / "data/synth/Mean.npy").write_bytes(b"")
+    (tmp_path / "data/synth/synth.json").write_text('{"rest": "varied"}')
+    (tmp_path / "runs/demo/checkpoints").mkdir(parents=True)
+    (tmp_path / "runs/demo/checkpoints/epoch=69-step=7000.ckpt").write_bytes(b"")
+    env = {**os.environ, "STABLEMO": str(tmp_path / "no-such-stablemo"), "PYTHON": sys.executable}
+    done = subprocess.run(["bash", str(script)], capture_output=True, text=True, env=env, timeout=60)
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr.strip() == ("train_demo.sh: runs/demo has trained past stage 1's 6000 steps (step 7000); "
+                                   "move it away to train the stage again")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "runs", "scripts"]
+
+
 def test_the_varied_captions_variant_is_the_16k_run_with_other_captions():
     """configs/demo_variants/further_16k_varied.yaml trains on the 16k run's clips captioned in the
     varied vocabulary (`stablemo data synth ... --captions varied`: the same motions): only its data

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Recipe of the bundled demo teacher (stablemo/assets/demo_bundle): three training stages on synthetic
 # data, each starting from the previous stage's weights, all normalised with data/synth's statistics
-# (docs/training.md, "The shipped teacher's recipe"):
+# (docs/training.md, "The shipped demo teacher's recipe"):
 #   1. configs/demo.yaml: 6000 steps on data/synth (2000 clips, seed 0)              -> bundles/demo_6000
 #   2. + configs/demo_variants/further_more_data.yaml, 4000 steps on data/synth_8k (8000 clips, seed 1)
 #                                                                                      -> bundles/demo_more_data_10000
@@ -35,10 +35,20 @@ done_at() {  # BUNDLE STEPS: does BUNDLE hold a network trained STEPS steps in i
 sys.exit(json.load(open(sys.argv[1]))["training"]["global_step"] != int(sys.argv[2]))' "$1/config.json" "$2"
 }
 
-stage() {  # N RUN STEPS BUNDLE LOG CONFIG...: train (resuming) and export one stage
+DATA=()  # the dataset the next stage trains on: FOLDER ARGS... of `stablemo data synth`
+
+stage() {  # N RUN STEPS BUNDLE LOG CONFIG...: train (resuming) and export one stage, on DATA
   local n=$1 run=$2 steps=$3 bundle=$4 log=$5; shift 5
   if [[ -n $only && $only != "$n" ]]; then return 0; fi
   if done_at "$bundle" "$steps"; then echo "train_demo.sh: stage $n done ($bundle)"; return 0; fi
+  # a run trained past the stage would be exported as it is, not at the stage's steps
+  local past
+  past=$(ls "$run/checkpoints" 2>/dev/null | sed -n 's/.*step=\([0-9]*\)\.ckpt$/\1/p' | sort -n | tail -1) || true
+  if [[ -n $past && $past -gt $steps ]]; then
+    echo "train_demo.sh: $run has trained past stage $n's $steps steps (step $past); move it away to train the stage again" >&2
+    exit 2
+  fi
+  data "${DATA[@]}"
   local resume=() configs=()
   [ -f "$run/checkpoints/last.ckpt" ] && resume=(--ckpt_path last)
   for c in "$@"; do configs+=(--config "$c"); done
@@ -50,17 +60,19 @@ stage() {  # N RUN STEPS BUNDLE LOG CONFIG...: train (resuming) and export one s
   "$PYTHON" scripts/train/training_log.py merge "$run/logs" "docs/data/training/$log"
 }
 
+# data/synth holds every stage's statistics. The demo models train on clips with varied idle rest
+# (docs/synth.md): a data/synth from before (no "rest" or "rest": "tight" in its synth.json) is not
+# trained on silently.
 data data/synth --num 2000 --seed 0 --rest varied
-# The demo models train on clips with varied idle rest (docs/synth.md): a data/synth from before
-# (no "rest" or "rest": "tight" in its synth.json) is not trained on silently.
 grep -q '"rest": "varied"' data/synth/synth.json || {
   echo "train_demo.sh: data/synth was written without --rest varied; regenerate it (replaces it): $STABLEMO data synth --out data/synth --num 2000 --seed 0" >&2
   exit 2
 }
+DATA=(data/synth --num 2000 --seed 0 --rest varied)
 stage 1 runs/demo 6000 bundles/demo_6000 demo_training_log.csv configs/demo.yaml
-[[ -z $only || $only == 2 ]] && data data/synth_8k --num 8000 --seed 1 --rest varied
+DATA=(data/synth_8k --num 8000 --seed 1 --rest varied)
 stage 2 runs/demo_further_more_data 4000 bundles/demo_more_data_10000 demo_more_data_training_log.csv \
   configs/demo.yaml configs/demo_variants/further_more_data.yaml
-[[ -z $only || $only == 3 ]] && data data/synth_16k_varied --num 16000 --seed 2 --rest varied --captions varied
+DATA=(data/synth_16k_varied --num 16000 --seed 2 --rest varied --captions varied)
 stage 3 runs/demo_further_16k_varied 3000 stablemo/assets/demo_bundle demo_16k_varied_training_log.csv \
   configs/demo.yaml configs/demo_variants/further_16k_varied.yaml
