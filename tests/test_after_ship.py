@@ -15,11 +15,15 @@ def _run(*args):
     return subprocess.run(["bash", str(SCRIPT), *args], cwd=REPO, capture_output=True, text=True)
 
 
+def _step_names() -> list[str]:
+    """The steps in their order, as `--list` names them."""
+    return [line.split()[0] for line in _run("--list").stdout.splitlines() if line.strip()]
+
+
 def test_dry_run_commands_name_existing_scripts_and_run_nothing():
     done = _run("--dry-run")
     assert done.returncode == 0, done.stderr
-    steps = _run("--list").stdout.split("\n")
-    names = [line.split()[0] for line in steps if line.strip()]
+    names = _step_names()
     assert len(names) == len(set(names)) >= 20
     for name in names:  # every step prints its header and at least one command
         assert f"# {name}: " in done.stdout
@@ -28,7 +32,7 @@ def test_dry_run_commands_name_existing_scripts_and_run_nothing():
 
 
 def test_dry_run_from_a_step_starts_there():
-    names = [line.split()[0] for line in _run("--list").stdout.splitlines() if line.strip()]
+    names = _step_names()
     done = _run("--dry-run", "--from", names[-2], "--skip", names[-1])
     assert done.returncode == 0, done.stderr
     headers = re.findall(r"^# (\w+): ", done.stdout, flags=re.MULTILINE)
@@ -36,7 +40,7 @@ def test_dry_run_from_a_step_starts_there():
 
 
 def test_dry_run_to_a_step_stops_there():
-    names = [line.split()[0] for line in _run("--list").stdout.splitlines() if line.strip()]
+    names = _step_names()
     for args, expected in ((["--to", names[1]], names[:2]), (["--from", names[2], "--to", names[4]], names[2:5]),
                            (["--from", names[3], "--to", names[3]], names[3:4])):
         done = _run("--dry-run", *args)
@@ -45,7 +49,7 @@ def test_dry_run_to_a_step_stops_there():
 
 
 def test_bad_options_get_one_line_and_exit_2():
-    names = [line.split()[0] for line in _run("--list").stdout.splitlines() if line.strip()]
+    names = _step_names()
     for args, says in ((["--bogus"], "unknown option '--bogus'"), (["--from"], "--from needs a step name"),
                        (["--from", "nothing"], "--from: no step 'nothing'"), (["--to"], "--to needs a step name"),
                        (["--from", names[3], "--to", names[1]], f"--to {names[1]} comes before --from {names[3]}")):
