@@ -306,6 +306,28 @@ keys = set(net.keys())
 same = all("base." + k in keys and torch.equal(net.get_tensor("base." + k), student.get_tensor(k)) for k in student.keys())
 sys.exit(0 if same else 1)
 '
+# DERIVED TEACHER: exit 0 when the student bundle DERIVED records TEACHER's weights as its teacher
+# (training.teacher_weights_sha256, written by distillation), 1 when it records other weights, 3 when
+# it records none (a student distilled before the record existed: the caller falls back to file times)
+DISTILLED_FROM='
+import hashlib, json, sys
+from pathlib import Path
+recorded = json.loads((Path(sys.argv[1]) / "config.json").read_text()).get("training", {}).get("teacher_weights_sha256")
+if recorded is None:
+    sys.exit(3)
+sys.exit(0 if recorded == hashlib.sha256((Path(sys.argv[2]) / "model.safetensors").read_bytes()).hexdigest() else 1)
+'
+# distilled_from DERIVED TEACHER: true unless DERIVED was distilled from other weights than TEACHER's
+# (by its record, or without one by file time: older than the teacher)
+distilled_from() {
+  local rc=0
+  "$PYTHON" -c "$DISTILLED_FROM" "$1" "$2" || rc=$?
+  case $rc in
+    0) return 0 ;;
+    3) [[ ! $1/model.safetensors -ot $2/model.safetensors ]] ;;
+    *) return 1 ;;
+  esac
+}
 PROBLEMS=()
 declare -A CHECKED=()
 problem() { local p; for p in "${PROBLEMS[@]}"; do [[ $p == "$1" ]] && return 0; done; PROBLEMS+=("$1"); }
@@ -326,8 +348,9 @@ check() {  # KEY: one prerequisite; adds a line "what is missing: the command th
           [[ -f stablemo/assets/$b/$f ]] || problem "stablemo/assets/$b/$f is missing (the length predictor and captions come last): bash scripts/train/ship_demo.sh"
         done
       done
-      if [[ -f stablemo/assets/demo_student/model.safetensors && stablemo/assets/demo_student/model.safetensors -ot stablemo/assets/demo_bundle/model.safetensors ]]; then
-        echo "after_ship.sh: warning: stablemo/assets/demo_student is older than the teacher: distilled from it? (bash scripts/train/distill_demo.sh lcm && bash scripts/train/ship_demo.sh)" >&2
+      if [[ -f stablemo/assets/demo_student/model.safetensors && -f stablemo/assets/demo_bundle/model.safetensors ]] &&
+         ! distilled_from stablemo/assets/demo_student stablemo/assets/demo_bundle; then
+        echo "after_ship.sh: warning: stablemo/assets/demo_student was not distilled from the shipped teacher (by its record of the teacher's weights, or older than it where it has none) (bash scripts/train/distill_demo.sh lcm && bash scripts/train/ship_demo.sh)" >&2
       fi ;;
     controlnet)
       if [[ -f stablemo/assets/demo_controlnet/model.safetensors && -f stablemo/assets/demo_student/model.safetensors ]] &&
@@ -344,8 +367,9 @@ check() {  # KEY: one prerequisite; adds a line "what is missing: the command th
       fi ;;
     pcm)
       [[ -f bundles/demo_pcm/config.json ]] || problem "bundles/demo_pcm is missing: bash scripts/train/distill_demo.sh pcm"
-      if [[ -f bundles/demo_pcm/model.safetensors && bundles/demo_pcm/model.safetensors -ot stablemo/assets/demo_bundle/model.safetensors ]]; then
-        echo "after_ship.sh: warning: bundles/demo_pcm is older than the shipped teacher, so docs/results.md's PCM rows would be an earlier teacher's student (move runs/distill_pcm_synth away, then: bash scripts/train/distill_demo.sh pcm)" >&2
+      if [[ -f bundles/demo_pcm/model.safetensors && -f stablemo/assets/demo_bundle/model.safetensors ]] &&
+         ! distilled_from bundles/demo_pcm stablemo/assets/demo_bundle; then
+        echo "after_ship.sh: warning: bundles/demo_pcm was not distilled from the shipped teacher (by its record of the teacher's weights, or older than it where it has none), so docs/results.md's PCM rows would be an earlier teacher's student (move runs/distill_pcm_synth away, then: bash scripts/train/distill_demo.sh pcm)" >&2
       fi ;;
     blender) command -v blender >/dev/null || problem "blender is not on PATH: apt-get install blender" ;;
     chromium)
