@@ -537,11 +537,11 @@ def test_the_16k_variant_continues_the_more_clips_teacher_where_its_schedule_sto
     assert printed[2]["data"]["data_dir"] == "data/synth_16k" and printed[2]["data"]["stats_dir"] == "data/synth"
 
 
-def _teacher_stages() -> list[dict]:
-    """The `stage N RUN STEPS BUNDLE LOG CONFIG...` lines of scripts/train/train_demo.sh."""
-    script = (REPO / "scripts/train/train_demo.sh").read_text().replace("\\\n", " ")
+def _recipe_stages(script: str) -> list[dict]:
+    """The `stage N RUN STEPS BUNDLE LOG CONFIG...` lines of a recipe script (scripts/train/...)."""
+    text = (REPO / script).read_text().replace("\\\n", " ")
     stages = []
-    for line in script.splitlines():
+    for line in text.splitlines():
         if line.startswith("stage "):
             _, n, run, steps, bundle, log, *configs = line.split()
             stages.append({"n": int(n), "run": run, "steps": int(steps), "bundle": bundle, "log": log,
@@ -549,34 +549,64 @@ def _teacher_stages() -> list[dict]:
     return stages
 
 
+def _merged_config(configs: list[str]) -> dict:
+    """The configs merged as the Lightning CLI merges repeated --config files (later ones win, key by key)."""
+    def merge(a: dict, b: dict) -> dict:
+        return {**a, **{k: merge(a[k], v) if isinstance(v, dict) and isinstance(a.get(k), dict) else v
+                        for k, v in b.items()}}
+    merged: dict = {}
+    for config in configs:
+        merged = merge(merged, yaml.safe_load((REPO / config).read_text()))
+    return merged
+
+
 def test_the_teacher_recipe_chains_its_stages_into_the_shipped_bundle():
     """scripts/train/train_demo.sh: each stage trains the recipe's config (plus its overlay) in its own
     run folder, from the bundle the stage before exported, and the last one exports the packaged
     teacher, which says so (its training step count is the last stage's)."""
-    stages = _teacher_stages()
+    stages = _recipe_stages("scripts/train/train_demo.sh")
     assert [s["n"] for s in stages] == [1, 2, 3]
     assert stages[-1]["bundle"] == "stablemo/assets/demo_bundle"
     assert load_bundle(REPO / stages[-1]["bundle"]).config["training"]["global_step"] == stages[-1]["steps"]
     for before, stage in zip([None, *stages], stages):
         assert stage["configs"][0] == "configs/demo.yaml"
-        merged = yaml.safe_load((REPO / "configs/demo.yaml").read_text())
-        for overlay in stage["configs"][1:]:
-            for key, value in yaml.safe_load((REPO / overlay).read_text()).items():
-                merged[key] = {**merged.get(key, {}), **value}
+        merged = _merged_config(stage["configs"])
         assert merged["trainer"]["default_root_dir"] == stage["run"]
         assert merged["model"].get("init_from") == (before["bundle"] if before else None)
         assert stage["steps"] >= merged["checkpoint"]["every_n_train_steps"]
     assert len({s["run"] for s in stages}) == len({s["bundle"] for s in stages}) == len({s["log"] for s in stages}) == 3
 
 
-@pytest.mark.parametrize("args", [["--stage", "4"], ["--stage"], ["--fast"]])
-def test_the_teacher_recipe_refuses_a_bad_argument_in_one_line(args, tmp_path):
+def test_the_controlnet_recipe_chains_its_stages_on_the_shipped_student_into_what_ship_demo_exports():
+    """scripts/train/train_controlnet.sh: stage 1 trains the toward-targets ControlNet on the packaged
+    student, stage 2 fine-tunes the bundle stage 1 exported (its `init`), each in the run folder and
+    for the steps its configs say; scripts/train/ship_demo.sh exports stage 2's run into the package,
+    and the packaged ControlNet is of that recipe's form."""
+    stages = _recipe_stages("scripts/train/train_controlnet.sh")
+    assert [s["n"] for s in stages] == [1, 2]
+    for before, stage in zip([None, *stages], stages):
+        merged = _merged_config(stage["configs"])
+        assert merged["trainer"]["default_root_dir"] == stage["run"]
+        assert merged["trainer"]["max_steps"] == stage["steps"]
+        init = merged["model"]["init_args"]
+        assert init["base"] == "stablemo/assets/demo_student" and init.get("init") == (before["bundle"] if before else None)
+        assert init["control"]["root_only"] and init["control"]["toward_targets"]
+    ship = (REPO / "scripts/train/ship_demo.sh").read_text()
+    assert f"controlnet={stages[-1]['run']}/checkpoints/last.ckpt" in ship
+    shipped = load_bundle(REPO / "stablemo/assets/demo_controlnet").config
+    assert shipped["controlnet"]["control"]["toward_targets"] and shipped["controlnet"]["control"]["root_only"]
+
+
+@pytest.mark.parametrize("script, args", [("train_demo.sh", ["--stage", "4"]), ("train_demo.sh", ["--stage"]),
+                                          ("train_demo.sh", ["--fast"]), ("train_controlnet.sh", ["--stage", "3"]),
+                                          ("train_controlnet.sh", ["--fast"])])
+def test_the_recipes_refuse_a_bad_argument_in_one_line(script, args, tmp_path):
     """Checked before anything is written or trained (the script stops at its argument check)."""
     env = {**os.environ, "STABLEMO": str(tmp_path / "no-such-stablemo")}
-    done = subprocess.run(["bash", str(REPO / "scripts/train/train_demo.sh"), *args], capture_output=True,
+    done = subprocess.run(["bash", str(REPO / "scripts/train" / script), *args], capture_output=True,
                           text=True, env=env, timeout=60)
     assert done.returncode == 2 and done.stdout == ""
-    assert len(done.stderr.strip().splitlines()) == 1 and done.stderr.startswith("train_demo.sh: ")
+    assert len(done.stderr.strip().splitlines()) == 1 and done.stderr.startswith(f"{script}: ")
 
 
 def test_the_teacher_recipe_refuses_a_run_trained_past_its_stage(tmp_path):

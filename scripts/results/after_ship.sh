@@ -355,9 +355,7 @@ check() {  # KEY: one prerequisite; adds a line "what is missing: the command th
     controlnet)
       if [[ -f stablemo/assets/demo_controlnet/model.safetensors && -f stablemo/assets/demo_student/model.safetensors ]] &&
          ! "$PYTHON" -c "$CONTROLNET_BASE" stablemo/assets/demo_controlnet/model.safetensors stablemo/assets/demo_student/model.safetensors; then
-        local paths=""
-        [[ -f data/synth_paths/Mean.npy ]] || paths="$STABLEMO data synth --out data/synth_paths --path-walks 0.4 && "
-        problem "stablemo/assets/demo_controlnet was trained on another student than stablemo/assets/demo_student (move runs/controlnet_lcm_pelvis_synth away first): ${paths}$STABLEMO fit --config configs/control/controlnet_lcm_pelvis_synth.yaml && bash scripts/train/ship_demo.sh"
+        problem "stablemo/assets/demo_controlnet was trained on another student than stablemo/assets/demo_student (move runs/controlnet_lcm_pelvis_toward and runs/controlnet_lcm_pelvis_toward_clip away first): bash scripts/train/train_controlnet.sh && bash scripts/train/ship_demo.sh"
       fi ;;
     lcm)
       [[ -f bundles/demo_lcm/config.json ]] || problem "bundles/demo_lcm is missing: bash scripts/train/distill_demo.sh lcm"
