@@ -2,7 +2,8 @@
 # Regenerate every table and picture in the docs that depends on the shipped demo models (the teacher
 # stablemo/assets/demo_bundle, the 1-step student stablemo/assets/demo_student, the ControlNet
 # stablemo/assets/demo_controlnet), in one command, right after new demo models were shipped by
-#   bash scripts/train/train_demo.sh && bash scripts/train/distill_demo.sh lcm && bash scripts/train/ship_demo.sh
+#   bash scripts/train/train_demo.sh && bash scripts/train/distill_demo.sh lcm && bash scripts/train/ship_demo.sh &&
+#     bash scripts/train/train_controlnet.sh && bash scripts/train/ship_demo.sh   # the ControlNet on the student just shipped
 #
 #   bash scripts/results/after_ship.sh              # every step, in order
 #   bash scripts/results/after_ship.sh --dry-run    # print the commands, run nothing
