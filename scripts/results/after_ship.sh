@@ -36,7 +36,7 @@
 #                           description), the counts-by-repetition and held-apart composite runs, "Turns
 #                           as said" (the behaviour before/after and turns/turns.md's numbers)
 #   docs/evaluation.md      "What the demo models get wrong" and the behaviour runs' times (behaviour JSONs)
-#   docs/control.md         the heading tables (heading_*.json, logs), the control table's "What it says", the
+#   docs/control.md         the heading tables (heading_*.json, logs; the shipped ControlNet's: heading_controlnet_toward_*.json), the control table's "What it says", the
 #                           ControlNet tables, its targets table and prose (controlnet_results.json, bench aits),
 #                           the examples' and controlnet_example.py's printed errors, the speed table
 #   docs/training.md        the guidance-scale table and prose (cfg_sweep_val.json), the shipped row of
@@ -204,12 +204,29 @@ step heading_student "shipped" "docs/control.md: pace table, student (heading_st
 step_heading_student() { run "$PYTHON" scripts/control/heading_check.py --model student "${HEADING[@]}" --json docs/data/control/heading_student_guided.json; }
 step heading_teacher "shipped" "docs/control.md: pace table, teacher at its guidance (heading_teacher_cfg1.5.json)"
 step_heading_teacher() { run "$PYTHON" scripts/control/heading_check.py --model teacher "${HEADING[@]}" --json docs/data/control/heading_teacher_cfg1.5.json; }
-step heading_controlnet "shipped controlnet" "docs/control.md: ControlNet heading table, alone unsteered -> steered (heading_controlnet.json)"
-step_heading_controlnet() { run "$PYTHON" scripts/control/heading_check.py --model controlnet --no-guidance --ab "${HEADING[@]}" --json docs/data/control/heading_controlnet.json; }
-step heading_controlnet_alone "shipped controlnet" "docs/control.md: ControlNet heading, alone (heading_controlnet_alone.json)"
-step_heading_controlnet_alone() { run "$PYTHON" scripts/control/heading_check.py --model controlnet --no-guidance "${HEADING[@]}" --json docs/data/control/heading_controlnet_alone.json; }
-step heading_controlnet_guided "shipped controlnet" "docs/control.md: ControlNet heading, + guidance (heading_controlnet_guided.json)"
-step_heading_controlnet_guided() { run "$PYTHON" scripts/control/heading_check.py --model controlnet "${HEADING[@]}" --json docs/data/control/heading_controlnet_guided.json; }
+# the shipped ControlNet's heading table (docs/control.md, "The shipped ControlNet ... steps toward the next
+# target"): the paths above, held-out ones, a third set, and two other gaits
+CN_TABLE="docs/control.md: the shipped ControlNet's heading table"
+CN_HELDOUT=(--paths 3 --rng 300 --seeds 4,5,6,7)
+CN_THIRD=(--paths 3 --rng 400 --seeds 8,9,10,11)
+step heading_controlnet "shipped controlnet" "$CN_TABLE, alone, and unsteered by --ab (heading_controlnet_toward_alone.json)"
+step_heading_controlnet() { run "$PYTHON" scripts/control/heading_check.py --model controlnet --no-guidance --ab "${HEADING[@]}" --json docs/data/control/heading_controlnet_toward_alone.json; }
+step heading_controlnet_guided "shipped controlnet" "$CN_TABLE, + guidance (heading_controlnet_toward_guided.json)"
+step_heading_controlnet_guided() { run "$PYTHON" scripts/control/heading_check.py --model controlnet "${HEADING[@]}" --json docs/data/control/heading_controlnet_toward_guided.json; }
+step heading_controlnet_heldout "shipped controlnet" "$CN_TABLE, held-out paths alone (heading_controlnet_toward_heldout_alone.json)"
+step_heading_controlnet_heldout() { run "$PYTHON" scripts/control/heading_check.py --model controlnet --no-guidance "${CN_HELDOUT[@]}" --json docs/data/control/heading_controlnet_toward_heldout_alone.json; }
+step heading_controlnet_heldout_guided "shipped controlnet" "$CN_TABLE, held-out paths + guidance (heading_controlnet_toward_heldout_guided.json)"
+step_heading_controlnet_heldout_guided() { run "$PYTHON" scripts/control/heading_check.py --model controlnet "${CN_HELDOUT[@]}" --json docs/data/control/heading_controlnet_toward_heldout_guided.json; }
+step heading_controlnet_third "shipped controlnet" "$CN_TABLE, the third set (heading_controlnet_toward_third_{alone,guided}.json)"
+step_heading_controlnet_third() {
+  run "$PYTHON" scripts/control/heading_check.py --model controlnet --no-guidance "${CN_THIRD[@]}" --json docs/data/control/heading_controlnet_toward_third_alone.json
+  run "$PYTHON" scripts/control/heading_check.py --model controlnet "${CN_THIRD[@]}" --json docs/data/control/heading_controlnet_toward_third_guided.json
+}
+step heading_controlnet_gaits "shipped controlnet" "$CN_TABLE, other gaits alone (heading_controlnet_toward_{backwards,sidesteps}_alone.json)"
+step_heading_controlnet_gaits() {
+  run "$PYTHON" scripts/control/heading_check.py --model controlnet --no-guidance --texts "a person walks backwards" "${HEADING[@]}" --json docs/data/control/heading_controlnet_toward_backwards_alone.json
+  run "$PYTHON" scripts/control/heading_check.py --model controlnet --no-guidance --texts "a person side steps to the left" "${HEADING[@]}" --json docs/data/control/heading_controlnet_toward_sidesteps_alone.json
+}
 # docs/control.md pace table, the "constant speed" side of its last column (printed; log)
 step heading_constant "shipped" "docs/control.md: pace table, constant-speed column (printed)"
 step_heading_constant() {
