@@ -616,6 +616,7 @@ def test_the_teacher_recipe_refuses_a_run_trained_past_its_stage(tmp_path):
     (tmp_path / "scripts/train").mkdir(parents=True)
     script = tmp_path / "scripts/train/train_demo.sh"
     script.write_text((REPO / "scripts/train/train_demo.sh").read_text())
+    (tmp_path / "scripts/train/stages.sh").write_text((REPO / "scripts/train/stages.sh").read_text())
     (tmp_path / "data/synth").mkdir(parents=True)
     (tmp_path / "data/synth/Mean.npy").write_bytes(b"")
     (tmp_path / "data/synth/synth.json").write_text('{"rest": "varied"}')

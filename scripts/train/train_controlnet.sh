@@ -18,6 +18,7 @@ cd "$(dirname "$0")/../.."
 STABLEMO=${STABLEMO:-.venv/bin/stablemo}
 PYTHON=${PYTHON:-.venv/bin/python}
 STUDENT=stablemo/assets/demo_student
+source scripts/train/stages.sh
 only=
 case "${1:-}" in
   "") ;;
@@ -38,17 +39,9 @@ stage() {  # N RUN STEPS BUNDLE LOG CONFIG...: train (resuming) and export one s
   local n=$1 run=$2 steps=$3 bundle=$4 log=$5; shift 5
   if [[ -n $only && $only != "$n" ]]; then return 0; fi
   if done_on_student "$bundle" "$steps"; then echo "train_controlnet.sh: stage $n done ($bundle)"; return 0; fi
-  local past
-  past=$(ls "$run/checkpoints" 2>/dev/null | sed -n 's/.*step=\([0-9]*\)\.ckpt$/\1/p' | sort -n | tail -1) || true
-  if [[ -n $past && $past -gt $steps ]]; then
-    echo "train_controlnet.sh: $run has trained past stage $n's $steps steps (step $past); move it away to train the stage again" >&2
-    exit 2
-  fi
-  local resume=() configs=()
-  [ -f "$run/checkpoints/last.ckpt" ] && resume=(--ckpt_path last)
-  for c in "$@"; do configs+=(--config "$c"); done
+  refuse_past train_controlnet.sh "$n" "$run" "$steps"
   echo "train_controlnet.sh: stage $n: $steps steps -> $bundle"
-  "$STABLEMO" fit "${configs[@]}" --trainer.max_steps="$steps" "${resume[@]}"
+  fit_stage "$run" "$steps" "$@"
   "$STABLEMO" export "$run/checkpoints/last.ckpt" --out "$bundle" --overwrite
   "$PYTHON" scripts/train/training_log.py merge "$run/logs" "docs/data/control/$log"
 }

@@ -18,6 +18,7 @@ set -euo pipefail
 cd "$(dirname "$0")/../.."
 STABLEMO=${STABLEMO:-.venv/bin/stablemo}
 PYTHON=${PYTHON:-.venv/bin/python}
+source scripts/train/stages.sh
 only=
 case "${1:-}" in
   "") ;;
@@ -41,19 +42,10 @@ stage() {  # N RUN STEPS BUNDLE LOG CONFIG...: train (resuming) and export one s
   local n=$1 run=$2 steps=$3 bundle=$4 log=$5; shift 5
   if [[ -n $only && $only != "$n" ]]; then return 0; fi
   if done_at "$bundle" "$steps"; then echo "train_demo.sh: stage $n done ($bundle)"; return 0; fi
-  # a run trained past the stage would be exported as it is, not at the stage's steps
-  local past
-  past=$(ls "$run/checkpoints" 2>/dev/null | sed -n 's/.*step=\([0-9]*\)\.ckpt$/\1/p' | sort -n | tail -1) || true
-  if [[ -n $past && $past -gt $steps ]]; then
-    echo "train_demo.sh: $run has trained past stage $n's $steps steps (step $past); move it away to train the stage again" >&2
-    exit 2
-  fi
+  refuse_past train_demo.sh "$n" "$run" "$steps"
   data "${DATA[@]}"
-  local resume=() configs=()
-  [ -f "$run/checkpoints/last.ckpt" ] && resume=(--ckpt_path last)
-  for c in "$@"; do configs+=(--config "$c"); done
   echo "train_demo.sh: stage $n: ${steps} steps -> $bundle"
-  "$STABLEMO" fit "${configs[@]}" --trainer.max_steps="$steps" "${resume[@]}"
+  fit_stage "$run" "$steps" "$@"
   # Guidance 1.5, not the paper's 2.5: chosen on the val split (scripts/results/cfg_sweep.py, docs/training.md
   # "The demo teacher's guidance scale")
   "$STABLEMO" export "$run/checkpoints/last.ckpt" --out "$bundle" --overwrite --cfg 1.5
