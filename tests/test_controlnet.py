@@ -3,6 +3,7 @@ pipeline (hint + optional guidance refinement), export of the EMA weights, the L
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
 import numpy as np
@@ -744,6 +745,8 @@ def test_export_writes_the_controlnet_ema_over_the_frozen_base(student_bundle, t
     module.on_save_checkpoint(checkpoint)
     config, state = bundle_from_checkpoint(checkpoint, source="x.ckpt")
     assert config["kind"] == "controlnet" and config["training"]["global_step"] == 7
+    weights = (student_bundle / "model.safetensors").read_bytes()
+    assert config["training"]["base_weights_sha256"] == hashlib.sha256(weights).hexdigest()
     assert state.keys() == module.model.state_dict().keys()
     for k, v in module.model.base.state_dict().items():
         assert torch.equal(state["base." + k], v)

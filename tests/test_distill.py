@@ -185,6 +185,17 @@ def test_student_bundle_samples_through_the_pipeline(teacher_bundle, tmp_path):
             np.testing.assert_array_equal(feats, again.feature_list()[0])
 
 
+def test_student_bundle_records_its_teachers_weights(teacher_bundle):
+    """after_ship.sh tells a student distilled from an earlier teacher by this record, not by file times."""
+    import hashlib
+
+    from stablemo.training.distill_module import ConsistencyDistillation
+
+    config, _ = ConsistencyDistillation(teacher=str(teacher_bundle), mode="lcm", ddim_steps=50).bundle()
+    weights = (teacher_bundle / "model.safetensors").read_bytes()
+    assert config["training"]["teacher_weights_sha256"] == hashlib.sha256(weights).hexdigest()
+
+
 def test_student_pipeline_clears_the_shared_text_cache(teacher_bundle, tmp_path):
     """AITS times each sentence with cold text caches; a student's pipeline must reach its encoder."""
     from stablemo.inference.pipeline import Pipeline

@@ -22,6 +22,8 @@ from stablemo.timeline import (
            segment_frames,
            stream_timeline,
 )
+from stablemo.text.plan import plan_words
+from stablemo.timeline.planned import share
 from stablemo.timeline.seams import seam_report
 from stablemo.timeline.windows import RootFrame, crossfade
 
@@ -44,7 +46,9 @@ def _assert_finished_from(joints: np.ndarray, raw_features: np.ndarray) -> None:
     bone at one length."""
     raw = _global_joints(raw_features)
     np.testing.assert_allclose(joints[:, 0, [0, 2]], raw[:, 0, [0, 2]], atol=1e-4)
-    assert np.abs(joints - raw).max() < 0.3 and np.median(np.abs(joints - raw)) < 0.03
+    # the most moved is a wrist the rigid arm cannot reach (0.33 m in the 2-step samples of the teacher
+    # shipped 2026-12-07, mid-jump; 0.23 m at its 10 steps; 0.15 m for the teacher before it)
+    assert np.abs(joints - raw).max() < 0.4 and np.median(np.abs(joints - raw)) < 0.03
     bones = np.linalg.norm(joints[:, 1:] - joints[:, list(HUMANML3D.parents[1:])], axis=-1)  # (N, J-1)
     assert np.ptp(bones, axis=0).max() < 1e-3
 
@@ -319,15 +323,19 @@ def test_a_streamed_timeline_is_the_composers_motion_cut_into_chunks_within_prom
     # every prompt's span is generated whole (its windows, as composed): the raw rows to the bit
     raw = np.concatenate([c.raw_features for c in chunks])
     assert np.array_equal(raw, composed.raw_features)
-    # the last prompt says an order: its two parts in order, sharing its 10.9 s in proportion to their
-    # predicted lengths (stablemo.timeline.planned; a timeline adds no standing rest)
+    # the last prompt says an order: its two parts in order, sharing its 10.9 s (218 frames) in proportion
+    # to their predicted lengths (stablemo.timeline.planned; a timeline adds no standing rest)
+    modes, _ = demo.text_length_range(["a person turns left", "a person walks"], plan_words().rest_quantile)
+    turn, walk = share(218, modes)
+    assert turn > 1 and walk > 1
     assert [(w.text, w.new_start, w.new_end) for w in composed.windows] == [
-        ("a person walks forward", 0, 50), ("a person jumps", 50, 62), ("a person turns left", 62, 144),
-        ("a person walks", 144, 280)]
-    # chunks of at most 2 s, each inside one prompt, in order, covering the motion once
+        ("a person walks forward", 0, 50), ("a person jumps", 50, 62), ("a person turns left", 62, 62 + turn),
+        ("a person walks", 62 + turn, 280)]
+    # chunks of at most 2 s, each inside one prompt (the last prompt's two parts are one prompt), in order,
+    # covering the motion once
+    spans = [(0, 50, "a person walks"), (50, 62, "a person jumps"), (62, 280, "a person turns")]
     assert [(c.start, len(c.joints), c.text[:14]) for c in chunks] == [
-        (0, 40, "a person walks"), (40, 10, "a person walks"), (50, 12, "a person jumps"),
-        *[(62 + 40 * i, 40, "a person turns") for i in range(5)], (262, 18, "a person turns")]
+        (s, min(40, end - s), text) for start, end, text in spans for s in range(start, end, 40)]
     joints = np.concatenate([c.joints for c in chunks])
     _assert_finished_from(joints, raw)
     # finished window by window instead of once: within a few centimetres of the composed motion (a stance

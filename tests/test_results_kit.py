@@ -167,6 +167,16 @@ def test_precision_table_pairs_replications_and_checks_the_target():
     assert "(both means within: 1 of 2 rows)" in text and "(2.0 M parameters, " in text
 
 
+def test_ddpm_table_states_the_claim_from_its_rows_once_both_are_measured():
+    args = _args()
+    ddpm, sde = (r.label for r in mr.ddpm_runs(args))
+    raw = {"ddpm": {mr.REAL_ROW: {"row": _row([0.05], [0.99])}, ddpm: {"row": _row([0.20], [0.95])}}, "ddpm_aits": {}}
+    assert "Table 5's claim" in mr.render_ddpm(raw, args) and "of its time" not in mr.render_ddpm(raw, args)
+    raw["ddpm"][sde] = {"row": _row([0.25], [0.96])}
+    raw["ddpm_aits"] = {ddpm: 20.0, sde: 0.2}
+    assert "FID is 1.25× the 1000-step DDPM's (R@3 +0.010) at 0.0100 of its time" in mr.render_ddpm(raw, args)
+
+
 def test_control_tables_rewrite_only_the_control_sections(tmp_path):
     """--control-tables: the joint-control sections come from docs/data/results/*.json again (with the
     dense-pelvis summary); the measured sections around them are kept byte for byte; a file without

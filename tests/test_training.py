@@ -495,9 +495,10 @@ def test_shipped_configs_parse(files, capsys):
 
 @pytest.mark.parametrize("variant, data_dir", [("further_same_data", "data/synth"),
                                                ("further_more_data", "data/synth_8k")])
-def test_the_further_demo_variants_start_from_the_shipped_teacher(variant, data_dir, capsys):
-    """They train the packaged teacher's own network on from its weights (model.init_from checks that
-    its config equals the run's), at the learning rate its schedule had reached at step 6000."""
+def test_the_further_demo_variants_start_from_the_6000_step_teacher(variant, data_dir, capsys):
+    """They train the recipe's network on from its 6000-step weights (bundles/demo_6000, which
+    scripts/train/train_demo.sh's first stage exports and a clean clone lacks; model.init_from checks
+    that its config equals the run's), at the learning rate its schedule had reached at step 6000."""
     from stablemo.cli.train import main_fit
 
     printed = {}
@@ -507,10 +508,9 @@ def test_the_further_demo_variants_start_from_the_shipped_teacher(variant, data_
         printed[len(files)] = yaml.safe_load(capsys.readouterr().out)
     recipe, overlay = printed[1], printed[2]
     model = overlay["model"]["init_args"]
-    shipped = load_bundle(REPO / model["init_from"]).config
-    assert model["init_from"] == "stablemo/assets/demo_bundle" and shipped["model"] == model["model"]
+    assert model["init_from"] == "bundles/demo_6000" and model["model"] == recipe["model"]["init_args"]["model"]
+    assert "stage 1 runs/demo 6000 bundles/demo_6000 " in (REPO / "scripts/train/train_demo.sh").read_text()
     assert model["lr"] == pytest.approx(recipe["model"]["init_args"]["lr"] * 0.9 ** 6, rel=1e-3)
-    assert shipped["training"]["global_step"] == 6000
     assert overlay["data"]["data_dir"] == data_dir and overlay["trainer"]["max_steps"] == 2000
     # the shipped teacher's statistics: its own data's, or data/synth's named for new clips
     assert overlay["data"].get("stats_dir") == (None if data_dir == "data/synth" else "data/synth")
@@ -535,6 +535,99 @@ def test_the_16k_variant_continues_the_more_clips_teacher_where_its_schedule_sto
     assert overlay["lr"] == pytest.approx(recipe["lr"] * recipe["lr_gamma"] ** 10, rel=1e-4)
     assert {k for k in overlay if overlay[k] != recipe[k]} == {"init_from", "lr"}
     assert printed[2]["data"]["data_dir"] == "data/synth_16k" and printed[2]["data"]["stats_dir"] == "data/synth"
+
+
+def _recipe_stages(script: str) -> list[dict]:
+    """The `stage N RUN STEPS BUNDLE LOG CONFIG...` lines of a recipe script (scripts/train/...)."""
+    text = (REPO / script).read_text().replace("\\\n", " ")
+    stages = []
+    for line in text.splitlines():
+        if line.startswith("stage "):
+            _, n, run, steps, bundle, log, *configs = line.split()
+            stages.append({"n": int(n), "run": run, "steps": int(steps), "bundle": bundle, "log": log,
+                           "configs": configs})
+    return stages
+
+
+def _merged_config(configs: list[str]) -> dict:
+    """The configs merged as the Lightning CLI merges repeated --config files (later ones win, key by key)."""
+    def merge(a: dict, b: dict) -> dict:
+        return {**a, **{k: merge(a[k], v) if isinstance(v, dict) and isinstance(a.get(k), dict) else v
+                        for k, v in b.items()}}
+    merged: dict = {}
+    for config in configs:
+        merged = merge(merged, yaml.safe_load((REPO / config).read_text()))
+    return merged
+
+
+def test_the_teacher_recipe_chains_its_stages_into_the_shipped_bundle():
+    """scripts/train/train_demo.sh: each stage trains the recipe's config (plus its overlay) in its own
+    run folder, from the bundle the stage before exported, and the last one exports the packaged
+    teacher, which says so (its training step count is the last stage's)."""
+    stages = _recipe_stages("scripts/train/train_demo.sh")
+    assert [s["n"] for s in stages] == [1, 2, 3]
+    assert stages[-1]["bundle"] == "stablemo/assets/demo_bundle"
+    assert load_bundle(REPO / stages[-1]["bundle"]).config["training"]["global_step"] == stages[-1]["steps"]
+    for before, stage in zip([None, *stages], stages):
+        assert stage["configs"][0] == "configs/demo.yaml"
+        merged = _merged_config(stage["configs"])
+        assert merged["trainer"]["default_root_dir"] == stage["run"]
+        assert merged["model"].get("init_from") == (before["bundle"] if before else None)
+        assert stage["steps"] >= merged["checkpoint"]["every_n_train_steps"]
+    assert len({s["run"] for s in stages}) == len({s["bundle"] for s in stages}) == len({s["log"] for s in stages}) == 3
+
+
+def test_the_controlnet_recipe_chains_its_stages_on_the_shipped_student_into_what_ship_demo_exports():
+    """scripts/train/train_controlnet.sh: stage 1 trains the toward-targets ControlNet on the packaged
+    student, stage 2 fine-tunes the bundle stage 1 exported (its `init`), each in the run folder and
+    for the steps its configs say; scripts/train/ship_demo.sh exports stage 2's run into the package,
+    and the packaged ControlNet is of that recipe's form."""
+    stages = _recipe_stages("scripts/train/train_controlnet.sh")
+    assert [s["n"] for s in stages] == [1, 2]
+    for before, stage in zip([None, *stages], stages):
+        merged = _merged_config(stage["configs"])
+        assert merged["trainer"]["default_root_dir"] == stage["run"]
+        assert merged["trainer"]["max_steps"] == stage["steps"]
+        init = merged["model"]["init_args"]
+        assert init["base"] == "stablemo/assets/demo_student" and init.get("init") == (before["bundle"] if before else None)
+        assert init["control"]["root_only"] and init["control"]["toward_targets"]
+    ship = (REPO / "scripts/train/ship_demo.sh").read_text()
+    assert f"controlnet={stages[-1]['run']}/checkpoints/last.ckpt" in ship
+    shipped = load_bundle(REPO / "stablemo/assets/demo_controlnet").config
+    assert shipped["controlnet"]["control"]["toward_targets"] and shipped["controlnet"]["control"]["root_only"]
+
+
+@pytest.mark.parametrize("script, args", [("train_demo.sh", ["--stage", "4"]), ("train_demo.sh", ["--stage"]),
+                                          ("train_demo.sh", ["--fast"]), ("train_controlnet.sh", ["--stage", "3"]),
+                                          ("train_controlnet.sh", ["--fast"])])
+def test_the_recipes_refuse_a_bad_argument_in_one_line(script, args, tmp_path):
+    """Checked before anything is written or trained (the script stops at its argument check)."""
+    env = {**os.environ, "STABLEMO": str(tmp_path / "no-such-stablemo")}
+    done = subprocess.run(["bash", str(REPO / "scripts/train" / script), *args], capture_output=True,
+                          text=True, env=env, timeout=60)
+    assert done.returncode == 2 and done.stdout == ""
+    assert len(done.stderr.strip().splitlines()) == 1 and done.stderr.startswith(f"{script}: ")
+
+
+def test_the_teacher_recipe_refuses_a_run_trained_past_its_stage(tmp_path):
+    """A run folder whose checkpoints went past the stage's steps would be exported as it is: the
+    script says so in one line instead (here the first stage's run at step 7000 of 6000), before any
+    data is written or anything trained."""
+    (tmp_path / "scripts/train").mkdir(parents=True)
+    script = tmp_path / "scripts/train/train_demo.sh"
+    script.write_text((REPO / "scripts/train/train_demo.sh").read_text())
+    (tmp_path / "scripts/train/stages.sh").write_text((REPO / "scripts/train/stages.sh").read_text())
+    (tmp_path / "data/synth").mkdir(parents=True)
+    (tmp_path / "data/synth/Mean.npy").write_bytes(b"")
+    (tmp_path / "data/synth/synth.json").write_text('{"rest": "varied"}')
+    (tmp_path / "runs/demo/checkpoints").mkdir(parents=True)
+    (tmp_path / "runs/demo/checkpoints/epoch=69-step=7000.ckpt").write_bytes(b"")
+    env = {**os.environ, "STABLEMO": str(tmp_path / "no-such-stablemo"), "PYTHON": sys.executable}
+    done = subprocess.run(["bash", str(script)], capture_output=True, text=True, env=env, timeout=60)
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr.strip() == ("train_demo.sh: runs/demo has trained past stage 1's 6000 steps (step 7000); "
+                                   "move it away to train the stage again")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "runs", "scripts"]
 
 
 def test_the_varied_captions_variant_is_the_16k_run_with_other_captions():

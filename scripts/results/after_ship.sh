@@ -2,7 +2,8 @@
 # Regenerate every table and picture in the docs that depends on the shipped demo models (the teacher
 # stablemo/assets/demo_bundle, the 1-step student stablemo/assets/demo_student, the ControlNet
 # stablemo/assets/demo_controlnet), in one command, right after new demo models were shipped by
-#   bash scripts/train/train_demo.sh && bash scripts/train/distill_demo.sh lcm && bash scripts/train/ship_demo.sh
+#   bash scripts/train/train_demo.sh && bash scripts/train/distill_demo.sh lcm && bash scripts/train/ship_demo.sh &&
+#     bash scripts/train/train_controlnet.sh && bash scripts/train/ship_demo.sh   # the ControlNet on the student just shipped
 #
 #   bash scripts/results/after_ship.sh              # every step, in order
 #   bash scripts/results/after_ship.sh --dry-run    # print the commands, run nothing
@@ -27,15 +28,15 @@
 # make_results.py and behaviour_report.py), the pictures and the files under docs/data/ are rewritten.
 # Numbers quoted in text, and tables typed into the docs from printed output or from a JSON, are in:
 #   README.md               the double jump's length and count ("a double jump 3.2 s, two jumps")
-#   docs/results.md         the notes above the joint-control tables ("measured 2026-12-05", "teacher 1.27x,
-#                           student 1.29x", "13.0 -> 9.5 cm/s") live in scripts/results/make_results.py
+#   docs/results.md         the notes above the joint-control tables (the date measured, the AITS ratios
+#                           "teacher 1.21x, student 1.25x") live in scripts/results/make_results.py
 #                           (CONTROL_TABLES), the behaviour section's fixed text in stablemo/eval/behaviour/report.py
 #   docs/inference.md       the finishing step's measured effect (kinematics.json), the length-from-text table
 #                           (length_count_check.py), "Prompts in parts" (behaviour JSONs, the README picture's
 #                           description), the counts-by-repetition and held-apart composite runs, "Turns
 #                           as said" (the behaviour before/after and turns/turns.md's numbers)
 #   docs/evaluation.md      "What the demo models get wrong" and the behaviour runs' times (behaviour JSONs)
-#   docs/control.md         the heading tables (heading_*.json, logs), the control table's "What it says", the
+#   docs/control.md         the heading tables (heading_*.json, logs; the shipped ControlNet's: heading_controlnet_toward_*.json), the control table's "What it says", the
 #                           ControlNet tables, its targets table and prose (controlnet_results.json, bench aits),
 #                           the examples' and controlnet_example.py's printed errors, the speed table
 #   docs/training.md        the guidance-scale table and prose (cfg_sweep_val.json), the shipped row of
@@ -203,12 +204,29 @@ step heading_student "shipped" "docs/control.md: pace table, student (heading_st
 step_heading_student() { run "$PYTHON" scripts/control/heading_check.py --model student "${HEADING[@]}" --json docs/data/control/heading_student_guided.json; }
 step heading_teacher "shipped" "docs/control.md: pace table, teacher at its guidance (heading_teacher_cfg1.5.json)"
 step_heading_teacher() { run "$PYTHON" scripts/control/heading_check.py --model teacher "${HEADING[@]}" --json docs/data/control/heading_teacher_cfg1.5.json; }
-step heading_controlnet "shipped controlnet" "docs/control.md: ControlNet heading table, alone unsteered -> steered (heading_controlnet.json)"
-step_heading_controlnet() { run "$PYTHON" scripts/control/heading_check.py --model controlnet --no-guidance --ab "${HEADING[@]}" --json docs/data/control/heading_controlnet.json; }
-step heading_controlnet_alone "shipped controlnet" "docs/control.md: ControlNet heading, alone (heading_controlnet_alone.json)"
-step_heading_controlnet_alone() { run "$PYTHON" scripts/control/heading_check.py --model controlnet --no-guidance "${HEADING[@]}" --json docs/data/control/heading_controlnet_alone.json; }
-step heading_controlnet_guided "shipped controlnet" "docs/control.md: ControlNet heading, + guidance (heading_controlnet_guided.json)"
-step_heading_controlnet_guided() { run "$PYTHON" scripts/control/heading_check.py --model controlnet "${HEADING[@]}" --json docs/data/control/heading_controlnet_guided.json; }
+# the shipped ControlNet's heading table (docs/control.md, "The shipped ControlNet ... steps toward the next
+# target"): the paths above, held-out ones, a third set, and two other gaits
+CN_TABLE="docs/control.md: the shipped ControlNet's heading table"
+CN_HELDOUT=(--paths 3 --rng 300 --seeds 4,5,6,7)
+CN_THIRD=(--paths 3 --rng 400 --seeds 8,9,10,11)
+step heading_controlnet "shipped controlnet" "$CN_TABLE, alone, and unsteered by --ab (heading_controlnet_toward_alone.json)"
+step_heading_controlnet() { run "$PYTHON" scripts/control/heading_check.py --model controlnet --no-guidance --ab "${HEADING[@]}" --json docs/data/control/heading_controlnet_toward_alone.json; }
+step heading_controlnet_guided "shipped controlnet" "$CN_TABLE, + guidance (heading_controlnet_toward_guided.json)"
+step_heading_controlnet_guided() { run "$PYTHON" scripts/control/heading_check.py --model controlnet "${HEADING[@]}" --json docs/data/control/heading_controlnet_toward_guided.json; }
+step heading_controlnet_heldout "shipped controlnet" "$CN_TABLE, held-out paths alone (heading_controlnet_toward_heldout_alone.json)"
+step_heading_controlnet_heldout() { run "$PYTHON" scripts/control/heading_check.py --model controlnet --no-guidance "${CN_HELDOUT[@]}" --json docs/data/control/heading_controlnet_toward_heldout_alone.json; }
+step heading_controlnet_heldout_guided "shipped controlnet" "$CN_TABLE, held-out paths + guidance (heading_controlnet_toward_heldout_guided.json)"
+step_heading_controlnet_heldout_guided() { run "$PYTHON" scripts/control/heading_check.py --model controlnet "${CN_HELDOUT[@]}" --json docs/data/control/heading_controlnet_toward_heldout_guided.json; }
+step heading_controlnet_third "shipped controlnet" "$CN_TABLE, the third set (heading_controlnet_toward_third_{alone,guided}.json)"
+step_heading_controlnet_third() {
+  run "$PYTHON" scripts/control/heading_check.py --model controlnet --no-guidance "${CN_THIRD[@]}" --json docs/data/control/heading_controlnet_toward_third_alone.json
+  run "$PYTHON" scripts/control/heading_check.py --model controlnet "${CN_THIRD[@]}" --json docs/data/control/heading_controlnet_toward_third_guided.json
+}
+step heading_controlnet_gaits "shipped controlnet" "$CN_TABLE, other gaits alone (heading_controlnet_toward_{backwards,sidesteps}_alone.json)"
+step_heading_controlnet_gaits() {
+  run "$PYTHON" scripts/control/heading_check.py --model controlnet --no-guidance --texts "a person walks backwards" "${HEADING[@]}" --json docs/data/control/heading_controlnet_toward_backwards_alone.json
+  run "$PYTHON" scripts/control/heading_check.py --model controlnet --no-guidance --texts "a person side steps to the left" "${HEADING[@]}" --json docs/data/control/heading_controlnet_toward_sidesteps_alone.json
+}
 # docs/control.md pace table, the "constant speed" side of its last column (printed; log)
 step heading_constant "shipped" "docs/control.md: pace table, constant-speed column (printed)"
 step_heading_constant() {
@@ -306,6 +324,28 @@ keys = set(net.keys())
 same = all("base." + k in keys and torch.equal(net.get_tensor("base." + k), student.get_tensor(k)) for k in student.keys())
 sys.exit(0 if same else 1)
 '
+# DERIVED TEACHER: exit 0 when the student bundle DERIVED records TEACHER's weights as its teacher
+# (training.teacher_weights_sha256, written by distillation), 1 when it records other weights, 3 when
+# it records none (a student distilled before the record existed: the caller falls back to file times)
+DISTILLED_FROM='
+import hashlib, json, sys
+from pathlib import Path
+recorded = json.loads((Path(sys.argv[1]) / "config.json").read_text()).get("training", {}).get("teacher_weights_sha256")
+if recorded is None:
+    sys.exit(3)
+sys.exit(0 if recorded == hashlib.sha256((Path(sys.argv[2]) / "model.safetensors").read_bytes()).hexdigest() else 1)
+'
+# distilled_from DERIVED TEACHER: true unless DERIVED was distilled from other weights than TEACHER's
+# (by its record, or without one by file time: older than the teacher)
+distilled_from() {
+  local rc=0
+  "$PYTHON" -c "$DISTILLED_FROM" "$1" "$2" || rc=$?
+  case $rc in
+    0) return 0 ;;
+    3) [[ ! $1/model.safetensors -ot $2/model.safetensors ]] ;;
+    *) return 1 ;;
+  esac
+}
 PROBLEMS=()
 declare -A CHECKED=()
 problem() { local p; for p in "${PROBLEMS[@]}"; do [[ $p == "$1" ]] && return 0; done; PROBLEMS+=("$1"); }
@@ -326,15 +366,14 @@ check() {  # KEY: one prerequisite; adds a line "what is missing: the command th
           [[ -f stablemo/assets/$b/$f ]] || problem "stablemo/assets/$b/$f is missing (the length predictor and captions come last): bash scripts/train/ship_demo.sh"
         done
       done
-      if [[ -f stablemo/assets/demo_student/model.safetensors && stablemo/assets/demo_student/model.safetensors -ot stablemo/assets/demo_bundle/model.safetensors ]]; then
-        echo "after_ship.sh: warning: stablemo/assets/demo_student is older than the teacher: distilled from it? (bash scripts/train/distill_demo.sh lcm && bash scripts/train/ship_demo.sh)" >&2
+      if [[ -f stablemo/assets/demo_student/model.safetensors && -f stablemo/assets/demo_bundle/model.safetensors ]] &&
+         ! distilled_from stablemo/assets/demo_student stablemo/assets/demo_bundle; then
+        echo "after_ship.sh: warning: stablemo/assets/demo_student was not distilled from the shipped teacher (by its record of the teacher's weights, or older than it where it has none) (bash scripts/train/distill_demo.sh lcm && bash scripts/train/ship_demo.sh)" >&2
       fi ;;
     controlnet)
       if [[ -f stablemo/assets/demo_controlnet/model.safetensors && -f stablemo/assets/demo_student/model.safetensors ]] &&
          ! "$PYTHON" -c "$CONTROLNET_BASE" stablemo/assets/demo_controlnet/model.safetensors stablemo/assets/demo_student/model.safetensors; then
-        local paths=""
-        [[ -f data/synth_paths/Mean.npy ]] || paths="$STABLEMO data synth --out data/synth_paths --path-walks 0.4 && "
-        problem "stablemo/assets/demo_controlnet was trained on another student than stablemo/assets/demo_student (move runs/controlnet_lcm_pelvis_synth away first): ${paths}$STABLEMO fit --config configs/control/controlnet_lcm_pelvis_synth.yaml && bash scripts/train/ship_demo.sh"
+        problem "stablemo/assets/demo_controlnet was trained on another student than stablemo/assets/demo_student (move runs/controlnet_lcm_pelvis_toward and runs/controlnet_lcm_pelvis_toward_clip away first): bash scripts/train/train_controlnet.sh && bash scripts/train/ship_demo.sh"
       fi ;;
     lcm)
       [[ -f bundles/demo_lcm/config.json ]] || problem "bundles/demo_lcm is missing: bash scripts/train/distill_demo.sh lcm"
@@ -344,8 +383,9 @@ check() {  # KEY: one prerequisite; adds a line "what is missing: the command th
       fi ;;
     pcm)
       [[ -f bundles/demo_pcm/config.json ]] || problem "bundles/demo_pcm is missing: bash scripts/train/distill_demo.sh pcm"
-      if [[ -f bundles/demo_pcm/model.safetensors && bundles/demo_pcm/model.safetensors -ot stablemo/assets/demo_bundle/model.safetensors ]]; then
-        echo "after_ship.sh: warning: bundles/demo_pcm is older than the shipped teacher, so docs/results.md's PCM rows would be an earlier teacher's student (move runs/distill_pcm_synth away, then: bash scripts/train/distill_demo.sh pcm)" >&2
+      if [[ -f bundles/demo_pcm/model.safetensors && -f stablemo/assets/demo_bundle/model.safetensors ]] &&
+         ! distilled_from bundles/demo_pcm stablemo/assets/demo_bundle; then
+        echo "after_ship.sh: warning: bundles/demo_pcm was not distilled from the shipped teacher (by its record of the teacher's weights, or older than it where it has none), so docs/results.md's PCM rows would be an earlier teacher's student (move runs/distill_pcm_synth away, then: bash scripts/train/distill_demo.sh pcm)" >&2
       fi ;;
     blender) command -v blender >/dev/null || problem "blender is not on PATH: apt-get install blender" ;;
     chromium)

@@ -196,9 +196,7 @@ CONTROL_TABLES = [  # (JSON in docs/data/results/, heading, how it was made)
      "--student LCM=stablemo/assets/demo_student` (the student); the `+ --footskate` rows: `stablemo evaluate "
      "--bundle B --data data/synth --replications 3 --max-items 96 --control pelvis --density 100% --footskate`. "
      "Method and reading: docs/control.md. AITS of dense pelvis control against free generation, alternating "
-     "runs of one process: teacher 1.27x, student 1.29x. Measured 2026-12-05, before the finishing step planted "
-     "the toes and let a planted foot reach 12 cm to its anchor (2026-12-06, docs/inference.md): the stance feet "
-     "of today's outputs slide less (the uncontrolled student 13.0 -> 9.5 cm/s, the next table)."),
+     "runs of one process: teacher 1.21x, student 1.25x. Measured 2026-12-07 on the models shipped that day."),
     ("controlnet_results.json", "Motion ControlNet on the 1-step student",
      "`python scripts/control/report.py --no-teacher --student LCM=stablemo/assets/demo_student --controlnet "
      "\"LCM 1-step=stablemo/assets/demo_controlnet\" --rows none:100%,pelvis:100%,pelvis:25%,pelvis:5,pelvis:1 "

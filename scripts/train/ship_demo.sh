@@ -2,9 +2,7 @@
 # Last step of the demo models' recipe, after
 #   bash scripts/train/train_demo.sh           # the teacher -> stablemo/assets/demo_bundle
 #   bash scripts/train/distill_demo.sh lcm     # its 1-step LCM student -> runs/distill_lcm_synth, bundles/demo_lcm
-#   stablemo data synth --out data/synth_paths --path-walks 0.4      # path walks for the ControlNet
-#   stablemo fit --config configs/control/controlnet_lcm_pelvis_synth.yaml --trainer.max_steps=7500
-#                                                # its pelvis ControlNet on the shipped student (optional)
+#   bash scripts/train/train_controlnet.sh      # its pelvis ControlNet on the shipped student (optional)
 # this exports the student into the package (stablemo/assets/demo_student, the page's default model),
 # the ControlNet when its run is there (stablemo/assets/demo_controlnet; run this script once before
 # training it, so that it trains on the student shipped here, and once after), and gives the bundles
@@ -20,7 +18,7 @@ PYTHON=${PYTHON:-.venv/bin/python}
 student=runs/distill_lcm_synth/checkpoints/last.ckpt
 [ -f "$student" ] || { echo "ship_demo.sh: $student is missing: run scripts/train/distill_demo.sh lcm first" >&2; exit 2; }
 "$STABLEMO" export "$student" --out stablemo/assets/demo_student --overwrite
-controlnet=runs/controlnet_lcm_pelvis_synth/checkpoints/last.ckpt
+controlnet=runs/controlnet_lcm_pelvis_toward_clip/checkpoints/last.ckpt  # train_controlnet.sh's last stage
 if [ -f "$controlnet" ]; then
     "$STABLEMO" export "$controlnet" --out stablemo/assets/demo_controlnet --overwrite
 else
@@ -29,8 +27,11 @@ fi
 # The length predictor learns an action's own length from clips with tight rest: in the varied data a
 # clip's idle rest is drawn at random, which no text predicts (it measured 32 % of test lengths within
 # one bin there against 48 % on tight clips). The models fill any longer length with rest themselves.
-[ -f data/synth_tight/Mean.npy ] || "$STABLEMO" data synth --out data/synth_tight --num 2000 --seed 0 --rest tight
-"$PYTHON" scripts/text/length_predictor.py --data data/synth_tight stablemo/assets/demo_bundle stablemo/assets/demo_student \
-    stablemo/assets/demo_controlnet
-"$PYTHON" scripts/text/familiarity.py --data data/synth --threshold 0.65 stablemo/assets/demo_bundle stablemo/assets/demo_student \
-    stablemo/assets/demo_controlnet
+# Its captions, and the familiar ones, are those of the wider vocabulary the teacher last trained on
+# (--captions varied: every plain caption can be written in it; docs/training.md, "Other captions").
+[ -f data/synth_tight_varied/Mean.npy ] || "$STABLEMO" data synth --out data/synth_tight_varied --num 2000 --seed 0 \
+    --rest tight --captions varied
+"$PYTHON" scripts/text/length_predictor.py --data data/synth_tight_varied stablemo/assets/demo_bundle \
+    stablemo/assets/demo_student stablemo/assets/demo_controlnet
+"$PYTHON" scripts/text/familiarity.py --data data/synth_tight_varied --threshold 0.65 stablemo/assets/demo_bundle \
+    stablemo/assets/demo_student stablemo/assets/demo_controlnet

@@ -6,6 +6,7 @@ id, Mean/Std, skeleton) and nothing that could execute code when loaded.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from dataclasses import dataclass
@@ -155,6 +156,12 @@ def bundle_or_demo(arg: str | os.PathLike | None, flag: str = "--bundle") -> Pat
             "and pass `--bundle DIR`"
         )
     return DEMO_BUNDLE
+
+
+def weights_sha256(path: str | os.PathLike) -> str:
+    """SHA-256 of a bundle's weights file: what a derived bundle (a student, a ControlNet) records of
+    the bundle it was trained on, so a later check can tell whether that bundle has since changed."""
+    return hashlib.sha256((Path(path) / WEIGHTS_NAME).read_bytes()).hexdigest()
 
 
 def skeleton_name(config: dict) -> str:

@@ -61,7 +61,7 @@ from stablemo.control.pace import path_on_reference
 from stablemo.data.stats import same_statistics
 from stablemo.diffusion.schedule import NoiseSchedule
 from stablemo.errors import StableMoError
-from stablemo.inference.bundle import load_bundle, skeleton_name
+from stablemo.inference.bundle import load_bundle, skeleton_name, weights_sha256
 from stablemo.inference.config import InferenceConfig
 from stablemo.inference.kinds import model_kind
 from stablemo.motion import features_to_joints
@@ -152,6 +152,7 @@ class ControlNetTraining(LightningModule):
         if recon_target == "base" and [int(j) for j in hint_joints] != [0]:
             raise StableMoError(f"recon_target: 'base' re-times the pelvis path only; give hint_joints [0], got {list(hint_joints)}")
         self.base_config = config
+        self.base_sha256 = weights_sha256(base)
         self.skeleton = get_skeleton(skeleton_name(config))
         bad = [j for j in hint_joints if not 0 <= int(j) < self.skeleton.num_joints]
         if bad or not hint_joints:
@@ -401,7 +402,7 @@ class ControlNetTraining(LightningModule):
                                 fps=inference.fps)
         changes = {k: v for k, v in (("steps", hp.sample_steps), ("cfg", hp.sample_cfg)) if v is not None}
         config["inference"] = replace(inference, **changes).to_dict()
-        config["training"] = {"base": str(hp.base), "global_step": int(self.global_step), "ema_decay": hp.ema_decay,
+        config["training"] = {"base": str(hp.base), "base_weights_sha256": self.base_sha256, "global_step": int(self.global_step), "ema_decay": hp.ema_decay,
                               "ema_updates": self.ema.num_updates, "joint_weight": hp.joint_weight,
                               "velocity_weight": hp.velocity_weight, "root_weight": hp.root_weight,
                               "skate_weight": hp.skate_weight, "recon_target": hp.recon_target, "init": None if hp.init is None else str(hp.init),

@@ -40,7 +40,7 @@ from stablemo.distill.discriminator import (
 )
 from stablemo.distill.student import MODES, ConsistencyStudent, consistency_fn
 from stablemo.errors import StableMoError
-from stablemo.inference.bundle import load_bundle, skeleton_name
+from stablemo.inference.bundle import load_bundle, skeleton_name, weights_sha256
 from stablemo.inference.config import InferenceConfig, student_inference
 from stablemo.nets.model import MotionDiffusionModel
 from stablemo.training.geometry import GeometricLoss, geometry_weights
@@ -116,6 +116,7 @@ class ConsistencyDistillation(LightningModule):
         if bundle.config.get("kind", "diffusion") != "diffusion":
             raise StableMoError(f"{teacher}: the teacher must be a diffusion bundle, got kind {bundle.config.get('kind')!r}")
         self.teacher_config = bundle.config
+        self.teacher_sha256 = weights_sha256(teacher)
         self.geometric_loss = GeometricLoss(self.geometry_weights, skeleton_name(bundle.config),
                                             bundle.config["mean"], bundle.config["std"]) if self.geometry_weights else None
         self.prediction_type = bundle.config.get("prediction_type", "sample")
@@ -322,7 +323,8 @@ class ConsistencyDistillation(LightningModule):
             "timestep_scale": hp.timestep_scale, "steps": hp.sample_steps,
         }
         config["inference"] = student_inference({**config, "inference": teacher_inference}).to_dict()
-        config["training"] = {"teacher": str(hp.teacher), "global_step": int(self.global_step),
+        config["training"] = {"teacher": str(hp.teacher), "teacher_weights_sha256": self.teacher_sha256,
+                              "global_step": int(self.global_step),
                               "ema_decay": hp.ema_decay, "adversarial": hp.adversarial}
         return config, {k: v.detach().clone() for k, v in self.target.state_dict().items()}
 
