@@ -597,6 +597,42 @@ def test_the_controlnet_recipe_chains_its_stages_on_the_shipped_student_into_wha
     assert shipped["controlnet"]["control"]["toward_targets"] and shipped["controlnet"]["control"]["root_only"]
 
 
+def test_the_controlnet_recipe_skips_a_stage_only_when_its_bundle_was_trained_on_todays_student(tmp_path):
+    """A stage bundle counts as done when it holds the stage's steps and records the packaged student's
+    weights (training.base_weights_sha256); one trained on another student is trained again (here the
+    script then reaches `stablemo fit`, which this test replaces by a missing program)."""
+    import hashlib
+
+    (tmp_path / "scripts/train").mkdir(parents=True)
+    for name in ("train_controlnet.sh", "stages.sh"):
+        (tmp_path / "scripts/train" / name).write_text((REPO / "scripts/train" / name).read_text())
+    for folder in ("data/synth_paths", "data/synth"):
+        (tmp_path / folder).mkdir(parents=True)
+        (tmp_path / folder / "Mean.npy").write_bytes(b"")
+    student = tmp_path / "stablemo/assets/demo_student"
+    student.mkdir(parents=True)
+    (student / "model.safetensors").write_bytes(b"today's student")
+    today = hashlib.sha256(b"today's student").hexdigest()
+
+    def stage_bundle(name: str, sha: str) -> None:
+        (tmp_path / "bundles" / name).mkdir(parents=True, exist_ok=True)
+        (tmp_path / "bundles" / name / "config.json").write_text(
+            json.dumps({"training": {"global_step": 1500, "base_weights_sha256": sha}}))
+
+    env = {**os.environ, "STABLEMO": str(tmp_path / "no-such-stablemo"), "PYTHON": sys.executable}
+    script = tmp_path / "scripts/train/train_controlnet.sh"
+    stage_bundle("demo_controlnet_toward", today)
+    stage_bundle("demo_controlnet_toward_clip", today)
+    done = subprocess.run(["bash", str(script)], capture_output=True, text=True, env=env, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == ["train_controlnet.sh: stage 1 done (bundles/demo_controlnet_toward)",
+                                        "train_controlnet.sh: stage 2 done (bundles/demo_controlnet_toward_clip)"]
+    stage_bundle("demo_controlnet_toward", hashlib.sha256(b"an earlier student").hexdigest())
+    done = subprocess.run(["bash", str(script)], capture_output=True, text=True, env=env, timeout=120)
+    assert done.returncode != 0
+    assert done.stdout.splitlines() == ["train_controlnet.sh: stage 1: 1500 steps -> bundles/demo_controlnet_toward"]
+
+
 @pytest.mark.parametrize("script, args", [("train_demo.sh", ["--stage", "4"]), ("train_demo.sh", ["--stage"]),
                                           ("train_demo.sh", ["--fast"]), ("train_controlnet.sh", ["--stage", "3"]),
                                           ("train_controlnet.sh", ["--fast"])])
