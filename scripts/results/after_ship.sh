@@ -328,12 +328,13 @@ sys.exit(0 if same else 1)
 # (training.teacher_weights_sha256, written by distillation), 1 when it records other weights, 3 when
 # it records none (a student distilled before the record existed: the caller falls back to file times)
 DISTILLED_FROM='
-import hashlib, json, sys
+import json, sys
 from pathlib import Path
+from stablemo.inference.bundle import weights_sha256
 recorded = json.loads((Path(sys.argv[1]) / "config.json").read_text()).get("training", {}).get("teacher_weights_sha256")
 if recorded is None:
     sys.exit(3)
-sys.exit(0 if recorded == hashlib.sha256((Path(sys.argv[2]) / "model.safetensors").read_bytes()).hexdigest() else 1)
+sys.exit(0 if recorded == weights_sha256(sys.argv[2]) else 1)
 '
 # distilled_from DERIVED TEACHER: true unless DERIVED was distilled from other weights than TEACHER's
 # (by its record, or without one by file time: older than the teacher)

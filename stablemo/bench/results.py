@@ -386,14 +386,15 @@ The same {args.ddpm_items} test items and seeds, {args.ddpm_replications} replic
 expensive on a CPU); AITS over 2 sentences.
 
 {metric_table(rows)}
-{ddpm_comparison(raw)}"""
+{ddpm_comparison(raw, args)}"""
 
 
-def ddpm_comparison(raw: dict) -> str:
+def ddpm_comparison(raw: dict, args) -> str:
     """The claim in words, from the two rows: the 10-step sampler's FID and R@3 against the 1000-step
     DDPM's, and its share of the time (empty until both rows and their AITS are measured)."""
-    ddpm, sde = (_row(raw, label, "ddpm") for label in ("Teacher, DDPM, 1000 steps", TEACHER_ROW))
-    times = [raw.get("ddpm_aits", {}).get(label) for label in ("Teacher, DDPM, 1000 steps", TEACHER_ROW)]
+    labels = [r.label for r in ddpm_runs(args)]  # the 1000-step DDPM row, then the 10-step one
+    ddpm, sde = (_row(raw, label, "ddpm") for label in labels)
+    times = [raw.get("ddpm_aits", {}).get(label) for label in labels]
     if not (ddpm and sde) or None in times:
         return ""
     return (f"\nThe 10-step sampler's FID is {sde['fid']['mean'] / ddpm['fid']['mean']:.2f}× the 1000-step DDPM's "
