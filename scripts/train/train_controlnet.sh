@@ -10,7 +10,7 @@
 # Resumable like train_demo.sh: a stage whose bundle holds its step count, trained on the student that is
 # shipped now (by the SHA-256 of its weights that the bundle records), is skipped; an unfinished one
 # continues from its last.ckpt. A run folder started on another student resumes that student's weights:
-# move it away first. About 0.9 s a step on the 2-core CPU alone: 25 + 25 min, plus the data.
+# move it away first. On the 2-core CPU: about 30 + 20 min (2026-12-07), plus the data.
 #   bash scripts/train/train_controlnet.sh                # both stages
 #   bash scripts/train/train_controlnet.sh --stage 2      # one stage (it needs the stage before it)
 set -euo pipefail

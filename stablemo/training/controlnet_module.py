@@ -402,7 +402,8 @@ class ControlNetTraining(LightningModule):
                                 fps=inference.fps)
         changes = {k: v for k, v in (("steps", hp.sample_steps), ("cfg", hp.sample_cfg)) if v is not None}
         config["inference"] = replace(inference, **changes).to_dict()
-        config["training"] = {"base": str(hp.base), "base_weights_sha256": self.base_sha256, "global_step": int(self.global_step), "ema_decay": hp.ema_decay,
+        config["training"] = {"base": str(hp.base), "base_weights_sha256": self.base_sha256,
+                              "global_step": int(self.global_step), "ema_decay": hp.ema_decay,
                               "ema_updates": self.ema.num_updates, "joint_weight": hp.joint_weight,
                               "velocity_weight": hp.velocity_weight, "root_weight": hp.root_weight,
                               "skate_weight": hp.skate_weight, "recon_target": hp.recon_target, "init": None if hp.init is None else str(hp.init),
