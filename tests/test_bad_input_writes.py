@@ -528,3 +528,16 @@ def test_export_cfg_sets_the_bundles_guidance_and_a_bad_one_is_one_line(capsys, 
         rc, err = export(capsys, ckpt, tmp_path / f"bad{bad}", "--cfg", bad)
         assert rc == 2 and not (tmp_path / f"bad{bad}").exists()
         one_error_line(err, "--cfg")
+
+
+def test_export_steps_sets_the_bundles_sampler_steps_and_a_bad_one_is_one_line(capsys, ckpt, tmp_path):
+    out = tmp_path / "bundle"
+    assert export(capsys, ckpt, out, "--steps", "4")[0] == 0
+    inference = json.loads((out / "config.json").read_text())["inference"]
+    assert inference["steps"] == 4 and inference["cfg"] == 2.5  # the rest as without it
+    assert export(capsys, ckpt, tmp_path / "plain")[0] == 0  # without: the paper's 10
+    assert json.loads((tmp_path / "plain" / "config.json").read_text())["inference"]["steps"] == 10
+    for bad in ("0", "-3", "1001"):  # a non-number is argparse's own refusal, as for every option
+        rc, err = export(capsys, ckpt, tmp_path / f"bad{bad}", "--steps", bad)
+        assert rc == 2 and not (tmp_path / f"bad{bad}").exists()
+        one_error_line(err, "--steps")

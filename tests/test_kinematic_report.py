@@ -39,7 +39,7 @@ def test_report_rows_on_a_tiny_model(tmp_path):
     pipe = Pipeline.from_bundle(make_tiny_bundle(tmp_path / "bundle"))
 
     class Lifted:  # what a pipeline with a finishing step hands out: final = raw lifted by 2 cm
-        skeleton = pipe.skeleton
+        skeleton, inference = pipe.skeleton, pipe.inference
 
         def generate(self, texts, lengths, seed):
             gen = pipe.generate(texts, lengths, seed=seed, finish=False)
@@ -50,6 +50,9 @@ def test_report_rows_on_a_tiny_model(tmp_path):
     result = report.run([("tiny", Lifted())], [24], per_category=8, seeds=1, log=lambda *_: None)
     rows = result["rows"]
     assert [(r["frames"], r["output"]) for r in rows] == [(24, "raw"), (24, "final")]
+    # each model's sampling is recorded: a student bundle's default steps are not in its label
+    assert result["settings"]["sampling"] == {"tiny": {"sampler": pipe.inference.sampler,
+                                                       "steps": pipe.inference.steps, "cfg": pipe.inference.cfg}}
     raw, final = rows[0]["summary"], rows[1]["summary"]
     assert final["floor_p1_mean"] == pytest.approx(raw["floor_p1_mean"] + 2.0, abs=1e-3)
     assert final["bone_change_max"] == pytest.approx(raw["bone_change_max"], abs=1e-3)

@@ -261,7 +261,10 @@ def run(models: list[tuple[str, object]], frames: list[int], per_category: int =
                 rows.append({"model": name, "frames": n, "output": output, "seconds": result["seconds"],
                              "summary": summary({"row": result[output], "categories": result["categories"]}),
                              "per_motion": result[output]})
+    # each model's sampler, steps and guidance: a row names its model by label only, and a student's
+    # bundle may default to any number of steps
+    sampling = {name: {k: getattr(pipe.inference, k) for k in ("sampler", "steps", "cfg")} for name, pipe in models}
     settings = {"prompts": len(items), "per_category": per_category, "seeds": seeds, "frames": frames,
                 "categories": {k: list(v) for k, v in CATEGORIES.items()}, "texts": [p.text for p in items],
-                "evaluator": getattr(evaluator, "name", None)}
+                "evaluator": getattr(evaluator, "name", None), "sampling": sampling}
     return {"rows": rows, "settings": settings}

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from stablemo.checks import check_finite
+from stablemo.errors import StableMoError
 from stablemo.inference.bundle import check_bundle_target
 from stablemo.training.export import WEIGHTS, export
 
@@ -21,10 +22,16 @@ def main(argv: list[str]) -> int:
                         help="the bundle's default classifier-free guidance scale (its inference config; default: the "
                              "paper's 2.5 for a diffusion model, a student's absorbed one); choose it on the val split, "
                              "e.g. scripts/results/cfg_sweep.py")
+    parser.add_argument("--steps", type=int, default=None,
+                        help="the bundle's default number of sampler steps (its inference config; default: the "
+                             "paper's 10 for a diffusion model, a student's trained ones), 1-1000")
     args = parser.parse_args(argv)
     if args.cfg is not None:
         check_finite("--cfg", args.cfg, low=0.0, high=100.0)
+    if args.steps is not None and not 1 <= args.steps <= 1000:
+        raise StableMoError(f"--steps: expected 1-1000 sampler steps, got {args.steps}")
     check_bundle_target(args.out, args.overwrite, flag="--out")  # before the checkpoint is even read
-    path = export(args.ckpt, args.out, weights=args.weights, overwrite=args.overwrite, cfg=args.cfg)
+    path = export(args.ckpt, args.out, weights=args.weights, overwrite=args.overwrite, cfg=args.cfg,
+                  steps=args.steps)
     print(f"wrote {path}")
     return 0

@@ -111,10 +111,11 @@ def _precomputed_bundle(checkpoint: dict, extra: dict, source: str) -> tuple[dic
 
 
 def export(ckpt: str | Path, out: str | Path, weights: str = "ema", overwrite: bool = False,
-           cfg: float | None = None) -> Path:
+           cfg: float | None = None, steps: int | None = None) -> Path:
     """Write the bundle of checkpoint `ckpt` to folder `out`; an existing bundle there is replaced
     only with `overwrite`, anything else at `out` is refused (checked before the checkpoint loads).
-    cfg: the bundle's default guidance scale (None: the inference config's own)."""
+    cfg: the bundle's default guidance scale, steps: its sampler's default number of steps (None:
+    the inference config's own; e.g. a PCM student trained for 4 phases shipped to sample in 1)."""
     check_bundle_target(out, overwrite)
     checkpoint = load_checkpoint_file(ckpt)
     config, state = bundle_from_checkpoint(checkpoint, source=str(ckpt), weights=weights)
@@ -124,6 +125,8 @@ def export(ckpt: str | Path, out: str | Path, weights: str = "ema", overwrite: b
         config["inference"] = student_inference(config, str(ckpt)).to_dict()
     if cfg is not None:
         config["inference"] = replace(InferenceConfig(**config["inference"]), cfg=float(cfg)).to_dict()
+    if steps is not None:
+        config["inference"] = replace(InferenceConfig(**config["inference"]), steps=int(steps)).to_dict()
     return save_bundle(out, config, state, overwrite=overwrite)
 
 
