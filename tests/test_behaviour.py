@@ -263,6 +263,13 @@ def test_cli_with_a_bundle_is_deterministic(tmp_path, capsys):
     assert outs[0]["rows"] == outs[1]["rows"] and len(outs[0]["rows"]) == 4
     assert [r["frames"] for r in outs[0]["rows"]] == [40, 40, 30, 30]  # the tiny model's default is its maximum
     assert outs[0]["settings"]["seeds"] == [0, 1]
+    # the printed header says how the model sampled, as the JSON does (a score is quoted with its steps)
+    s = outs[0]["settings"]
+    header = f"behaviour: {bundle} ({s['sampler']}, {s['steps']} steps, cfg {s['cfg']:g}); 1 prompts x 2 lengths"
+    assert header in capsys.readouterr().out
+    assert main(["evaluate", "--behaviour", "--bundle", str(bundle), "--prompts", str(table), "--seeds", "1",
+                 "--lengths", "1.5", "--steps", "1", "--no-retrieval", "--no-progress"]) == 0
+    assert f"({s['sampler']}, 1 step, cfg {s['cfg']:g})" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -151,8 +151,12 @@ def main(argv: list[str]) -> int:
     log = None if args.no_progress else (lambda line: print(line, file=sys.stderr, flush=True))
     result = runner.run_suite(generate, prompts, lengths, seeds, fps, low, high, progress=log, evaluator=evaluator)
     settings["seconds"] = {k: round(v, 1) for k, v in result["seconds"].items()}
-    print(f"behaviour: {settings['model']}; {len(prompts)} prompts x {len(lengths)} lengths x {len(seeds)} seeds "
-          f"= {len(result['rows'])} motions; pass rate [Wilson 95 % interval]")
+    # the sampling beside the model: a student's bundle may default to any number of steps, and a score
+    # read without it has been quoted for the wrong one
+    sampling = (f" ({settings['sampler']}, {settings['steps']} step{'s' if settings['steps'] != 1 else ''}, "
+                f"cfg {settings['cfg']:g})" if "steps" in settings else "")
+    print(f"behaviour: {settings['model']}{sampling}; {len(prompts)} prompts x {len(lengths)} lengths x "
+          f"{len(seeds)} seeds = {len(result['rows'])} motions; pass rate [Wilson 95 % interval]")
     print(format_table(result["summary"]))
     if args.out:
         from stablemo.eval.behaviour.report import dumps
