@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from stablemo.checks import check_finite
-from stablemo.errors import StableMoError
+from stablemo.checks import check_finite, check_positive_int
 from stablemo.inference.bundle import check_bundle_target
 from stablemo.training.export import WEIGHTS, export
 
@@ -28,8 +27,8 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     if args.cfg is not None:
         check_finite("--cfg", args.cfg, low=0.0, high=100.0)
-    if args.steps is not None and not 1 <= args.steps <= 1000:
-        raise StableMoError(f"--steps: expected 1-1000 sampler steps, got {args.steps}")
+    if args.steps is not None:
+        check_finite("--steps", check_positive_int("--steps", args.steps), high=1000)
     check_bundle_target(args.out, args.overwrite, flag="--out")  # before the checkpoint is even read
     path = export(args.ckpt, args.out, weights=args.weights, overwrite=args.overwrite, cfg=args.cfg,
                   steps=args.steps)
