@@ -200,14 +200,14 @@ def test_fast_mish_module_falls_back_under_autograd_and_for_low_precision():
         assert torch.equal(act(xb), nn.functional.mish(xb))
 
 
-@pytest.mark.parametrize("input_head, mid_attention", [(0, 0), (8, 0), (8, 2)])
+@pytest.mark.parametrize("input_head, mid_attention, up_attention", [(0, 0, ()), (8, 0, ()), (8, 2, ()), (8, 2, (2, 2))])
 @pytest.mark.parametrize("context", ["grad", "inference"])
-def test_accelerated_unet_matches_stock_and_stays_padding_invariant(context, input_head, mid_attention):
+def test_accelerated_unet_matches_stock_and_stays_padding_invariant(context, input_head, mid_attention, up_attention):
     nets = pytest.importorskip("stablemo.nets")
     torch.manual_seed(0)
     net = nets.build_denoiser("unet", input_dim=11, text_dim=8, base_channels=8, channel_mults=(1, 2, 2),
                               time_dim=16, num_groups=4, num_heads=2, dropout=0.0, input_head=input_head,
-                              mid_attention=mid_attention).eval()
+                              mid_attention=mid_attention, up_attention=up_attention).eval()
     for p in net.parameters():
         nn.init.normal_(p, std=0.1)
     fast = accelerate(copy.deepcopy(net))

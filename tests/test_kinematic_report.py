@@ -110,7 +110,7 @@ def test_fid_parts_script_scores_four_ways_of_one_generation(tmp_path):
     spec.loader.exec_module(module)
     torch.set_num_threads(1)
     pipe = Pipeline.from_bundle(make_tiny_bundle(tmp_path / "bundle"))
-    ways = module.ways(pipe, ["a person walks.", "a person jumps."], [0, 1], 24)
+    ways = module.ways(pipe, ["a person walks.", "a person jumps."], [0, 1], 24, 1)  # one motion a chunk
     assert list(ways) == list(module.WAYS)
     rot = feature_slices(pipe.skeleton)["rot6d"]
     raw, recomputed, mixed, final = ways.values()
@@ -120,7 +120,8 @@ def test_fid_parts_script_scores_four_ways_of_one_generation(tmp_path):
     assert torch.equal(mixed[..., others], final[..., others])
     assert torch.equal(recomputed[..., :3], raw[..., :3]) and not torch.equal(final, raw)
     for argv, said in ((["--models", "nope"], "--models"), (["--frames", "1a"], "--frames"),
-                       (["--seeds", "0"], "--seeds"), (["--out", str(FID_PARTS)], "--out")):
+                       (["--seeds", "0"], "--seeds"), (["--first-seed", "-1"], "--first-seed"),
+                       (["--out", str(FID_PARTS)], "--out")):
         done = subprocess.run([sys.executable, str(FID_PARTS), *argv], capture_output=True, text=True, timeout=120)
         assert done.returncode == 2, (argv, done.stderr)
         assert said in done.stderr and len(done.stderr.strip().splitlines()) == 1, (argv, done.stderr)

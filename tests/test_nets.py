@@ -34,6 +34,10 @@ TINY = {
     "unet_mid_attention": ("unet", dict(base_channels=16, channel_mults=[1, 2, 2, 2], time_dim=32, num_groups=2,
                                         num_heads=2, cross_attention=True, norm="frame", input_head=8,
                                         input_head_kernel=3, mid_attention=4)),
+    # and more of it on the way up: a second layer at the coarsest resolution, one at the next
+    "unet_up_attention": ("unet", dict(base_channels=16, channel_mults=[1, 2, 2, 2], time_dim=32, num_groups=2,
+                                       num_heads=2, cross_attention=True, norm="frame", input_head=8,
+                                       input_head_kernel=3, mid_attention=4, up_attention=[4, 2])),
     # the published T2MUnet's layout (stablemo.official imports its checkpoints into it)
     "unet_official": ("unet", dict(base_channels=16, channel_mults=[1, 2, 2, 2], time_dim=32, num_groups=2,
                                    num_heads=2, cross_attention=True, norm="frame", variant="official")),
@@ -498,3 +502,18 @@ def test_samplers_visit_exactly_their_announced_timesteps():
 
             sampler.run(denoise, torch.randn(1, 4, 3), schedule, steps, generator=torch.Generator().manual_seed(0))
             assert seen == list(sampler.timesteps(schedule, steps)), (name, steps)
+
+
+@pytest.mark.parametrize("up_attention, match", [
+    ([4, 4, 4, 4, 4], "at most 4"), ([-1], "heads >= 0"), ([True], "heads >= 0"), ([3], "not divisible by 3 heads"),
+])
+def test_up_attention_bad_values_are_one_clear_error(up_attention, match):
+    from stablemo.errors import StableMoError
+    from stablemo.nets import build_denoiser
+
+    with pytest.raises(StableMoError, match=f"up_attention: .*{match}"):
+        build_denoiser("unet", input_dim=11, text_dim=8, base_channels=8, channel_mults=(1, 2, 2, 2), time_dim=16,
+                       num_groups=4, num_heads=2, up_attention=up_attention)
+    with pytest.raises(StableMoError, match="up_attention: .*official"):
+        build_denoiser("unet", input_dim=11, text_dim=8, base_channels=8, channel_mults=(1, 2, 2, 2), time_dim=16,
+                       num_groups=4, num_heads=2, variant="official", up_attention=[2])

@@ -430,6 +430,51 @@ def test_init_from_a_bundle_starts_from_its_weights_and_checks_config_and_statis
         _fit(tiny_config(tmp_path / "bad", shifted, **{"trainer.max_steps": 1, "model.init_from": str(out)}))
 
 
+def test_init_from_grows_temporal_attention_starting_as_the_bundles_network(tiny_data, tmp_path):
+    """A bundle's UNet grown by temporal self-attention (up_attention, mid_attention) starts from the
+    bundle's weights, its new blocks at their identity start: the same function at step 0; any other
+    difference of the network config stays an error."""
+    from stablemo.cli.export import main as export_main
+    from stablemo.training.module import grown_attention
+
+    run, out = tmp_path / "run", tmp_path / "bundle"
+    _fit(tiny_config(run, tiny_data, **{"trainer.max_steps": 2}))
+    assert export_main([str(run / "checkpoints" / "last.ckpt"), "--out", str(out)]) == 0
+    bundle = load_bundle(out)
+    grown = dict(TINY_MODEL, denoiser=dict(TINY_MODEL["denoiser"], up_attention=[2, 2], mid_attention=2))
+    still = tmp_path / "still"
+    _fit(tiny_config(still, tiny_data, **{"trainer.max_steps": 1, "model.init_from": str(out),
+                                          "model.model": grown}), "--model.lr=0.0")
+    state = {k[len("model."):]: v for k, v in
+             load_checkpoint_file(still / "checkpoints" / "last.ckpt")["state_dict"].items() if k.startswith("model.")}
+    new = [k for k in state if k not in bundle.state_dict]
+    assert new and all(".self_attn." in k for k in new)
+    assert all(torch.equal(state[k], bundle.state_dict[k]) for k in bundle.state_dict)
+
+    from stablemo.nets.model import MotionDiffusionModel
+    before, after = MotionDiffusionModel(**TINY_MODEL).eval(), MotionDiffusionModel(**grown).eval()
+    before.load_state_dict(bundle.state_dict)
+    after.load_state_dict(state)
+    torch.manual_seed(0)
+    x, t = torch.randn(2, 24, 263), torch.tensor([5, 800])
+    text, text_mask = torch.randn(2, 4, 32), torch.ones(2, 4, dtype=torch.bool)
+    mask = torch.arange(24)[None] < torch.tensor([[20], [24]])
+    with torch.no_grad():
+        a = before.denoiser(x, t, before.denoiser.prepare(text, text_mask, mask))
+        b = after.denoiser(x, t, after.denoiser.prepare(text, text_mask, mask))
+    assert torch.equal(a, b)
+
+    assert grown_attention(TINY_MODEL, TINY_MODEL) == ()
+    assert set(grown_attention(TINY_MODEL, grown)) == {"denoiser.mid.self_attn.", "denoiser.up.0.self_attn.",
+                                                       "denoiser.up.1.self_attn."}
+    assert grown_attention(grown, TINY_MODEL) is None  # attention is grown, never removed
+    wider = dict(grown, denoiser=dict(grown["denoiser"], base_channels=8))
+    assert grown_attention(TINY_MODEL, wider) is None
+    with pytest.raises(StableMoError, match="model.init_from: .*network config differs"):
+        _fit(tiny_config(tmp_path / "wider", tiny_data, **{"trainer.max_steps": 1, "model.init_from": str(out),
+                                                           "model.model": wider}))
+
+
 def test_input_dim_mismatch_is_a_clear_error(tiny_data, tmp_path):
     model = dict(TINY_MODEL, denoiser=dict(TINY_MODEL["denoiser"], input_dim=251))
     cfg = tiny_config(tmp_path, tiny_data, **{"model.model": model})

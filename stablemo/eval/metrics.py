@@ -87,14 +87,14 @@ class Matching:
     num_items: int
 
 
-def r_precision(text_emb: np.ndarray, motion_emb: np.ndarray, top_k: int = 3,
-                batch_size: int = R_PRECISION_BATCH) -> Matching:
-    """Text→motion retrieval within consecutive batches of `batch_size` pairs.
-
-    Row i of text_emb matches row i of motion_emb. A top-k hit means the true motion is among
-    the k nearest of its batch. An incomplete last batch is dropped (the reference loader uses
-    drop_last), so every item is ranked against exactly batch_size − 1 distractors.
-    """
+def retrieval_ranks(text_emb: np.ndarray, motion_emb: np.ndarray,
+                    batch_size: int = R_PRECISION_BATCH) -> tuple[np.ndarray, np.ndarray]:
+    """Per pair, within consecutive batches of `batch_size` pairs: the rank of its motion among its
+    batch's motions by distance to its text (0 = nearest; the number strictly closer) and that
+    distance -> (ranks (n,), distances (n,)), n the whole batches' pairs. An incomplete last batch is
+    dropped (the reference loader uses drop_last), so every item is ranked against exactly
+    batch_size − 1 distractors. Per pair, so two ways of making the same motions can be compared
+    pair by pair (a paired difference of R-precision)."""
     text_emb, motion_emb = _as_2d("text embeddings", text_emb), _as_2d("motion embeddings", motion_emb)
     if text_emb.shape != motion_emb.shape:
         raise StableMoError(f"R-precision: text {text_emb.shape} and motion {motion_emb.shape} differ")
@@ -104,15 +104,24 @@ def r_precision(text_emb: np.ndarray, motion_emb: np.ndarray, top_k: int = 3,
     n = num_batches * batch_size
     texts = text_emb[:n].reshape(num_batches, batch_size, -1)
     motions = motion_emb[:n].reshape(num_batches, batch_size, -1)
-    hits = np.zeros(top_k)
-    matched = 0.0
+    ranks, matched = [], []
     for t, m in zip(texts, motions):
         dist = pairwise_distances(t, m)  # (32, 32)
-        matched += np.trace(dist)
-        # rank of the true motion = number of motions strictly closer than it
-        rank = (dist < np.diagonal(dist)[:, None]).sum(1)
-        hits += (rank[:, None] < np.arange(1, top_k + 1)[None, :]).sum(0)
-    return Matching(r_precision=hits / n, mm_dist=float(matched / n), num_items=n)
+        ranks.append((dist < np.diagonal(dist)[:, None]).sum(1))
+        matched.append(np.diagonal(dist))
+    return np.concatenate(ranks), np.concatenate(matched)
+
+
+def r_precision(text_emb: np.ndarray, motion_emb: np.ndarray, top_k: int = 3,
+                batch_size: int = R_PRECISION_BATCH) -> Matching:
+    """Text→motion retrieval within consecutive batches of `batch_size` pairs.
+
+    Row i of text_emb matches row i of motion_emb. A top-k hit means the true motion is among
+    the k nearest of its batch (retrieval_ranks, whose batches these are).
+    """
+    rank, matched = retrieval_ranks(text_emb, motion_emb, batch_size)
+    hits = (rank[:, None] < np.arange(1, top_k + 1)[None, :]).sum(0)
+    return Matching(r_precision=hits / len(rank), mm_dist=float(matched.sum() / len(rank)), num_items=len(rank))
 
 
 def mm_dist(text_emb: np.ndarray, motion_emb: np.ndarray) -> float:

@@ -12,9 +12,10 @@ Ablation switches (paper Table 4):
   residual block ("+ cross-attention"); without it the text enters only through AdaGN (baseline).
 - ``norm``: ``"group"`` = GroupNorm over channel groups and time (baseline), ``"frame"`` = the
   GroupNorm tweak (each frame over its channel groups).
-Ours, off by default: ``input_head`` (residual blocks over [last features | x_t] before the output)
-and ``mid_attention`` (temporal self-attention at the coarsest resolution, so distant frames can
-agree: TemporalSelfAttention1D).
+Ours, off by default: ``input_head`` (residual blocks over [last features | x_t] before the output),
+``mid_attention`` (temporal self-attention at the coarsest resolution, so distant frames can
+agree: TemporalSelfAttention1D) and ``up_attention`` (the same after chosen up stages: a second
+layer at the coarsest resolution, or one at a finer one).
 
 Both norms are exactly padding invariant here: the "group" norm takes its statistics over valid
 frames only (the published baseline does not, which is the leak the tweak fixes there).
@@ -183,6 +184,7 @@ class CondUNet1D(nn.Module):
         input_head: int = 0,
         input_head_kernel: int = 1,
         mid_attention: int = 0,
+        up_attention: Sequence[int] = (),
     ):
         super().__init__()
         if len(channel_mults) < 1:
@@ -198,6 +200,15 @@ class CondUNet1D(nn.Module):
         if mid_attention and (base_channels * channel_mults[-1]) % mid_attention:
             raise StableMoError(f"mid_attention: {base_channels * channel_mults[-1]} middle channels are not "
                                 f"divisible by {mid_attention} heads")
+        up_attention = tuple(up_attention)
+        if up_attention and ((variant == "official" and any(up_attention)) or len(up_attention) > len(channel_mults)
+                             or any(not isinstance(h, int) or isinstance(h, bool) or h < 0 for h in up_attention)):
+            raise StableMoError(f"up_attention: heads >= 0 per up stage (at most {len(channel_mults)}, the first at the "
+                                f"coarsest resolution), none in the official layout, got {list(up_attention)}")
+        for k, heads in enumerate(up_attention):
+            width = base_channels * channel_mults[len(channel_mults) - 1 - k]
+            if heads and width % heads:
+                raise StableMoError(f"up_attention: up stage {k} has {width} channels, not divisible by {heads} heads")
         if variant not in ("stablemo", "official"):
             raise StableMoError(f"variant: expected 'stablemo' or 'official' (the published T2MUnet's layout), got {variant!r}")
         official = variant == "official"
@@ -224,7 +235,9 @@ class CondUNet1D(nn.Module):
             if official:
                 upsample.append(nn.ConvTranspose1d(ch, dims[i + 1], 4, stride=2, padding=1))
                 ch = dims[i + 1]
-            up.append(Stage(ch + dims[i + 1], dims[i + 1], time_dim, text_dim, **common))
+            # up_attention[k] heads after up stage k (k = n-1-i: the first at the coarsest resolution)
+            heads = up_attention[n - 1 - i] if n - 1 - i < len(up_attention) else 0
+            up.append(Stage(ch + dims[i + 1], dims[i + 1], time_dim, text_dim, **common, self_attention=heads))
             ch = dims[i + 1]
             if i > 0 and not official:
                 upsample.append(nn.ConvTranspose1d(ch, ch, 4, stride=2, padding=1))

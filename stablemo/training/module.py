@@ -78,6 +78,9 @@ class DiffusionModule(LightningModule):
         init_from: a diffusion bundle whose weights the network (and its EMA) start from, to train
             a shipped model further (on more data, say); its `model` config must equal `model` and
             its feature statistics the dataset's. A resumed run takes its weights from the checkpoint.
+            One difference is allowed: a UNet may grow temporal self-attention (`mid_attention` from 0,
+            `up_attention` entries from 0), whose blocks start as the identity, so the grown network
+            starts as the bundle's network exactly (`grown_attention`).
     """
 
     def __init__(
@@ -381,17 +384,55 @@ def _init_weights(model: torch.nn.Module, config: dict, bundle_path: str, data_i
         raise StableMoError(f"model.init_from: {err}") from None
     if bundle.config.get("kind", "diffusion") != "diffusion":
         raise StableMoError(f"{where}: not a diffusion bundle (kind {bundle.config.get('kind')!r})")
-    if bundle.config.get("model") != config:
+    new = grown_attention(bundle.config.get("model"), config)
+    if new is None:
         raise StableMoError(f"{where}: its network config differs from this run's model config "
-                            "(train further only the network the bundle holds)")
+                            "(train further only the network the bundle holds, or that network with "
+                            "temporal self-attention added: mid_attention, up_attention)")
     for key in ("mean", "std"):
         if not same_statistics(bundle.config.get(key), data_info.get(key)):
             raise StableMoError(f"{where}: the dataset's feature {key} differs from the bundle's; normalise with the "
                                 f"statistics the bundle was trained with (--data.stats_dir: the folder it was trained on)")
     missing, unexpected = model.load_state_dict(bundle.state_dict, strict=False)
+    missing = [k for k in missing if not k.startswith(new)]  # the grown blocks keep their identity start
     if missing or unexpected:
         raise StableMoError(f"{where}: weights do not fit the network ({len(missing)} missing, "
                             f"{len(unexpected)} unexpected, e.g. {(missing + unexpected)[0]!r})")
+
+
+def grown_attention(before: dict | None, after: dict) -> tuple[str, ...] | None:
+    """The state-dict prefixes of the temporal self-attention blocks that network config `after` adds
+    to `before` (() when the two are equal), or None when they differ in anything else.
+
+    TemporalSelfAttention1D's output projection starts at zero, so a block added to a trained
+    network leaves its function unchanged until training moves it: a shipped network can grow one
+    and train on, as a new layer of a residual network starts as the identity."""
+    if before == after:
+        return ()
+    if not isinstance(before, dict) or set(before) != set(after):
+        return None
+    old, new = before.get("denoiser"), after.get("denoiser")
+    if any(before[k] != after[k] for k in before if k != "denoiser") or not isinstance(old, dict) \
+            or not isinstance(new, dict) or new.get("name") != "unet" or old.get("name") != "unet":
+        return None
+    keys = ("mid_attention", "up_attention")
+    if {k: v for k, v in old.items() if k not in keys} != {k: v for k, v in new.items() if k not in keys}:
+        return None
+    prefixes = []
+    mid_old, mid_new = old.get("mid_attention", 0), new.get("mid_attention", 0)
+    if mid_old != mid_new:
+        if mid_old:
+            return None
+        prefixes.append("denoiser.mid.self_attn.")
+    up_old, up_new = list(old.get("up_attention", [])), list(new.get("up_attention", []))
+    for k in range(max(len(up_old), len(up_new))):
+        a = up_old[k] if k < len(up_old) else 0
+        b = up_new[k] if k < len(up_new) else 0
+        if a != b:
+            if a:
+                return None
+            prefixes.append(f"denoiser.up.{k}.self_attn.")
+    return tuple(prefixes)
 
 
 def data_info_from(datamodule) -> dict:
