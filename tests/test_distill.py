@@ -271,7 +271,7 @@ def test_bone_length_term_pulls_the_students_bones_to_the_bodys_and_refuses_the_
     from stablemo.motion import joints_to_features
     from stablemo.training.distill_module import ConsistencyDistillation
 
-    with pytest.raises(StableMoError, match="distillation takes only bone_lengths, got positions"):
+    with pytest.raises(StableMoError, match="distillation takes only bone_lengths and rotations, got positions"):
         ConsistencyDistillation(teacher=str(teacher_bundle), geometry={"positions": 1.0})
     plain = ConsistencyDistillation(teacher=str(teacher_bundle), mode="lcm", ddim_steps=10)
     module = ConsistencyDistillation(teacher=str(teacher_bundle), mode="lcm", ddim_steps=10,

@@ -65,6 +65,8 @@ def test_terms_vanish_for_the_exact_prediction(walks):
     assert set(terms) == set(GEOMETRY_TERMS)
     for name in ("positions", "velocities", "bone_lengths"):
         assert torch.equal(terms[name], torch.zeros(3)), name
+    # extracted features' rotation columns are those their joints imply, up to float rounding
+    assert (terms["rotations"] < 1e-10).all()
     # the foot term compares the prediction with stillness, not with the data: its floor is the data's
     # own foot motion on frames labelled planted (HumanML3D's label allows up to 4.5 cm per frame)
     assert (terms["foot_contact"] >= 0).all()
@@ -300,7 +302,7 @@ def test_fit_logs_each_term_and_resumes_exactly(tmp_path):
     from test_training import _fit
 
     data = write_random_dataset(tmp_path / "data", num=12, splits=(8, 2))
-    geometry = {"positions": 1.0, "velocities": 1.0, "foot_contact": 1.0, "bone_lengths": 0.5}
+    geometry = {"positions": 1.0, "velocities": 1.0, "foot_contact": 1.0, "bone_lengths": 0.5, "rotations": 0.5}
     model = {"model": TINY_MODEL, "ema_decay": 0.9, "lr": 1e-3, "geometry": geometry}
     straight, split = tmp_path / "straight", tmp_path / "split"
     _fit(tiny_config(straight, data, **{"model.geometry": geometry, "trainer.max_steps": 4}))

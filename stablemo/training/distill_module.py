@@ -67,9 +67,11 @@ class ConsistencyDistillation(LightningModule):
         w_lr_scale: learning-rate multiplier for the zero-initialised guidance embedding (w_proj).
         adversarial: add the PCM adversarial loss (weight adv_weight; discriminator lr disc_lr).
         sample_steps: default inference steps recorded in the exported bundle.
-        geometry: {bone_lengths: weight} (m², stablemo.training.geometry) on the student's x0
-            estimate; the other geometric terms compare with the data clip's joints and contacts,
-            which the teacher's trajectory from noise does not reproduce, so they are refused.
+        geometry: {bone_lengths: weight (m²), rotations: weight} (stablemo.training.geometry) on the
+            student's x0 estimate: a body keeps its bones, and its rotation columns agree with its
+            joints, whatever motion the noise leads to; the other geometric terms compare with the
+            data clip's joints and contacts, which the teacher's trajectory from noise does not
+            reproduce, so they are refused.
         seed: seeds every random draw from (seed, step, rank).
     """
 
@@ -108,8 +110,8 @@ class ConsistencyDistillation(LightningModule):
         if adversarial and mode != "pcm":
             raise StableMoError("adversarial: the adversarial loss is defined for mode 'pcm'")
         self.geometry_weights = geometry_weights(geometry)
-        if set(self.geometry_weights) - {"bone_lengths"}:
-            raise StableMoError(f"model.geometry: distillation takes only bone_lengths, got "
+        if set(self.geometry_weights) - {"bone_lengths", "rotations"}:
+            raise StableMoError(f"model.geometry: distillation takes only bone_lengths and rotations, got "
                                 f"{', '.join(sorted(self.geometry_weights))} (the other terms compare with the data "
                                 "clip, not with the teacher's motion from the same noise)")
         bundle = load_bundle(teacher)

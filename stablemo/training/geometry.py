@@ -8,7 +8,13 @@ positions by stablemo.motion.features.features_to_joints (FK below):
 - foot_contact: ||ΔFK(x̂0)||² of the four contact joints on the frames the ground truth's contact
   channels mark as planted (> 0.5): a planted foot should not move (MDM's L_foot);
 - bone_lengths: (|bone(x̂0)| - |bone(x0)|)² per bone and frame: ric features do not tie joints to
-  fixed bone lengths, so nothing but this keeps a predicted skeleton from stretching.
+  fixed bone lengths, so nothing but this keeps a predicted skeleton from stretching;
+- rotations: ||rot6d(x̂0) - IK(FK(x̂0))||², x̂0's own 6D rotation columns against those its joints
+  imply (the columns extraction computes from joints, stablemo.motion.extract_torch.body_features,
+  seen from x̂0's own root rotation). Zero on extracted data; on a network's output the two can
+  disagree, and the finishing step, which writes the columns its joints imply, then changes what an
+  evaluator reads (docs/inference.md, "The finishing step"). It compares x̂0 with itself, not with the
+  clip, so it is valid in distillation too.
 
 Each term is a per-clip mean over its valid entries (joints × coordinates × valid frames, as MDM's
 masked L2 averages), so padding frames contribute nothing and a clip's value does not depend on how
@@ -28,12 +34,13 @@ from collections.abc import Mapping
 import torch
 
 from stablemo.errors import StableMoError
-from stablemo.motion.features import feature_slices, features_to_joints
+from stablemo.motion.extract_torch import body_features
+from stablemo.motion.features import feature_slices, features_to_joints, recover_root
 from stablemo.motion.skeleton import Skeleton, get_skeleton
 
 # the config's term names, in the order they are computed and logged, with their log names
 GEOMETRY_TERMS = {"positions": "loss_pos", "velocities": "loss_vel", "foot_contact": "loss_foot",
-                  "bone_lengths": "loss_bone"}
+                  "bone_lengths": "loss_bone", "rotations": "loss_rot"}
 METRES_PER_UNIT = {"m": 1.0, "mm": 1e-3}
 # the feature's contact channels are 0/1 labels; the threshold also binarises a smoothed or averaged one
 CONTACT_THRESHOLD = 0.5
@@ -79,6 +86,7 @@ class GeometricLoss:
             raise StableMoError(f"model.geometry: Mean/Std of shape {tuple(self.mean.shape)}/{tuple(self.std.shape)} "
                                 f"do not fit skeleton {self.skeleton.name} ({self.skeleton.feature_dim} features)")
         self.contacts = feature_slices(self.skeleton)["contacts"]
+        self.rot6d = feature_slices(self.skeleton)["rot6d"]
         self.contact_joints = list(self.skeleton.contact_joints)
         self.children = [j for j, p in enumerate(self.skeleton.parents) if p >= 0]
         self.bone_parents = [self.skeleton.parents[j] for j in self.children]
@@ -111,7 +119,7 @@ class GeometricLoss:
             return out
         mask = mask.bool()
         with torch.autocast(device_type=x0.device.type, enabled=False):
-            pred_joints, _ = self.joints(pred_x0)  # (B, T, J, 3)
+            pred_joints, pred_raw = self.joints(pred_x0)  # (B, T, J, 3), (B, T, D)
             with torch.no_grad():
                 true_joints, true_raw = self.joints(x0)
             pairs = mask[:, 1:] & mask[:, :-1]  # (B, T-1): displacement i -> i+1 of two valid frames
@@ -130,4 +138,16 @@ class GeometricLoss:
                 with torch.no_grad():
                     true_lengths = self.bone_lengths(true_joints)
                 out["bone_lengths"] = _masked_mean((self.bone_lengths(pred_joints) - true_lengths).square(), mask)
+            if "rotations" in self.weights:
+                out["rotations"] = _masked_mean(self.rotation_gap(pred_raw, pred_joints).square(), pairs)
         return out
+
+    def rotation_gap(self, raw: torch.Tensor, joints: torch.Tensor) -> torch.Tensor:
+        """De-normalised features raw (B, T, D) and their joints (B, T, J, 3) -> (B, T-1, C): their 6D
+        rotation columns less those the joints imply (as extraction computes them, seen from the
+        features' own root rotation; rotations do not depend on the joints' units). Row t needs
+        frame t+1 (extraction's velocity columns), so the last frame has none."""
+        q, _ = recover_root(raw)  # (B, T, 4)
+        implied = body_features(joints, q, self.skeleton)  # (B, T-1, D-3): every column after the root's three
+        rot = slice(self.rot6d.start - 3, self.rot6d.stop - 3)
+        return raw[:, :-1, self.rot6d] - implied[..., rot]
