@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -48,7 +49,8 @@ WAYS = ("raw", "raw, recomputed", "final, network's rotations", "final")
 def parse(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", default="docs/data/results/finish_fid", help="folder for finish_fid.json and .md")
-    p.add_argument("--models", default="teacher,student", help="comma-separated: teacher, student")
+    p.add_argument("--models", default="teacher,student",
+                   help="comma-separated: teacher, student (the shipped ones) or bundle folders")
     p.add_argument("--frames", default="120,196", help="comma-separated motion lengths in frames")
     p.add_argument("--seeds", type=int, default=4)
     p.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed + seeds - 1")
@@ -72,9 +74,9 @@ def ways(pipe, texts: list[str], seeds: list[int], frames: int, chunk: int) -> d
 def main(argv=None) -> int:
     args = parse(argv)
     models = [m.strip() for m in args.models.split(",") if m.strip()]
-    unknown = [m for m in models if m not in MODELS]
+    unknown = [m for m in models if m not in MODELS and not (Path(m) / "config.json").is_file()]
     if unknown or not models:
-        raise StableMoError(f"--models: expected some of {', '.join(MODELS)}, got {args.models!r}")
+        raise StableMoError(f"--models: expected some of {', '.join(MODELS)} or bundle folders, got {args.models!r}")
     frames = report.parse_frames(args.frames)
     check_positive_int("--seeds", args.seeds)
     if args.first_seed < 0:
@@ -83,7 +85,8 @@ def main(argv=None) -> int:
     from stablemo.eval.text_motion import load_text_motion_evaluator
     from stablemo.inference.pipeline import Pipeline
 
-    pipes = [(MODELS[m][0], Pipeline.from_bundle(MODELS[m][1])) for m in models]
+    pipes = [(MODELS[m][0], Pipeline.from_bundle(MODELS[m][1])) if m in MODELS else (m, Pipeline.from_bundle(m))
+             for m in models]
     for _, pipe in pipes:
         for n in frames:
             pipe.inference.check_length(n, "--frames")
