@@ -367,3 +367,25 @@ def test_step_cost_script_times_both_objectives(tmp_path):
     assert result["terms"] == {"positions": 1.0, "foot_contact": 0.5} and result["rounds"] == 2
     for clock in ("wall", "cpu"):
         assert result[clock]["plain_ms"] > 0 and result[clock]["geometry_ms"] > 0
+
+
+def test_geometry_max_t_keeps_the_terms_below_it_only(walks, monkeypatch):
+    """geometry_max_t: the geometric terms of samples at t >= max_t are zero, the others as without it;
+    the simple loss is untouched; a bad value is one line."""
+    plain = with_data_info(make_module(geometry={"positions": 1.0, "rotations": 1.0}), walks)
+    capped = with_data_info(make_module(geometry={"positions": 1.0, "rotations": 1.0}, geometry_max_t=300), walks)
+    capped.model.load_state_dict(plain.model.state_dict())
+    x0, mask, texts, _, noise = step_inputs(plain, walks)
+    t = torch.tensor([10, 299, 300])
+    wrong = x0 + 0.05 * torch.randn(x0.shape, generator=torch.Generator().manual_seed(3))
+    for module in (plain, capped):
+        monkeypatch.setattr(module.model, "forward", lambda *args, **kwargs: wrong)
+    a = plain.loss_terms(x0, mask, texts, t, noise)
+    b = capped.loss_terms(x0, mask, texts, t, noise)
+    assert torch.equal(a["simple"], b["simple"])
+    for name in ("positions", "rotations"):
+        assert (a[name] > 0).all(), name
+        assert torch.equal(b[name][:2], a[name][:2]) and b[name][2] == 0, name
+    for bad in (0, 1001, 2.5, True):
+        with pytest.raises(StableMoError, match="geometry_max_t: a timestep in \\[1, 1000\\]"):
+            make_module(geometry={"positions": 1.0}, geometry_max_t=bad)

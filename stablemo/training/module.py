@@ -75,6 +75,9 @@ class DiffusionModule(LightningModule):
             (the MSE of the clean-motion estimate x̂0 whatever the output: the paper's x0 objective,
             with, under v_prediction, x̂0 = sqrt(abar) x_t - sqrt(1 - abar) v̂ carrying x_t's detail
             at low noise; for "sample" both are the same loss).
+        geometry_max_t: the geometric terms count only on samples whose timestep is below this (None:
+            on all). x̂0 at high noise is a mean over the motions the input may become, which no
+            geometric term holds for (docs/training.md, "The rotation term").
         init_from: a diffusion bundle whose weights the network (and its EMA) start from, to train
             a shipped model further (on more data, say); its `model` config must equal `model` and
             its feature statistics the dataset's. A resumed run takes its weights from the checkpoint.
@@ -102,6 +105,7 @@ class DiffusionModule(LightningModule):
         geometry: dict[str, float] | None = None,
         loss_on: str = "target",
         init_from: str | None = None,
+        geometry_max_t: int | None = None,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -114,6 +118,10 @@ class DiffusionModule(LightningModule):
         if lr_step < 1:
             raise StableMoError(f"lr_step: must be >= 1, got {lr_step}")
         self.geometry_weights = geometry_weights(geometry)  # {} = off
+        num_train = int((schedule or {}).get("num_train_timesteps", 1000))
+        if geometry_max_t is not None and (isinstance(geometry_max_t, bool) or not isinstance(geometry_max_t, int)
+                                           or not 1 <= geometry_max_t <= num_train):
+            raise StableMoError(f"geometry_max_t: a timestep in [1, {num_train}] or null, got {geometry_max_t!r}")
         # (the data_info it was built for, held so that identity means the same dataset; the loss)
         self._geometric_loss: tuple[dict, GeometricLoss] | None = None
         from stablemo.diffusion.schedule import NoiseSchedule
@@ -251,7 +259,11 @@ class DiffusionModule(LightningModule):
         else:
             terms = {"simple": masked_mse(pred, self.schedule.target(x0, noise, t, kind), mask)}
         if self.geometry_weights:
-            terms.update(self.geometric_loss().terms(pred_x0, x0, mask))
+            geometric = self.geometric_loss().terms(pred_x0, x0, mask)
+            if self.hparams.geometry_max_t is not None:  # where (t < max_t), not a product: an Inf stays out
+                low = t < self.hparams.geometry_max_t
+                geometric = {k: torch.where(low, v, torch.zeros_like(v)) for k, v in geometric.items()}
+            terms.update(geometric)
         return terms
 
     def geometric_loss(self) -> GeometricLoss:
