@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from stablemo.bench import kinematic_report as report
-from stablemo.checks import check_positive_int
+from stablemo.checks import check_positive_int, check_seed
 from stablemo.errors import StableMoError, run_script
 from stablemo.eval import metrics
 from stablemo.eval.evaluate import embed_motions, embed_texts, generation_outputs
@@ -79,8 +79,7 @@ def main(argv=None) -> int:
         raise StableMoError(f"--models: expected some of {', '.join(MODELS)} or bundle folders, got {args.models!r}")
     frames = report.parse_frames(args.frames)
     check_positive_int("--seeds", args.seeds)
-    if args.first_seed < 0:
-        raise StableMoError(f"--first-seed: expected a whole number >= 0, got {args.first_seed}")
+    check_seed("--first-seed", args.first_seed, count=args.seeds)
     out = check_output_dir(args.out, "--out")
     from stablemo.eval.text_motion import load_text_motion_evaluator
     from stablemo.inference.pipeline import Pipeline

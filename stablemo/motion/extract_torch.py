@@ -213,6 +213,13 @@ def _swing_rotations(x: torch.Tensor, r: torch.Tensor, skel: Skeleton) -> torch.
     return qmul(qinv(acc, dim=1), swing, dim=1)
 
 
+def rotation_columns(x: torch.Tensor, r: torch.Tensor, skel: Skeleton) -> torch.Tensor:
+    """The features' 6D rotation columns of joint-major joints x (J, 3, B, T) seen from root rotations
+    r (1, 4, B, T), joint-major: (J-1, 6, B, T). Extraction's, and what a training term compares a
+    network's own columns with (stablemo.training.geometry)."""
+    return quat_to_rot6d(_swing_rotations(x, r, skel), dim=1)
+
+
 def rotation_before(skel: Skeleton) -> list[int]:
     """Per bone (bone j-1 ends at joint j): the bone whose swing its local rotation is relative to,
     the previous one along its kinematic chain, or J-1 (the root's rotation) for a chain's first."""
@@ -263,7 +270,7 @@ def body_columns(x: torch.Tensor, r: torch.Tensor, skel: Skeleton) -> torch.Tens
     disp2 = ((feet[..., 1:] - feet[..., :-1]) ** 2).sum(1)  # (4, B, T-1)
     contacts = (disp2 < skel.contact_threshold).to(x.dtype).permute(1, 2, 0)
     now = x[..., :-1]  # (J, 3, B, T-1)
-    rot6d = quat_to_rot6d(_swing_rotations(now, rq, skel), dim=1)  # (J-1, 6, B, T-1)
+    rot6d = rotation_columns(now, rq, skel)  # (J-1, 6, B, T-1)
     ric = root_relative(now, rq)  # (J-1, 3, B, T-1)
     # r turns about y alone (a facing, or recover_root's yaw): the cheaper exact rotation
     local_vel = yaw_rotate(rq, x[..., 1:] - now, dim=1)  # (J, 3, B, T-1)

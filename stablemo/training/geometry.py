@@ -10,7 +10,7 @@ positions by stablemo.motion.features.features_to_joints (FK below):
 - bone_lengths: (|bone(x̂0)| - |bone(x0)|)² per bone and frame: ric features do not tie joints to
   fixed bone lengths, so nothing but this keeps a predicted skeleton from stretching;
 - rotations: ||rot6d(x̂0) - IK(FK(x̂0))||², x̂0's own 6D rotation columns against those its joints
-  imply (the columns extraction computes from joints, stablemo.motion.extract_torch.body_features,
+  imply (the columns extraction computes from joints, stablemo.motion.extract_torch.rotation_columns,
   seen from x̂0's own root rotation). Zero on extracted data; on a network's output the two can
   disagree, and the finishing step, which writes the columns its joints imply, then changes what an
   evaluator reads (docs/inference.md, "The finishing step"). It compares x̂0 with itself, not with the
@@ -34,7 +34,7 @@ from collections.abc import Mapping
 import torch
 
 from stablemo.errors import StableMoError
-from stablemo.motion.extract_torch import body_features
+from stablemo.motion.extract_torch import rotation_columns
 from stablemo.motion.features import feature_slices, features_to_joints, recover_root
 from stablemo.motion.skeleton import Skeleton, get_skeleton
 
@@ -148,6 +148,6 @@ class GeometricLoss:
         features' own root rotation; rotations do not depend on the joints' units). Row t needs
         frame t+1 (extraction's velocity columns), so the last frame has none."""
         q, _ = recover_root(raw)  # (B, T, 4)
-        implied = body_features(joints, q, self.skeleton)  # (B, T-1, D-3): every column after the root's three
-        rot = slice(self.rot6d.start - 3, self.rot6d.stop - 3)
-        return raw[:, :-1, self.rot6d] - implied[..., rot]
+        implied = rotation_columns(joints[:, :-1].permute(2, 3, 0, 1), q[:, :-1].permute(2, 0, 1)[None],
+                                   self.skeleton)  # (J-1, 6, B, T-1)
+        return raw[:, :-1, self.rot6d] - implied.permute(2, 3, 0, 1).flatten(2)

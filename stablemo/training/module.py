@@ -118,10 +118,6 @@ class DiffusionModule(LightningModule):
         if lr_step < 1:
             raise StableMoError(f"lr_step: must be >= 1, got {lr_step}")
         self.geometry_weights = geometry_weights(geometry)  # {} = off
-        num_train = int((schedule or {}).get("num_train_timesteps", 1000))
-        if geometry_max_t is not None and (isinstance(geometry_max_t, bool) or not isinstance(geometry_max_t, int)
-                                           or not 1 <= geometry_max_t <= num_train):
-            raise StableMoError(f"geometry_max_t: a timestep in [1, {num_train}] or null, got {geometry_max_t!r}")
         # (the data_info it was built for, held so that identity means the same dataset; the loss)
         self._geometric_loss: tuple[dict, GeometricLoss] | None = None
         from stablemo.diffusion.schedule import NoiseSchedule
@@ -137,6 +133,9 @@ class DiffusionModule(LightningModule):
         bad = [t for t in val_timesteps if not 0 <= int(t) < num_t]
         if bad or not val_timesteps:
             raise StableMoError(f"val_timesteps: need values in [0, {num_t}), got {list(val_timesteps)}")
+        if geometry_max_t is not None and (isinstance(geometry_max_t, bool) or not isinstance(geometry_max_t, int)
+                                           or not 1 <= geometry_max_t <= num_t):
+            raise StableMoError(f"geometry_max_t: a timestep in [1, {num_t}] or null, got {geometry_max_t!r}")
         self.ema = EMA(self.model, decay=ema_decay, warmup=ema_warmup)
         # Filled from the data module in setup() or from a checkpoint; exported into bundles.
         self.data_info: dict | None = None
